@@ -1,0 +1,1 @@
+"""YOWO bag replay node, yowo command line, launch files, evaluation and report."""

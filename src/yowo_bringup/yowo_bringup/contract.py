@@ -1,0 +1,81 @@
+"""The input data contract of shared/DESIGN.md §2: which topics a recording
+must/may hold, and discovery of the ego camera and the CMCs from topic names."""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+from yowo_common.ros.bag import BagTopic, list_topics
+
+EGO_COLOR = ("/ego/color/image_raw", "/ego/color/image_raw/compressed")
+EGO_DEPTH = ("/ego/depth/image_raw", "/ego/depth/image_raw/compressedDepth")
+EGO_INFO = "/ego/color/camera_info"
+EGO_IMU = "/ego/imu"
+_CMC_TOPIC = re.compile(r"^/cmc/(?P<name>[A-Za-z0-9_]+)/(?P<kind>image_raw(/compressed)?|camera_info|agent_keypoints)$")
+
+
+def cmc_image_topics(name: str) -> tuple[str, str]:
+    return f"/cmc/{name}/image_raw", f"/cmc/{name}/image_raw/compressed"
+
+
+def cmc_info_topic(name: str) -> str:
+    return f"/cmc/{name}/camera_info"
+
+
+def cmc_keypoints_topic(name: str) -> str:
+    return f"/cmc/{name}/agent_keypoints"
+
+
+def gt_cmc_pose_topic(name: str) -> str:
+    return f"/gt/cmc/{name}/pose"
+
+
+GT_EGO_POSE = "/gt/ego/pose"
+GT_FLOOR = "/gt/layout/floor"
+
+
+@dataclass
+class RecordingInputs:
+    """What a recording offers YOWO, and what is wrong with it."""
+
+    topics: list[BagTopic]
+    has_ego: bool
+    cmc_names: list[str]
+    has_ground_truth: bool
+    problems: list[str] = field(default_factory=list)
+
+
+def discover_inputs(bag) -> RecordingInputs:
+    topics = list_topics(bag)
+    by_name = {t.name: t for t in topics}
+    problems = []
+    if not topics or all(t.count == 0 for t in topics):
+        problems.append(f"{bag}: the recording holds no messages")
+
+    def present(name):
+        return name in by_name and by_name[name].count > 0
+
+    ego_color = any(present(t) for t in EGO_COLOR)
+    ego_depth = any(present(t) for t in EGO_DEPTH)
+    has_ego = ego_color and ego_depth and present(EGO_INFO)
+    if not has_ego:
+        missing = [what for what, ok in (("colour " + " or ".join(EGO_COLOR), ego_color),
+                                         ("depth " + " or ".join(EGO_DEPTH), ego_depth),
+                                         (EGO_INFO, present(EGO_INFO))) if not ok]
+        problems.append(f"ego camera incomplete: missing {'; '.join(missing)}")
+
+    kinds: dict[str, set[str]] = {}
+    for t in topics:
+        m = _CMC_TOPIC.match(t.name)
+        if m and t.count > 0:
+            kinds.setdefault(m["name"], set()).add(m["kind"].split("/")[0])
+    cmc_names = []
+    for name in sorted(kinds):
+        if "camera_info" not in kinds[name]:
+            problems.append(f"CMC '{name}': no {cmc_info_topic(name)}; the camera is skipped")
+        elif not kinds[name] & {"image_raw", "agent_keypoints"}:
+            problems.append(f"CMC '{name}': neither images nor agent keypoints; the camera is skipped")
+        else:
+            cmc_names.append(name)
+    has_gt = any(t.name.startswith("/gt/") for t in topics)
+    return RecordingInputs(topics, has_ego, cmc_names, has_gt, problems)

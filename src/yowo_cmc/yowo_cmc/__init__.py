@@ -1,0 +1,1 @@
+"""YOWO CMC processing: agent keypoint tracking per ceiling camera, co-visibility groups, incremental SfM, group BA."""

@@ -1,0 +1,69 @@
+import json
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import PoseStamped, TransformStamped
+from std_msgs.msg import Header
+from tf2_msgs.msg import TFMessage
+from yowo_msgs.msg import AgentKeypoints, Keypoint2D
+
+from yowo_common.geometry import look_at
+from yowo_common.ros.bag import BagError, BagWriter, interface_share_dir, list_topics, read_messages, typestore
+from yowo_common.rosconv import matrix_to_pose, matrix_to_transform, ns_to_time, pose_to_matrix
+
+
+def compiled_hash(msgtype: str) -> str:
+    pkg, _, name = msgtype.split("/")
+    desc = json.loads((interface_share_dir(pkg) / "msg" / f"{name}.json").read_text())
+    return next(h["hash_string"] for h in desc["type_hashes"] if h["type_name"] == msgtype)
+
+
+@pytest.mark.parametrize("msgtype", ["tf2_msgs/msg/TFMessage", "yowo_msgs/msg/AgentKeypoints",
+                                     "yowo_msgs/msg/EgoMap", "yowo_msgs/msg/RegisteredCameraArray",
+                                     "yowo_msgs/msg/CameraGroupArray", "yowo_msgs/msg/SceneLayout",
+                                     "yowo_msgs/msg/ReplayStatus"])
+def test_type_hashes_match_compiled_interfaces(msgtype):
+    """Bags we write carry the hash rclpy's compiled types have (and upstream's, for TFMessage)."""
+    assert typestore().hash_rihs01(msgtype) == compiled_hash(msgtype)
+
+
+def test_tfmessage_matches_upstream_jazzy():
+    from rosbags.typesys import Stores, get_typestore
+    assert compiled_hash("tf2_msgs/msg/TFMessage") == get_typestore(Stores.ROS2_JAZZY).hash_rihs01(
+        "tf2_msgs/msg/TFMessage")
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_write_read_roundtrip(tmp_path, storage):
+    path = tmp_path / "bag"
+    T = look_at([1, 2, 3], [0, 0, 0])
+    with BagWriter(path, storage=storage) as bag:
+        for i in range(3):
+            stamp = 1_000_000_000 + i * 100_000_000
+            kp = AgentKeypoints(header=Header(stamp=ns_to_time(stamp), frame_id="cam0_optical_frame"),
+                                camera_name="cam0", keypoints=[Keypoint2D(id=0, x=10.5 + i, y=20.25, confidence=0.9)])
+            bag.write("/cmc/cam0/agent_keypoints", kp, stamp)
+            bag.write("/gt/ego/pose", PoseStamped(header=Header(stamp=ns_to_time(stamp), frame_id="map"),
+                                                  pose=matrix_to_pose(T)), stamp)
+        tf = TFMessage(transforms=[TransformStamped(child_frame_id="cam0_optical_frame",
+                                                    transform=matrix_to_transform(T))])
+        bag.write("/tf_static", tf, 1_000_000_000, latched=True)
+    topics = {t.name: t for t in list_topics(path)}
+    assert topics["/cmc/cam0/agent_keypoints"].count == 3
+    assert topics["/tf_static"].msgtype == "tf2_msgs/msg/TFMessage"
+    msgs = list(read_messages(path, ["/cmc/cam0/agent_keypoints", "/gt/ego/pose"]))
+    assert [m[0] for m in msgs].count("/gt/ego/pose") == 3
+    kps = [m[2] for m in msgs if m[0] == "/cmc/cam0/agent_keypoints"]
+    assert [k.keypoints[0].x for k in kps] == [10.5, 11.5, 12.5]
+    pose = next(m[2] for m in msgs if m[0] == "/gt/ego/pose")
+    np.testing.assert_allclose(pose_to_matrix(pose.pose), T, atol=1e-12)
+
+
+def test_missing_and_damaged_bags_are_named(tmp_path):
+    with pytest.raises(BagError, match="no such recording"):
+        list_topics(tmp_path / "nope")
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "bad_0.mcap").write_bytes(b"\x89MCAP0\r\n" + b"garbage" * 10)
+    with pytest.raises(BagError, match=str(bad)):
+        list(read_messages(bad))

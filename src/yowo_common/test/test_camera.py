@@ -1,0 +1,49 @@
+import numpy as np
+import pytest
+
+from yowo_common.camera import EQUIDISTANT, CameraModel
+from yowo_common.geometry import look_at
+
+
+def grid_points(n=50, seed=0):
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.uniform(-1, 1, n), rng.uniform(-0.7, 0.7, n), rng.uniform(1.5, 6, n)])
+
+
+def test_pinhole_projection_matches_K():
+    cam = CameraModel.from_fov(640, 480, 90.0)
+    assert cam.K[0, 0] == pytest.approx(320.0)
+    uv, ok = cam.project([[0, 0, 2.0], [1.0, 0.5, 1.0], [0, 0, -1]])
+    np.testing.assert_allclose(uv[0], [319.5, 239.5])
+    np.testing.assert_allclose(uv[1], [319.5 + 320.0, 239.5 + 160.0])
+    assert ok.tolist() == [True, True, False]
+
+
+@pytest.mark.parametrize("model,D", [("plumb_bob", [-0.25, 0.07, 0.001, -0.0005, 0.0]),
+                                     ("rational_polynomial", [-0.2, 0.05, 0, 0, 0, 0.01, 0.0, 0.0]),
+                                     (EQUIDISTANT, [0.05, -0.01, 0.002, 0.0])])
+def test_distortion_roundtrip(model, D):
+    cam = CameraModel(640, 480, [[400, 0, 321.3], [0, 402, 238.7], [0, 0, 1]], D, model)
+    P = grid_points()
+    uv, _ = cam.project(P)
+    ideal = cam.undistort_pixels(uv)
+    expected = P[:, :2] / P[:, 2:] @ cam.K[:2, :2].T + cam.K[:2, 2]
+    np.testing.assert_allclose(ideal, expected, atol=1e-3)
+    rays = cam.bearings(uv)
+    np.testing.assert_allclose(rays, P / np.linalg.norm(P, axis=1, keepdims=True), atol=1e-5)
+
+
+def test_project_world_uses_pose():
+    cam = CameraModel.from_fov(640, 480, 60.0)
+    T = look_at([1.0, 2.0, 3.0], [1.0, 4.0, 0.0])
+    uv, ok = cam.project_world(T, [[1.0, 4.0, 0.0]])
+    assert ok[0]
+    np.testing.assert_allclose(uv[0], cam.K[:2, 2], atol=1e-9)
+
+
+def test_problems_name_what_is_wrong():
+    assert CameraModel.from_fov(640, 480, 60).problems() == []
+    bad = CameraModel(640, 480, np.zeros((3, 3)))
+    assert any("focal" in p for p in bad.problems())
+    weird = CameraModel(640, 480, np.eye(3) * 300, [0.1, 0, 0, 0], "kannala_brandt_custom")
+    assert any("not supported" in p for p in weird.problems())

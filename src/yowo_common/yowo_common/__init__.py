@@ -1,0 +1,1 @@
+"""Shared geometry, camera model and message conversions of YOWO (no rclpy here)."""

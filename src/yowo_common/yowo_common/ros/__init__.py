@@ -1,0 +1,1 @@
+"""Helpers that need rclpy (serialization, QoS). Algorithm modules never import this package."""

@@ -1,0 +1,1 @@
+"""YOWO collaborative processing: rebalanced Umeyama, scene keypoints in CMC views, joint factor graph, isolated CMCs."""

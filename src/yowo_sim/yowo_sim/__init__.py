@@ -1,0 +1,1 @@
+"""YOWO synthetic capture generator with ground truth."""
