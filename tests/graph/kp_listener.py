@@ -1,0 +1,28 @@
+"""Receives AgentKeypoints until N arrived (or a timeout) and prints a checksum line per message."""
+import sys
+import time
+
+import rclpy
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from yowo_msgs.msg import AgentKeypoints
+from yowo_common.ros.context import ros_context
+
+
+def main():
+    count = int(sys.argv[1])
+    received = []
+    with ros_context():
+        node = rclpy.create_node("kp_listener")
+        qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+        node.create_subscription(AgentKeypoints, "/cmc/cam0/agent_keypoints", received.append, qos)
+        deadline = time.monotonic() + 40.0
+        while len(received) < count and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        node.destroy_node()
+    for msg in received:
+        print(msg.camera_name, " ".join(f"{k.id}:{k.x}:{k.y}:{k.confidence}" for k in msg.keypoints))
+    sys.exit(0 if len(received) == count else 1)
+
+
+if __name__ == "__main__":
+    main()
