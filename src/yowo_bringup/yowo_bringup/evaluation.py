@@ -1,0 +1,160 @@
+"""Evaluation metrics of the paper's "Metrics" paragraph and shared/DESIGN.md §4
+(pure numpy + shapely; `yowo eval` and the benchmark call these)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+from shapely.geometry import Polygon
+from shapely.ops import unary_union
+
+from yowo_common.geometry import Sim3, quat_xyzw_from_rotation, rotation_angle_deg, se3, umeyama
+
+
+@dataclass(frozen=True)
+class PoseError:
+    name: str
+    eps_pos_m: float
+    eps_rot_deg: float
+
+
+@dataclass(frozen=True)
+class ErrorSummary:
+    """avg / min / max over cameras, as in the paper's tables."""
+
+    count: int
+    pos_avg: float
+    pos_min: float
+    pos_max: float
+    rot_avg: float
+    rot_min: float
+    rot_max: float
+
+    @staticmethod
+    def of(errors: list[PoseError]) -> "ErrorSummary":
+        if not errors:
+            nan = float("nan")
+            return ErrorSummary(0, nan, nan, nan, nan, nan, nan)
+        p = np.array([e.eps_pos_m for e in errors])
+        r = np.array([e.eps_rot_deg for e in errors])
+        return ErrorSummary(len(errors), p.mean(), p.min(), p.max(), r.mean(), r.min(), r.max())
+
+
+def pose_error(name: str, T_est: np.ndarray, T_gt: np.ndarray) -> PoseError:
+    """eps_pos = ||X - X_gt|| (m), eps_rot = arccos((tr(R^T R_gt) - 1) / 2) (deg)."""
+    return PoseError(name, float(np.linalg.norm(T_est[:3, 3] - T_gt[:3, 3])),
+                     rotation_angle_deg(T_est[:3, :3], T_gt[:3, :3]))
+
+
+def registration_errors(est: dict[str, np.ndarray], gt: dict[str, np.ndarray]) -> list[PoseError]:
+    """CMC registration: world-frame errors with no alignment, for cameras in both."""
+    return [pose_error(n, est[n], gt[n]) for n in sorted(est) if n in gt]
+
+
+def _alignment_points(poses: list[np.ndarray]) -> np.ndarray:
+    """Camera centres plus a point along each camera axis at the rig's own spread,
+    so two-camera groups (whose centres alone leave a rotation free) align too."""
+    centres = np.array([T[:3, 3] for T in poses])
+    spread = max(float(np.linalg.norm(centres - centres.mean(0), axis=1).mean()), 1e-9)
+    axes = [T[:3, 3] + spread * T[:3, k] for T in poses for k in range(3)]
+    return np.vstack([centres, axes])
+
+
+def relative_pose_errors(est: dict[str, np.ndarray], gt: dict[str, np.ndarray],
+                         groups: dict[str, list[str]]) -> tuple[list[PoseError], dict[str, Sim3]]:
+    """CMC relative pose: errors after a KU (Umeyama, with scale) alignment of
+    each group to ground truth. Returns the errors and each group's alignment."""
+    errors, alignments = [], {}
+    for group, names in sorted(groups.items()):
+        names = [n for n in names if n in est and n in gt]
+        if len(names) < 2:
+            continue
+        S = umeyama(_alignment_points([est[n] for n in names]), _alignment_points([gt[n] for n in names]))
+        alignments[group] = S
+        errors += [pose_error(n, S.transform_pose(est[n]), gt[n]) for n in names]
+    return errors, alignments
+
+
+# --- trajectories ---------------------------------------------------------------
+@dataclass
+class Trajectory:
+    stamps_ns: np.ndarray      # (N,) int64
+    T_world_cam: np.ndarray    # (N, 4, 4)
+
+    @property
+    def positions(self) -> np.ndarray:
+        return self.T_world_cam[:, :3, 3]
+
+
+def write_tum(path, traj: Trajectory) -> None:
+    """TUM format: 'stamp_s tx ty tz qx qy qz qw' per line (evo reads it)."""
+    rows = []
+    for ns, T in zip(traj.stamps_ns, traj.T_world_cam):
+        q = quat_xyzw_from_rotation(T[:3, :3])
+        rows.append(f"{int(ns) // 1_000_000_000}.{int(ns) % 1_000_000_000:09d} "
+                    + " ".join(f"{v:.9f}" for v in (*T[:3, 3], *q)))
+    Path(path).write_text("\n".join(rows) + "\n")
+
+
+def read_tum(path) -> Trajectory:
+    stamps, poses = [], []
+    for line_no, line in enumerate(Path(path).read_text().splitlines(), 1):
+        if not line.strip() or line.startswith("#"):
+            continue
+        parts = line.split()
+        if len(parts) != 8:
+            raise ValueError(f"{path}:{line_no}: expected 8 columns (stamp x y z qx qy qz qw), got {len(parts)}")
+        sec, _, frac = parts[0].partition(".")
+        stamps.append(int(sec) * 1_000_000_000 + int((frac + "000000000")[:9]))
+        v = np.array(parts[1:], dtype=float)
+        poses.append(se3(Rotation.from_quat(v[3:]).as_matrix(), v[:3]))
+    return Trajectory(np.array(stamps, dtype=np.int64), np.array(poses).reshape(-1, 4, 4))
+
+
+def associate(est_ns: np.ndarray, ref_ns: np.ndarray, max_diff_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (est, ref): each estimated stamp with its nearest reference
+    stamp when within max_diff (evo's matching rule; ref_ns sorted)."""
+    est_ns = np.asarray(est_ns, dtype=np.int64)
+    ref_ns = np.asarray(ref_ns, dtype=np.int64)
+    if len(est_ns) == 0 or len(ref_ns) == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    right = np.clip(np.searchsorted(ref_ns, est_ns), 0, len(ref_ns) - 1)
+    left = np.maximum(right - 1, 0)
+    nearest = np.where(np.abs(ref_ns[left] - est_ns) <= np.abs(ref_ns[right] - est_ns), left, right)
+    keep = np.abs(ref_ns[nearest] - est_ns) <= max_diff_ns
+    return np.flatnonzero(keep), nearest[keep]
+
+
+@dataclass(frozen=True)
+class AteResult:
+    rmse_m: float
+    mean_m: float
+    max_m: float
+    matched: int
+    alignment: Sim3
+
+
+def ate(est: Trajectory, ref: Trajectory, max_diff_s: float = 0.01, align: bool = True) -> AteResult:
+    """Absolute trajectory error (translation part) after a rigid SE(3) Umeyama
+    alignment of est to ref, as `evo_ape tum ref est -a` computes it."""
+    i_est, i_ref = associate(est.stamps_ns, ref.stamps_ns, int(max_diff_s * 1e9))
+    if len(i_est) < 3:
+        raise ValueError(f"ATE: only {len(i_est)} estimated poses have a ground-truth stamp within {max_diff_s} s")
+    p_est, p_ref = est.positions[i_est], ref.positions[i_ref]
+    S = umeyama(p_est, p_ref, with_scale=False) if align else Sim3.identity()
+    err = np.linalg.norm(S.apply(p_est) - p_ref, axis=1)
+    return AteResult(float(np.sqrt(np.mean(err**2))), float(err.mean()), float(err.max()), len(err), S)
+
+
+# --- layout ---------------------------------------------------------------------
+def layout_iou(est_polygons: list[np.ndarray], gt_polygons: list[np.ndarray]) -> float:
+    """Top-view floor polygon IoU (each polygon an (N, 2) array of x, y in metres)."""
+    def union(polys):
+        shapes = [Polygon(p).buffer(0) for p in polys if len(p) >= 3]
+        return unary_union(shapes) if shapes else Polygon()
+
+    est, gt = union(est_polygons), union(gt_polygons)
+    total = est.union(gt).area
+    return float(est.intersection(gt).area / total) if total > 0 else 0.0
