@@ -31,6 +31,30 @@ def cmd_info(args) -> int:
     return 0
 
 
+def cmd_simulate(args) -> int:
+    """Generate a synthetic recording with ground truth."""
+    from rich.progress import Progress
+
+    from yowo_sim.capture import generate
+    from yowo_sim.presets import get_preset
+
+    overrides = {}
+    if args.no_cmc_images:
+        overrides["cmc_images"] = False
+    if args.raw:
+        overrides["raw_images"] = True
+    preset = get_preset(args.preset, **overrides)
+    with Progress() as bar:
+        task = bar.add_task(f"simulating '{args.preset}' (seed {args.seed})", total=None)
+        summary = generate(preset, args.seed, args.output,
+                           progress=lambda done, total: bar.update(task, completed=done, total=total))
+    fps = summary.rendered_frames / max(summary.render_seconds, 1e-9)
+    print(f"wrote {summary.path}: {summary.duration_s:.1f} s walk, {summary.ego_frames} ego frames, "
+          f"{summary.cmc_frames} CMC frames ({summary.cmc_frames_with_agent} with the agent detected), "
+          f"{len(summary.cmcs)} CMCs; rendering {fps:.1f} frames/s")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="yowo", description="YOWO: map a scene and register its ceiling cameras from one walk.")
@@ -39,6 +63,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = verbs.add_parser("info", help="list a recording's topics and the cameras YOWO finds in it")
     p.add_argument("bag", help="rosbag2 directory or .mcap file")
     p.set_defaults(func=cmd_info)
+
+    p = verbs.add_parser("simulate", help="generate a synthetic recording with ground truth")
+    p.add_argument("--preset", default="small", help="tiny | small | standard | large (default: small)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("-o", "--output", required=True, help="new rosbag2 directory to write (MCAP)")
+    p.add_argument("--no-cmc-images", action="store_true", help="record CMC keypoints only, no images")
+    p.add_argument("--raw", action="store_true", help="raw sensor_msgs/Image instead of compressed")
+    p.set_defaults(func=cmd_simulate)
     return parser
 
 
@@ -46,7 +78,7 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except BagError as exc:
+    except (BagError, ValueError) as exc:
         print(f"yowo {args.verb}: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

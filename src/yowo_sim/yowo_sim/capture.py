@@ -1,0 +1,187 @@
+"""Generate a synthetic YOWO recording: scene, CMCs, the agent's walk, rendered
+ego RGB-D and CMC images, simulated keypoints and ground truth, as an MCAP
+rosbag2 that follows shared/DESIGN.md §2."""
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+from geometry_msgs.msg import Point32, Polygon, PolygonStamped, Pose, PoseArray, PoseStamped
+from std_msgs.msg import Header
+from yowo_msgs.msg import AgentKeypoints, Keypoint2D
+
+from yowo_common.camera import CameraModel
+from yowo_common.ros.bag import BagWriter
+from yowo_common.rosconv import (array_to_points, depth_to_mm, encode_color_jpeg, encode_depth_png, encode_raw,
+                                 matrix_to_pose, model_to_camera_info, ns_to_time)
+
+from .body import agent_keypoints_3d, agent_mesh
+from .detector import detect
+from .presets import CapturePreset, DepthNoise
+from .render import Renderer
+from .rig import Cmc, place_cmc
+from .scene import Scene, build_scene
+from .walk import Walk, plan_walk
+
+START_NS = 1_700_000_000 * 10**9   # recordings start at a fixed epoch: deterministic stamps
+EGO_FRAME = "ego_optical_frame"
+GT_AGENT_KEYPOINTS = "/gt/agent/keypoints"  # PoseArray: poses[k].position = keypoint id k in map
+
+
+@dataclass
+class CaptureSummary:
+    path: Path
+    duration_s: float
+    ego_frames: int
+    cmc_frames: int
+    cmc_frames_with_agent: int
+    cmcs: list[Cmc]
+    render_seconds: float
+    rendered_frames: int
+
+
+def place_cmcs(scene: Scene, preset: CapturePreset, rng: np.random.Generator) -> list[Cmc]:
+    if len(preset.cmcs_per_room) > len(scene.rooms):
+        raise ValueError(f"preset '{preset.name}' wants cameras in {len(preset.cmcs_per_room)} rooms; "
+                         f"the scene has {len(scene.rooms)}")
+    cmcs = []
+    for room, count in zip(scene.rooms, preset.cmcs_per_room):
+        for _ in range(count):
+            cmcs.append(place_cmc(f"cam{len(cmcs):02d}", room, room.ceiling_height, preset.cmc, rng))
+    return cmcs
+
+
+def apply_depth_noise(depth: np.ndarray, model: DepthNoise, rng: np.random.Generator) -> np.ndarray:
+    z = depth.copy()
+    z[(z < model.min_m) | (z > model.max_m)] = np.nan
+    z += rng.normal(size=z.shape).astype(np.float32) * (model.sigma_a_m + model.sigma_b * (z - 0.4) ** 2)
+    jump = np.zeros(z.shape, bool)
+    jump[:, 1:] |= np.abs(np.diff(depth, axis=1)) > model.edge_dropout_m
+    jump[1:, :] |= np.abs(np.diff(depth, axis=0)) > model.edge_dropout_m
+    z[jump | (rng.random(z.shape) < model.dropout)] = np.nan
+    return z
+
+
+def add_image_noise(rgb: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
+    if sigma <= 0:
+        return rgb
+    return np.clip(rgb + rng.normal(0, sigma, rgb.shape), 0, 255).astype(np.uint8)
+
+
+class _Recorder:
+    """Encodes images the way the preset asks and writes them with CameraInfo."""
+
+    def __init__(self, bag: BagWriter, preset: CapturePreset):
+        self.bag, self.preset = bag, preset
+
+    def color(self, prefix: str, rgb: np.ndarray, cam: CameraModel, header: Header, stamp: int):
+        if self.preset.raw_images:
+            self.bag.write(f"{prefix}/image_raw", encode_raw(rgb, "rgb8", header), stamp)
+        else:
+            self.bag.write(f"{prefix}/image_raw/compressed",
+                           encode_color_jpeg(rgb, header, self.preset.jpeg_quality), stamp)
+        self.bag.write(f"{prefix}/camera_info", model_to_camera_info(cam, header), stamp)
+
+    def depth(self, depth: np.ndarray, header: Header, stamp: int):
+        if self.preset.raw_images:
+            self.bag.write("/ego/depth/image_raw", encode_raw(depth_to_mm(depth), "16UC1", header), stamp)
+        else:
+            self.bag.write("/ego/depth/image_raw/compressedDepth", encode_depth_png(depth, header), stamp)
+
+
+def _schedule(duration_s: float, preset: CapturePreset, n_cmc: int, rng) -> list[tuple[int, str, int]]:
+    """(stamp_ns, kind, index) for every ego and CMC frame, in time order; each CMC
+    runs on its own clock phase (views are not simultaneous)."""
+    events = [(START_NS + int(round(t * 1e9)), "ego", 0) for t in np.arange(0.0, duration_s, 1.0 / preset.ego_hz)]
+    for c in range(n_cmc):
+        offset = rng.uniform(0, 1.0 / preset.cmc_hz)
+        events += [(START_NS + int(round(t * 1e9)), "cmc", c)
+                   for t in np.arange(offset, duration_s, 1.0 / preset.cmc_hz)]
+    return sorted(events)
+
+
+def agent_in_view(cmc: Cmc, keypoints: dict[int, np.ndarray], margin_px: float = 80.0) -> bool:
+    uv, ok = cmc.camera.project_world(cmc.T_world_cam, np.array(list(keypoints.values())))
+    lo, hi = -margin_px, np.array([cmc.camera.width, cmc.camera.height]) + margin_px
+    return bool(np.any(ok & np.all((uv > lo) & (uv < hi), axis=1)))
+
+
+def generate(preset: CapturePreset, seed: int, out_path, progress: Callable[[int, int], None] | None = None
+             ) -> CaptureSummary:
+    rng = np.random.default_rng(seed)
+    scene = build_scene(replace(preset.scene, seed=seed))
+    cmcs = place_cmcs(scene, preset, rng)
+    walk: Walk = plan_walk(scene.free_space_polygon(), scene.rooms[0].center_xy(),
+                           [c.target_xy for c in cmcs], preset.walk, rng)
+    ego_cam = CameraModel.from_fov(preset.ego_width, preset.ego_height, preset.ego_hfov_deg)
+    renderer = Renderer(scene)
+    render_s, rendered = 0.0, 0
+
+    def render(camera, T, agent=None):
+        nonlocal render_s, rendered
+        t0 = time.perf_counter()
+        out = renderer.render(camera, T, agent=agent)
+        render_s += time.perf_counter() - t0
+        rendered += 1
+        return out
+
+    backgrounds = [render(c.camera, c.T_world_cam) for c in cmcs]
+    events = _schedule(walk.duration_s, preset, len(cmcs), rng)
+    counts = {"ego": 0, "cmc": 0, "agent": 0}
+    out_path = Path(out_path)
+    with BagWriter(out_path) as bag:
+        rec = _Recorder(bag, preset)
+        _write_static_ground_truth(bag, scene, cmcs)
+        for n, (stamp, kind, idx) in enumerate(events):
+            t = (stamp - START_NS) / 1e9
+            xy, heading, phase = walk.state_at(t)
+            if kind == "ego":
+                T = walk.ego_pose_at(t)
+                rgb, depth, _ = render(ego_cam, T)
+                header = Header(stamp=ns_to_time(stamp), frame_id=EGO_FRAME)
+                rec.color("/ego/color", add_image_noise(rgb, preset.image_noise, rng), ego_cam, header, stamp)
+                rec.depth(apply_depth_noise(depth, preset.depth, rng), header, stamp)
+                bag.write("/gt/ego/pose", PoseStamped(header=Header(stamp=header.stamp, frame_id="map"),
+                                                      pose=matrix_to_pose(T)), stamp)
+                counts["ego"] += 1
+            else:
+                cmc = cmcs[idx]
+                kps = agent_keypoints_3d(xy, heading, walk.height_m, phase)
+                header = Header(stamp=ns_to_time(stamp), frame_id=f"{cmc.name}_optical_frame")
+                visible = agent_in_view(cmc, kps)
+                if preset.cmc_images:
+                    rgb = render(cmc.camera, cmc.T_world_cam, agent_mesh(xy, heading, walk.height_m, phase))[0] \
+                        if visible else backgrounds[idx][0]
+                    rec.color(f"/cmc/{cmc.name}", add_image_noise(rgb, preset.image_noise, rng), cmc.camera,
+                              header, stamp)
+                else:
+                    bag.write(f"/cmc/{cmc.name}/camera_info", model_to_camera_info(cmc.camera, header), stamp)
+                det = detect(cmc.camera, cmc.T_world_cam, kps, backgrounds[idx][1], preset.detector, rng)
+                if preset.cmc_keypoints:
+                    bag.write(f"/cmc/{cmc.name}/agent_keypoints", AgentKeypoints(
+                        header=header, camera_name=cmc.name,
+                        keypoints=[Keypoint2D(id=int(i), x=float(u), y=float(v), confidence=float(c))
+                                   for i, (u, v), c in zip(det.ids, det.uv, det.confidence)]), stamp)
+                bag.write(GT_AGENT_KEYPOINTS, PoseArray(
+                    header=Header(stamp=header.stamp, frame_id="map"),
+                    poses=[Pose(position=p) for p in array_to_points([kps[k] for k in sorted(kps)])]), stamp)
+                counts["cmc"] += 1
+                counts["agent"] += int(len(det.ids) > 0)
+            if progress:
+                progress(n + 1, len(events))
+    return CaptureSummary(out_path, walk.duration_s, counts["ego"], counts["cmc"], counts["agent"], cmcs,
+                          render_s, rendered)
+
+
+def _write_static_ground_truth(bag: BagWriter, scene: Scene, cmcs: list[Cmc]) -> None:
+    header = Header(stamp=ns_to_time(START_NS), frame_id="map")
+    for cmc in cmcs:
+        bag.write(f"/gt/cmc/{cmc.name}/pose", PoseStamped(header=header, pose=matrix_to_pose(cmc.T_world_cam)),
+                  START_NS, latched=True)
+    for poly in scene.floor_polygons:
+        msg = PolygonStamped(header=header, polygon=Polygon(
+            points=[Point32(x=float(x), y=float(y), z=0.0) for x, y in poly]))
+        bag.write("/gt/layout/floor", msg, START_NS, latched=True)

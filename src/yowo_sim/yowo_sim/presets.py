@@ -1,0 +1,61 @@
+"""Capture presets: scene, cameras, walk and sensor settings of a synthetic recording."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+from .detector import DetectorSpec
+from .rig import CmcSpec
+from .scene import SceneSpec
+from .walk import WalkSpec
+
+
+@dataclass(frozen=True)
+class DepthNoise:
+    """Structured-light style depth model (noise grows with the square of range)."""
+
+    min_m: float = 0.3
+    max_m: float = 6.0
+    sigma_a_m: float = 0.0012       # sigma(z) = a + b (z - 0.4)^2  (Kinect-like)
+    sigma_b: float = 0.0019
+    dropout: float = 0.01           # isolated missing pixels
+    edge_dropout_m: float = 0.10    # depth jumps larger than this lose their pixels
+
+
+@dataclass(frozen=True)
+class CapturePreset:
+    name: str
+    scene: SceneSpec
+    cmcs_per_room: tuple[int, ...]          # cameras in rooms 0, 1, ... (a room with 1 camera: isolated)
+    walk: WalkSpec = field(default_factory=WalkSpec)
+    cmc: CmcSpec = field(default_factory=CmcSpec)
+    detector: DetectorSpec = field(default_factory=DetectorSpec)
+    depth: DepthNoise = field(default_factory=DepthNoise)
+    ego_width: int = 640
+    ego_height: int = 480
+    ego_hfov_deg: float = 70.0
+    ego_hz: float = 15.0
+    cmc_hz: float = 10.0
+    cmc_images: bool = True                 # render and record CMC images (else keypoints only)
+    cmc_keypoints: bool = True              # record the simulated detector's keypoints
+    image_noise: float = 2.0                # sensor noise, grey levels (std)
+    jpeg_quality: int = 90
+    raw_images: bool = False                # sensor_msgs/Image instead of compressed
+
+
+PRESETS = {
+    "tiny": CapturePreset(
+        "tiny", SceneSpec(layout="room_4x4", num_furniture=2), (3,),
+        walk=WalkSpec(pause_s=1.0), cmc=CmcSpec(width=320, height=240),
+        ego_width=320, ego_height=240),
+    "small": CapturePreset("small", SceneSpec(layout="two_rooms"), (3, 2), walk=WalkSpec(pause_s=2.0)),
+    "standard": CapturePreset("standard", SceneSpec(layout="office"), (3, 3, 2, 1, 1),
+                              walk=WalkSpec(pause_s=4.0, long_pause_s=12.0)),
+    "large": CapturePreset("large", SceneSpec(layout="floor_40x20"), (3,) * 14,
+                           walk=WalkSpec(speed_mps=0.8, pause_s=30.0)),
+}
+
+
+def get_preset(name: str, **overrides) -> CapturePreset:
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset '{name}' (choose from {', '.join(PRESETS)})")
+    return replace(PRESETS[name], **overrides)

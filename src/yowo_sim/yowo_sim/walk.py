@@ -1,0 +1,187 @@
+"""The agent's walk: a path through the free floor that visits every CMC's view,
+with pauses (the paper's "stationary for a long time" case) and head motion."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+from scipy.ndimage import gaussian_filter1d
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import dijkstra
+from scipy.spatial.transform import Rotation
+from shapely.geometry import Point, Polygon
+from shapely.ops import nearest_points
+
+from yowo_common.geometry import se3
+
+# Optical frame (x right, y down, z forward) expressed in a body frame (x forward, y left, z up).
+R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+STRIDE_M = 1.4          # one gait cycle (two steps)
+SAMPLE_HZ = 100.0       # resolution of the walk timeline
+
+
+@dataclass(frozen=True)
+class WalkSpec:
+    speed_mps: float = 1.0
+    agent_height_m: float = 1.75
+    pause_s: float = 4.0            # stationary time at each CMC view
+    long_pause_s: float = 0.0       # one extra-long stop (stationary-agent scenario)
+    look_around_deg: float = 25.0   # head yaw amplitude while walking
+    pitch_down_deg: float = 20.0    # mean head pitch, looking slightly down
+
+
+@dataclass
+class Walk:
+    """Dense timeline of the agent: position, heading, gait phase and head angles."""
+
+    t_s: np.ndarray          # (N,) seconds from the start
+    xy: np.ndarray           # (N, 2)
+    heading: np.ndarray      # (N,) rad, walking direction
+    phase: np.ndarray        # (N,) rad, gait phase (constant while standing)
+    head_yaw: np.ndarray     # (N,) rad relative to heading
+    head_pitch: np.ndarray   # (N,) rad, positive = looking down
+    head_roll: np.ndarray    # (N,) rad
+    height_m: float
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_s[-1])
+
+    def state_at(self, t: float) -> tuple[np.ndarray, float, float]:
+        """(xy, heading, phase) at time t (linear interpolation; angles unwrapped)."""
+        i = np.clip(np.searchsorted(self.t_s, t) - 1, 0, len(self.t_s) - 2)
+        a = np.clip((t - self.t_s[i]) / (self.t_s[i + 1] - self.t_s[i]), 0.0, 1.0)
+
+        def lerp(v):
+            return (1 - a) * v[i] + a * v[i + 1]
+
+        return lerp(self.xy), float(lerp(self.heading)), float(lerp(self.phase))
+
+    def ego_pose_at(self, t: float) -> np.ndarray:
+        """T_world_ego: the head-mounted camera ~10 cm below the head top and in front of it,
+        bobbing with the gait."""
+        i = np.clip(np.searchsorted(self.t_s, t) - 1, 0, len(self.t_s) - 2)
+        a = np.clip((t - self.t_s[i]) / (self.t_s[i + 1] - self.t_s[i]), 0.0, 1.0)
+
+        def lerp(v):
+            return float((1 - a) * v[i] + a * v[i + 1])
+
+        xy, heading, phase = self.state_at(t)
+        yaw = heading + lerp(self.head_yaw)
+        R_world_body = Rotation.from_euler("ZYX", [yaw, lerp(self.head_pitch), lerp(self.head_roll)]).as_matrix()
+        walking = float(np.linalg.norm(self.xy[i + 1] - self.xy[i]) > 1e-6)
+        bob = walking * 0.015 * np.cos(2.0 * phase)
+        eye = np.array([xy[0], xy[1], self.height_m - 0.10 + bob]) + R_world_body @ np.array([0.10, 0.0, 0.0])
+        return se3(R_world_body @ R_BODY_OPTICAL, eye)
+
+
+def _visibility_graph_path(free: Polygon, a: np.ndarray, b: np.ndarray, nodes: np.ndarray) -> np.ndarray:
+    """Shortest path from a to b inside `free` over the polygon's vertices."""
+    pts = np.vstack([a, b, nodes])
+    n = len(pts)
+    ii, jj = np.triu_indices(n, 1)
+    segs = shapely.linestrings(np.stack([pts[ii], pts[jj]], axis=1))
+    ok = shapely.covers(free, segs)
+    w = np.linalg.norm(pts[ii] - pts[jj], axis=1)
+    graph = csr_matrix((w[ok], (ii[ok], jj[ok])), shape=(n, n))
+    dist, pred = dijkstra(graph, directed=False, indices=0, return_predecessors=True)
+    if not np.isfinite(dist[1]):
+        raise ValueError(f"no walkable path from {a.round(2).tolist()} to {b.round(2).tolist()}")
+    path, k = [1], 1
+    while k != 0:
+        k = pred[k]
+        path.append(k)
+    return pts[path[::-1]]
+
+
+CORNER_CLEARANCE_M = 0.3  # paths keep this far from reflex corners, so rounding stays inside
+
+
+def _corner_nodes(free: Polygon) -> np.ndarray:
+    """Visibility-graph nodes: vertices of the free space shrunk by the corner clearance."""
+    inner = free.buffer(-CORNER_CLEARANCE_M, join_style="mitre")
+    parts = [g for g in getattr(inner, "geoms", [inner]) if not g.is_empty] or [free]
+    return np.vstack([np.asarray(r.coords)[:-1] for g in parts for r in [g.exterior, *g.interiors]])
+
+
+def _nearest_free(free: Polygon, p) -> np.ndarray:
+    if free.contains(Point(p)):
+        return np.asarray(p, dtype=float)
+    q = nearest_points(free.buffer(-0.05), Point(p))[0]
+    return np.array([q.x, q.y])
+
+
+def plan_walk(free: Polygon, start_xy, targets_xy: list, spec: WalkSpec, rng: np.random.Generator) -> Walk:
+    """Walk from start through every target (nearest-first order), pausing at each;
+    `free` is the walkable floor already shrunk by the body's clearance."""
+    free = free if isinstance(free, Polygon) else max(free.geoms, key=lambda g: g.area)
+    nodes = _corner_nodes(free)
+    current = _nearest_free(free, start_xy)
+    remaining = [_nearest_free(free, t) for t in targets_xy]
+    legs, pauses = [current[None]], [0.0]
+    long_pause_at = int(rng.integers(len(remaining))) if remaining and spec.long_pause_s > 0 else -1
+    visit = 0
+    while remaining:
+        k = int(np.argmin([np.linalg.norm(r - current) for r in remaining]))
+        target = remaining.pop(k)
+        leg = _visibility_graph_path(free, current, target, nodes)
+        legs.append(leg[1:])
+        pauses += [0.0] * (len(leg) - 2) + [spec.pause_s + (spec.long_pause_s if visit == long_pause_at else 0.0)]
+        current, visit = target, visit + 1
+    corners = np.vstack(legs)
+    return _timeline(corners, np.array(pauses), spec, rng)
+
+
+def _resample(polyline: np.ndarray, spacing: float) -> np.ndarray:
+    """Points every `spacing` metres along a polyline (both ends kept)."""
+    seg = np.linalg.norm(np.diff(polyline, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    n = max(int(np.ceil(s[-1] / spacing)), 1)
+    q = np.linspace(0.0, s[-1], n + 1)
+    return np.column_stack([np.interp(q, s, polyline[:, k]) for k in range(2)])
+
+
+def _rounded(leg: np.ndarray, radius_m: float = 0.35) -> np.ndarray:
+    """Round a leg's corners (a person does not turn on the spot while walking),
+    keeping its end points where they are."""
+    dense = _resample(leg, 0.01)
+    if len(dense) < 3:
+        return dense
+    smooth = np.column_stack([gaussian_filter1d(dense[:, k], radius_m / 0.01, mode="nearest") for k in range(2)])
+    u = np.linspace(0.0, 1.0, len(dense))[:, None]
+    return smooth - (1 - u) * (smooth[0] - dense[0]) - u * (smooth[-1] - dense[-1])
+
+
+def _timeline(corners: np.ndarray, pauses: np.ndarray, spec: WalkSpec, rng: np.random.Generator) -> Walk:
+    """Walk the corner path at constant speed with rounded corners, standing still
+    for pauses[i] seconds at corners[i]; sampled at SAMPLE_HZ."""
+    dt = 1.0 / SAMPLE_HZ
+    xy, moving = [corners[:1]], [np.array([False])]
+    stops = [0] + [i for i in range(1, len(corners)) if pauses[i] > 0 or i == len(corners) - 1]
+    for a, b in zip(stops[:-1], stops[1:]):
+        walked = _resample(_rounded(corners[a:b + 1]), spec.speed_mps * dt)[1:]
+        n_pause = int(round(pauses[b] * SAMPLE_HZ))
+        xy += [walked, np.repeat(walked[-1:], n_pause, axis=0)]
+        moving += [np.ones(len(walked), bool), np.zeros(n_pause, bool)]
+    xy = np.vstack(xy)
+    moving = np.concatenate(moving)
+    vel = np.gradient(xy, dt, axis=0)
+    speed = np.linalg.norm(vel, axis=1)
+    heading = np.arctan2(vel[:, 1], vel[:, 0])
+    # Keep the last walking heading while standing still.
+    for i in range(1, len(heading)):
+        if speed[i] < 0.05:
+            heading[i] = heading[i - 1]
+    heading = np.unwrap(gaussian_filter1d(np.unwrap(heading), sigma=0.1 * SAMPLE_HZ, mode="nearest"))
+    dist = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    phase = 2.0 * np.pi * dist / STRIDE_M
+    t = np.arange(len(xy)) * dt
+    # Head: slow look-around while walking, wide scans while standing, slight pitch/roll sway.
+    f1, f2 = rng.uniform(0.1, 0.2), rng.uniform(0.05, 0.1)
+    standing = gaussian_filter1d((~moving).astype(float), sigma=0.5 * SAMPLE_HZ)
+    yaw_amp = np.radians(spec.look_around_deg) * (1 + 1.5 * standing)
+    head_yaw = yaw_amp * np.sin(2 * np.pi * f1 * t + rng.uniform(0, 2 * np.pi))
+    head_pitch = np.radians(spec.pitch_down_deg) + np.radians(8.0) * np.sin(2 * np.pi * f2 * t)
+    head_roll = np.radians(2.0) * np.sin(phase / 2.0) * (1 - standing)
+    return Walk(t, xy, heading, phase, head_yaw, head_pitch, head_roll, spec.agent_height_m)
