@@ -4,11 +4,15 @@ setup(
     name="yowo_bringup",
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
+    package_data={"yowo_bringup": ["config/*.xml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/yowo_bringup"]),
         ("share/yowo_bringup", ["package.xml"]),
     ],
     zip_safe=True,
     # Node executables (ros2 run yowo_bringup <node>) and command-line tools.
-    entry_points={"console_scripts": ["yowo = yowo_bringup.cli:main"]},
+    entry_points={"console_scripts": [
+        "yowo = yowo_bringup.cli:main",
+        "replay_node = yowo_bringup.replay_node:main",
+    ]},
 )

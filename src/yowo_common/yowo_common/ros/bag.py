@@ -124,26 +124,38 @@ def list_topics(path) -> list[BagTopic]:
         reader.close()
 
 
-def read_messages(path, topics: Iterable[str] | None = None) -> Iterator[tuple[str, int, object]]:
-    """Yield (topic, log time [ns], message) in log-time order.
+@dataclass(frozen=True)
+class RawMessage:
+    topic: str
+    msgtype: str
+    log_time_ns: int
+    data: bytes
+    latched: bool
 
-    A damaged file ends the iteration with a BagError after every readable message.
-    """
+
+def read_raw(path, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
+    """Serialised messages in log-time order. A damaged file ends the iteration
+    with a BagError after every readable message."""
     reader = open_reader(path)
     try:
         wanted = None if topics is None else set(topics)
         conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
         if not conns:
             return
+        latched = {c.id: qos_is_latched(c) for c in conns}
         try:
             for conn, stamp_ns, raw in reader.messages(connections=conns):
-                yield conn.topic, stamp_ns, deserialize_message(raw, message_class(conn.msgtype))
-        except BagError:
-            raise
+                yield RawMessage(conn.topic, conn.msgtype, stamp_ns, bytes(raw), latched[conn.id])
         except Exception as exc:
             raise BagError(f"{path}: recording is damaged after the last readable message: {exc}") from exc
     finally:
         reader.close()
+
+
+def read_messages(path, topics: Iterable[str] | None = None) -> Iterator[tuple[str, int, object]]:
+    """Yield (topic, log time [ns], message object) in log-time order."""
+    for raw in read_raw(path, topics):
+        yield raw.topic, raw.log_time_ns, deserialize_message(raw.data, message_class(raw.msgtype))
 
 
 def qos_is_latched(conn) -> bool:

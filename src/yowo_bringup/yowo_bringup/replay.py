@@ -1,0 +1,31 @@
+"""Replay logic without ROS: which topics to play and when (pacing)."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+
+@dataclass
+class Pacer:
+    """Maps bag time to wall time at `rate` x real time (rate <= 0: as fast as possible)."""
+
+    rate: float
+    _bag0: int | None = None
+    _wall0: float = 0.0
+
+    def delay_s(self, bag_time_ns: int, now_s: float | None = None) -> float:
+        """Seconds to wait before playing a message stamped bag_time_ns."""
+        now_s = time.monotonic() if now_s is None else now_s
+        if self._bag0 is None:
+            self._bag0, self._wall0 = bag_time_ns, now_s
+        if self.rate <= 0:
+            return 0.0
+        due = self._wall0 + (bag_time_ns - self._bag0) / 1e9 / self.rate
+        return max(0.0, due - now_s)
+
+
+def select_topics(all_topics: list[str], include: list[str], exclude_prefixes: list[str]) -> list[str]:
+    """Topics to play: `include` (all when empty), minus those under an excluded prefix
+    (ground truth by default: the pipeline never sees it)."""
+    chosen = [t for t in all_topics if not include or t in include]
+    return [t for t in chosen if not any(t.startswith(p) for p in exclude_prefixes)]

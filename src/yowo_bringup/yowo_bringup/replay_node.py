@@ -1,0 +1,151 @@
+"""replay_node: plays a rosbag2 recording (MCAP or sqlite3) into the graph with the
+original stamps and /clock, and announces the end of the recording.
+
+Lossless mode: every publisher is reliable with KEEP_ALL history, and after every
+`ack_window` messages on a topic the node waits until all of them are acknowledged
+by every matched subscriber (DDS flow control: a subscriber whose KEEP_ALL queue is
+full stops acknowledging, so a slow stage slows the replay instead of losing data;
+at most `ack_window` messages per topic are ever in flight)."""
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import rclpy
+from rclpy.duration import Duration
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Header
+from yowo_msgs.msg import ReplayStatus
+
+from yowo_common.ros.bag import BagError, list_topics, message_class, read_raw
+from yowo_common.ros.context import ros_context
+from yowo_common.rosconv import ns_to_time
+
+from .replay import Pacer, select_topics
+
+STATUS_TOPIC = "/yowo/replay/status"
+# Fast DDS acknowledges only on its heartbeat (3 s by default); this profile shortens it.
+FASTDDS_PROFILE = Path(__file__).parent / "config" / "replay_fastdds.xml"
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+class ReplayNode(Node):
+    def __init__(self):
+        super().__init__("replay")
+        self.bag = self.declare_parameter("bag", "").value
+        self.rate = self.declare_parameter("rate", 1.0).value
+        self.lossless = self.declare_parameter("lossless", True).value
+        self.publish_clock = self.declare_parameter("publish_clock", True).value
+        self.include = list(self.declare_parameter("topics", [""]).value or [])
+        self.exclude = list(self.declare_parameter("exclude_prefixes", ["/gt/"]).value or [])
+        self.wait_for = list(self.declare_parameter("wait_for_topics", [""]).value or [])
+        self.wait_timeout_s = self.declare_parameter("wait_timeout_s", 30.0).value
+        self.ack_timeout_s = self.declare_parameter("ack_timeout_s", 60.0).value
+        self.ack_window = max(1, self.declare_parameter("ack_window", 16).value)
+        self.linger_s = self.declare_parameter("linger_s", 3.0).value
+        self.include = [t for t in self.include if t]
+        self.wait_for = [t for t in self.wait_for if t]
+        self.status_pub = self.create_publisher(ReplayStatus, STATUS_TOPIC, LATCHED)
+        self.clock_pub = self.create_publisher(Clock, "/clock", 10)
+        self.pubs = {}
+        self.counts: dict[str, int] = {}
+        self.unacked: dict[str, int] = {}
+
+    def _qos(self, latched: bool) -> QoSProfile:
+        if latched:
+            return LATCHED
+        if self.lossless:
+            return QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+        return QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+
+    def _status(self, state: int, stamp_ns: int, start_ns: int, end_ns: int, error: str = "") -> None:
+        self.status_pub.publish(ReplayStatus(
+            header=Header(stamp=ns_to_time(stamp_ns)), state=state, bag=str(self.bag),
+            bag_start=ns_to_time(start_ns), bag_end=ns_to_time(end_ns),
+            topics=list(self.counts), published_counts=list(self.counts.values()), error=error))
+
+    def _wait_for_subscribers(self) -> None:
+        deadline = time.monotonic() + self.wait_timeout_s
+        missing = list(self.wait_for)
+        while missing and time.monotonic() < deadline:
+            missing = [t for t in missing if self.count_subscribers(t) == 0]
+            time.sleep(0.05)
+        if missing:
+            self.get_logger().warning(f"no subscriber after {self.wait_timeout_s:.0f} s on: {', '.join(missing)}; "
+                                      "playing anyway")
+
+    def _wait_acked(self, topic: str) -> None:
+        pub = self.pubs[topic]
+        if pub.get_subscription_count() and not pub.wait_for_all_acked(Duration(seconds=self.ack_timeout_s)):
+            self.get_logger().error(f"{topic}: a subscriber did not acknowledge within "
+                                    f"{self.ack_timeout_s:.0f} s; continuing")
+        self.unacked[topic] = 0
+
+    def run(self) -> int:
+        try:
+            topics = list_topics(self.bag)
+        except BagError as exc:
+            self.get_logger().error(str(exc))
+            self._status(ReplayStatus.STATE_FINISHED, 0, 0, 0, str(exc))
+            return 2
+        played = select_topics([t.name for t in topics], self.include, self.exclude)
+        types = {t.name: t.msgtype for t in topics}
+        self.counts = {t: 0 for t in played}
+        self._wait_for_subscribers()
+        pacer = Pacer(self.rate)
+        start_ns = end_ns = 0
+        error = ""
+        last_status = time.monotonic()
+        self.get_logger().info(f"playing {len(played)} topics of {self.bag} at "
+                               f"{'max' if self.rate <= 0 else f'{self.rate:g}x'} speed"
+                               f"{' (lossless)' if self.lossless else ''}")
+        try:
+            for raw in read_raw(self.bag, played):
+                pub = self.pubs.get(raw.topic)
+                if pub is None:
+                    pub = self.create_publisher(message_class(types[raw.topic]), raw.topic, self._qos(raw.latched))
+                    self.pubs[raw.topic] = pub
+                time.sleep(pacer.delay_s(raw.log_time_ns))
+                start_ns = start_ns or raw.log_time_ns
+                end_ns = raw.log_time_ns
+                if self.publish_clock:
+                    self.clock_pub.publish(Clock(clock=ns_to_time(raw.log_time_ns)))
+                pub.publish(raw.data)
+                self.counts[raw.topic] += 1
+                if self.lossless and not raw.latched:
+                    self.unacked[raw.topic] = self.unacked.get(raw.topic, 0) + 1
+                    if self.unacked[raw.topic] >= self.ack_window:
+                        self._wait_acked(raw.topic)
+                if time.monotonic() - last_status > 1.0:
+                    self._status(ReplayStatus.STATE_PLAYING, end_ns, start_ns, end_ns)
+                    last_status = time.monotonic()
+        except BagError as exc:
+            error = str(exc)
+            self.get_logger().error(f"{error}; finishing with what was played")
+        for topic in [t for t, n in self.unacked.items() if n]:
+            self._wait_acked(topic)
+        self._status(ReplayStatus.STATE_FINISHED, end_ns, start_ns, end_ns, error)
+        total = sum(self.counts.values())
+        self.get_logger().info(f"finished: {total} messages published"
+                               + "".join(f"\n  {t}: {n}" for t, n in self.counts.items()))
+        end = time.monotonic() + self.linger_s  # late joiners still get the latched status
+        while time.monotonic() < end:
+            rclpy.spin_once(self, timeout_sec=0.1)
+        return 0 if total and not error else (2 if not total else 1)
+
+
+def main(args=None):
+    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(FASTDDS_PROFILE))  # before the DDS starts
+    code = 0
+    with ros_context(args):
+        node = ReplayNode()
+        code = node.run()
+        node.destroy_node()
+    raise SystemExit(code)
+
+
+if __name__ == "__main__":
+    main()
