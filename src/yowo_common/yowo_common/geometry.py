@@ -46,9 +46,9 @@ def rotation_from_quat_xyzw(q) -> np.ndarray:
 
 
 def rotation_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
-    """Angle of R_a^T R_b in degrees (the paper's eps_rot)."""
-    c = (np.trace(R_a.T @ R_b) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+    """Angle of R_a^T R_b in degrees: the paper's eps_rot = arccos((tr(R_a^T R_b) - 1) / 2),
+    computed via the rotation vector, which stays accurate for tiny angles."""
+    return float(np.degrees(Rotation.from_matrix(R_a.T @ R_b).magnitude()))
 
 
 def skew(v) -> np.ndarray:

@@ -1,0 +1,99 @@
+import numpy as np
+import pytest
+
+from yowo_bringup.evaluation import relative_pose_errors
+from yowo_cmc.group_sfm import SfmParams, calibrate_groups, overlap_score
+from yowo_cmc.tracks import TrackParams
+from yowo_common.camera import CameraModel
+
+from cmc_synthetic import ceiling_camera, loop_walk, observe
+
+EXACT = SfmParams(tracks=TrackParams(window_s=0.0, gate_px=1e9))
+
+
+def three_camera_rig(D=None):
+    return {"a": ceiling_camera(0.3, 0.3, (3.0, 2.5), D=D), "b": ceiling_camera(5.7, 0.4, (3.0, 2.5), z=3.3, D=D),
+            "c": ceiling_camera(3.0, 4.8, (3.0, 2.3), z=2.8, D=D)}
+
+
+def check_relative(group, cams, pos_tol, rot_tol_deg):
+    est = group.T_local_cam
+    gt = {n: cams[n][1] for n in est}
+    errs, _ = relative_pose_errors(est, gt, {"g": list(est)})
+    assert max(e.eps_pos_m for e in errs) < pos_tol
+    assert max(e.eps_rot_deg for e in errs) < rot_tol_deg
+
+
+def test_noise_free_three_camera_rig_is_exact():
+    cams = three_camera_rig()
+    tracks = observe(cams, loop_walk((3.0, 2.5), (2.0, 1.5)), 20.0)
+    result = calibrate_groups(tracks, EXACT)
+    assert result.ungrouped == {}
+    (group,) = result.groups
+    assert sorted(group.names) == ["a", "b", "c"]
+    check_relative(group, cams, 1e-6, 1e-6)
+    assert max(group.rmse_px.values()) < 1e-6
+
+
+def test_noisy_distorted_unequal_rates():
+    cams = three_camera_rig(D=[-0.2, 0.04, 0, 0, 0])
+    tracks = observe(cams, loop_walk((3.0, 2.5), (2.0, 1.5)), 40.0, rate_hz={"a": 10.0, "b": 15.0, "c": 7.5},
+                     offsets_s=[0.0, 0.031, 0.057], sigma_px=1.0, seed=3)
+    (group,) = calibrate_groups(tracks).groups
+    check_relative(group, cams, 0.03, 0.3)
+    assert max(group.rmse_px.values()) < 2.0
+
+
+def test_two_rooms_split_and_isolated_camera_reported():
+    cams = {"a1": ceiling_camera(0.3, 0.3, (2.5, 2.5)), "a2": ceiling_camera(4.7, 0.3, (2.5, 2.5)),
+            "a3": ceiling_camera(2.5, 4.7, (2.5, 2.3)),
+            "b1": ceiling_camera(10.3, 0.3, (12.5, 2.5)), "b2": ceiling_camera(14.7, 4.7, (12.5, 2.5)),
+            "iso": ceiling_camera(20.3, 0.3, (22.5, 2.5))}
+    room_of = lambda x: "a" if x < 5 else ("b" if 10 <= x < 15 else ("i" if x >= 20 else "-"))  # noqa: E731
+
+    def walk(t):  # 15 s in each room
+        base = [2.5, 12.5, 22.5][min(int(t // 15), 2)]
+        return loop_walk((base, 2.5), (1.5, 1.5), 7.5)(t)
+
+    tracks = observe(cams, walk, 45.0, sigma_px=0.5, visible=lambda n, xy: room_of(xy[0]) == n[0], seed=1)
+    result = calibrate_groups(tracks)
+    assert sorted(sorted(g.names) for g in result.groups) == [["a1", "a2", "a3"], ["b1", "b2"]]
+    assert set(result.ungrouped) == {"iso"}
+    assert "shares no view" in result.ungrouped["iso"]
+    for g in result.groups:
+        check_relative(g, cams, 0.03, 0.3)
+
+
+def test_camera_that_never_sees_the_agent():
+    cams = three_camera_rig()
+    cams["blind"] = ceiling_camera(30.0, 30.0, (35.0, 35.0))
+    result = calibrate_groups(observe(cams, loop_walk((3.0, 2.5), (2.0, 1.5)), 20.0, sigma_px=0.5))
+    assert result.ungrouped["blind"].startswith("seen in 0 frames")
+
+
+def test_stationary_agent_does_not_drive_initial_pair():
+    """A long stop seen only by a and b gives that pair the most inliers, but all at one
+    spot; the overlap-based match score (eq. match) prefers the well-spread pair."""
+    cams = {"a": ceiling_camera(0.3, 0.3, (3.0, 2.5)), "b": ceiling_camera(1.0, 0.2, (1.2, 1.2), hfov=60),
+            "c": ceiling_camera(5.7, 4.7, (3.0, 2.5))}
+    loop = loop_walk((3.0, 2.5), (2.0, 1.5))
+
+    def walk(t):
+        return np.array([1.2, 1.2]) if t < 60 else loop(t)
+    vis = {"a": lambda xy: True, "b": lambda xy: True, "c": lambda xy: np.linalg.norm(xy - [1.2, 1.2]) > 0.5}
+    tracks = observe(cams, walk, 80.0, sigma_px=0.5, visible=lambda n, xy: vis[n](xy), seed=2)
+    result = calibrate_groups(tracks)
+    pairs = {tuple(sorted((result.groups[0].initial_pair)))}
+    inliers = {(tracks[p.a].name, tracks[p.b].name): p.num_inliers for p in result.pairs}
+    assert inliers[("a", "b")] > inliers[("a", "c")]          # the trap is real
+    assert pairs == {("a", "c")}
+    check_relative(result.groups[0], cams, 0.03, 0.3)
+
+
+def test_overlap_score_prefers_spread():
+    cam = CameraModel.from_fov(640, 480, 80)
+    params = SfmParams()
+    clustered = np.full((100, 2), 320.0)
+    spread = np.random.default_rng(0).uniform([0, 0], [640, 480], (30, 2))
+    assert overlap_score(clustered, cam, params) == 0.0
+    assert overlap_score(spread, cam, params) > 10.0

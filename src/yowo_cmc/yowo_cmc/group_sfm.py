@@ -1,0 +1,353 @@
+"""CMC groups and their relative calibration from agent keypoints alone
+(paper "CMC Processing"): correspondences by time and keypoint id, MAGSAC
+fundamental matrices (eq. inliers), scene graph and grouping, overlap scores
+(eqs. grid, overlap), initial pair by match score (eq. match), E = K^T F K with
+the cheirality check, triangulation, next camera by overlap + PnP RANSAC, and
+group bundle adjustment (eq. cmc_bd) with per-keypoint-id noise re-estimation."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import networkx as nx
+import numpy as np
+
+from yowo_common.bundle import BundleProblem, Observations, robust_sigma, solve
+from yowo_common.camera import CameraModel
+from yowo_common.geometry import inv_se3, se3
+
+from .tracks import CameraTracks, TrackParams, clean_track, interpolate, undistort_tracks
+
+MAX_IDS = 1000  # keypoint ids per grid time: key = grid index * MAX_IDS + id
+
+
+@dataclass(frozen=True)
+class SfmParams:
+    min_matches: int = 8                 # per edge of the scene graph (paper: eight)
+    ransac_px: float = 2.0               # MAGSAC threshold on the epipolar error
+    grid_cols: int = 16                  # N_GW
+    grid_rows: int = 12                  # N_GH
+    min_pnp: int = 8
+    pnp_px: float = 4.0
+    max_reproj_px: float = 6.0           # triangulated points beyond this are not kept
+    min_angle_deg: float = 1.0           # triangulation angle below which points are unreliable
+    initial_sigma_px: float = 1.5
+    tracks: TrackParams = field(default_factory=TrackParams)
+
+
+@dataclass
+class GridObservations:
+    """Every camera's keypoints sampled on one time grid: a 3D agent point is a
+    (grid time, keypoint id) pair, so views at unequal rates correspond."""
+
+    grid_ns: np.ndarray                    # (G,) stamps of the grid
+    cameras: list[CameraModel]             # ideal pinhole (undistorted) intrinsics
+    names: list[str]
+    per_camera: list[dict[int, np.ndarray]]  # camera -> {key: uv (2,)}
+
+    def keys(self, c: int) -> np.ndarray:
+        return np.fromiter(self.per_camera[c].keys(), dtype=np.int64)
+
+    def stamp_and_id(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.grid_ns[keys // MAX_IDS], keys % MAX_IDS
+
+
+@dataclass
+class PairGeometry:
+    a: int
+    b: int
+    F: np.ndarray | None                   # x_b^T F x_a = 0 (ideal pixels)
+    keys: np.ndarray                       # co-visible keys
+    inliers: np.ndarray                    # bool mask over keys
+
+    @property
+    def num_inliers(self) -> int:
+        return int(self.inliers.sum())
+
+
+@dataclass
+class CameraGroupResult:
+    group_id: str
+    reference: str
+    names: list[str]
+    T_local_cam: dict[str, np.ndarray]
+    point_stamps_ns: np.ndarray            # (P,)
+    point_ids: np.ndarray                  # (P,)
+    points: np.ndarray                     # (P, 3) local, pseudo-scale
+    rmse_px: dict[str, float]
+    num_observations: dict[str, int]
+    sigma_px_by_id: dict[int, float]
+    initial_pair: tuple[str, str]
+
+
+@dataclass
+class GroupingResult:
+    groups: list[CameraGroupResult]
+    ungrouped: dict[str, str]              # camera -> reason
+    pairs: list[PairGeometry]
+
+
+def sample_on_grid(cams: list[CameraTracks], params: TrackParams) -> GridObservations:
+    """Clean, undistort and sample every track on a common grid at the fastest camera's period."""
+    period = min(c.frame_period_ns for c in cams)
+    all_stamps = np.concatenate([t.stamps_ns for c in cams for t in c.tracks.values()] or [np.zeros(0, np.int64)])
+    if len(all_stamps) == 0:
+        return GridObservations(np.zeros(0, np.int64), [], [c.name for c in cams], [{} for _ in cams])
+    t0 = all_stamps.min() - all_stamps.min() % period
+    grid = np.arange(t0, all_stamps.max() + period, period, dtype=np.int64)
+    per_camera, models = [], []
+    for cam in cams:
+        cleaned = CameraTracks(cam.name, cam.camera,
+                               {i: clean_track(t, cam.frame_period_ns, params) for i, t in cam.tracks.items()},
+                               cam.frame_period_ns)
+        ideal = undistort_tracks(cleaned)
+        models.append(ideal.camera)
+        obs = {}
+        for kp_id, track in ideal.tracks.items():
+            if kp_id >= MAX_IDS:
+                continue
+            uv, ok = interpolate(track, grid, int(params.gap_factor * cam.frame_period_ns))
+            for k in np.flatnonzero(ok):
+                obs[int(k) * MAX_IDS + kp_id] = uv[k]
+        per_camera.append(obs)
+    return GridObservations(grid, models, [c.name for c in cams], per_camera)
+
+
+def pair_geometry(obs: GridObservations, a: int, b: int, params: SfmParams) -> PairGeometry:
+    keys = np.intersect1d(obs.keys(a), obs.keys(b))
+    if len(keys) < params.min_matches:
+        return PairGeometry(a, b, None, keys, np.zeros(len(keys), bool))
+    pa = np.array([obs.per_camera[a][k] for k in keys])
+    pb = np.array([obs.per_camera[b][k] for k in keys])
+    F, mask = cv2.findFundamentalMat(pa, pb, cv2.USAC_MAGSAC, params.ransac_px, 0.9999, 10000)
+    if F is None or F.shape != (3, 3):
+        return PairGeometry(a, b, None, keys, np.zeros(len(keys), bool))
+    return PairGeometry(a, b, F, keys, mask.ravel().astype(bool))
+
+
+def overlap_score(uv: np.ndarray, camera: CameraModel, params: SfmParams) -> float:
+    """Eqs. grid + overlap: occupied-cell spread (rows x cols, normalised) times occupied cells."""
+    if len(uv) == 0:
+        return 0.0
+    cols = np.clip((uv[:, 0] / camera.width * params.grid_cols).astype(int), 0, params.grid_cols - 1)
+    rows = np.clip((uv[:, 1] / camera.height * params.grid_rows).astype(int), 0, params.grid_rows - 1)
+    G = np.zeros((params.grid_rows, params.grid_cols), bool)
+    G[rows, cols] = True
+    r, c = np.nonzero(G)
+    spread = (r.max() - r.min()) * (c.max() - c.min()) / (params.grid_cols * params.grid_rows)
+    return float(spread * G.sum())
+
+
+def match_score(obs: GridObservations, pair: PairGeometry, params: SfmParams) -> float:
+    """Eq. match: overlap(c_i) * overlap(c_j) over the pair's inliers."""
+    keys = pair.keys[pair.inliers]
+    return (overlap_score(np.array([obs.per_camera[pair.a][k] for k in keys]).reshape(-1, 2), obs.cameras[pair.a], params)
+            * overlap_score(np.array([obs.per_camera[pair.b][k] for k in keys]).reshape(-1, 2), obs.cameras[pair.b], params))
+
+
+def group_cameras(obs: GridObservations, pairs: list[PairGeometry], params: SfmParams
+                  ) -> tuple[list[list[int]], dict[int, str]]:
+    """Scene-graph clustering: edges with >= min_matches inliers; members of a group
+    of three or more must be joined by two edge-disjoint paths."""
+    G = nx.Graph()
+    G.add_nodes_from(range(len(obs.names)))
+    for p in pairs:
+        if p.num_inliers >= params.min_matches:
+            G.add_edge(p.a, p.b, weight=p.num_inliers)
+    groups: list[list[int]] = []
+    for comp in nx.connected_components(G):
+        if len(comp) == 2:
+            groups.append(sorted(comp))
+        elif len(comp) > 2:
+            groups += [sorted(c) for c in nx.k_edge_components(G.subgraph(comp), k=2) if len(c) >= 2]
+    grouped = {c for g in groups for c in g}
+    reasons = {}
+    for c in range(len(obs.names)):
+        if c in grouped:
+            continue
+        frames = len({k // MAX_IDS for k in obs.per_camera[c]})
+        best = max((p for p in pairs if c in (p.a, p.b)), key=lambda p: p.num_inliers, default=None)
+        if best is None or best.num_inliers == 0:
+            reasons[c] = (f"seen in {frames} frames; shares no view of the agent with another camera "
+                          f"(needs {params.min_matches} matches)")
+        elif best.num_inliers < params.min_matches:
+            other = obs.names[best.b if best.a == c else best.a]
+            reasons[c] = (f"seen in {frames} frames; only {best.num_inliers} inlier matches with '{other}' "
+                          f"(needs {params.min_matches})")
+        else:
+            reasons[c] = "joined to a group by a single camera pair (needs two paths to its members)"
+    return groups, reasons
+
+
+def triangulate(cameras: list[CameraModel], poses: list[np.ndarray], uvs: list[np.ndarray]) -> np.ndarray:
+    """Linear multi-view triangulation (DLT) of one point."""
+    A = []
+    for cam, T, uv in zip(cameras, poses, uvs):
+        P = cam.K @ inv_se3(T)[:3]
+        A += [uv[0] * P[2] - P[0], uv[1] * P[2] - P[1]]
+    _, _, Vt = np.linalg.svd(np.array(A))
+    X = Vt[-1]
+    return X[:3] / X[3] if abs(X[3]) > 1e-12 else np.full(3, np.nan)
+
+
+class IncrementalSfm:
+    """Incremental reconstruction of one group in its local frame (reference camera = identity)."""
+
+    def __init__(self, obs: GridObservations, members: list[int], params: SfmParams):
+        self.obs, self.members, self.params = obs, members, params
+        self.poses: dict[int, np.ndarray] = {}
+        self.points: dict[int, np.ndarray] = {}
+        self.failed: dict[int, str] = {}
+
+    def initialise(self, pair: PairGeometry) -> None:
+        a, b = pair.a, pair.b
+        keys = pair.keys[pair.inliers]
+        pa = np.array([self.obs.per_camera[a][k] for k in keys])
+        pb = np.array([self.obs.per_camera[b][k] for k in keys])
+        Ka, Kb = self.obs.cameras[a].K, self.obs.cameras[b].K
+        E = Kb.T @ pair.F @ Ka                            # eq. F2E (x_b^T F x_a = 0 convention)
+        na = cv2.undistortPoints(pa[:, None], Ka, None).reshape(-1, 2)
+        nb = cv2.undistortPoints(pb[:, None], Kb, None).reshape(-1, 2)
+        _, R, t, _ = cv2.recoverPose(E, na, nb, np.eye(3))  # SVD + cheirality check
+        self.poses[a] = np.eye(4)
+        self.poses[b] = inv_se3(se3(R, t.ravel()))         # T_l_b: R_lb = R^T, X_b = -R^T t
+        self._triangulate_new()
+
+    def _views(self, key: int) -> list[int]:
+        return [c for c in self.poses if key in self.obs.per_camera[c]]
+
+    def _triangulate_new(self) -> None:
+        candidates = set().union(*(self.obs.per_camera[c].keys() for c in self.poses)) - set(self.points)
+        for key in candidates:
+            views = self._views(key)
+            if len(views) < 2:
+                continue
+            cams = [self.obs.cameras[c] for c in views]
+            poses = [self.poses[c] for c in views]
+            uvs = [self.obs.per_camera[c][key] for c in views]
+            X = triangulate(cams, poses, uvs)
+            if np.isfinite(X).all() and self._acceptable(X, cams, poses, uvs):
+                self.points[key] = X
+
+    def _acceptable(self, X, cams, poses, uvs) -> bool:
+        rays = []
+        for cam, T, uv in zip(cams, poses, uvs):
+            proj, front = cam.project_world(T, X[None])
+            if not front[0] or np.linalg.norm(proj[0] - uv) > self.params.max_reproj_px:
+                return False
+            rays.append((X - T[:3, 3]) / np.linalg.norm(X - T[:3, 3]))
+        cos = max(abs(float(r1 @ r2)) for i, r1 in enumerate(rays) for r2 in rays[i + 1:])
+        return np.degrees(np.arccos(min(cos, 1.0))) >= self.params.min_angle_deg
+
+    def next_camera(self) -> int | None:
+        """The unregistered member whose 2D points on existing 3D points cover its image best."""
+        best, best_score = None, 0.0
+        for c in self.members:
+            if c in self.poses or c in self.failed:
+                continue
+            keys = [k for k in self.obs.per_camera[c] if k in self.points]
+            if len(keys) < self.params.min_pnp:
+                continue
+            uv = np.array([self.obs.per_camera[c][k] for k in keys])
+            score = overlap_score(uv, self.obs.cameras[c], self.params)
+            if score > best_score:
+                best, best_score = c, score
+        return best
+
+    def register(self, c: int) -> bool:
+        keys = [k for k in self.obs.per_camera[c] if k in self.points]
+        obj = np.array([self.points[k] for k in keys])
+        img = np.array([self.obs.per_camera[c][k] for k in keys])
+        ok, rvec, tvec, inliers = cv2.solvePnPRansac(
+            obj, img, self.obs.cameras[c].K, None, iterationsCount=2000,
+            reprojectionError=self.params.pnp_px, confidence=0.999, flags=cv2.SOLVEPNP_SQPNP)
+        if not ok or inliers is None or len(inliers) < self.params.min_pnp:
+            self.failed[c] = (f"PnP found {0 if inliers is None else len(inliers)} consistent agent points "
+                              f"(needs {self.params.min_pnp})")
+            return False
+        idx = inliers.ravel()
+        rvec, tvec = cv2.solvePnPRefineLM(obj[idx], img[idx], self.obs.cameras[c].K, None, rvec, tvec)
+        self.poses[c] = inv_se3(se3(cv2.Rodrigues(rvec)[0], tvec.ravel()))
+        self._triangulate_new()
+        return True
+
+    def bundle_adjust(self, reference: int, second: int, sigma_by_id: dict[int, float]) -> dict:
+        cams = sorted(self.poses)
+        index = {c: i for i, c in enumerate(cams)}
+        keys = np.array(sorted(self.points), dtype=np.int64)
+        kidx = {int(k): i for i, k in enumerate(keys)}
+        cam_i, pt_i, uv, sig = [], [], [], []
+        for c in cams:
+            for k, p in self.obs.per_camera[c].items():
+                if k in kidx:
+                    cam_i.append(index[c])
+                    pt_i.append(kidx[k])
+                    uv.append(p)
+                    sig.append(sigma_by_id.get(k % MAX_IDS, self.params.initial_sigma_px))
+        obs = Observations(np.array(cam_i), np.array(pt_i), np.array(uv).reshape(-1, 2), np.array(sig))
+        baseline = np.linalg.norm(self.poses[second][:3, 3])
+        problem = BundleProblem([self.obs.cameras[c] for c in cams], [self.poses[c] for c in cams],
+                                np.array([self.points[int(k)] for k in keys]), obs,
+                                fixed_cameras={index[reference]},
+                                # Scale gauge only: a loose prior on the second camera's centre.
+                                position_priors={index[second]: (self.poses[second][:3, 3], 0.01 * baseline)})
+        res = solve(problem)
+        for c in cams:
+            self.poses[c] = res.T_world_cam[index[c]]
+        for k, i in kidx.items():
+            self.points[k] = res.points[i]
+        return {"obs": obs, "residuals": res.residuals_px, "cams": cams, "keys": keys}
+
+
+def reconstruct_group(obs: GridObservations, members: list[int], pairs: list[PairGeometry], group_id: str,
+                      params: SfmParams) -> tuple[CameraGroupResult | None, dict[int, str]]:
+    inside = [p for p in pairs if p.a in members and p.b in members and p.F is not None
+              and p.num_inliers >= params.min_matches]
+    if not inside:
+        return None, {c: "no camera pair of its group has enough matches" for c in members}
+    init = max(inside, key=lambda p: match_score(obs, p, params))
+    sfm = IncrementalSfm(obs, members, params)
+    sfm.initialise(init)
+    while (c := sfm.next_camera()) is not None:
+        sfm.register(c)
+    for c in members:
+        if c not in sfm.poses and c not in sfm.failed:
+            sfm.failed[c] = f"sees fewer than {params.min_pnp} of the group's triangulated agent points"
+    # Two robust BA rounds: the second weights each keypoint id by its own residual noise.
+    sigma_by_id: dict[int, float] = {}
+    for _ in range(2):
+        ba = sfm.bundle_adjust(init.a, init.b, sigma_by_id)
+        ids = ba["obs"].point
+        kp_ids = ba["keys"][ids] % MAX_IDS
+        sigma_by_id = {int(i): max(robust_sigma(ba["residuals"][kp_ids == i]), 0.05)
+                       for i in np.unique(kp_ids) if np.sum(kp_ids == i) >= 10}
+    res, o = ba["residuals"], ba["obs"]
+    names = [obs.names[c] for c in ba["cams"]]
+    rmse, counts = {}, {}
+    for i, c in enumerate(ba["cams"]):
+        r = res[o.camera == i]
+        r = r[np.isfinite(r).all(axis=1)]
+        rmse[obs.names[c]] = float(np.sqrt(np.mean(np.sum(r**2, axis=1)))) if len(r) else float("nan")
+        counts[obs.names[c]] = int(len(r))
+    stamps, ids = obs.stamp_and_id(ba["keys"])
+    result = CameraGroupResult(group_id, obs.names[init.a], names, {obs.names[c]: sfm.poses[c] for c in ba["cams"]},
+                               stamps, ids, np.array([sfm.points[int(k)] for k in ba["keys"]]), rmse, counts,
+                               sigma_by_id, (obs.names[init.a], obs.names[init.b]))
+    return result, sfm.failed
+
+
+def calibrate_groups(cams: list[CameraTracks], params: SfmParams = SfmParams()) -> GroupingResult:
+    """All CMCs -> groups with relative poses + local agent tracks, and the rest with reasons."""
+    obs = sample_on_grid(cams, params.tracks)
+    pairs = [pair_geometry(obs, a, b, params) for a in range(len(cams)) for b in range(a + 1, len(cams))]
+    groups, reasons = group_cameras(obs, pairs, params)
+    results = []
+    for members in groups:
+        result, failed = reconstruct_group(obs, members, pairs, f"g{len(results)}", params)
+        reasons.update(failed)
+        if result is not None and len(result.names) >= 2:
+            results.append(result)
+        elif result is not None:
+            reasons.update({obs.names.index(n): "its group fell apart (too few registered cameras)"
+                            for n in result.names})
+    return GroupingResult(results, {obs.names[c]: r for c, r in sorted(reasons.items())}, pairs)

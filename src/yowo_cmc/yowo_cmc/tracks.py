@@ -1,0 +1,119 @@
+"""Per-CMC agent keypoint tracks: smoothing (Savitzky-Golay), outlier gating,
+undistortion, and interpolation to other cameras' stamps."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+from yowo_common.camera import CameraModel
+
+
+@dataclass
+class KeypointTrack:
+    """One keypoint id seen by one camera over time (sorted by stamp)."""
+
+    stamps_ns: np.ndarray     # (N,) int64
+    uv: np.ndarray            # (N, 2) px
+    confidence: np.ndarray    # (N,)
+
+    def __len__(self) -> int:
+        return len(self.stamps_ns)
+
+    def subset(self, keep: np.ndarray) -> "KeypointTrack":
+        return KeypointTrack(self.stamps_ns[keep], self.uv[keep], self.confidence[keep])
+
+
+@dataclass
+class CameraTracks:
+    """Everything one CMC saw of the agent: its intrinsics and a track per keypoint id."""
+
+    name: str
+    camera: CameraModel
+    tracks: dict[int, KeypointTrack] = field(default_factory=dict)
+    frame_period_ns: int = 100_000_000      # nominal frame spacing (for gap detection / tolerances)
+
+    @property
+    def num_observations(self) -> int:
+        return sum(len(t) for t in self.tracks.values())
+
+
+@dataclass(frozen=True)
+class TrackParams:
+    window_s: float = 0.7           # Savitzky-Golay window
+    polyorder: int = 2
+    gap_factor: float = 2.5         # a gap longer than this many frame periods splits a segment
+    gate_px: float = 8.0            # residual to the smoothed track above which a sample is dropped
+    min_confidence: float = 0.1
+
+
+def segments(stamps_ns: np.ndarray, max_gap_ns: int) -> list[slice]:
+    """Contiguous runs of samples with no gap longer than max_gap_ns."""
+    if len(stamps_ns) == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(stamps_ns) > max_gap_ns) + 1
+    edges = [0, *breaks.tolist(), len(stamps_ns)]
+    return [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def _savgol(uv: np.ndarray, window: int, polyorder: int) -> np.ndarray:
+    n = len(uv)
+    w = min(window, n if n % 2 else n - 1)
+    if w <= polyorder:
+        return uv.copy()
+    return savgol_filter(uv, w, polyorder, axis=0, mode="interp")
+
+
+def clean_track(track: KeypointTrack, period_ns: int, params: TrackParams) -> KeypointTrack:
+    """Drop low-confidence samples and outliers (far from the smoothed track),
+    then smooth what remains, segment by segment."""
+    track = track.subset(track.confidence >= params.min_confidence)
+    window = max(3, int(round(params.window_s * 1e9 / period_ns)) | 1)
+    max_gap = int(params.gap_factor * period_ns)
+    keep = np.ones(len(track), bool)
+    for seg in segments(track.stamps_ns, max_gap):
+        # Median pre-filter so a single outlier does not drag the polynomial fit.
+        uv = track.uv[seg]
+        ref = _savgol(_running_median(uv, 5), window, params.polyorder)
+        keep[seg] = np.linalg.norm(uv - ref, axis=1) <= params.gate_px
+    track = track.subset(keep)
+    smooth = track.uv.copy()
+    for seg in segments(track.stamps_ns, max_gap):
+        smooth[seg] = _savgol(track.uv[seg], window, params.polyorder)
+    return KeypointTrack(track.stamps_ns, smooth, track.confidence)
+
+
+def _running_median(uv: np.ndarray, k: int) -> np.ndarray:
+    if len(uv) < k:
+        return uv.copy()
+    pad = np.pad(uv, ((k // 2, k // 2), (0, 0)), mode="edge")
+    windows = np.lib.stride_tricks.sliding_window_view(pad, k, axis=0)
+    return np.median(windows, axis=-1)
+
+
+def undistort_tracks(cam: CameraTracks) -> CameraTracks:
+    """Tracks in ideal pinhole pixels (same K, no distortion)."""
+    return CameraTracks(cam.name, CameraModel(cam.camera.width, cam.camera.height, cam.camera.K),
+                        {i: KeypointTrack(t.stamps_ns, cam.camera.undistort_pixels(t.uv), t.confidence)
+                         for i, t in cam.tracks.items()}, cam.frame_period_ns)
+
+
+def interpolate(track: KeypointTrack, stamps_ns: np.ndarray, max_gap_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    """Track position at the given stamps, linear between two samples at most max_gap_ns
+    apart (no extrapolation). Returns (uv (K, 2), valid mask (K,))."""
+    stamps_ns = np.asarray(stamps_ns, dtype=np.int64)
+    uv = np.full((len(stamps_ns), 2), np.nan)
+    if len(track) == 0:
+        return uv, np.zeros(len(stamps_ns), bool)
+    right = np.searchsorted(track.stamps_ns, stamps_ns)
+    exact = (right < len(track)) & (track.stamps_ns[np.minimum(right, len(track) - 1)] == stamps_ns)
+    left = right - 1
+    inside = (left >= 0) & (right < len(track))
+    li, ri = np.clip(left, 0, len(track) - 1), np.clip(right, 0, len(track) - 1)
+    gap = track.stamps_ns[ri] - track.stamps_ns[li]
+    ok = inside & (gap <= max_gap_ns) & (gap > 0)
+    a = np.where(ok, (stamps_ns - track.stamps_ns[li]) / np.maximum(gap, 1), 0.0)
+    uv[ok] = (1 - a[ok, None]) * track.uv[li[ok]] + a[ok, None] * track.uv[ri[ok]]
+    uv[exact] = track.uv[ri[exact]]
+    return uv, ok | exact
