@@ -1,0 +1,90 @@
+"""Register a CMC group to the ego world frame (paper "Register CMCs to the scene"):
+spatiotemporal clustering of the co-visible ego positions (eq. clustering), the
+rebalanced weights alpha_f = 1 / (N_clus * N_phi_k), and the weighted
+Kabsch-Umeyama (eq. reblanced_matching) from the group's head-top track to the
+ego trajectory, matched by timestamp."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from yowo_common.geometry import Sim3, umeyama
+
+
+@dataclass(frozen=True)
+class AlignParams:
+    # eq. clustering. Single linkage chains consecutive frames, so the spatial threshold
+    # sits below the per-frame displacement of walking (~7 cm at 1 m/s, 15 Hz) and above
+    # the jitter of a standing head: a stop becomes one cluster, a walk many.
+    spatial_threshold_m: float = 0.025   # ||X_f_i - X_f_j|| <= spatialThreshold
+    temporal_threshold_s: float = 1.0    # |f_i - f_j| <= temporalThreshold (seconds; rates differ)
+    max_time_gap_s: float = 0.15         # ego poses further than this from a track stamp are not matched
+    rebalance: bool = True               # False: the original (unweighted) KU, for ablation
+
+
+@dataclass
+class Alignment:
+    sim3_world_local: Sim3
+    num_pairs: int
+    num_clusters: int
+    weights: np.ndarray                   # alpha_f per matched pair (sums to one)
+    residuals_m: np.ndarray               # ||X_world - S(X_local)|| per pair
+
+
+def spatiotemporal_clusters(positions: np.ndarray, stamps_ns: np.ndarray, params: AlignParams) -> np.ndarray:
+    """Single-linkage clusters (label per position) where two frames link when they are
+    close both in space and in time."""
+    n = len(positions)
+    order = np.argsort(stamps_ns, kind="stable")
+    t = stamps_ns[order] / 1e9
+    p = positions[order]
+    rows, cols = [], []
+    # Frames are sorted by time, so each frame only looks ahead within the temporal window.
+    end = np.searchsorted(t, t + params.temporal_threshold_s, side="right")
+    for i in range(n):
+        js = np.arange(i + 1, end[i])
+        close = js[np.linalg.norm(p[js] - p[i], axis=1) <= params.spatial_threshold_m]
+        rows += [i] * len(close)
+        cols += close.tolist()
+    graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+    _, labels_sorted = connected_components(graph, directed=False)
+    labels = np.empty(n, dtype=int)
+    labels[order] = labels_sorted
+    return labels
+
+
+def rebalanced_weights(labels: np.ndarray) -> np.ndarray:
+    """alpha_f = 1 / (N_clus * N_phi_k) for f in cluster phi_k (sums to one)."""
+    _, inverse, counts = np.unique(labels, return_inverse=True, return_counts=True)
+    return 1.0 / (len(counts) * counts[inverse])
+
+
+def interpolate_positions(stamps_ns: np.ndarray, positions: np.ndarray, query_ns: np.ndarray,
+                          max_gap_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    """Linear interpolation of a trajectory at query stamps; valid only between two
+    samples at most max_gap_ns apart."""
+    right = np.clip(np.searchsorted(stamps_ns, query_ns), 1, len(stamps_ns) - 1)
+    left = right - 1
+    gap = stamps_ns[right] - stamps_ns[left]
+    ok = (query_ns >= stamps_ns[0]) & (query_ns <= stamps_ns[-1]) & (gap <= max_gap_ns)
+    a = np.clip((query_ns - stamps_ns[left]) / np.maximum(gap, 1), 0.0, 1.0)[:, None]
+    return (1 - a) * positions[left] + a * positions[right], ok
+
+
+def align_group(track_stamps_ns: np.ndarray, track_local: np.ndarray, ego_stamps_ns: np.ndarray,
+                ego_positions: np.ndarray, params: AlignParams = AlignParams()) -> Alignment:
+    """Sim(3) taking the group's local frame to the world, from the head-top track
+    (local, pseudo-scale) and the ego camera positions (world, metric)."""
+    world, ok = interpolate_positions(ego_stamps_ns, ego_positions, track_stamps_ns,
+                                      int(params.max_time_gap_s * 1e9))
+    if ok.sum() < 3:
+        raise ValueError(f"only {int(ok.sum())} head-top points of the group fall within the ego recording; "
+                         "needs at least 3 to align")
+    world, local, stamps = world[ok], track_local[ok], track_stamps_ns[ok]
+    labels = spatiotemporal_clusters(world, stamps, params)
+    weights = rebalanced_weights(labels) if params.rebalance else np.full(len(world), 1.0 / len(world))
+    S = umeyama(local, world, weights=weights)
+    return Alignment(S, len(world), int(labels.max()) + 1, weights, np.linalg.norm(S.apply(local) - world, axis=1))
