@@ -55,6 +55,51 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def cmd_calibrate_cmc(args) -> int:
+    """CMC-only relative calibration through the real node graph (no ego camera needed)."""
+    from .run import plan_run
+    from .run_node import RunFailed, execute
+
+    plan = plan_run(args.bag, args.output, mode="cmc", rate=args.rate, overrides=_load_overrides(args))
+    for w in plan.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    print(f"calibrating {len(plan.cameras)} CMCs of {args.bag}: {', '.join(plan.cameras)}")
+    try:
+        out = execute(plan, timeout_s=args.timeout)
+    except RunFailed as exc:
+        print(f"yowo calibrate-cmc: {exc}", file=sys.stderr)
+        return 1
+    for g in out["groups"]:
+        print(f"group {g.group_id}: " + ", ".join(f"{n} ({g.rmse_px[n]:.2f} px)" for n in g.names))
+    for name, why in out["ungrouped"].items():
+        print(f"not calibrated: {name}: {why}")
+    print(f"results in {args.output}/cameras.yaml")
+    return 0 if out["groups"] else 1
+
+
+def _load_overrides(args) -> dict:
+    """Node parameters from --params YAML ({node: {param: value}}) and --set node.param=value."""
+    import yaml
+
+    overrides = yaml.safe_load(open(args.params)) if args.params else {}
+    for item in args.set or []:
+        key, _, value = item.partition("=")
+        node, _, param = key.partition(".")
+        if not param:
+            raise ValueError(f"--set {item}: expected node.param=value")
+        overrides.setdefault(node, {})[param] = yaml.safe_load(value)
+    return overrides
+
+
+def _add_run_options(p) -> None:
+    p.add_argument("bag", help="rosbag2 directory or .mcap file")
+    p.add_argument("-o", "--output", required=True, help="results directory")
+    p.add_argument("--rate", type=float, default=0.0, help="replay speed (x real time; 0 = as fast as possible)")
+    p.add_argument("--params", help="YAML file of node parameters: {node: {param: value}}")
+    p.add_argument("--set", action="append", metavar="NODE.PARAM=VALUE", help="override one node parameter")
+    p.add_argument("--timeout", type=float, default=3600.0, help="give up after this many seconds")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="yowo", description="YOWO: map a scene and register its ceiling cameras from one walk.")
@@ -71,6 +116,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-cmc-images", action="store_true", help="record CMC keypoints only, no images")
     p.add_argument("--raw", action="store_true", help="raw sensor_msgs/Image instead of compressed")
     p.set_defaults(func=cmd_simulate)
+
+    p = verbs.add_parser("calibrate-cmc", help="relative calibration of each CMC group from agent keypoints only")
+    _add_run_options(p)
+    p.set_defaults(func=cmd_calibrate_cmc)
     return parser
 
 

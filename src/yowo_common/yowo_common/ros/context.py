@@ -18,3 +18,14 @@ def ros_context(args=None):
         pass
     finally:
         rclpy.try_shutdown()
+
+
+def spin_node(node_factory, args=None) -> None:
+    """Entry point body of a node executable: create the node, spin it single-threaded
+    (a multi-threaded executor burns a core here), shut down cleanly on Ctrl-C/SIGTERM."""
+    with ros_context(args):
+        node = node_factory()
+        try:
+            rclpy.spin(node)
+        finally:
+            node.destroy_node()

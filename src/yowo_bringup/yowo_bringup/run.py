@@ -1,0 +1,95 @@
+"""Plan a run from a recording (which nodes, with which parameters) and write the
+results directory. No rclpy here: run_node.py executes the plan."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from yowo_cmc.group_sfm import CameraGroupResult
+from yowo_common.geometry import quat_xyzw_from_rotation
+
+from .contract import cmc_info_topic, cmc_keypoints_topic, discover_inputs
+from .supervisor import NodeSpec
+
+STAGE_MODULES = {
+    "replay": "yowo_bringup.replay_node",
+    "keypoint_tracker": "yowo_cmc.keypoint_tracker_node",
+    "group_sfm": "yowo_cmc.group_sfm_node",
+}
+
+
+@dataclass
+class RunPlan:
+    bag: Path
+    out_dir: Path
+    mode: str                              # "cmc": relative calibration only
+    cameras: list[str]
+    nodes: list[NodeSpec]
+    final_stage: str
+    warnings: list[str] = field(default_factory=list)
+
+
+def plan_run(bag, out_dir, mode: str = "cmc", rate: float = 0.0, overrides: dict | None = None) -> RunPlan:
+    """Nodes for a recording. `overrides`: {node: {param: value}} from a YAML file or the CLI."""
+    inputs = discover_inputs(bag)
+    topics = {t.name for t in inputs.topics}
+    problems = list(inputs.problems)
+    if not inputs.topics or all(t.count == 0 for t in inputs.topics):
+        raise ValueError(f"{bag}: the recording holds no messages")
+    cameras = [c for c in inputs.cmc_names if cmc_keypoints_topic(c) in topics]
+    for c in inputs.cmc_names:
+        if c not in cameras:
+            problems.append(f"CMC '{c}': no {cmc_keypoints_topic(c)}; the image-based detector is not "
+                            "available yet, so the camera is skipped")
+    if len(cameras) < 2:
+        raise ValueError(f"{bag}: {len(cameras)} usable CMC(s) with agent keypoints; relative calibration "
+                         "needs at least 2")
+    wait = [t for c in cameras for t in (cmc_info_topic(c), cmc_keypoints_topic(c))]
+    nodes = [NodeSpec(f"keypoint_tracker_{c}", STAGE_MODULES["keypoint_tracker"], {"camera": c}) for c in cameras]
+    nodes.append(NodeSpec("group_sfm", STAGE_MODULES["group_sfm"], {"cameras": cameras}))
+    played = [t for c in cameras for t in (cmc_info_topic(c), cmc_keypoints_topic(c))]
+    nodes.append(NodeSpec("replay", STAGE_MODULES["replay"], {
+        "bag": str(bag), "rate": float(rate), "topics": played, "wait_for_topics": wait, "linger_s": 1.0}))
+    for spec in nodes:
+        spec.parameters.update((overrides or {}).get(spec.name, {}))
+    return RunPlan(Path(bag), Path(out_dir), mode, cameras, nodes, "group_sfm", problems)
+
+
+def read_intrinsics(bag, cameras: list[str]) -> dict[str, np.ndarray]:
+    """K of each camera from its first CameraInfo in the recording."""
+    from yowo_common.ros.bag import read_messages
+
+    wanted = {cmc_info_topic(c): c for c in cameras}
+    K = {}
+    for topic, _, msg in read_messages(bag, wanted):
+        K.setdefault(wanted[topic], np.asarray(msg.k, dtype=float).reshape(3, 3))
+        if len(K) == len(wanted):
+            break
+    return K
+
+
+def _pose_entry(T: np.ndarray) -> dict:
+    q = quat_xyzw_from_rotation(T[:3, :3])
+    return {"position": [round(float(v), 9) for v in T[:3, 3]],
+            "orientation_xyzw": [round(float(v), 9) for v in q]}
+
+
+def write_group_calibration(path: Path, groups: list[CameraGroupResult], ungrouped: dict[str, str],
+                            intrinsics: dict[str, np.ndarray]) -> None:
+    """cameras.yaml of a CMC-only run: per camera its group and T_group_camera
+    (pseudo-scale: the group's reference camera is the identity)."""
+    cams = []
+    for g in groups:
+        for n in g.names:
+            cams.append({"name": n, "group": g.group_id, "method": "group_sfm", "status": "ok", "reason": "",
+                         "frame": f"{g.group_id} (reference camera {g.reference}, arbitrary scale)",
+                         "T_group_camera": _pose_entry(g.T_local_cam[n]),
+                         "K": np.asarray(intrinsics.get(n, np.zeros((3, 3)))).round(6).tolist(),
+                         "reprojection_rmse_px": round(float(g.rmse_px[n]), 4),
+                         "num_agent_observations": int(g.num_observations[n])})
+    for n, why in ungrouped.items():
+        cams.append({"name": n, "group": "", "method": "none", "status": "failed", "reason": why})
+    path.write_text(yaml.safe_dump({"cameras": sorted(cams, key=lambda c: c["name"])}, sort_keys=False))

@@ -1,0 +1,66 @@
+"""group_sfm_node: gathers every CMC's validated agent keypoints and CameraInfo,
+and when the streams are complete computes the CMC groups and their relative
+calibration; publishes yowo_msgs/CameraGroupArray on /yowo/cmc/groups (latched)."""
+from __future__ import annotations
+
+from sensor_msgs.msg import CameraInfo
+from yowo_msgs.msg import AgentKeypoints, CameraGroupArray
+
+from yowo_common.ros.context import spin_node
+from yowo_common.ros.stage import LATCHED, StageNode
+from yowo_common.rosconv import camera_info_to_model
+
+from .group_sfm import SfmParams, calibrate_groups
+from .keypoint_input import TrackAccumulator, frame_from_msg
+from .keypoint_tracker_node import tracker_output, tracker_stage
+from .messages import groups_to_msg
+
+GROUPS_TOPIC = "/yowo/cmc/groups"
+
+
+class GroupSfmNode(StageNode):
+    def __init__(self):
+        super().__init__("group_sfm")
+        cameras = [c for c in self.declare_parameter("cameras", [""]).value if c]
+        if not cameras:
+            raise ValueError("group_sfm_node needs the parameter cameras:=[name, ...]")
+        self.params = SfmParams(min_matches=self.declare_parameter("min_matches", 8).value,
+                                ransac_px=self.declare_parameter("ransac_px", 2.0).value)
+        self.acc = {c: TrackAccumulator(c) for c in cameras}
+        self.last_stamp = 0
+        self.pub = self.output(CameraGroupArray, GROUPS_TOPIC, LATCHED)
+        for cam in cameras:
+            self.stream_input(CameraInfo, f"/cmc/{cam}/camera_info", lambda m, c=cam: self.on_info(c, m))
+            self.stream_input(AgentKeypoints, tracker_output(cam), lambda m, c=cam: self.on_keypoints(c, m),
+                              upstream=tracker_stage(cam))
+
+    def on_info(self, camera: str, msg: CameraInfo) -> None:
+        if self.acc[camera].camera is None:
+            try:
+                self.acc[camera].camera = camera_info_to_model(msg)
+            except ValueError:
+                pass  # the tracker reports bad CameraInfo; this camera ends up ungrouped
+
+    def on_keypoints(self, camera: str, msg: AgentKeypoints) -> None:
+        frame = frame_from_msg(msg)
+        self.last_stamp = max(self.last_stamp, frame.stamp_ns)
+        self.acc[camera].add(frame)
+
+    def finalize(self) -> str:
+        usable = [a for a in self.acc.values() if a.camera is not None]
+        unusable = {a.name: "no usable CameraInfo" for a in self.acc.values() if a.camera is None}
+        result = calibrate_groups([a.tracks() for a in usable], self.params)
+        result.ungrouped.update(unusable)
+        self.pub.publish(groups_to_msg(result, self.last_stamp))
+        lines = [f"{g.group_id}: {', '.join(g.names)} (initial pair {'/'.join(g.initial_pair)}, RMSE "
+                 + ", ".join(f"{n} {g.rmse_px[n]:.2f}px" for n in g.names) + ")" for g in result.groups]
+        lines += [f"{name}: {why}" for name, why in result.ungrouped.items()]
+        return "; ".join(lines)
+
+
+def main(args=None):
+    spin_node(GroupSfmNode, args)
+
+
+if __name__ == "__main__":
+    main()

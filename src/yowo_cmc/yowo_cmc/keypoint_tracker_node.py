@@ -1,0 +1,69 @@
+"""keypoint_tracker_node: one per CMC (parameter `camera`, node renamed to
+keypoint_tracker_<camera>). Validates the agent keypoints of an external detector
+on /cmc/<name>/agent_keypoints and passes them on to /yowo/cmc/<name>/agent_keypoints
+for the group SfM (our outputs live under /yowo so they never loop back into inputs).
+Smoothing and undistortion happen in the group SfM, which sees whole tracks."""
+from __future__ import annotations
+
+from sensor_msgs.msg import CameraInfo
+from yowo_msgs.msg import AgentKeypoints
+
+from yowo_common.ros.context import spin_node
+from yowo_common.ros.stage import StageNode
+from yowo_common.rosconv import camera_info_to_model
+
+from .keypoint_input import TrackAccumulator, frame_from_msg
+
+
+def tracker_stage(camera: str) -> str:
+    return f"keypoint_tracker_{camera}"
+
+
+def tracker_output(camera: str) -> str:
+    return f"/yowo/cmc/{camera}/agent_keypoints"
+
+
+class KeypointTrackerNode(StageNode):
+    def __init__(self):
+        super().__init__("keypoint_tracker")
+        camera = self.declare_parameter("camera", "").value
+        if not camera:
+            raise ValueError("keypoint_tracker_node needs the parameter camera:=<name>")
+        self.camera = camera
+        self.source = self.declare_parameter("source", "keypoints").value
+        if self.source != "keypoints":
+            raise ValueError(f"camera '{camera}': source '{self.source}' is not available; "
+                             "the image-based detector is not implemented yet (use source:=keypoints)")
+        self.acc = TrackAccumulator(camera)
+        self.info_problem = ""
+        self.pub = self.output(AgentKeypoints, tracker_output(camera))
+        self.stream_input(CameraInfo, f"/cmc/{camera}/camera_info", self.on_info)
+        self.stream_input(AgentKeypoints, f"/cmc/{camera}/agent_keypoints", self.on_keypoints)
+
+    def on_info(self, msg: CameraInfo) -> None:
+        if self.acc.camera is None:
+            try:
+                self.acc.camera = camera_info_to_model(msg)
+            except ValueError as exc:
+                if not self.info_problem:
+                    self.info_problem = f"/cmc/{self.camera}/camera_info: {exc}"
+                    self.get_logger().error(self.info_problem)
+
+    def on_keypoints(self, msg: AgentKeypoints) -> None:
+        kept = self.acc.add(frame_from_msg(msg))
+        if kept is None:
+            return
+        out = AgentKeypoints(header=msg.header, camera_name=self.camera,
+                             keypoints=[k for k in msg.keypoints if k.id in set(kept.ids.tolist())])
+        self.pub.publish(out)
+
+    def finalize(self) -> str:
+        return self.acc.summary() + (f"; {self.info_problem}" if self.info_problem else "")
+
+
+def main(args=None):
+    spin_node(KeypointTrackerNode, args)
+
+
+if __name__ == "__main__":
+    main()

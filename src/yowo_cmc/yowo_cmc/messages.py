@@ -1,0 +1,41 @@
+"""CameraGroupArray <-> CMC group results (message classes only, no rclpy)."""
+from __future__ import annotations
+
+import numpy as np
+from std_msgs.msg import Header
+from yowo_msgs.msg import CameraGroup, CameraGroupArray
+
+from yowo_common.rosconv import (array_to_points, matrix_to_pose, ns_to_time, points_to_array, pose_to_matrix,
+                                 stamp_to_ns)
+
+from .group_sfm import CameraGroupResult, GroupingResult
+
+
+def groups_to_msg(result: GroupingResult, stamp_ns: int) -> CameraGroupArray:
+    msg = CameraGroupArray(header=Header(stamp=ns_to_time(stamp_ns), frame_id=""))
+    for g in result.groups:
+        msg.groups.append(CameraGroup(
+            group_id=g.group_id, reference_camera=g.reference, camera_names=list(g.names),
+            poses_local_camera=[matrix_to_pose(g.T_local_cam[n]) for n in g.names],
+            reprojection_rmse_px=[float(g.rmse_px[n]) for n in g.names],
+            num_observations=[int(g.num_observations[n]) for n in g.names],
+            track_stamps=[ns_to_time(int(s)) for s in g.point_stamps_ns],
+            track_keypoint_ids=[int(i) for i in g.point_ids],
+            track_points=array_to_points(g.points)))
+    msg.ungrouped_cameras = list(result.ungrouped)
+    msg.ungrouped_reasons = list(result.ungrouped.values())
+    return msg
+
+
+def groups_from_msg(msg: CameraGroupArray) -> tuple[list[CameraGroupResult], dict[str, str]]:
+    groups = []
+    for g in msg.groups:
+        names = list(g.camera_names)
+        groups.append(CameraGroupResult(
+            g.group_id, g.reference_camera, names,
+            {n: pose_to_matrix(p) for n, p in zip(names, g.poses_local_camera)},
+            np.array([stamp_to_ns(s) for s in g.track_stamps], dtype=np.int64),
+            np.array(g.track_keypoint_ids, dtype=int), points_to_array(g.track_points),
+            dict(zip(names, g.reprojection_rmse_px)), dict(zip(names, g.num_observations)), {},
+            (g.reference_camera, "")))
+    return groups, dict(zip(msg.ungrouped_cameras, msg.ungrouped_reasons))

@@ -1,0 +1,120 @@
+"""Base class of YOWO's pipeline nodes: counted inputs and outputs, status on
+/yowo/status/<stage>, and finalisation once every upstream finished and every
+message it announced has arrived (so no stage computes on a partial stream)."""
+from __future__ import annotations
+
+import traceback
+from collections import Counter
+
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Header
+from yowo_msgs.msg import ReplayStatus, StageStatus
+
+from ..streams import StreamCompletion
+
+REPLAY = "replay"
+REPLAY_STATUS_TOPIC = "/yowo/replay/status"
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# Streams: reliable and never dropped by the history (the replay applies flow control).
+STREAM = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+# Stage-to-stage streams are also durable: a downstream stage that matches late (its
+# subscription discovered after the first messages) still receives all of them.
+DURABLE_STREAM = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def status_topic(stage: str) -> str:
+    return f"/yowo/status/{stage}"
+
+
+class StageNode(Node):
+    """Subclasses declare inputs with `stream_input`, outputs with `output`, and
+    implement `finalize()`; it runs once, when the inputs are complete."""
+
+    def __init__(self, name: str):
+        super().__init__(name)
+        self.stage = self.get_name()  # a launcher may rename the node (one tracker per camera)
+        self.completion = StreamCompletion({})
+        self.published: Counter = Counter()
+        self._status_pub = self.create_publisher(StageStatus, status_topic(self.stage), LATCHED)
+        self._watched: set[str] = set()
+        self._finalized = False
+        self.create_timer(0.2, self._check)
+        self.create_timer(2.0, lambda: self.publish_status(StageStatus.STATE_RUNNING) if not self._finalized else None)
+
+    # --- wiring -----------------------------------------------------------------
+    def stream_input(self, msg_type, topic: str, callback, upstream: str = REPLAY, qos=None):
+        """Subscribe to a counted input published by `upstream` (the replay or a stage)."""
+        qos = qos or (STREAM if upstream == REPLAY else DURABLE_STREAM)
+        self.completion.inputs[topic] = upstream
+        self._watch(upstream)
+
+        def counted(msg):
+            self.completion.on_received(topic)
+            try:
+                callback(msg)
+            except Exception as exc:  # a bad message must not kill the stage; it is reported
+                self.get_logger().error(f"{topic}: {exc}\n{traceback.format_exc(limit=3)}")
+        return self.create_subscription(msg_type, topic, counted, qos)
+
+    def output(self, msg_type, topic: str, qos=DURABLE_STREAM):
+        pub = self.create_publisher(msg_type, topic, qos)
+        stage = self
+
+        class Counted:
+            def publish(self, msg):
+                pub.publish(msg)
+                stage.published[topic] += 1
+
+            def get_subscription_count(self):
+                return pub.get_subscription_count()
+        return Counted()
+
+    def _watch(self, upstream: str) -> None:
+        if upstream in self._watched:
+            return
+        self._watched.add(upstream)
+        if upstream == REPLAY:
+            self.create_subscription(ReplayStatus, REPLAY_STATUS_TOPIC, self._on_replay_status, LATCHED)
+        else:
+            self.create_subscription(StageStatus, status_topic(upstream),
+                                     lambda m, up=upstream: self._on_stage_status(up, m), LATCHED)
+
+    def _on_replay_status(self, msg: ReplayStatus) -> None:
+        if msg.state == ReplayStatus.STATE_FINISHED:
+            if msg.error:
+                self.get_logger().warning(f"replay ended early: {msg.error}")
+            self.completion.on_upstream_finished(REPLAY, msg.topics, msg.published_counts)
+
+    def _on_stage_status(self, upstream: str, msg: StageStatus) -> None:
+        if msg.state in (StageStatus.STATE_FINISHED, StageStatus.STATE_FAILED):
+            self.completion.on_upstream_finished(upstream, msg.topics, msg.published_counts)
+
+    # --- lifecycle ----------------------------------------------------------------
+    def _check(self) -> None:
+        if self._finalized or not self.completion.inputs or not self.completion.complete:
+            return
+        self._finalized = True
+        try:
+            summary = self.finalize() or ""
+        except Exception as exc:
+            self.get_logger().error(f"{self.stage} failed: {exc}\n{traceback.format_exc()}")
+            self.publish_status(StageStatus.STATE_FAILED, str(exc))
+            return
+        self.publish_status(StageStatus.STATE_FINISHED, summary)
+        self.get_logger().info(f"{self.stage} finished. {summary}")
+
+    def finalize(self) -> str | None:
+        raise NotImplementedError
+
+    def publish_status(self, state: int, message: str = "") -> None:
+        c = self.completion
+        self._status_pub.publish(StageStatus(
+            header=Header(stamp=self.get_clock().now().to_msg()), stage=self.stage, state=state,
+            topics=list(self.published), published_counts=list(self.published.values()),
+            input_topics=list(c.inputs), received_counts=[c.received[t] for t in c.inputs], message=message))
+
+    @property
+    def finished(self) -> bool:
+        return self._finalized
