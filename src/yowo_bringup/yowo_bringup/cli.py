@@ -48,6 +48,12 @@ def cmd_simulate(args) -> int:
         task = bar.add_task(f"simulating '{args.preset}' (seed {args.seed})", total=None)
         summary = generate(preset, args.seed, args.output,
                            progress=lambda done, total: bar.update(task, completed=done, total=total))
+    if args.preview:
+        from yowo_sim.capture import build_capture
+        from yowo_sim.preview import render_preview
+
+        render_preview(build_capture(preset, args.seed), args.preview)
+        print(f"preview: {args.preview}")
     fps = summary.rendered_frames / max(summary.render_seconds, 1e-9)
     print(f"wrote {summary.path}: {summary.duration_s:.1f} s walk, {summary.ego_frames} ego frames, "
           f"{summary.cmc_frames} CMC frames ({summary.cmc_frames_with_agent} with the agent detected), "
@@ -115,6 +121,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="new rosbag2 directory to write (MCAP)")
     p.add_argument("--no-cmc-images", action="store_true", help="record CMC keypoints only, no images")
     p.add_argument("--raw", action="store_true", help="raw sensor_msgs/Image instead of compressed")
+    p.add_argument("--preview", metavar="PNG", help="also write a picture: ego frame, CMC frame, top view")
     p.set_defaults(func=cmd_simulate)
 
     p = verbs.add_parser("calibrate-cmc", help="relative calibration of each CMC group from agent keypoints only")

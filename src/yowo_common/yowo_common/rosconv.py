@@ -22,6 +22,18 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 COMPRESSED_DEPTH_HEADER = struct.Struct("<iff")
 
 
+def message_fields(msg):
+    """Every field of a rosidl message as plain Python values, recursively (for
+    comparisons: serialised bytes differ in their padding between writes)."""
+    if hasattr(msg, "get_fields_and_field_types"):
+        return {k: message_fields(getattr(msg, k)) for k in msg.get_fields_and_field_types()}
+    if isinstance(msg, (list, tuple)):
+        return [message_fields(m) for m in msg]
+    if hasattr(msg, "tolist"):
+        return msg.tolist()
+    return msg
+
+
 # --- time -------------------------------------------------------------------
 def stamp_to_ns(stamp) -> int:
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)

@@ -109,14 +109,32 @@ def agent_in_view(cmc: Cmc, keypoints: dict[int, np.ndarray], margin_px: float =
     return bool(np.any(ok & np.all((uv > lo) & (uv < hi), axis=1)))
 
 
-def generate(preset: CapturePreset, seed: int, out_path, progress: Callable[[int, int], None] | None = None
-             ) -> CaptureSummary:
+@dataclass
+class CaptureSetup:
+    """Everything a capture is made of before rendering (deterministic for a seed)."""
+
+    preset: CapturePreset
+    scene: Scene
+    cmcs: list[Cmc]
+    walk: Walk
+    ego_camera: CameraModel
+    rng: np.random.Generator
+
+
+def build_capture(preset: CapturePreset, seed: int) -> CaptureSetup:
     rng = np.random.default_rng(seed)
     scene = build_scene(replace(preset.scene, seed=seed))
     cmcs = place_cmcs(scene, preset, rng)
-    walk: Walk = plan_walk(scene.free_space_polygon(), scene.rooms[0].center_xy(),
-                           [c.target_xy for c in cmcs], preset.walk, rng)
+    walk = plan_walk(scene.free_space_polygon(), scene.rooms[0].center_xy(), [c.target_xy for c in cmcs],
+                     preset.walk, rng)
     ego_cam = CameraModel.from_fov(preset.ego_width, preset.ego_height, preset.ego_hfov_deg)
+    return CaptureSetup(preset, scene, cmcs, walk, ego_cam, rng)
+
+
+def generate(preset: CapturePreset, seed: int, out_path, progress: Callable[[int, int], None] | None = None
+             ) -> CaptureSummary:
+    setup = build_capture(preset, seed)
+    scene, cmcs, walk, ego_cam, rng = setup.scene, setup.cmcs, setup.walk, setup.ego_camera, setup.rng
     renderer = Renderer(scene)
     render_s, rendered = 0.0, 0
 

@@ -36,7 +36,7 @@ def make_intrinsics(spec: CmcSpec, rng: np.random.Generator) -> CameraModel:
     cam.K[1, 2] += rng.uniform(-6, 6)
     cam.K[1, 1] *= rng.uniform(0.995, 1.005)
     if spec.distortion:
-        cam.D = np.array([rng.uniform(-0.25, -0.05), rng.uniform(0.0, 0.08), 0.0, 0.0, 0.0])
+        cam.D = np.array([rng.uniform(-0.15, -0.03), rng.uniform(0.0, 0.04), 0.0, 0.0, 0.0])
     return cam
 
 
