@@ -8,7 +8,7 @@ from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
 from yowo_common.camera import CameraModel
 from yowo_common.ros.bag import BagWriter, read_messages
-from yowo_common.rosconv import encode_raw, model_to_camera_info, ns_to_time
+from yowo_common.rosconv import encode_raw, message_fields, model_to_camera_info, ns_to_time
 
 N = 200
 
@@ -37,17 +37,6 @@ def test_tf_static_reaches_late_joiner(start_script):
     assert out.splitlines() == ["cam0_optical_frame 0.0", "cam1_optical_frame 1.0", "cam2_optical_frame 2.0"]
 
 
-def fields(msg):
-    """Every field of a rosidl message as plain Python values, recursively."""
-    if hasattr(msg, "get_fields_and_field_types"):
-        return {k: fields(getattr(msg, k)) for k in msg.get_fields_and_field_types()}
-    if isinstance(msg, (list, tuple)):
-        return [fields(m) for m in msg]
-    if hasattr(msg, "tolist"):
-        return msg.tolist()
-    return msg
-
-
 def test_bag_roundtrip_field_by_field(tmp_path):
     rng = np.random.default_rng(0)
     cam = CameraModel(64, 48, [[50.5, 0, 31.7], [0, 51.25, 23.9], [0, 0, 1]], [-0.1, 0.02, 0.001, 0, 0.003])
@@ -70,5 +59,5 @@ def test_bag_roundtrip_field_by_field(tmp_path):
     key = lambda item: (item[0], item[1])  # noqa: E731
     for (t_a, s_a, m_a), (t_b, s_b, m_b) in zip(sorted(sent, key=key), sorted(got, key=key)):
         assert (t_a, s_a, type(m_a)) == (t_b, s_b, type(m_b))
-        assert fields(m_a) == fields(m_b)
+        assert message_fields(m_a) == message_fields(m_b)
     assert isinstance(got[0][2], (Image, CameraInfo, AgentKeypoints))
