@@ -1,0 +1,95 @@
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from yowo_common.bundle import Observations
+from yowo_common.camera import CameraModel
+from yowo_common.geometry import look_at, se3
+from yowo_fusion.joint import JointParams, JointProblem, solve_joint
+
+OFFSET = np.array([0.0, -0.11, -0.06])  # head top in the ego camera frame
+
+
+def observe(cams, poses, points, sigma, rng, max_range=12.0):
+    ci, pi, uv = [], [], []
+    for c, (cam, T) in enumerate(zip(cams, poses)):
+        p, ok = cam.project_world(T, points)
+        ok &= cam.in_image(p) & (np.linalg.norm(points - T[:3, 3], axis=1) < max_range)
+        ci += [c] * ok.sum()
+        pi += np.flatnonzero(ok).tolist()
+        uv.append(p[ok] + rng.normal(size=(ok.sum(), 2)) * sigma)
+    return Observations(np.array(ci, int), np.array(pi, int), np.vstack(uv), np.full(len(ci), max(sigma, 0.5)))
+
+
+def make_problem(seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(0, 30, 0.1)
+    xy = np.column_stack([4 + 2.5 * np.sin(t / 5), 3 + 1.5 * np.sin(t / 3)])
+    heading = np.arctan2(np.gradient(xy[:, 1]), np.gradient(xy[:, 0]))
+    # Ego camera: at the head, looking ahead and slightly down, with head yaw.
+    R_body_opt = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)
+    T_ego = []
+    for (x, y), h, tt in zip(xy, heading, t):
+        R = Rotation.from_euler("ZYX", [h + 0.4 * np.sin(tt), 0.3, 0]).as_matrix() @ R_body_opt
+        T_ego.append(se3(R, [x, y, 1.65]))
+    stamps = (t * 1e9).astype(np.int64)
+    top = np.array([T[:3, :3] @ OFFSET + T[:3, 3] for T in T_ego])
+    bottom = top * [1, 1, 0]
+    agent = np.vstack([top, bottom])
+    agent_stamps = np.concatenate([stamps, stamps])
+    agent_ids = np.repeat([0, 1], len(t))
+    # Landmarks on the walls of an 8 x 6 room.
+    n = 400
+    side = rng.integers(4, size=n)
+    u, z = rng.uniform(0, 1, n), rng.uniform(0.2, 2.6, n)
+    landmarks = np.column_stack([np.select([side == 0, side == 1, side == 2], [u * 8, u * 8, 0.0], 8.0),
+                                 np.select([side == 0, side == 1, side == 2], [0.0, 6.0, u * 6], u * 6), z])
+    ego_cam = CameraModel.from_fov(640, 480, 70)
+    cmc_cams = [CameraModel.from_fov(640, 480, 85) for _ in range(3)]
+    T_cmc = [look_at([0.3, 0.3, 3.0], [4, 3, 0.8]), look_at([7.7, 0.4, 3.2], [4, 3, 0.8]),
+             look_at([4.0, 5.7, 2.9], [4, 2.5, 0.8])]
+    ego_obs = observe([ego_cam] * len(T_ego), T_ego, landmarks, 0.7, rng)
+    scene_obs = observe(cmc_cams, T_cmc, landmarks, 0.7, rng)
+    agent_obs = observe(cmc_cams, T_cmc, agent, 1.0, rng)
+    truth = dict(T_ego=T_ego, landmarks=landmarks, T_cmc=T_cmc, agent=agent)
+
+    def jitter(T, rot_deg, trans_m):
+        return se3(Rotation.from_rotvec(rng.normal(size=3) * np.radians(rot_deg)).as_matrix() @ T[:3, :3],
+                   T[:3, 3] + rng.normal(size=3) * trans_m)
+    problem = JointProblem(
+        ego_cam, stamps, [T_ego[0]] + [jitter(T, 0.3, 0.02) for T in T_ego[1:]],
+        landmarks + rng.normal(size=landmarks.shape) * 0.02, ego_obs, cmc_cams,
+        [jitter(T, 1.0, 0.08) for T in T_cmc], scene_obs, agent + rng.normal(size=agent.shape) * 0.04,
+        agent_stamps, agent_ids, agent_obs, head_offset=np.zeros(3))  # the paper's "head top = camera"
+    return problem, truth
+
+
+def max_pos_err(A, B):
+    return max(np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in zip(A, B))
+
+
+def test_joint_optimisation_improves_cameras_and_ego():
+    problem, truth = make_problem()
+    before_cmc = max_pos_err(problem.T_world_cmc, truth["T_cmc"])
+    before_ego = max_pos_err(problem.T_world_ego, truth["T_ego"])
+    res = solve_joint(problem)
+    after_cmc = max_pos_err(res.T_world_cmc, truth["T_cmc"])
+    after_ego = max_pos_err(res.T_world_ego, truth["T_ego"])
+    assert after_cmc < 0.2 * before_cmc and after_cmc < 0.02
+    assert after_ego < 0.5 * before_ego
+    np.testing.assert_allclose(res.head_offset, OFFSET, atol=0.02)
+    assert res.final_error < res.initial_error
+    # The covariance is a proper 6x6 and its position sigma is of the size of the achieved error.
+    cov = res.cmc_covariances[0]
+    assert cov.shape == (6, 6) and np.all(np.linalg.eigvalsh(cov) > 0)
+    assert np.sqrt(np.trace(cov[:3, :3])) < 0.05
+
+
+def test_head_offset_model_beats_head_top_equals_camera():
+    """The paper's a2e assumes the head top is the ego camera centre; with a real 12 cm
+    offset that biases the CMCs, estimating the rigid offset removes the bias."""
+    problem, truth = make_problem(seed=1)
+    ours = solve_joint(problem)
+    paper = solve_joint(problem, JointParams(estimate_head_offset=False))
+    np.testing.assert_allclose(paper.head_offset, 0.0, atol=1e-6)
+    assert max_pos_err(ours.T_world_cmc, truth["T_cmc"]) < 0.5 * max_pos_err(paper.T_world_cmc, truth["T_cmc"])

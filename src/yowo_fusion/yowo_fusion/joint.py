@@ -1,0 +1,201 @@
+"""Joint optimisation of ego poses, scene landmarks, CMC poses and the agent track
+(paper eq. factor_graph_all) with GTSAM built-in factors:
+
+- c2k: projection factors (GenericProjectionFactorCal3_S2, Huber) for ego poses x
+  landmarks, CMC poses x landmarks (scene keypoints) and CMC poses x agent points;
+- a2e (eq. f_e2e): the agent's head top against the ego camera. The paper treats the
+  camera/head-top offset as noise; here the head is rigid, so the head top is
+  T_world_ego(t) * o with one unknown offset o (in the ego camera frame) estimated
+  jointly. The factor is linearised at the initial estimate (LinearContainerFactor
+  around a JacobianFactor) because Python custom factors are too slow at this size;
+- kin (eq. f_kin): constant-velocity second difference of the head-top track and
+  constant top-to-bottom vector between successive frames, both linear (exact).
+Gauge: the ego map fixes the world: a tight prior on the first ego pose and depth-
+derived priors on the landmarks (scale)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import A, C, D, L, O, X
+
+from yowo_common.bundle import FIXED_SIGMA, Observations, cal3, pose3, reprojection_residuals
+from yowo_common.camera import CameraModel
+from yowo_common.geometry import skew
+
+TOP, BOTTOM = 0, 1
+
+
+@dataclass(frozen=True)
+class JointParams:
+    huber_k: float = 1.345
+    ego_sigma_px: float = 1.0
+    landmark_prior_sigma_m: float = 0.05     # depth-derived position of each ego landmark
+    a2e_sigma_m: float = 0.05                # head-top vs predicted head top (offset model residual)
+    kin_accel_sigma_m: float = 0.05          # per grid step, second difference of the head top
+    kin_body_sigma_m: float = 0.05           # change of the top-to-bottom vector per grid step
+    max_a2e_gap_s: float = 0.2               # ego poses further apart than this are not interpolated
+    estimate_head_offset: bool = True        # False: the paper's model, head top = ego camera centre
+    iterations: int = 50
+
+
+@dataclass
+class JointProblem:
+    ego_camera: CameraModel
+    ego_stamps_ns: np.ndarray                # (F,) sorted
+    T_world_ego: list[np.ndarray]            # (F) initial
+    landmarks: np.ndarray                    # (P, 3) initial (also the depth prior)
+    ego_obs: Observations                    # camera = ego frame index, point = landmark index
+    cmc_cameras: list[CameraModel]           # ideal (undistorted) intrinsics
+    T_world_cmc: list[np.ndarray]            # initial
+    cmc_scene_obs: Observations              # camera = CMC index, point = landmark index
+    agent_points: np.ndarray                 # (K, 3) initial, world
+    agent_stamps_ns: np.ndarray              # (K,)
+    agent_ids: np.ndarray                    # (K,)
+    cmc_agent_obs: Observations              # camera = CMC index, point = agent point index
+    head_offset: np.ndarray = field(default_factory=lambda: np.array([0.0, -0.1, -0.05]))  # o, ego frame
+
+
+@dataclass
+class JointResult:
+    T_world_ego: list[np.ndarray]
+    landmarks: np.ndarray
+    T_world_cmc: list[np.ndarray]
+    agent_points: np.ndarray
+    head_offset: np.ndarray
+    cmc_covariances: list[np.ndarray]        # 6x6 per CMC, ROS order (x, y, z, rx, ry, rz), world frame
+    cmc_agent_residuals: np.ndarray          # (M, 2) px
+    cmc_scene_residuals: np.ndarray
+    initial_error: float
+    final_error: float
+
+
+def interpolation_pairs(ego_ns: np.ndarray, query_ns: np.ndarray, max_gap_ns: int):
+    """(left index, right index, weight of right) for each query inside the ego stream."""
+    right = np.clip(np.searchsorted(ego_ns, query_ns), 1, len(ego_ns) - 1)
+    left = right - 1
+    gap = ego_ns[right] - ego_ns[left]
+    ok = (query_ns >= ego_ns[0]) & (query_ns <= ego_ns[-1]) & (gap <= max_gap_ns)
+    a = np.clip((query_ns - ego_ns[left]) / np.maximum(gap, 1), 0.0, 1.0)
+    return left, right, a, ok
+
+
+def ros_covariance(cov_gtsam: np.ndarray, R_world_cam: np.ndarray) -> np.ndarray:
+    """GTSAM Pose3 marginal (body tangent [w, v]) -> ROS order (x, y, z, rx, ry, rz) in the world."""
+    J = np.zeros((6, 6))
+    J[:3, 3:] = R_world_cam      # position perturbation = R v
+    J[3:, :3] = R_world_cam      # rotation perturbation (left, world) = R w
+    return J @ cov_gtsam @ J.T
+
+
+def _robust(sigma: float, k: float):
+    return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(k),
+                                          gtsam.noiseModel.Isotropic.Sigma(2, sigma))
+
+
+def _add_projections(graph, obs: Observations, cams: list[CameraModel], pose_key, point_key, k: float) -> None:
+    cals = [cal3(c) for c in cams]
+    models: dict[float, object] = {}
+    for c, j, uv, s in zip(obs.camera, obs.point, obs.uv, obs.sigma_px):
+        model = models.setdefault(float(s), _robust(float(s), k))
+        graph.add(gtsam.GenericProjectionFactorCal3_S2(gtsam.Point2(*uv), model, pose_key(int(c)), point_key(int(j)),
+                                                       cals[c]))
+
+
+def _linear(keys_and_blocks, b, sigma, values) -> gtsam.LinearContainerFactor:
+    dim = len(b)
+    jf = gtsam.JacobianFactor(*[x for kb in keys_and_blocks for x in kb], np.asarray(b, float),
+                              gtsam.noiseModel.Isotropic.Sigma(dim, sigma))
+    return gtsam.LinearContainerFactor(jf, values)
+
+
+def solve_joint(p: JointProblem, params: JointParams = JointParams()) -> JointResult:
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    for f, T in enumerate(p.T_world_ego):
+        values.insert(X(f), pose3(T))
+    graph.add(gtsam.PriorFactorPose3(X(0), pose3(p.T_world_ego[0]), gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)))
+    lm_used = np.union1d(p.ego_obs.point, p.cmc_scene_obs.point).astype(int)
+    prior = gtsam.noiseModel.Isotropic.Sigma(3, params.landmark_prior_sigma_m)
+    for j in lm_used:
+        values.insert(L(j), gtsam.Point3(*p.landmarks[j]))
+        graph.add(gtsam.PriorFactorPoint3(L(j), gtsam.Point3(*p.landmarks[j]), prior))
+    for i, T in enumerate(p.T_world_cmc):
+        values.insert(C(i), pose3(T))
+    for k, P in enumerate(p.agent_points):
+        values.insert(A(k), gtsam.Point3(*P))
+    values.insert(O(0), gtsam.Point3(*p.head_offset))
+    if not params.estimate_head_offset:
+        graph.add(gtsam.PriorFactorPoint3(O(0), gtsam.Point3(0, 0, 0), gtsam.noiseModel.Isotropic.Sigma(3, FIXED_SIGMA)))
+
+    _add_projections(graph, p.ego_obs, [p.ego_camera] * len(p.T_world_ego), lambda c: X(c), lambda j: L(j),
+                     params.huber_k)
+    _add_projections(graph, p.cmc_scene_obs, p.cmc_cameras, lambda c: C(c), lambda j: L(j), params.huber_k)
+    _add_projections(graph, p.cmc_agent_obs, p.cmc_cameras, lambda c: C(c), lambda j: A(j), params.huber_k)
+    _add_a2e(graph, values, p, params)
+    _add_kinematics(graph, values, p, params)
+
+    lm_params = gtsam.LevenbergMarquardtParams()
+    lm_params.setMaxIterations(params.iterations)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, lm_params)
+    initial_error = graph.error(values)
+    result = optimizer.optimize()
+    T_ego = [result.atPose3(X(f)).matrix() for f in range(len(p.T_world_ego))]
+    landmarks = p.landmarks.copy()
+    for j in lm_used:
+        landmarks[j] = result.atPoint3(L(j))
+    T_cmc = [result.atPose3(C(i)).matrix() for i in range(len(p.T_world_cmc))]
+    agent = np.array([result.atPoint3(A(k)) for k in range(len(p.agent_points))]).reshape(-1, 3)
+    marginals = gtsam.Marginals(graph, result)
+    covs = [ros_covariance(marginals.marginalCovariance(C(i)), T[:3, :3]) for i, T in enumerate(T_cmc)]
+    return JointResult(T_ego, landmarks, T_cmc, agent, np.asarray(result.atPoint3(O(0))), covs,
+                       reprojection_residuals(p.cmc_cameras, T_cmc, agent, p.cmc_agent_obs),
+                       reprojection_residuals(p.cmc_cameras, T_cmc, landmarks, p.cmc_scene_obs),
+                       initial_error, graph.error(result))
+
+
+def _add_a2e(graph, values, p: JointProblem, params: JointParams) -> None:
+    """Head top A_k = T_f(o) + (interpolated - nearest ego position), f the ego pose nearest
+    to the agent point's stamp (a JacobianFactor takes three keys: pose, offset, point),
+    linearised at the initial values."""
+    top = np.flatnonzero(p.agent_ids == TOP)
+    left, right, a, ok = interpolation_pairs(p.ego_stamps_ns, p.agent_stamps_ns[top], int(params.max_a2e_gap_s * 1e9))
+    o = p.head_offset
+    for k, f0, f1, w in zip(top[ok], left[ok], right[ok], a[ok]):
+        f = int(f1 if w >= 0.5 else f0)
+        R, t = p.T_world_ego[f][:3, :3], p.T_world_ego[f][:3, 3]
+        between = (1 - w) * p.T_world_ego[f0][:3, 3] + w * p.T_world_ego[f1][:3, 3] - t
+        predicted = R @ o + t + between
+        # d(R o + t) / d[w, v] for a right perturbation T Exp([w, v]): [-R [o]x, R]
+        blocks = [(X(f), np.hstack([-R @ skew(o), R])), (O(0), R), (A(int(k)), -np.eye(3))]
+        # error(delta) = predicted + J delta - A0 (A's own delta is in J): b = A0 - predicted.
+        graph.add(_linear(blocks, p.agent_points[k] - predicted, params.a2e_sigma_m, values))
+
+
+def _add_kinematics(graph, values, p: JointProblem, params: JointParams) -> None:
+    """eq. f_kin on consecutive grid samples: second difference of the head top, and the
+    change of the top-to-bottom vector D_k (an auxiliary variable D_k = top_k - bottom_k,
+    because a JacobianFactor takes at most three keys)."""
+    stamps = np.unique(p.agent_stamps_ns)
+    step = np.median(np.diff(stamps)) if len(stamps) > 1 else 0
+    index = {(int(s), int(i)): k for k, (s, i) in enumerate(zip(p.agent_stamps_ns, p.agent_ids))}
+    I3 = np.eye(3)
+    body_keys = {}
+    for n, s in enumerate(stamps):
+        t, b = index.get((int(s), TOP)), index.get((int(s), BOTTOM))
+        if t is not None and b is not None:
+            d = p.agent_points[t] - p.agent_points[b]
+            values.insert(D(n), gtsam.Point3(*d))
+            graph.add(_linear([(D(n), I3), (A(t), -I3), (A(b), I3)], np.zeros(3), FIXED_SIGMA * 1e3, values))
+            body_keys[int(s)] = (n, d)
+    body_noise = gtsam.noiseModel.Isotropic.Sigma(3, params.kin_body_sigma_m)
+    for s in stamps:
+        s0, s1, s2 = int(s), int(s + step), int(s + 2 * step)
+        t0, t1, t2 = (index.get((x, TOP)) for x in (s0, s1, s2))
+        if None not in (t0, t1, t2):
+            r = p.agent_points[t2] - 2 * p.agent_points[t1] + p.agent_points[t0]
+            graph.add(_linear([(A(t0), I3), (A(t1), -2 * I3), (A(t2), I3)], -r, params.kin_accel_sigma_m, values))
+        if s0 in body_keys and s1 in body_keys:
+            graph.add(gtsam.BetweenFactorPoint3(D(body_keys[s0][0]), D(body_keys[s1][0]), gtsam.Point3(0, 0, 0),
+                                                body_noise))
