@@ -16,7 +16,7 @@ from yowo_common.bundle import BundleProblem, Observations, robust_sigma, solve
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3, se3
 
-from .tracks import CameraTracks, TrackParams, clean_track, interpolate, undistort_tracks
+from .tracks import CameraTracks, TrackParams, resample
 
 MAX_IDS = 1000  # keypoint ids per grid time: key = grid index * MAX_IDS + id
 
@@ -97,18 +97,12 @@ def sample_on_grid(cams: list[CameraTracks], params: TrackParams) -> GridObserva
     grid = np.arange(t0, all_stamps.max() + period, period, dtype=np.int64)
     per_camera, models = [], []
     for cam in cams:
-        cleaned = CameraTracks(cam.name, cam.camera,
-                               {i: clean_track(t, cam.frame_period_ns, params) for i, t in cam.tracks.items()},
-                               cam.frame_period_ns)
-        ideal = undistort_tracks(cleaned)
-        models.append(ideal.camera)
+        model, samples = resample(cam, grid, params)
+        models.append(model)
         obs = {}
-        for kp_id, track in ideal.tracks.items():
-            if kp_id >= MAX_IDS:
-                continue
-            uv, ok = interpolate(track, grid, int(params.gap_factor * cam.frame_period_ns))
-            for k in np.flatnonzero(ok):
-                obs[int(k) * MAX_IDS + kp_id] = uv[k]
+        for kp_id, (uv, ok) in samples.items():
+            if kp_id < MAX_IDS:
+                obs.update((int(k) * MAX_IDS + kp_id, uv[k]) for k in np.flatnonzero(ok))
         per_camera.append(obs)
     return GridObservations(grid, models, [c.name for c in cams], per_camera)
 

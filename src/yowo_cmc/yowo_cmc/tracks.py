@@ -117,3 +117,15 @@ def interpolate(track: KeypointTrack, stamps_ns: np.ndarray, max_gap_ns: int) ->
     uv[ok] = (1 - a[ok, None]) * track.uv[li[ok]] + a[ok, None] * track.uv[ri[ok]]
     uv[exact] = track.uv[ri[exact]]
     return uv, ok | exact
+
+
+def resample(cam: CameraTracks, stamps_ns: np.ndarray, params: TrackParams
+             ) -> tuple[CameraModel, dict[int, tuple[np.ndarray, np.ndarray]]]:
+    """Clean and undistort every keypoint track of a camera and interpolate it at the
+    given stamps: (ideal pinhole model, {id: (uv (K, 2), valid (K,))})."""
+    cleaned = CameraTracks(cam.name, cam.camera,
+                           {i: clean_track(t, cam.frame_period_ns, params) for i, t in cam.tracks.items()},
+                           cam.frame_period_ns)
+    ideal = undistort_tracks(cleaned)
+    max_gap = int(params.gap_factor * cam.frame_period_ns)
+    return ideal.camera, {i: interpolate(t, stamps_ns, max_gap) for i, t in ideal.tracks.items()}

@@ -127,3 +127,21 @@ def robust_sigma(residuals_px: np.ndarray) -> float:
     if len(r) < 4:
         return float("nan")
     return float(1.4826 * np.median(np.abs(r - np.median(r))))
+
+
+def pose_covariance(camera: CameraModel, T_world_cam: np.ndarray, points: np.ndarray, uv: np.ndarray,
+                    sigma_px) -> np.ndarray:
+    """Marginal covariance of one camera pose seen through fixed 3D points (GTSAM Pose3
+    tangent order [rotation, translation], body frame)."""
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    values.insert(X(0), pose3(T_world_cam))
+    cal = cal3(camera)
+    fixed = gtsam.noiseModel.Isotropic.Sigma(3, FIXED_SIGMA)
+    sigmas = np.broadcast_to(np.asarray(sigma_px, dtype=float), (len(points),))
+    for j, (P, p, s) in enumerate(zip(points, uv, sigmas)):
+        values.insert(L(j), gtsam.Point3(*P))
+        graph.add(gtsam.PriorFactorPoint3(L(j), gtsam.Point3(*P), fixed))
+        graph.add(gtsam.GenericProjectionFactorCal3_S2(gtsam.Point2(*p), gtsam.noiseModel.Isotropic.Sigma(2, float(s)),
+                                                       X(0), L(j), cal))
+    return gtsam.Marginals(graph, values).marginalCovariance(X(0))

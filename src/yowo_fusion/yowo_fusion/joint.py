@@ -10,8 +10,10 @@
   around a JacobianFactor) because Python custom factors are too slow at this size;
 - kin (eq. f_kin): constant-velocity second difference of the head-top track and
   constant top-to-bottom vector between successive frames, both linear (exact).
-Gauge: the ego map fixes the world: a tight prior on the first ego pose and depth-
-derived priors on the landmarks (scale)."""
+Gauge: the ego map fixes the world: a tight prior on the first ego pose, priors on
+every ego pose (the ego map's own estimate) and depth-derived priors on the landmarks
+(scale). The agent's ground points get a prior on the floor plane z = 0 (the ego
+map's floor), which also observes the vertical part of the head offset."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -32,6 +34,8 @@ class JointParams:
     huber_k: float = 1.345
     ego_sigma_px: float = 1.0
     landmark_prior_sigma_m: float = 0.05     # depth-derived position of each ego landmark
+    ego_prior_sigma: tuple[float, float] = (0.02, 0.05)  # (rad, m) the ego map's own pose estimate
+    floor_sigma_m: float = 0.03              # the agent's ground point lies on the floor z = 0
     a2e_sigma_m: float = 0.05                # head-top vs predicted head top (offset model residual)
     kin_accel_sigma_m: float = 0.05          # per grid step, second difference of the head top
     kin_body_sigma_m: float = 0.05           # change of the top-to-bottom vector per grid step
@@ -55,6 +59,7 @@ class JointProblem:
     agent_ids: np.ndarray                    # (K,)
     cmc_agent_obs: Observations              # camera = CMC index, point = agent point index
     head_offset: np.ndarray = field(default_factory=lambda: np.array([0.0, -0.1, -0.05]))  # o, ego frame
+    agent_chain: np.ndarray | None = None    # (K,) track id (CMC group) of each agent point; None: one track
 
 
 @dataclass
@@ -113,8 +118,10 @@ def _linear(keys_and_blocks, b, sigma, values) -> gtsam.LinearContainerFactor:
 def solve_joint(p: JointProblem, params: JointParams = JointParams()) -> JointResult:
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
+    ego_prior = gtsam.noiseModel.Diagonal.Sigmas(np.repeat(params.ego_prior_sigma, 3))
     for f, T in enumerate(p.T_world_ego):
         values.insert(X(f), pose3(T))
+        graph.add(gtsam.PriorFactorPose3(X(f), pose3(T), ego_prior))
     graph.add(gtsam.PriorFactorPose3(X(0), pose3(p.T_world_ego[0]), gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)))
     lm_used = np.union1d(p.ego_obs.point, p.cmc_scene_obs.point).astype(int)
     prior = gtsam.noiseModel.Isotropic.Sigma(3, params.landmark_prior_sigma_m)
@@ -134,6 +141,10 @@ def solve_joint(p: JointProblem, params: JointParams = JointParams()) -> JointRe
     _add_projections(graph, p.cmc_scene_obs, p.cmc_cameras, lambda c: C(c), lambda j: L(j), params.huber_k)
     _add_projections(graph, p.cmc_agent_obs, p.cmc_cameras, lambda c: C(c), lambda j: A(j), params.huber_k)
     _add_a2e(graph, values, p, params)
+    for k in np.flatnonzero(p.agent_ids == BOTTOM):
+        # z of the ground point is 0 (the ego map's floor): linear in the point, exact.
+        graph.add(_linear([(A(int(k)), np.array([[0.0, 0.0, 1.0]]))], [-p.agent_points[k][2]],
+                          params.floor_sigma_m, values))
     _add_kinematics(graph, values, p, params)
 
     lm_params = gtsam.LevenbergMarquardtParams()
@@ -177,12 +188,19 @@ def _add_kinematics(graph, values, p: JointProblem, params: JointParams) -> None
     """eq. f_kin on consecutive grid samples: second difference of the head top, and the
     change of the top-to-bottom vector D_k (an auxiliary variable D_k = top_k - bottom_k,
     because a JacobianFactor takes at most three keys)."""
-    stamps = np.unique(p.agent_stamps_ns)
+    chain = np.zeros(len(p.agent_ids), int) if p.agent_chain is None else np.asarray(p.agent_chain)
+    for c in np.unique(chain):
+        _add_chain_kinematics(graph, values, p, params, np.flatnonzero(chain == c), int(c))
+
+
+def _add_chain_kinematics(graph, values, p: JointProblem, params: JointParams, members: np.ndarray, chain: int):
+    stamps = np.unique(p.agent_stamps_ns[members])
     step = np.median(np.diff(stamps)) if len(stamps) > 1 else 0
-    index = {(int(s), int(i)): k for k, (s, i) in enumerate(zip(p.agent_stamps_ns, p.agent_ids))}
+    index = {(int(p.agent_stamps_ns[k]), int(p.agent_ids[k])): int(k) for k in members}
     I3 = np.eye(3)
     body_keys = {}
     for n, s in enumerate(stamps):
+        n = chain * 10_000_000 + n  # D keys unique across chains
         t, b = index.get((int(s), TOP)), index.get((int(s), BOTTOM))
         if t is not None and b is not None:
             d = p.agent_points[t] - p.agent_points[b]

@@ -1,0 +1,69 @@
+"""Collaborative processing on a synthetic two-room world: a 3-camera group in room A,
+an isolated camera in room B; ego map from noisy ground truth."""
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from cmc_synthetic import HEIGHT, ceiling_camera, observe
+from yowo_bringup.evaluation import registration_errors
+from yowo_cmc.group_sfm import calibrate_groups
+from yowo_common.camera import CameraModel
+from yowo_common.geometry import se3
+from yowo_fusion.pipeline import GROUP_SFM, ISOLATED_PNP, OK, CmcInput, EgoMapData, FusionParams, fuse
+
+OFFSET = np.array([0.0, -0.10, -0.08])
+R_BODY_OPT = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)
+
+
+def walk(t):
+    """25 s loop in room A (x 0..6), then 25 s in room B (x 10..16)."""
+    cx = 3.0 if t < 25 else 13.0
+    return np.array([cx + 2.0 * np.sin(2 * np.pi * t / 12.5), 2.5 + 1.2 * np.sin(4 * np.pi * t / 12.5 + 0.3)])
+
+
+def ego_trajectory(rng, noise_m):
+    t = np.arange(0, 50, 1 / 15)
+    xy = np.array([walk(tt) for tt in t])
+    v = np.gradient(xy, axis=0)
+    T = []
+    for (x, y), (vx, vy), tt in zip(xy, v, t):
+        R = Rotation.from_euler("ZYX", [np.arctan2(vy, vx) + 0.3 * np.sin(tt), 0.35, 0]).as_matrix() @ R_BODY_OPT
+        head = np.array([x, y, HEIGHT])
+        T.append(se3(R, head - R @ OFFSET + rng.normal(size=3) * noise_m))
+    return (1e18 + t * 1e9).astype(np.int64), np.array(T)
+
+
+def world(seed=0):
+    rng = np.random.default_rng(seed)
+    cams = {"a1": ceiling_camera(0.3, 0.3, (3.0, 2.5)), "a2": ceiling_camera(5.7, 0.3, (3.0, 2.5), z=3.3),
+            "a3": ceiling_camera(3.0, 4.7, (3.0, 2.3), D=[-0.1, 0.02, 0, 0, 0]),
+            "b1": ceiling_camera(10.3, 0.3, (13.0, 2.5))}
+    in_room = {"a": lambda x: x < 6, "b": lambda x: x > 10}
+    tracks = observe(cams, walk, 50.0, sigma_px=0.7, visible=lambda n, xy: in_room[n[0]](xy[0]), seed=seed,
+                     offsets_s=[0.0, 0.02, 0.05, 0.03], start_ns=10**18)
+    stamps, T_ego = ego_trajectory(rng, 0.005)
+    ego_cam = CameraModel.from_fov(640, 480, 70)
+    ego = EgoMapData(ego_cam, stamps, T_ego, np.zeros((0, 3)), "SIFT", np.zeros((0, 128), np.uint8),
+                     np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)))
+    return cams, tracks, ego
+
+
+@pytest.mark.parametrize("joint", [True, False])
+def test_fuse_registers_group_and_isolated_camera(joint):
+    cams, tracks, ego = world()
+    grouping = calibrate_groups(tracks)
+    assert [sorted(g.names) for g in grouping.groups] == [["a1", "a2", "a3"]] and "b1" in grouping.ungrouped
+    result = fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks},
+                  FusionParams(joint_optimisation=joint))
+    by_name = {c.name: c for c in result.cameras}
+    assert [by_name[n].method for n in ("a1", "a2", "a3", "b1")] == [GROUP_SFM] * 3 + [ISOLATED_PNP]
+    assert all(c.status == OK for c in result.cameras), [(c.name, c.reason) for c in result.cameras]
+    errs = {e.name: e for e in registration_errors({n: c.T_world_cam for n, c in by_name.items()},
+                                                   {n: T for n, (_, T) in cams.items()})}
+    for n in ("a1", "a2", "a3"):
+        assert errs[n].eps_pos_m < 0.03 and errs[n].eps_rot_deg < 0.5, errs[n]
+    assert errs["b1"].eps_pos_m < 0.08 and errs["b1"].eps_rot_deg < 1.0, errs["b1"]
+    if joint:
+        np.testing.assert_allclose(result.head_offset, OFFSET, atol=0.02)
+        sig = np.sqrt(np.diag(by_name["a1"].covariance)[:3])
+        assert np.all(sig > 1e-4) and np.all(sig < 0.05)

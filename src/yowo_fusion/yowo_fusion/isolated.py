@@ -1,0 +1,86 @@
+"""Register a CMC that belongs to no group (paper "Register 6-DoF Poses for Isolated
+CMCs"): 2D-3D matches between its agent keypoints and the optimised world agent
+track by timestamp, PnP + RANSAC, then (optionally) refinement with scene keypoints."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from yowo_cmc.tracks import CameraTracks, TrackParams, resample
+from yowo_common.camera import CameraModel
+from yowo_common.geometry import inv_se3, se3
+
+
+@dataclass(frozen=True)
+class IsolatedParams:
+    min_matches: int = 8
+    pnp_px: float = 4.0
+    max_gap_s: float = 0.25          # the world track is interpolated only between samples this close
+    tracks: TrackParams = TrackParams()
+
+
+@dataclass
+class AgentTrack:
+    """The agent's keypoints in the world (parallel arrays, sorted by stamp per id)."""
+
+    stamps_ns: np.ndarray
+    ids: np.ndarray
+    points: np.ndarray
+
+
+@dataclass
+class PnpResult:
+    T_world_cam: np.ndarray
+    points: np.ndarray               # (M, 3) inlier 3D points
+    uv: np.ndarray                   # (M, 2) ideal pixels
+    camera: CameraModel              # ideal (undistorted) intrinsics
+
+
+def agent_correspondences(cam: CameraTracks, track: AgentTrack, params: IsolatedParams
+                          ) -> tuple[CameraModel, np.ndarray, np.ndarray]:
+    """(ideal camera, 3D points, 2D ideal pixels) pairing the camera's keypoints with
+    the world track interpolated at the camera's own stamps."""
+    pts, uvs = [], []
+    stamps = np.unique(np.concatenate([t.stamps_ns for t in cam.tracks.values()] or [np.zeros(0, np.int64)]))
+    ideal, samples = resample(cam, stamps, params.tracks)
+    for kp_id, (uv, ok) in samples.items():
+        sel = track.ids == kp_id
+        if sel.sum() < 2:
+            continue
+        t_ns, P = track.stamps_ns[sel], track.points[sel]
+        right = np.clip(np.searchsorted(t_ns, stamps), 1, len(t_ns) - 1)
+        left = right - 1
+        gap = t_ns[right] - t_ns[left]
+        valid = ok & (stamps >= t_ns[0]) & (stamps <= t_ns[-1]) & (gap <= params.max_gap_s * 1e9)
+        a = np.clip((stamps - t_ns[left]) / np.maximum(gap, 1), 0, 1)[:, None]
+        X = (1 - a) * P[left] + a * P[right]
+        pts.append(X[valid])
+        uvs.append(uv[valid])
+    return ideal, np.vstack(pts or [np.zeros((0, 3))]), np.vstack(uvs or [np.zeros((0, 2))])
+
+
+def register_by_agent(cam: CameraTracks, track: AgentTrack, params: IsolatedParams = IsolatedParams()
+                      ) -> tuple[PnpResult | None, str]:
+    ideal, P, uv = agent_correspondences(cam, track, params)
+    if len(P) < params.min_matches:
+        return None, (f"only {len(P)} of its agent keypoints fall on the optimised agent track "
+                      f"(needs {params.min_matches})")
+    ok, rvec, tvec, inliers = cv2.solvePnPRansac(P, uv, ideal.K, None, iterationsCount=2000,
+                                                 reprojectionError=params.pnp_px, confidence=0.999,
+                                                 flags=cv2.SOLVEPNP_SQPNP)
+    if not ok or inliers is None or len(inliers) < params.min_matches:
+        return None, f"PnP on {len(P)} agent correspondences found no consistent pose"
+    idx = inliers.ravel()
+    rvec, tvec = cv2.solvePnPRefineLM(P[idx], uv[idx], ideal.K, None, rvec, tvec)
+    T = inv_se3(se3(cv2.Rodrigues(rvec)[0], tvec.ravel()))
+    return PnpResult(T, P[idx], uv[idx], ideal), ""
+
+
+def refine_pose(camera: CameraModel, T_world_cam: np.ndarray, points: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Levenberg-Marquardt on all 2D-3D matches (agent and scene) from a prior pose."""
+    T_cw = inv_se3(T_world_cam)
+    rvec, tvec = cv2.solvePnPRefineLM(points, uv, camera.K, None, cv2.Rodrigues(T_cw[:3, :3])[0],
+                                      T_cw[:3, 3].reshape(3, 1).copy())
+    return inv_se3(se3(cv2.Rodrigues(rvec)[0], tvec.ravel()))

@@ -1,0 +1,277 @@
+"""Collaborative processing end to end (paper "Collaborative Processing" and
+"Register 6-DoF Poses for Isolated CMCs"): groups -> world by rebalanced Umeyama,
+scene keypoints with pose priors, joint optimisation, isolated CMCs, covariances
+and a verdict per camera."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from yowo_cmc.group_sfm import CameraGroupResult
+from yowo_cmc.tracks import CameraTracks, TrackParams, resample
+from yowo_common.bundle import Observations, pose_covariance, reprojection_residuals
+from yowo_common.camera import CameraModel
+from yowo_common.geometry import Sim3
+
+from .alignment import AlignParams, align_group
+from .isolated import AgentTrack, IsolatedParams, refine_pose, register_by_agent
+from .joint import JointParams, JointProblem, ros_covariance, solve_joint
+from .scene_matching import SceneMatchParams, match_scene
+
+GROUP_SFM, ISOLATED_PNP, NONE = "group_sfm", "isolated_pnp", "none"
+OK, WEAK, FAILED = "ok", "weak", "failed"
+
+
+@dataclass
+class EgoMapData:
+    camera: CameraModel              # ego intrinsics with distortion
+    stamps_ns: np.ndarray            # (F,)
+    T_world_ego: np.ndarray          # (F, 4, 4)
+    landmarks: np.ndarray            # (P, 3)
+    descriptor_type: str
+    descriptors: np.ndarray          # (P, D) uint8
+    obs_pose: np.ndarray             # (M,)
+    obs_landmark: np.ndarray         # (M,)
+    obs_uv: np.ndarray               # (M, 2) raw pixels
+
+
+@dataclass
+class CmcInput:
+    tracks: CameraTracks             # raw keypoints + camera model with distortion
+    background: np.ndarray | None = None   # agent-free RGB image, for scene keypoints
+
+
+@dataclass
+class RegisteredCmc:
+    name: str
+    group: str
+    method: str
+    status: str
+    reason: str
+    T_world_cam: np.ndarray | None
+    covariance: np.ndarray | None    # 6x6 ROS order (x, y, z, rx, ry, rz), world frame
+    K: np.ndarray
+    rmse_px: float
+    num_agent: int
+    num_scene: int
+
+
+@dataclass(frozen=True)
+class FusionParams:
+    align: AlignParams = AlignParams()
+    joint: JointParams = JointParams()
+    scene: SceneMatchParams = SceneMatchParams()
+    isolated: IsolatedParams = IsolatedParams()
+    tracks: TrackParams = TrackParams()
+    use_scene_keypoints: bool = True
+    joint_optimisation: bool = True           # False: ablation "without joint optimisation"
+    ok_rmse_px: float = 3.0
+    ok_position_sigma_m: float = 0.10
+
+
+@dataclass
+class FusionResult:
+    cameras: list[RegisteredCmc]
+    T_world_ego: np.ndarray
+    landmarks: np.ndarray
+    agent: AgentTrack
+    head_offset: np.ndarray
+    alignments: dict[str, Sim3] = field(default_factory=dict)
+
+
+def _head_offset(alignment: Sim3, top_stamps, top_local, ego: EgoMapData, max_gap_ns: int) -> np.ndarray:
+    """Initial rigid head-top offset in the ego camera frame: median of R_f^T (A - t_f)."""
+    A = alignment.apply(top_local)
+    f = np.clip(np.searchsorted(ego.stamps_ns, top_stamps), 0, len(ego.stamps_ns) - 1)
+    close = np.abs(ego.stamps_ns[f] - top_stamps) <= max_gap_ns
+    T = ego.T_world_ego[f[close]]
+    local = np.einsum("nji,nj->ni", T[:, :3, :3], A[close] - T[:, :3, 3])
+    return np.median(local, axis=0) if len(local) else np.zeros(3)
+
+
+def _on_floor(S: Sim3, group: CameraGroupResult) -> Sim3:
+    """Shift vertically so the agent's ground points lie on the ego map's floor (z = 0):
+    the head-top/camera offset is mostly vertical and the Umeyama fit absorbs it."""
+    bottom = group.point_ids == 1
+    if bottom.sum() < 3:
+        return S
+    dz = float(np.median(S.apply(group.points[bottom])[:, 2]))
+    return Sim3(S.s, S.R, S.t - [0.0, 0.0, dz])
+
+
+def align_to_world(group: CameraGroupResult, ego: EgoMapData, params: AlignParams) -> tuple[Sim3, np.ndarray]:
+    """Rebalanced Umeyama of the head-top track, put on the floor, then once more against
+    the head top predicted from the ego poses with the estimated rigid offset."""
+    top = group.point_ids == 0
+    stamps, local = group.point_stamps_ns[top], group.points[top]
+    S = align_group(stamps, local, ego.stamps_ns, ego.T_world_ego[:, :3, 3], params).sim3_world_local
+    o = _head_offset(_on_floor(S, group), stamps, local, ego, int(params.max_time_gap_s * 1e9))
+    heads = np.einsum("nij,j->ni", ego.T_world_ego[:, :3, :3], o) + ego.T_world_ego[:, :3, 3]
+    return align_group(stamps, local, ego.stamps_ns, heads, params).sim3_world_local, o
+
+
+def _verdict(rmse: float, cov: np.ndarray | None, params: FusionParams) -> tuple[str, str]:
+    reasons = []
+    if not np.isfinite(rmse) or rmse > params.ok_rmse_px:
+        reasons.append(f"reprojection RMSE {rmse:.2f} px > {params.ok_rmse_px:g} px")
+    if cov is not None:
+        sigma = float(np.sqrt(np.linalg.eigvalsh(cov[:3, :3]).max()))
+        if sigma > params.ok_position_sigma_m:
+            reasons.append(f"position sigma {sigma:.3f} m > {params.ok_position_sigma_m:g} m")
+    return (WEAK, "; ".join(reasons)) if reasons else (OK, "")
+
+
+def _rmse(res: np.ndarray) -> float:
+    r = res[np.isfinite(res).all(axis=1)]
+    return float(np.sqrt(np.mean(np.sum(r**2, axis=1)))) if len(r) else float("nan")
+
+
+def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, str], cmcs: dict[str, CmcInput],
+         params: FusionParams = FusionParams()) -> FusionResult:
+    ideal_ego = CameraModel(ego.camera.width, ego.camera.height, ego.camera.K)
+    ego_obs = Observations(ego.obs_pose.astype(int), ego.obs_landmark.astype(int),
+                           ego.camera.undistort_pixels(ego.obs_uv), np.full(len(ego.obs_pose), params.joint.ego_sigma_px))
+    names, cams, T_init, group_of = [], [], [], {}
+    agent_pts, agent_ns, agent_ids, agent_chain = [], [], [], []
+    c_idx, p_idx, uv_obs, sig_obs = [], [], [], []
+    offsets, alignments = [], {}
+    failed: dict[str, str] = dict(ungrouped)
+    for gi, g in enumerate(groups):
+        try:
+            S, o = align_to_world(g, ego, params.align)
+        except ValueError as exc:
+            failed.update({n: f"group {g.group_id} could not be aligned to the ego trajectory: {exc}" for n in g.names})
+            continue
+        alignments[g.group_id] = S
+        offsets.append(o)
+        base = sum(len(p) for p in agent_pts)
+        agent_pts.append(S.apply(g.points))
+        agent_ns.append(g.point_stamps_ns)
+        agent_ids.append(g.point_ids)
+        agent_chain.append(np.full(len(g.points), gi))
+        key = {(int(s), int(i)): base + k for k, (s, i) in enumerate(zip(g.point_stamps_ns, g.point_ids))}
+        for n in g.names:
+            if n not in cmcs:
+                failed[n] = "no keypoints received for this camera"
+                continue
+            ideal, samples = resample(cmcs[n].tracks, g.point_stamps_ns, params.tracks)
+            ci = len(names)
+            names.append(n)
+            cams.append(ideal)
+            T_init.append(S.transform_pose(g.T_local_cam[n]))
+            group_of[n] = g.group_id
+            sigma = {i: g.sigma_px_by_id.get(i, params.joint.ego_sigma_px * 1.5) for i in samples}
+            for kp_id, (uv, ok) in samples.items():
+                for k in np.flatnonzero(ok):
+                    j = key.get((int(g.point_stamps_ns[k]), kp_id))
+                    if j is not None:
+                        c_idx.append(ci)
+                        p_idx.append(j)
+                        uv_obs.append(uv[k])
+                        sig_obs.append(sigma[kp_id])
+    agent = AgentTrack(np.concatenate(agent_ns or [np.zeros(0, np.int64)]),
+                       np.concatenate(agent_ids or [np.zeros(0, int)]),
+                       np.vstack(agent_pts or [np.zeros((0, 3))]))
+    agent_obs = Observations(np.array(c_idx, int), np.array(p_idx, int), np.array(uv_obs).reshape(-1, 2),
+                             np.array(sig_obs))
+    scene_obs, scene_count = _scene_observations(names, cams, T_init, cmcs, ego, params)
+    head_offset = np.median(offsets, axis=0) if offsets else np.zeros(3)
+    registered: list[RegisteredCmc] = []
+    T_ego, landmarks = ego.T_world_ego, ego.landmarks
+    if names:
+        problem = JointProblem(ideal_ego, ego.stamps_ns, list(ego.T_world_ego), ego.landmarks, ego_obs, cams, T_init,
+                               scene_obs, agent.points, agent.stamps_ns, agent.ids, agent_obs, head_offset,
+                               np.concatenate(agent_chain))
+        if params.joint_optimisation:
+            res = solve_joint(problem, params.joint)
+            T_ego, landmarks, T_final = np.array(res.T_world_ego), res.landmarks, res.T_world_cmc
+            agent = AgentTrack(agent.stamps_ns, agent.ids, res.agent_points)
+            head_offset, covs = res.head_offset, res.cmc_covariances
+            agent_res = res.cmc_agent_residuals
+        else:
+            T_final = T_init
+            covs = [ros_covariance(pose_covariance(cams[i], T_init[i], agent.points[agent_obs.point[agent_obs.camera == i]],
+                                                   agent_obs.uv[agent_obs.camera == i], 2.0), T_init[i][:3, :3])
+                    for i in range(len(names))]
+            agent_res = reprojection_residuals(cams, T_final, agent.points, agent_obs)
+        for i, n in enumerate(names):
+            rmse = _rmse(agent_res[agent_obs.camera == i])
+            status, reason = _verdict(rmse, covs[i], params)
+            registered.append(RegisteredCmc(n, group_of[n], GROUP_SFM, status, reason, T_final[i], covs[i],
+                                            cams[i].K, rmse, int((agent_obs.camera == i).sum()), scene_count.get(n, 0)))
+    # Isolated CMCs: the optimised agent track where a group saw the agent, and elsewhere the
+    # track implied by the ego trajectory (head top = T_world_ego * o, ground point under it
+    # on the floor z = 0) -- an extension: the paper needs a group to have seen the agent.
+    track = merge_tracks(agent, ego_agent_track(T_ego, ego.stamps_ns, head_offset), params.isolated.max_gap_s)
+    for n, why in sorted(failed.items()):
+        registered.append(_register_isolated(n, why, cmcs.get(n), track, ego, landmarks, params))
+    return FusionResult(sorted(registered, key=lambda r: r.name), T_ego, landmarks, agent, head_offset, alignments)
+
+
+def ego_agent_track(T_world_ego: np.ndarray, stamps_ns: np.ndarray, head_offset: np.ndarray) -> AgentTrack:
+    top = np.einsum("nij,j->ni", T_world_ego[:, :3, :3], head_offset) + T_world_ego[:, :3, 3]
+    bottom = top * [1.0, 1.0, 0.0]
+    return AgentTrack(np.concatenate([stamps_ns, stamps_ns]), np.repeat([0, 1], len(stamps_ns)),
+                      np.vstack([top, bottom]))
+
+
+def merge_tracks(primary: AgentTrack, secondary: AgentTrack, gap_s: float) -> AgentTrack:
+    """primary, plus secondary's samples farther than gap_s from any primary sample of the same id."""
+    keep = np.ones(len(secondary.ids), bool)
+    for i in np.unique(primary.ids):
+        t = np.sort(primary.stamps_ns[primary.ids == i])
+        sel = np.flatnonzero(secondary.ids == i)
+        pos = np.clip(np.searchsorted(t, secondary.stamps_ns[sel]), 1, max(len(t) - 1, 1))
+        near = np.minimum(np.abs(t[pos - 1] - secondary.stamps_ns[sel]), np.abs(t[np.minimum(pos, len(t) - 1)]
+                                                                                  - secondary.stamps_ns[sel]))
+        keep[sel[near <= gap_s * 1e9]] = False
+    stamps = np.concatenate([primary.stamps_ns, secondary.stamps_ns[keep]])
+    ids = np.concatenate([primary.ids, secondary.ids[keep]])
+    pts = np.vstack([primary.points, secondary.points[keep]])
+    order = np.lexsort((stamps, ids))
+    return AgentTrack(stamps[order], ids[order], pts[order])
+
+
+def _scene_observations(names, cams, T_init, cmcs, ego: EgoMapData, params: FusionParams):
+    c_idx, p_idx, uv = [], [], []
+    count = {}
+    if params.use_scene_keypoints and len(ego.landmarks):
+        for i, n in enumerate(names):
+            m = match_scene(cmcs[n].background, cmcs[n].tracks.camera, T_init[i], ego.landmarks, ego.descriptors,
+                            ego.descriptor_type, params.scene)
+            if m is None:
+                continue
+            c_idx += [i] * len(m.landmark)
+            p_idx += m.landmark.tolist()
+            uv.append(m.uv)
+            count[n] = len(m.landmark)
+    obs = Observations(np.array(c_idx, int), np.array(p_idx, int), np.vstack(uv or [np.zeros((0, 2))]),
+                       np.full(len(c_idx), 1.5))
+    return obs, count
+
+
+def _register_isolated(name: str, why: str, cmc: CmcInput | None, agent: AgentTrack, ego: EgoMapData,
+                       landmarks: np.ndarray, params: FusionParams) -> RegisteredCmc:
+    K = cmc.tracks.camera.K if cmc is not None else np.zeros((3, 3))
+    if cmc is None:
+        return RegisteredCmc(name, "", NONE, FAILED, why, None, None, K, float("nan"), 0, 0)
+    pnp, reason = register_by_agent(cmc.tracks, agent, params.isolated)
+    if pnp is None:
+        return RegisteredCmc(name, "", NONE, FAILED, f"{why}; isolated registration failed: {reason}", None, None,
+                             K, float("nan"), 0, 0)
+    P, uv, T = pnp.points, pnp.uv, pnp.T_world_cam
+    n_agent, n_scene = len(P), 0
+    if params.use_scene_keypoints:
+        m = match_scene(cmc.background, cmc.tracks.camera, T, landmarks, ego.descriptors, ego.descriptor_type,
+                        params.scene)
+        if m is not None:
+            P, uv = np.vstack([P, landmarks[m.landmark]]), np.vstack([uv, m.uv])
+            n_scene = len(m.landmark)
+            T = refine_pose(pnp.camera, T, P, uv)
+    proj, _ = pnp.camera.project_world(T, P)
+    rmse = _rmse(uv - proj)
+    cov = ros_covariance(pose_covariance(pnp.camera, T, P, uv, max(rmse, 0.5)), T[:3, :3])
+    status, reason = _verdict(rmse, cov, params)
+    return RegisteredCmc(name, "", ISOLATED_PNP, status, "; ".join(r for r in (f"isolated: {why}", reason) if r),
+                         T, cov, pnp.camera.K, rmse, n_agent, n_scene)
