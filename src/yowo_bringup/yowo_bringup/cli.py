@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from yowo_common.ros.bag import BagError
 
@@ -106,6 +107,18 @@ def _add_run_options(p) -> None:
     p.add_argument("--timeout", type=float, default=3600.0, help="give up after this many seconds")
 
 
+def cmd_eval(args) -> int:
+    """Metrics of a results directory against the recording's ground truth."""
+    from rich.console import Console
+
+    from .eval import evaluate, print_tables, write_metrics
+
+    metrics = evaluate(args.results, args.bag)
+    print_tables(metrics, Console())
+    write_metrics(metrics, Path(args.results) / "metrics.json")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="yowo", description="YOWO: map a scene and register its ceiling cameras from one walk.")
@@ -127,6 +140,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = verbs.add_parser("calibrate-cmc", help="relative calibration of each CMC group from agent keypoints only")
     _add_run_options(p)
     p.set_defaults(func=cmd_calibrate_cmc)
+    p = verbs.add_parser("eval", help="metric tables of a results directory against a bag's ground truth")
+    p.add_argument("results", help="results directory of yowo run / calibrate-cmc")
+    p.add_argument("--bag", required=True, help="the recording, with /gt topics")
+    p.set_defaults(func=cmd_eval)
     return parser
 
 

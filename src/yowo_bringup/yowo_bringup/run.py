@@ -9,9 +9,9 @@ import numpy as np
 import yaml
 
 from yowo_cmc.group_sfm import CameraGroupResult
-from yowo_common.geometry import quat_xyzw_from_rotation
 
 from .contract import cmc_info_topic, cmc_keypoints_topic, discover_inputs
+from .results import pose_entry
 from .supervisor import NodeSpec
 
 STAGE_MODULES = {
@@ -71,12 +71,6 @@ def read_intrinsics(bag, cameras: list[str]) -> dict[str, np.ndarray]:
     return K
 
 
-def _pose_entry(T: np.ndarray) -> dict:
-    q = quat_xyzw_from_rotation(T[:3, :3])
-    return {"position": [round(float(v), 9) for v in T[:3, 3]],
-            "orientation_xyzw": [round(float(v), 9) for v in q]}
-
-
 def write_group_calibration(path: Path, groups: list[CameraGroupResult], ungrouped: dict[str, str],
                             intrinsics: dict[str, np.ndarray]) -> None:
     """cameras.yaml of a CMC-only run: per camera its group and T_group_camera
@@ -86,7 +80,7 @@ def write_group_calibration(path: Path, groups: list[CameraGroupResult], ungroup
         for n in g.names:
             cams.append({"name": n, "group": g.group_id, "method": "group_sfm", "status": "ok", "reason": "",
                          "frame": f"{g.group_id} (reference camera {g.reference}, arbitrary scale)",
-                         "T_group_camera": _pose_entry(g.T_local_cam[n]),
+                         "T_group_camera": pose_entry(g.T_local_cam[n]),
                          "K": np.asarray(intrinsics.get(n, np.zeros((3, 3)))).round(6).tolist(),
                          "reprojection_rmse_px": round(float(g.rmse_px[n]), 4),
                          "num_agent_observations": int(g.num_observations[n])})

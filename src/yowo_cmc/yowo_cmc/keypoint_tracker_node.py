@@ -5,13 +5,15 @@ for the group SfM (our outputs live under /yowo so they never loop back into inp
 Smoothing and undistortion happen in the group SfM, which sees whole tracks."""
 from __future__ import annotations
 
-from sensor_msgs.msg import CameraInfo
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from std_msgs.msg import Header
 from yowo_msgs.msg import AgentKeypoints
 
 from yowo_common.ros.context import spin_node
-from yowo_common.ros.stage import StageNode
-from yowo_common.rosconv import camera_info_to_model
+from yowo_common.ros.stage import LATCHED, StageNode
+from yowo_common.rosconv import camera_info_to_model, decode_color, encode_raw, ns_to_time, stamp_to_ns
 
+from .background import BackgroundSampler
 from .keypoint_input import TrackAccumulator, frame_from_msg
 
 
@@ -21,6 +23,10 @@ def tracker_stage(camera: str) -> str:
 
 def tracker_output(camera: str) -> str:
     return f"/yowo/cmc/{camera}/agent_keypoints"
+
+
+def background_output(camera: str) -> str:
+    return f"/yowo/cmc/{camera}/background"
 
 
 class KeypointTrackerNode(StageNode):
@@ -37,8 +43,20 @@ class KeypointTrackerNode(StageNode):
         self.acc = TrackAccumulator(camera)
         self.info_problem = ""
         self.pub = self.output(AgentKeypoints, tracker_output(camera))
+        self.pub_background = self.output(Image, background_output(camera), LATCHED)
         self.stream_input(CameraInfo, f"/cmc/{camera}/camera_info", self.on_info)
         self.stream_input(AgentKeypoints, f"/cmc/{camera}/agent_keypoints", self.on_keypoints)
+        # The agent-free background (for scene keypoints in fusion), when images were recorded.
+        image_topic = self.declare_parameter("image_topic", "").value
+        self.background = BackgroundSampler(self.declare_parameter("background_period_s", 1.0).value)
+        if image_topic:
+            msg_type = CompressedImage if image_topic.endswith("/compressed") else Image
+            self.stream_input(msg_type, image_topic, self.on_image)
+
+    def on_image(self, msg) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        if self.background.wants(stamp):
+            self.background.add(stamp, decode_color(msg))
 
     def on_info(self, msg: CameraInfo) -> None:
         if self.acc.camera is None:
@@ -58,7 +76,13 @@ class KeypointTrackerNode(StageNode):
         self.pub.publish(out)
 
     def finalize(self) -> str:
-        return self.acc.summary() + (f"; {self.info_problem}" if self.info_problem else "")
+        text = self.acc.summary() + (f"; {self.info_problem}" if self.info_problem else "")
+        background = self.background.image()
+        if background is not None:
+            self.pub_background.publish(encode_raw(background, "rgb8", Header(
+                stamp=ns_to_time(self.background.last_stamp), frame_id=f"{self.camera}_optical_frame")))
+            text += f"; background from {self.background.count} frames"
+        return text
 
 
 def main(args=None):

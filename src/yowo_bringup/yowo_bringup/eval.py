@@ -1,0 +1,68 @@
+"""`yowo eval`: the metric tables of shared/DESIGN.md §4 for a results directory
+against the ground truth recorded in a bag."""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import yaml
+
+from .evaluation import ErrorSummary, ate, layout_iou, read_tum, registration_errors, relative_pose_errors
+from .results import read_camera_poses, read_floor_polygons, read_ground_truth
+
+
+def evaluate(results_dir, bag) -> dict:
+    results_dir = Path(results_dir)
+    gt = read_ground_truth(bag)
+    if not gt.cameras and gt.ego is None:
+        raise ValueError(f"{bag}: no ground truth (/gt/...) in the recording; nothing to evaluate against")
+    out: dict = {}
+    cams_file = results_dir / "cameras.yaml"
+    if cams_file.exists() and gt.cameras:
+        est = read_camera_poses(cams_file)
+        doc = yaml.safe_load(cams_file.read_text())
+        groups: dict[str, list[str]] = {}
+        for c in doc["cameras"]:
+            if c.get("group") and c["name"] in est:
+                groups.setdefault(c["group"], []).append(c["name"])
+        if "frame" in doc:  # world-registered cameras (full run)
+            errs = registration_errors(est, gt.cameras)
+            out["registration"] = {"summary": asdict(ErrorSummary.of(errs)), "cameras": [asdict(e) for e in errs],
+                                   "not_registered": sorted(set(gt.cameras) - set(est))}
+        rel, _ = relative_pose_errors(est, gt.cameras, groups)
+        out["relative"] = {"summary": asdict(ErrorSummary.of(rel)), "cameras": [asdict(e) for e in rel]}
+    traj = results_dir / "ego_trajectory.tum"
+    if traj.exists() and gt.ego is not None:
+        a = ate(read_tum(traj), gt.ego)
+        out["ego"] = {"ate_rmse_m": a.rmse_m, "ate_mean_m": a.mean_m, "ate_max_m": a.max_m, "matched": a.matched}
+    layout = results_dir / "layout.json"
+    if layout.exists() and gt.floor:
+        out["layout"] = {"iou": layout_iou(read_floor_polygons(layout), gt.floor)}
+    return out
+
+
+def print_tables(metrics: dict, console) -> None:
+    from rich.table import Table
+
+    for key, title in (("registration", "CMC registration (world frame, no alignment)"),
+                       ("relative", "CMC relative pose (KU-aligned per group)")):
+        if key not in metrics:
+            continue
+        s = metrics[key]["summary"]
+        t = Table(title=title)
+        for col in ("", "avg", "min", "max"):
+            t.add_column(col)
+        t.add_row("eps_pos [m]", *(f"{s[f'pos_{k}']:.4f}" for k in ("avg", "min", "max")))
+        t.add_row("eps_rot [deg]", *(f"{s[f'rot_{k}']:.3f}" for k in ("avg", "min", "max")))
+        console.print(t)
+        if metrics[key].get("not_registered"):
+            console.print(f"not registered: {', '.join(metrics[key]['not_registered'])}")
+    if "ego" in metrics:
+        console.print(f"ego ATE RMSE: {metrics['ego']['ate_rmse_m']:.4f} m over {metrics['ego']['matched']} poses")
+    if "layout" in metrics:
+        console.print(f"layout IoU: {metrics['layout']['iou']:.3f}")
+
+
+def write_metrics(metrics: dict, path: Path) -> None:
+    path.write_text(json.dumps(metrics, indent=1))

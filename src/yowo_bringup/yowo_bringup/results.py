@@ -1,0 +1,108 @@
+"""The results directory of a run: writers and readers of cameras.yaml,
+ego_trajectory.tum (evaluation.write_tum), map.ply and layout.json, and the ground
+truth of a recording for evaluation (the pipeline itself never reads /gt)."""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from yowo_common.geometry import quat_xyzw_from_rotation, rotation_from_quat_xyzw, se3
+from yowo_fusion.pipeline import RegisteredCmc
+
+from .contract import GT_EGO_POSE, GT_FLOOR
+from .evaluation import Trajectory
+
+
+def pose_entry(T: np.ndarray) -> dict:
+    return {"position": [round(float(v), 9) for v in T[:3, 3]],
+            "orientation_xyzw": [round(float(v), 9) for v in quat_xyzw_from_rotation(T[:3, :3])]}
+
+
+def pose_from_entry(entry: dict) -> np.ndarray:
+    return se3(rotation_from_quat_xyzw(entry["orientation_xyzw"]), entry["position"])
+
+
+def write_cameras_yaml(path: Path, cameras: list[RegisteredCmc]) -> None:
+    """Per CMC: how it was registered, T_world_camera (map -> <name>_optical_frame),
+    the 6x6 covariance (x, y, z, rx, ry, rz; m^2, rad^2), intrinsics, RMSE, counts."""
+    out = []
+    for c in cameras:
+        entry = {"name": c.name, "group": c.group, "method": c.method, "status": c.status, "reason": c.reason}
+        if c.T_world_cam is not None:
+            entry["T_world_camera"] = pose_entry(c.T_world_cam)
+            entry["covariance"] = np.asarray(c.covariance).round(12).tolist()
+            sig = np.sqrt(np.clip(np.diag(c.covariance), 0, None))
+            entry["sigma"] = {"position_m": sig[:3].round(5).tolist(), "rotation_deg": np.degrees(sig[3:]).round(4).tolist()}
+        entry.update({"K": np.asarray(c.K).round(6).tolist(), "reprojection_rmse_px": round(float(c.rmse_px), 4),
+                      "num_agent_observations": int(c.num_agent), "num_scene_observations": int(c.num_scene)})
+        out.append(entry)
+    path.write_text(yaml.safe_dump({"frame": "map", "cameras": out}, sort_keys=False))
+
+
+def read_camera_poses(path: Path) -> dict[str, np.ndarray]:
+    """The pose of every camera in a cameras.yaml: T_world_camera of a full run, or
+    T_group_camera of a CMC-only calibration."""
+    doc = yaml.safe_load(Path(path).read_text())
+    return {c["name"]: pose_from_entry(c.get("T_world_camera") or c["T_group_camera"])
+            for c in doc["cameras"] if "T_world_camera" in c or "T_group_camera" in c}
+
+
+def write_ply(path: Path, xyz: np.ndarray, rgb: np.ndarray | None = None) -> None:
+    """Binary little-endian PLY point cloud."""
+    xyz = np.asarray(xyz, dtype=np.float32).reshape(-1, 3)
+    fields = [("x", "f4"), ("y", "f4"), ("z", "f4")]
+    if rgb is not None:
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    data = np.empty(len(xyz), dtype=fields)
+    data["x"], data["y"], data["z"] = xyz.T
+    if rgb is not None:
+        data["red"], data["green"], data["blue"] = np.asarray(rgb, dtype=np.uint8).reshape(-1, 3).T
+    ply_type = {"f4": "float", "u1": "uchar"}
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(xyz)}"]
+    header += [f"property {ply_type[t]} {n}" for n, t in fields] + ["end_header"]
+    Path(path).write_bytes(("\n".join(header) + "\n").encode() + data.tobytes())
+
+
+def write_layout_json(path: Path, layout) -> None:
+    """yowo_msgs/SceneLayout -> layout.json (planes and floor polygons in `map`)."""
+    kinds = {0: "other", 1: "floor", 2: "wall", 3: "ceiling"}
+    doc = {"frame": "map", "floor_height": layout.floor_height,
+           "ceiling_height": None if not np.isfinite(layout.ceiling_height) else layout.ceiling_height,
+           "floor_polygons": [[[p.x, p.y] for p in poly.points] for poly in layout.floor_polygons],
+           "planes": [{"kind": kinds.get(p.kind, "other"), "coefficients": list(p.coefficients),
+                       "boundary": [[q.x, q.y, q.z] for q in p.boundary], "num_points": p.num_points}
+                      for p in layout.planes]}
+    Path(path).write_text(json.dumps(doc, indent=1))
+
+
+def read_floor_polygons(path: Path) -> list[np.ndarray]:
+    return [np.asarray(p, dtype=float) for p in json.loads(Path(path).read_text())["floor_polygons"]]
+
+
+@dataclass
+class GroundTruth:
+    cameras: dict[str, np.ndarray]
+    ego: Trajectory | None
+    floor: list[np.ndarray]
+
+
+def read_ground_truth(bag) -> GroundTruth:
+    from yowo_common.ros.bag import list_topics, read_messages
+    from yowo_common.rosconv import points_to_array, pose_to_matrix, stamp_to_ns
+
+    topics = [t.name for t in list_topics(bag) if t.name.startswith("/gt/")]
+    cams, ego_ns, ego_T, floor = {}, [], [], []
+    for topic, _, msg in read_messages(bag, topics):
+        if topic.startswith("/gt/cmc/"):
+            cams[topic.split("/")[3]] = pose_to_matrix(msg.pose)
+        elif topic == GT_EGO_POSE:
+            ego_ns.append(stamp_to_ns(msg.header.stamp))
+            ego_T.append(pose_to_matrix(msg.pose))
+        elif topic == GT_FLOOR:
+            floor.append(points_to_array(msg.polygon.points)[:, :2])
+    ego = Trajectory(np.array(ego_ns, dtype=np.int64), np.array(ego_T)) if ego_ns else None
+    return GroundTruth(cams, ego, floor)

@@ -1,0 +1,81 @@
+"""fusion_node: registers every CMC in the ego map's world frame once the ego map,
+the CMC groups and every camera's keypoints are complete; publishes
+/yowo/cmc_poses (RegisteredCameraArray), /tf_static (one TFMessage, map -> every
+camera) and /yowo/layout/markers, all latched for late joiners."""
+from __future__ import annotations
+
+from sensor_msgs.msg import CameraInfo, Image
+from tf2_msgs.msg import TFMessage
+from visualization_msgs.msg import MarkerArray
+from yowo_msgs.msg import AgentKeypoints, CameraGroupArray, EgoMap, RegisteredCameraArray, SceneLayout
+
+from yowo_cmc.group_sfm_node import GROUPS_TOPIC
+from yowo_cmc.keypoint_input import TrackAccumulator, frame_from_msg
+from yowo_cmc.keypoint_tracker_node import background_output, tracker_output, tracker_stage
+from yowo_cmc.messages import groups_from_msg
+from yowo_common.ros.context import spin_node
+from yowo_common.ros.stage import LATCHED, StageNode
+from yowo_common.rosconv import camera_info_to_model, decode_color, points_to_array
+
+from .messages import ego_map_from_msg, layout_markers, registered_to_msg, tf_static
+from .pipeline import CmcInput, FusionParams, fuse
+
+EGO_STAGE, EGO_MAP_TOPIC, LAYOUT_TOPIC = "ego_mapper", "/yowo/ego/map", "/yowo/layout"
+CMC_POSES_TOPIC = "/yowo/cmc_poses"
+
+
+class FusionNode(StageNode):
+    def __init__(self):
+        super().__init__("fusion")
+        cameras = [c for c in self.declare_parameter("cameras", [""]).value if c]
+        self.params = FusionParams(
+            use_scene_keypoints=self.declare_parameter("use_scene_keypoints", True).value,
+            joint_optimisation=self.declare_parameter("joint_optimisation", True).value)
+        self.acc = {c: TrackAccumulator(c) for c in cameras}
+        self.backgrounds = {}
+        self.ego_map = self.groups = self.layout = None
+        self.pub_poses = self.output(RegisteredCameraArray, CMC_POSES_TOPIC, LATCHED)
+        self.pub_tf = self.output(TFMessage, "/tf_static", LATCHED)
+        self.pub_markers = self.output(MarkerArray, "/yowo/layout/markers", LATCHED)
+        self.stream_input(EgoMap, EGO_MAP_TOPIC, lambda m: setattr(self, "ego_map", m), upstream=EGO_STAGE)
+        self.stream_input(SceneLayout, LAYOUT_TOPIC, lambda m: setattr(self, "layout", m), upstream=EGO_STAGE)
+        self.stream_input(CameraGroupArray, GROUPS_TOPIC, lambda m: setattr(self, "groups", m), upstream="group_sfm")
+        for cam in cameras:
+            self.stream_input(CameraInfo, f"/cmc/{cam}/camera_info", lambda m, c=cam: self.on_info(c, m))
+            self.stream_input(AgentKeypoints, tracker_output(cam), lambda m, c=cam: self.acc[c].add(frame_from_msg(m)),
+                              upstream=tracker_stage(cam))
+            self.stream_input(Image, background_output(cam), lambda m, c=cam: self.backgrounds.__setitem__(c, m),
+                              upstream=tracker_stage(cam))
+
+    def on_info(self, camera: str, msg: CameraInfo) -> None:
+        if self.acc[camera].camera is None:
+            try:
+                self.acc[camera].camera = camera_info_to_model(msg)
+            except ValueError:
+                pass  # reported by the tracker; the camera ends up failed
+
+    def finalize(self) -> str:
+        if self.ego_map is None:
+            raise ValueError("no ego map arrived (the ego mapper failed); cannot register cameras")
+        if self.groups is None:
+            raise ValueError("no CMC groups arrived (the group SfM failed)")
+        groups, ungrouped = groups_from_msg(self.groups)
+        cmcs = {n: CmcInput(a.tracks(), decode_color(self.backgrounds[n]) if n in self.backgrounds else None)
+                for n, a in self.acc.items() if a.camera is not None}
+        ungrouped.update({n: "no usable CameraInfo" for n, a in self.acc.items() if a.camera is None})
+        result = fuse(ego_map_from_msg(self.ego_map), groups, ungrouped, cmcs, self.params)
+        stamp = max((f.stamp_ns for a in self.acc.values() for f in a.frames), default=0)
+        floors = [points_to_array(p.points)[:, :2] for p in self.layout.floor_polygons] if self.layout else []
+        self.pub_poses.publish(registered_to_msg(result.cameras, stamp))
+        self.pub_tf.publish(tf_static(result.cameras, stamp))
+        self.pub_markers.publish(layout_markers(result.cameras, floors, stamp))
+        return "; ".join(f"{c.name}: {c.method} {c.status}" + (f" ({c.reason})" if c.reason else "")
+                         for c in result.cameras)
+
+
+def main(args=None):
+    spin_node(FusionNode, args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,111 @@
+"""Fusion results <-> messages: RegisteredCameraArray, /tf_static, layout markers,
+and EgoMap -> EgoMapData (message classes only, no rclpy)."""
+from __future__ import annotations
+
+import numpy as np
+from builtin_interfaces.msg import Duration
+from geometry_msgs.msg import Point, PoseWithCovariance, TransformStamped
+from std_msgs.msg import ColorRGBA, Header
+from tf2_msgs.msg import TFMessage
+from visualization_msgs.msg import Marker, MarkerArray
+from yowo_msgs.msg import EgoMap, RegisteredCamera, RegisteredCameraArray
+
+from yowo_common.camera import CameraModel
+from yowo_common.rosconv import (camera_info_to_model, matrix_to_pose, matrix_to_transform, ns_to_time,
+                                 points_to_array, pose_to_matrix, stamp_to_ns)
+
+from .pipeline import FAILED, OK, WEAK, EgoMapData, RegisteredCmc
+
+WORLD_FRAME = "map"
+_STATUS = {OK: RegisteredCamera.STATUS_OK, WEAK: RegisteredCamera.STATUS_WEAK, FAILED: RegisteredCamera.STATUS_FAILED}
+
+
+def optical_frame(name: str) -> str:
+    return f"{name}_optical_frame"
+
+
+def ego_map_from_msg(msg: EgoMap) -> EgoMapData:
+    size = max(int(msg.descriptor_size), 1)
+    desc = np.frombuffer(bytes(msg.descriptors), dtype=np.uint8).reshape(-1, size)
+    return EgoMapData(
+        camera_info_to_model(msg.camera_info),
+        np.array([stamp_to_ns(s) for s in msg.stamps], dtype=np.int64),
+        np.array([pose_to_matrix(p) for p in msg.poses]).reshape(-1, 4, 4),
+        points_to_array(msg.landmarks), msg.descriptor_type, desc,
+        np.asarray(msg.obs_pose_index, dtype=int), np.asarray(msg.obs_landmark_index, dtype=int),
+        np.column_stack([np.asarray(msg.obs_x, float), np.asarray(msg.obs_y, float)]).reshape(-1, 2))
+
+
+def registered_to_msg(cameras: list[RegisteredCmc], stamp_ns: int) -> RegisteredCameraArray:
+    out = RegisteredCameraArray(header=Header(stamp=ns_to_time(stamp_ns), frame_id=WORLD_FRAME))
+    for c in cameras:
+        pose = PoseWithCovariance()
+        if c.T_world_cam is not None:
+            pose.pose = matrix_to_pose(c.T_world_cam)
+            pose.covariance = [float(v) for v in np.asarray(c.covariance).reshape(-1)]
+        out.cameras.append(RegisteredCamera(
+            name=c.name, group=c.group, method=c.method, status=_STATUS[c.status], reason=c.reason,
+            pose_world_camera=pose, k=[float(v) for v in np.asarray(c.K).reshape(-1)],
+            reprojection_rmse_px=float(c.rmse_px), num_agent_observations=int(c.num_agent),
+            num_scene_observations=int(c.num_scene)))
+    return out
+
+
+def tf_static(cameras: list[RegisteredCmc], stamp_ns: int) -> TFMessage:
+    """All registered cameras in one TFMessage: map -> <name>_optical_frame."""
+    return TFMessage(transforms=[
+        TransformStamped(header=Header(stamp=ns_to_time(stamp_ns), frame_id=WORLD_FRAME),
+                         child_frame_id=optical_frame(c.name), transform=matrix_to_transform(c.T_world_cam))
+        for c in cameras if c.T_world_cam is not None])
+
+
+def frustum_lines(camera: CameraModel, T_world_cam: np.ndarray, depth_m: float = 0.6) -> np.ndarray:
+    """Line-list segments (2N, 3) of a camera frustum drawn at depth_m."""
+    w, h = camera.width - 1, camera.height - 1
+    corners = np.array([[0, 0], [w, 0], [w, h], [0, h]], float)
+    rays = np.column_stack([corners, np.ones(4)]) @ np.linalg.inv(camera.K).T * depth_m
+    world = rays @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
+    C = T_world_cam[:3, 3]
+    segs = [p for i in range(4) for p in (C, world[i])] + [p for i in range(4) for p in (world[i], world[(i + 1) % 4])]
+    return np.array(segs)
+
+
+def layout_markers(cameras: list[RegisteredCmc], floor_polygons: list[np.ndarray], stamp_ns: int) -> MarkerArray:
+    header = Header(stamp=ns_to_time(stamp_ns), frame_id=WORLD_FRAME)
+    colour = {OK: ColorRGBA(r=0.1, g=0.8, b=0.2, a=1.0), WEAK: ColorRGBA(r=1.0, g=0.6, b=0.0, a=1.0)}
+    out = MarkerArray()
+    for i, poly in enumerate(floor_polygons):
+        pts = [Point(x=float(x), y=float(y), z=0.0) for x, y in np.vstack([poly, poly[:1]])]
+        out.markers.append(Marker(header=header, ns="floor", id=i, type=Marker.LINE_STRIP, action=Marker.ADD,
+                                  points=pts, color=ColorRGBA(r=0.6, g=0.6, b=0.6, a=1.0), lifetime=Duration()))
+        out.markers[-1].scale.x = 0.03
+        out.markers[-1].pose.orientation.w = 1.0
+    for i, c in enumerate(c for c in cameras if c.T_world_cam is not None):
+        # The image size is not in the message; the principal point's double is close enough to draw.
+        cam = CameraModel(int(2 * c.K[0, 2] + 1), int(2 * c.K[1, 2] + 1), c.K)
+        m = Marker(header=header, ns="cameras", id=i, type=Marker.LINE_LIST, action=Marker.ADD,
+                   points=[Point(x=float(x), y=float(y), z=float(z)) for x, y, z in frustum_lines(cam, c.T_world_cam)],
+                   color=colour.get(c.status, colour[WEAK]))
+        m.scale.x = 0.02
+        m.pose.orientation.w = 1.0
+        out.markers.append(m)
+        label = Marker(header=header, ns="labels", id=i, type=Marker.TEXT_VIEW_FACING, action=Marker.ADD,
+                       text=c.name, color=ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0))
+        label.pose = matrix_to_pose(c.T_world_cam)
+        label.pose.position.z += 0.25
+        label.scale.z = 0.2
+        out.markers.append(label)
+    return out
+
+
+def registered_from_msg(msg: RegisteredCameraArray) -> list[RegisteredCmc]:
+    status = {v: k for k, v in _STATUS.items()}
+    out = []
+    for c in msg.cameras:
+        failed = c.status == RegisteredCamera.STATUS_FAILED
+        out.append(RegisteredCmc(c.name, c.group, c.method, status[c.status], c.reason,
+                                 None if failed else pose_to_matrix(c.pose_world_camera.pose),
+                                 None if failed else np.asarray(c.pose_world_camera.covariance).reshape(6, 6),
+                                 np.asarray(c.k).reshape(3, 3), c.reprojection_rmse_px,
+                                 c.num_agent_observations, c.num_scene_observations))
+    return out
