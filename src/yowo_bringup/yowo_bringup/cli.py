@@ -64,10 +64,10 @@ def cmd_simulate(args) -> int:
 
 def cmd_calibrate_cmc(args) -> int:
     """CMC-only relative calibration through the real node graph (no ego camera needed)."""
-    from .run import plan_run
+    from .run import CMC, plan_run
     from .run_node import RunFailed, execute
 
-    plan = plan_run(args.bag, args.output, mode="cmc", rate=args.rate, overrides=_load_overrides(args))
+    plan = plan_run(args.bag, args.output, mode=CMC, rate=args.rate, overrides=_load_overrides(args))
     for w in plan.warnings:
         print(f"warning: {w}", file=sys.stderr)
     print(f"calibrating {len(plan.cameras)} CMCs of {args.bag}: {', '.join(plan.cameras)}")

@@ -10,7 +10,8 @@ import yaml
 
 from yowo_cmc.group_sfm import CameraGroupResult
 
-from .contract import cmc_info_topic, cmc_keypoints_topic, discover_inputs
+from .contract import (EGO_COLOR, EGO_DEPTH, EGO_INFO, cmc_image_topics, cmc_info_topic, cmc_keypoints_topic,
+                       discover_inputs)
 from .results import pose_entry
 from .supervisor import NodeSpec
 
@@ -18,44 +19,65 @@ STAGE_MODULES = {
     "replay": "yowo_bringup.replay_node",
     "keypoint_tracker": "yowo_cmc.keypoint_tracker_node",
     "group_sfm": "yowo_cmc.group_sfm_node",
+    "ego_mapper": "yowo_ego.ego_mapper_node",
+    "fusion": "yowo_fusion.fusion_node",
 }
+CMC, FULL = "cmc", "full"
 
 
 @dataclass
 class RunPlan:
     bag: Path
     out_dir: Path
-    mode: str                              # "cmc": relative calibration only
+    mode: str                              # "cmc": relative calibration only; "full": registered in the map
     cameras: list[str]
     nodes: list[NodeSpec]
     final_stage: str
     warnings: list[str] = field(default_factory=list)
 
 
-def plan_run(bag, out_dir, mode: str = "cmc", rate: float = 0.0, overrides: dict | None = None) -> RunPlan:
+def _first_present(candidates, topics: set[str]) -> str:
+    return next((t for t in candidates if t in topics), "")
+
+
+def plan_run(bag, out_dir, mode: str = FULL, rate: float = 0.0, overrides: dict | None = None) -> RunPlan:
     """Nodes for a recording. `overrides`: {node: {param: value}} from a YAML file or the CLI."""
     inputs = discover_inputs(bag)
-    topics = {t.name for t in inputs.topics}
+    topics = {t.name for t in inputs.topics if t.count > 0}
     problems = list(inputs.problems)
-    if not inputs.topics or all(t.count == 0 for t in inputs.topics):
+    if not topics:
         raise ValueError(f"{bag}: the recording holds no messages")
-    cameras = [c for c in inputs.cmc_names if cmc_keypoints_topic(c) in topics]
+    if mode == FULL and not inputs.has_ego:
+        raise ValueError(f"{bag}: no complete ego camera ({'; '.join(p for p in problems if 'ego' in p)}); "
+                         "use 'yowo calibrate-cmc' for the CMC-only relative calibration")
+    nodes, played, cameras = [], [], []
     for c in inputs.cmc_names:
-        if c not in cameras:
+        keypoints = cmc_keypoints_topic(c) if cmc_keypoints_topic(c) in topics else ""
+        image = _first_present(cmc_image_topics(c), topics)
+        if not keypoints:
             problems.append(f"CMC '{c}': no {cmc_keypoints_topic(c)}; the image-based detector is not "
                             "available yet, so the camera is skipped")
+            continue
+        cameras.append(c)
+        nodes.append(NodeSpec(f"keypoint_tracker_{c}", STAGE_MODULES["keypoint_tracker"],
+                              {"camera": c, "source": "keypoints", "image_topic": image if mode == FULL else ""}))
+        played += [cmc_info_topic(c), keypoints] + ([image] if image and mode == FULL else [])
     if len(cameras) < 2:
-        raise ValueError(f"{bag}: {len(cameras)} usable CMC(s) with agent keypoints; relative calibration "
-                         "needs at least 2")
-    wait = [t for c in cameras for t in (cmc_info_topic(c), cmc_keypoints_topic(c))]
-    nodes = [NodeSpec(f"keypoint_tracker_{c}", STAGE_MODULES["keypoint_tracker"], {"camera": c}) for c in cameras]
+        raise ValueError(f"{bag}: {len(cameras)} usable CMC(s) with agent keypoints; needs at least 2")
     nodes.append(NodeSpec("group_sfm", STAGE_MODULES["group_sfm"], {"cameras": cameras}))
-    played = [t for c in cameras for t in (cmc_info_topic(c), cmc_keypoints_topic(c))]
+    final = "group_sfm"
+    if mode == FULL:
+        color, depth = _first_present(EGO_COLOR, topics), _first_present(EGO_DEPTH, topics)
+        nodes.append(NodeSpec("ego_mapper", STAGE_MODULES["ego_mapper"],
+                              {"color_topic": color, "depth_topic": depth, "info_topic": EGO_INFO}))
+        nodes.append(NodeSpec("fusion", STAGE_MODULES["fusion"], {"cameras": cameras}))
+        played += [color, depth, EGO_INFO]
+        final = "fusion"
     nodes.append(NodeSpec("replay", STAGE_MODULES["replay"], {
-        "bag": str(bag), "rate": float(rate), "topics": played, "wait_for_topics": wait, "linger_s": 1.0}))
+        "bag": str(bag), "rate": float(rate), "topics": played, "wait_for_topics": played, "linger_s": 1.0}))
     for spec in nodes:
         spec.parameters.update((overrides or {}).get(spec.name, {}))
-    return RunPlan(Path(bag), Path(out_dir), mode, cameras, nodes, "group_sfm", problems)
+    return RunPlan(Path(bag), Path(out_dir), mode, cameras, nodes, final, problems)
 
 
 def read_intrinsics(bag, cameras: list[str]) -> dict[str, np.ndarray]:

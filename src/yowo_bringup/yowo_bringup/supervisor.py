@@ -33,10 +33,17 @@ class NodeProcess:
             return ""
 
 
+class _NoAliasDumper(yaml.SafeDumper):
+    """rcl's parameter parser does not support YAML aliases (&id001 / *id001)."""
+
+    def ignore_aliases(self, data):
+        return True
+
+
 def write_params_file(specs: list[NodeSpec], path: Path) -> None:
     """One ROS 2 parameter file for every node of the run (kept with the results)."""
     doc = {s.name: {"ros__parameters": s.parameters} for s in specs if s.parameters}
-    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    path.write_text(yaml.dump(doc, Dumper=_NoAliasDumper, sort_keys=False))
 
 
 class Supervisor:
