@@ -76,12 +76,12 @@ def cmd_calibrate_cmc(args) -> int:
     except RunFailed as exc:
         print(f"yowo calibrate-cmc: {exc}", file=sys.stderr)
         return 1
-    for g in out["groups"]:
+    for g in out.cameras:
         print(f"group {g.group_id}: " + ", ".join(f"{n} ({g.rmse_px[n]:.2f} px)" for n in g.names))
-    for name, why in out["ungrouped"].items():
+    for name, why in out.ungrouped.items():
         print(f"not calibrated: {name}: {why}")
     print(f"results in {args.output}/cameras.yaml")
-    return 0 if out["groups"] else 1
+    return 0 if out.cameras else 1
 
 
 def _load_overrides(args) -> dict:

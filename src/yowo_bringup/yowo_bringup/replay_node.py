@@ -15,21 +15,21 @@ from pathlib import Path
 import rclpy
 from rclpy.duration import Duration
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header
 from yowo_msgs.msg import ReplayStatus
 
+from yowo_common import topics
 from yowo_common.ros.bag import BagError, list_topics, message_class, read_raw
 from yowo_common.ros.context import ros_context
+from yowo_common.ros.stage import LATCHED
 from yowo_common.rosconv import ns_to_time
 
 from .replay import Pacer, select_topics
 
-STATUS_TOPIC = "/yowo/replay/status"
 # Fast DDS acknowledges only on its heartbeat (3 s by default); this profile shortens it.
 FASTDDS_PROFILE = Path(__file__).parent / "config" / "replay_fastdds.xml"
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 class ReplayNode(Node):
@@ -48,7 +48,7 @@ class ReplayNode(Node):
         self.linger_s = self.declare_parameter("linger_s", 3.0).value
         self.include = [t for t in self.include if t]
         self.wait_for = [t for t in self.wait_for if t]
-        self.status_pub = self.create_publisher(ReplayStatus, STATUS_TOPIC, LATCHED)
+        self.status_pub = self.create_publisher(ReplayStatus, topics.REPLAY_STATUS, LATCHED)
         self.clock_pub = self.create_publisher(Clock, "/clock", 10)
         self.pubs = {}
         self.counts: dict[str, int] = {}

@@ -9,6 +9,7 @@ import numpy as np
 import yaml
 
 from yowo_cmc.group_sfm import CameraGroupResult
+from yowo_common import topics
 
 from .contract import (EGO_COLOR, EGO_DEPTH, EGO_INFO, cmc_image_topics, cmc_info_topic, cmc_keypoints_topic,
                        discover_inputs)
@@ -33,27 +34,37 @@ class RunPlan:
     cameras: list[str]
     nodes: list[NodeSpec]
     final_stage: str
+    outputs: dict[str, str] = field(default_factory=dict)   # latched topic -> type the runner collects
     warnings: list[str] = field(default_factory=list)
 
 
-def _first_present(candidates, topics: set[str]) -> str:
-    return next((t for t in candidates if t in topics), "")
+@dataclass
+class RunOutcome:
+    files: list[Path]
+    cameras: list                          # RegisteredCmc (full) or CameraGroupResult (cmc)
+    ungrouped: dict[str, str]
+    published: dict[str, int]
+    received: dict[str, dict[str, int]]
+
+
+def _first_present(candidates, present: set[str]) -> str:
+    return next((t for t in candidates if t in present), "")
 
 
 def plan_run(bag, out_dir, mode: str = FULL, rate: float = 0.0, overrides: dict | None = None) -> RunPlan:
     """Nodes for a recording. `overrides`: {node: {param: value}} from a YAML file or the CLI."""
     inputs = discover_inputs(bag)
-    topics = {t.name for t in inputs.topics if t.count > 0}
+    present = {t.name for t in inputs.topics if t.count > 0}
     problems = list(inputs.problems)
-    if not topics:
+    if not present:
         raise ValueError(f"{bag}: the recording holds no messages")
     if mode == FULL and not inputs.has_ego:
         raise ValueError(f"{bag}: no complete ego camera ({'; '.join(p for p in problems if 'ego' in p)}); "
                          "use 'yowo calibrate-cmc' for the CMC-only relative calibration")
     nodes, played, cameras = [], [], []
     for c in inputs.cmc_names:
-        keypoints = cmc_keypoints_topic(c) if cmc_keypoints_topic(c) in topics else ""
-        image = _first_present(cmc_image_topics(c), topics)
+        keypoints = cmc_keypoints_topic(c) if cmc_keypoints_topic(c) in present else ""
+        image = _first_present(cmc_image_topics(c), present)
         if not keypoints:
             problems.append(f"CMC '{c}': no {cmc_keypoints_topic(c)}; the image-based detector is not "
                             "available yet, so the camera is skipped")
@@ -67,7 +78,7 @@ def plan_run(bag, out_dir, mode: str = FULL, rate: float = 0.0, overrides: dict 
     nodes.append(NodeSpec("group_sfm", STAGE_MODULES["group_sfm"], {"cameras": cameras}))
     final = "group_sfm"
     if mode == FULL:
-        color, depth = _first_present(EGO_COLOR, topics), _first_present(EGO_DEPTH, topics)
+        color, depth = _first_present(EGO_COLOR, present), _first_present(EGO_DEPTH, present)
         nodes.append(NodeSpec("ego_mapper", STAGE_MODULES["ego_mapper"],
                               {"color_topic": color, "depth_topic": depth, "info_topic": EGO_INFO}))
         nodes.append(NodeSpec("fusion", STAGE_MODULES["fusion"], {"cameras": cameras}))
@@ -77,7 +88,13 @@ def plan_run(bag, out_dir, mode: str = FULL, rate: float = 0.0, overrides: dict 
         "bag": str(bag), "rate": float(rate), "topics": played, "wait_for_topics": played, "linger_s": 1.0}))
     for spec in nodes:
         spec.parameters.update((overrides or {}).get(spec.name, {}))
-    return RunPlan(Path(bag), Path(out_dir), mode, cameras, nodes, final, problems)
+    outputs = {topics.GROUPS: "yowo_msgs/msg/CameraGroupArray"}
+    if mode == FULL:
+        outputs.update({topics.CMC_POSES: "yowo_msgs/msg/RegisteredCameraArray", topics.TF_STATIC: "tf2_msgs/msg/TFMessage",
+                        topics.LAYOUT_MARKERS: "visualization_msgs/msg/MarkerArray", topics.EGO_MAP: "yowo_msgs/msg/EgoMap",
+                        topics.LAYOUT: "yowo_msgs/msg/SceneLayout", topics.MAP_POINTS: "sensor_msgs/msg/PointCloud2",
+                        topics.EGO_PATH: "nav_msgs/msg/Path"})
+    return RunPlan(Path(bag), Path(out_dir), mode, cameras, nodes, final, outputs, problems)
 
 
 def read_intrinsics(bag, cameras: list[str]) -> dict[str, np.ndarray]:
@@ -109,3 +126,92 @@ def write_group_calibration(path: Path, groups: list[CameraGroupResult], ungroup
     for n, why in ungrouped.items():
         cams.append({"name": n, "group": "", "method": "none", "status": "failed", "reason": why})
     path.write_text(yaml.safe_dump({"cameras": sorted(cams, key=lambda c: c["name"])}, sort_keys=False))
+
+
+def write_run_results(plan: RunPlan, outputs: dict, status: dict, replay, seconds: float, failure: str) -> RunOutcome:
+    """Everything a run produced into plan.out_dir (partial results when a stage failed)."""
+    from yowo_cmc.messages import groups_from_msg
+
+    out, files = plan.out_dir, []
+    groups, ungrouped = groups_from_msg(outputs[topics.GROUPS]) if topics.GROUPS in outputs else ([], {})
+    cameras: list = groups
+    if plan.mode == CMC and topics.GROUPS in outputs:
+        write_group_calibration(out / "cameras.yaml", groups, ungrouped, read_intrinsics(plan.bag, plan.cameras))
+        files.append(out / "cameras.yaml")
+    if plan.mode == FULL:
+        cameras = _write_full_results(plan, outputs, files)
+    published = dict(zip(replay.topics, map(int, replay.published_counts))) if replay is not None else {}
+    received: dict[str, dict[str, int]] = {}
+    for stage, msg in status.items():
+        for t, n in zip(msg.input_topics, msg.received_counts):
+            received.setdefault(t, {})[stage] = int(n)
+    (out / "run_log.yaml").write_text(yaml.safe_dump({
+        "bag": str(plan.bag), "mode": plan.mode, "seconds": round(seconds, 2), "failure": failure,
+        "warnings": plan.warnings, "stages": {s: m.message for s, m in status.items()},
+        "replay_published": published, "received": received,
+        "replay_error": replay.error if replay is not None else "no replay status"}, sort_keys=False))
+    files.append(out / "run_log.yaml")
+    return RunOutcome(files, cameras, ungrouped, published, received)
+
+
+def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list:
+    from yowo_common.ros.bag import BagWriter
+    from yowo_common.rosconv import pointcloud2_to_xyz_rgb, points_to_array, pose_to_matrix, stamp_to_ns
+    from yowo_fusion.messages import ego_map_from_msg, registered_from_msg
+
+    from .evaluation import Trajectory, write_tum
+    from .report import write_report
+    from .results import write_cameras_yaml, write_layout_json, write_ply
+
+    out = plan.out_dir
+    cameras = registered_from_msg(outputs[topics.CMC_POSES]) if topics.CMC_POSES in outputs else []
+    if cameras:
+        write_cameras_yaml(out / "cameras.yaml", cameras)
+        files.append(out / "cameras.yaml")
+    ego_xy = None
+    if topics.EGO_PATH in outputs or topics.EGO_MAP in outputs:
+        if topics.EGO_PATH in outputs:
+            path = outputs[topics.EGO_PATH]
+            traj = Trajectory(np.array([stamp_to_ns(p.header.stamp) for p in path.poses], dtype=np.int64),
+                              np.array([pose_to_matrix(p.pose) for p in path.poses]).reshape(-1, 4, 4))
+        else:
+            ego = ego_map_from_msg(outputs[topics.EGO_MAP])
+            traj = Trajectory(ego.stamps_ns, ego.T_world_ego)
+        write_tum(out / "ego_trajectory.tum", traj)
+        files.append(out / "ego_trajectory.tum")
+        ego_xy = traj.positions[:, :2]
+    if topics.MAP_POINTS in outputs:
+        xyz, rgb = pointcloud2_to_xyz_rgb(outputs[topics.MAP_POINTS])
+        write_ply(out / "map.ply", xyz, rgb)
+        files.append(out / "map.ply")
+    floors = []
+    if topics.LAYOUT in outputs:
+        write_layout_json(out / "layout.json", outputs[topics.LAYOUT])
+        files.append(out / "layout.json")
+        floors = [points_to_array(p.points)[:, :2] for p in outputs[topics.LAYOUT].floor_polygons]
+    result_bag = out / "result.mcap"
+    if result_bag.exists():
+        import shutil
+        shutil.rmtree(result_bag)
+    latched = {topics.TF_STATIC, topics.CMC_POSES, topics.LAYOUT_MARKERS, topics.EGO_MAP, topics.LAYOUT,
+               topics.MAP_POINTS, topics.EGO_PATH}
+    stamp = max((stamp_to_ns(m.header.stamp) for m in outputs.values() if hasattr(m, "header")), default=0)
+    with BagWriter(result_bag) as bag:
+        for topic, msg in outputs.items():
+            bag.write(topic, msg, stamp, latched=topic in latched)
+    files.append(result_bag)
+    metrics, gt_cams = None, None
+    try:
+        from .eval import evaluate
+        from .results import read_ground_truth
+        metrics = evaluate(out, plan.bag)
+        gt_cams = read_ground_truth(plan.bag).cameras
+    except ValueError:
+        pass  # no ground truth in the recording: the report shows the results only
+    write_report(out / "report.html", str(plan.bag), cameras, ego_xy, floors, metrics, gt_cams, plan.warnings)
+    files.append(out / "report.html")
+    if metrics:
+        from .eval import write_metrics
+        write_metrics(metrics, out / "metrics.json")
+        files.append(out / "metrics.json")
+    return cameras

@@ -6,21 +6,19 @@ from __future__ import annotations
 from sensor_msgs.msg import CameraInfo
 from yowo_msgs.msg import AgentKeypoints, CameraGroupArray
 
+from yowo_common import topics
 from yowo_common.ros.context import spin_node
 from yowo_common.ros.stage import LATCHED, StageNode
 from yowo_common.rosconv import camera_info_to_model
 
 from .group_sfm import SfmParams, calibrate_groups
 from .keypoint_input import TrackAccumulator, frame_from_msg
-from .keypoint_tracker_node import tracker_output, tracker_stage
 from .messages import groups_to_msg
-
-GROUPS_TOPIC = "/yowo/cmc/groups"
 
 
 class GroupSfmNode(StageNode):
     def __init__(self):
-        super().__init__("group_sfm")
+        super().__init__(topics.GROUP_SFM_STAGE)
         cameras = [c for c in self.declare_parameter("cameras", [""]).value if c]
         if not cameras:
             raise ValueError("group_sfm_node needs the parameter cameras:=[name, ...]")
@@ -28,11 +26,11 @@ class GroupSfmNode(StageNode):
                                 ransac_px=self.declare_parameter("ransac_px", 2.0).value)
         self.acc = {c: TrackAccumulator(c) for c in cameras}
         self.last_stamp = 0
-        self.pub = self.output(CameraGroupArray, GROUPS_TOPIC, LATCHED)
+        self.pub = self.output(CameraGroupArray, topics.GROUPS, LATCHED)
         for cam in cameras:
             self.stream_input(CameraInfo, f"/cmc/{cam}/camera_info", lambda m, c=cam: self.on_info(c, m))
-            self.stream_input(AgentKeypoints, tracker_output(cam), lambda m, c=cam: self.on_keypoints(c, m),
-                              upstream=tracker_stage(cam))
+            self.stream_input(AgentKeypoints, topics.tracker_keypoints(cam), lambda m, c=cam: self.on_keypoints(c, m),
+                              upstream=topics.tracker_stage(cam))
 
     def on_info(self, camera: str, msg: CameraInfo) -> None:
         if self.acc[camera].camera is None:

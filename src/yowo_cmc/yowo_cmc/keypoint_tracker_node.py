@@ -9,24 +9,13 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Header
 from yowo_msgs.msg import AgentKeypoints
 
+from yowo_common import topics
 from yowo_common.ros.context import spin_node
 from yowo_common.ros.stage import LATCHED, StageNode
 from yowo_common.rosconv import camera_info_to_model, decode_color, encode_raw, ns_to_time, stamp_to_ns
 
 from .background import BackgroundSampler
 from .keypoint_input import TrackAccumulator, frame_from_msg
-
-
-def tracker_stage(camera: str) -> str:
-    return f"keypoint_tracker_{camera}"
-
-
-def tracker_output(camera: str) -> str:
-    return f"/yowo/cmc/{camera}/agent_keypoints"
-
-
-def background_output(camera: str) -> str:
-    return f"/yowo/cmc/{camera}/background"
 
 
 class KeypointTrackerNode(StageNode):
@@ -42,8 +31,8 @@ class KeypointTrackerNode(StageNode):
                              "the image-based detector is not implemented yet (use source:=keypoints)")
         self.acc = TrackAccumulator(camera)
         self.info_problem = ""
-        self.pub = self.output(AgentKeypoints, tracker_output(camera))
-        self.pub_background = self.output(Image, background_output(camera), LATCHED)
+        self.pub = self.output(AgentKeypoints, topics.tracker_keypoints(camera))
+        self.pub_background = self.output(Image, topics.tracker_background(camera), LATCHED)
         self.stream_input(CameraInfo, f"/cmc/{camera}/camera_info", self.on_info)
         self.stream_input(AgentKeypoints, f"/cmc/{camera}/agent_keypoints", self.on_keypoints)
         # The agent-free background (for scene keypoints in fusion), when images were recorded.

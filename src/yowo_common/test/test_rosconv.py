@@ -5,7 +5,7 @@ from std_msgs.msg import Header
 
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import look_at
-from yowo_common.rosconv import (camera_info_to_model, decode_color, decode_depth, encode_color_jpeg,
+from yowo_common.rosconv import (camera_info_to_model, pointcloud2_to_xyz_rgb, xyz_rgb_to_pointcloud2, decode_color, decode_depth, encode_color_jpeg,
                                  encode_depth_png, encode_raw, matrix_to_pose, matrix_to_transform,
                                  model_to_camera_info, ns_to_time, pose_to_matrix, stamp_to_ns,
                                  transform_to_matrix)
@@ -68,3 +68,13 @@ def test_depth_encodings():
         out = decode_depth(msg)
         assert np.isnan(out[0, 1])
         np.testing.assert_allclose(out[[0, 1, 1], [0, 0, 1]], [1.234, 0.5, 7.0], atol=5e-4)
+
+
+def test_pointcloud2_roundtrip():
+    rng = np.random.default_rng(0)
+    xyz = rng.normal(size=(50, 3))
+    rgb = rng.integers(0, 255, (50, 3), dtype=np.uint8)
+    back_xyz, back_rgb = pointcloud2_to_xyz_rgb(xyz_rgb_to_pointcloud2(xyz, rgb))
+    np.testing.assert_allclose(back_xyz, xyz.astype(np.float32), rtol=1e-6)
+    np.testing.assert_array_equal(back_rgb, rgb)
+    assert pointcloud2_to_xyz_rgb(xyz_rgb_to_pointcloud2(xyz))[1] is None

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, Pose, Quaternion, Transform, Vector3
-from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
 
 from .camera import PLUMB_BOB, CameraModel
 from .geometry import quat_xyzw_from_rotation, rotation_from_quat_xyzw, se3
@@ -209,3 +209,46 @@ def encode_raw(arr: np.ndarray, encoding: str, header=None) -> Image:
     if header is not None:
         msg.header = header
     return msg
+
+
+# --- point clouds -----------------------------------------------------------------
+_PC2_DTYPES = {PointField.FLOAT32: "f4", PointField.FLOAT64: "f8", PointField.UINT32: "u4", PointField.UINT8: "u1",
+               PointField.INT32: "i4", PointField.UINT16: "u2", PointField.INT16: "i2", PointField.INT8: "i1"}
+
+
+def xyz_rgb_to_pointcloud2(xyz: np.ndarray, rgb: np.ndarray | None = None, header=None) -> PointCloud2:
+    """Unorganised cloud with x, y, z (float32) and, if given, rgb packed in a float32
+    as 0x00RRGGBB (the PCL/RViz convention)."""
+    xyz = np.asarray(xyz, dtype=np.float32).reshape(-1, 3)
+    names = ["x", "y", "z"] + (["rgb"] if rgb is not None else [])
+    data = np.empty(len(xyz), dtype=[(n, "<f4") for n in names])
+    data["x"], data["y"], data["z"] = xyz.T
+    if rgb is not None:
+        c = np.asarray(rgb, dtype=np.uint32).reshape(-1, 3)
+        data["rgb"] = ((c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]).view(np.float32)
+    msg = PointCloud2(height=1, width=len(xyz), is_bigendian=False, point_step=4 * len(names),
+                      row_step=4 * len(names) * len(xyz), is_dense=True,
+                      fields=[PointField(name=n, offset=4 * i, datatype=PointField.FLOAT32, count=1)
+                              for i, n in enumerate(names)], data=data.tobytes())
+    if header is not None:
+        msg.header = header
+    return msg
+
+
+def pointcloud2_to_xyz_rgb(msg) -> tuple[np.ndarray, np.ndarray | None]:
+    """PointCloud2 -> (N, 3) float xyz and (N, 3) uint8 rgb (None without an rgb field)."""
+    fields = {f.name: f for f in msg.fields}
+    if not {"x", "y", "z"} <= set(fields):
+        raise ValueError(f"PointCloud2 without x, y, z fields (has {', '.join(fields)})")
+    order = ">" if msg.is_bigendian else "<"
+    dtype = np.dtype({"names": list(fields), "offsets": [f.offset for f in fields.values()],
+                      "formats": [order + _PC2_DTYPES[f.datatype] for f in fields.values()],
+                      "itemsize": msg.point_step})
+    data = np.frombuffer(bytes(msg.data), dtype=dtype, count=msg.width * msg.height)
+    xyz = np.column_stack([data["x"], data["y"], data["z"]]).astype(float)
+    rgb = None
+    if "rgb" in fields:
+        packed = np.ascontiguousarray(data["rgb"]).view(np.uint32) if fields["rgb"].datatype == PointField.FLOAT32 \
+            else data["rgb"].astype(np.uint32)
+        rgb = np.column_stack([(packed >> 16) & 255, (packed >> 8) & 255, packed & 255]).astype(np.uint8)
+    return xyz, rgb

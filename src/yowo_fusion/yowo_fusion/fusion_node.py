@@ -9,10 +9,9 @@ from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 from yowo_msgs.msg import AgentKeypoints, CameraGroupArray, EgoMap, RegisteredCameraArray, SceneLayout
 
-from yowo_cmc.group_sfm_node import GROUPS_TOPIC
 from yowo_cmc.keypoint_input import TrackAccumulator, frame_from_msg
-from yowo_cmc.keypoint_tracker_node import background_output, tracker_output, tracker_stage
 from yowo_cmc.messages import groups_from_msg
+from yowo_common import topics
 from yowo_common.ros.context import spin_node
 from yowo_common.ros.stage import LATCHED, StageNode
 from yowo_common.rosconv import camera_info_to_model, decode_color, points_to_array
@@ -20,13 +19,11 @@ from yowo_common.rosconv import camera_info_to_model, decode_color, points_to_ar
 from .messages import ego_map_from_msg, layout_markers, registered_to_msg, tf_static
 from .pipeline import CmcInput, FusionParams, fuse
 
-EGO_STAGE, EGO_MAP_TOPIC, LAYOUT_TOPIC = "ego_mapper", "/yowo/ego/map", "/yowo/layout"
-CMC_POSES_TOPIC = "/yowo/cmc_poses"
 
 
 class FusionNode(StageNode):
     def __init__(self):
-        super().__init__("fusion")
+        super().__init__(topics.FUSION_STAGE)
         cameras = [c for c in self.declare_parameter("cameras", [""]).value if c]
         self.params = FusionParams(
             use_scene_keypoints=self.declare_parameter("use_scene_keypoints", True).value,
@@ -34,18 +31,19 @@ class FusionNode(StageNode):
         self.acc = {c: TrackAccumulator(c) for c in cameras}
         self.backgrounds = {}
         self.ego_map = self.groups = self.layout = None
-        self.pub_poses = self.output(RegisteredCameraArray, CMC_POSES_TOPIC, LATCHED)
-        self.pub_tf = self.output(TFMessage, "/tf_static", LATCHED)
-        self.pub_markers = self.output(MarkerArray, "/yowo/layout/markers", LATCHED)
-        self.stream_input(EgoMap, EGO_MAP_TOPIC, lambda m: setattr(self, "ego_map", m), upstream=EGO_STAGE)
-        self.stream_input(SceneLayout, LAYOUT_TOPIC, lambda m: setattr(self, "layout", m), upstream=EGO_STAGE)
-        self.stream_input(CameraGroupArray, GROUPS_TOPIC, lambda m: setattr(self, "groups", m), upstream="group_sfm")
+        self.pub_poses = self.output(RegisteredCameraArray, topics.CMC_POSES, LATCHED)
+        self.pub_tf = self.output(TFMessage, topics.TF_STATIC, LATCHED)
+        self.pub_markers = self.output(MarkerArray, topics.LAYOUT_MARKERS, LATCHED)
+        self.stream_input(EgoMap, topics.EGO_MAP, lambda m: setattr(self, "ego_map", m), upstream=topics.EGO_STAGE)
+        self.stream_input(SceneLayout, topics.LAYOUT, lambda m: setattr(self, "layout", m), upstream=topics.EGO_STAGE)
+        self.stream_input(CameraGroupArray, topics.GROUPS, lambda m: setattr(self, "groups", m),
+                          upstream=topics.GROUP_SFM_STAGE)
         for cam in cameras:
             self.stream_input(CameraInfo, f"/cmc/{cam}/camera_info", lambda m, c=cam: self.on_info(c, m))
-            self.stream_input(AgentKeypoints, tracker_output(cam), lambda m, c=cam: self.acc[c].add(frame_from_msg(m)),
-                              upstream=tracker_stage(cam))
-            self.stream_input(Image, background_output(cam), lambda m, c=cam: self.backgrounds.__setitem__(c, m),
-                              upstream=tracker_stage(cam))
+            self.stream_input(AgentKeypoints, topics.tracker_keypoints(cam),
+                              lambda m, c=cam: self.acc[c].add(frame_from_msg(m)), upstream=topics.tracker_stage(cam))
+            self.stream_input(Image, topics.tracker_background(cam),
+                              lambda m, c=cam: self.backgrounds.__setitem__(c, m), upstream=topics.tracker_stage(cam))
 
     def on_info(self, camera: str, msg: CameraInfo) -> None:
         if self.acc[camera].camera is None:

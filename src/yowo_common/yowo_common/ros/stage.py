@@ -11,10 +11,10 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_msgs.msg import Header
 from yowo_msgs.msg import ReplayStatus, StageStatus
 
+from .. import topics
 from ..streams import StreamCompletion
 
 REPLAY = "replay"
-REPLAY_STATUS_TOPIC = "/yowo/replay/status"
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # Streams: reliable and never dropped by the history (the replay applies flow control).
 STREAM = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
@@ -22,10 +22,6 @@ STREAM = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=Reliabi
 # subscription discovered after the first messages) still receives all of them.
 DURABLE_STREAM = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
-
-def status_topic(stage: str) -> str:
-    return f"/yowo/status/{stage}"
 
 
 class StageNode(Node):
@@ -37,7 +33,7 @@ class StageNode(Node):
         self.stage = self.get_name()  # a launcher may rename the node (one tracker per camera)
         self.completion = StreamCompletion({})
         self.published: Counter = Counter()
-        self._status_pub = self.create_publisher(StageStatus, status_topic(self.stage), LATCHED)
+        self._status_pub = self.create_publisher(StageStatus, topics.status(self.stage), LATCHED)
         self._watched: set[str] = set()
         self._finalized = False
         self.create_timer(0.2, self._check)
@@ -76,9 +72,9 @@ class StageNode(Node):
             return
         self._watched.add(upstream)
         if upstream == REPLAY:
-            self.create_subscription(ReplayStatus, REPLAY_STATUS_TOPIC, self._on_replay_status, LATCHED)
+            self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, LATCHED)
         else:
-            self.create_subscription(StageStatus, status_topic(upstream),
+            self.create_subscription(StageStatus, topics.status(upstream),
                                      lambda m, up=upstream: self._on_stage_status(up, m), LATCHED)
 
     def _on_replay_status(self, msg: ReplayStatus) -> None:
