@@ -3,6 +3,7 @@ and returning the process exit code; heavy imports happen inside the verb."""
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -62,19 +63,54 @@ def cmd_simulate(args) -> int:
     return 0
 
 
-def cmd_calibrate_cmc(args) -> int:
-    """CMC-only relative calibration through the real node graph (no ego camera needed)."""
-    from .run import CMC, plan_run
+def _execute(args, mode: str):
+    """Plan and run the graph; returns the outcome or None (message printed) on failure."""
+    from .run import plan_run
     from .run_node import RunFailed, execute
 
-    plan = plan_run(args.bag, args.output, mode=CMC, rate=args.rate, overrides=_load_overrides(args))
+    plan = plan_run(args.bag, args.output, mode=mode, rate=args.rate, overrides=_load_overrides(args))
     for w in plan.warnings:
         print(f"warning: {w}", file=sys.stderr)
-    print(f"calibrating {len(plan.cameras)} CMCs of {args.bag}: {', '.join(plan.cameras)}")
+    print(f"{mode} run of {args.bag}: {len(plan.cameras)} CMCs ({', '.join(plan.cameras)}), "
+          f"{len(plan.nodes)} node processes; logs in {Path(args.output) / 'logs'}")
     try:
-        out = execute(plan, timeout_s=args.timeout)
+        return execute(plan, timeout_s=args.timeout)
     except RunFailed as exc:
-        print(f"yowo calibrate-cmc: {exc}", file=sys.stderr)
+        print(f"yowo {args.verb}: {exc}\n(partial results, if any, are in {args.output})", file=sys.stderr)
+        return None
+
+
+def cmd_run(args) -> int:
+    """The full pipeline through the real node graph: map + every CMC registered in it."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from .run import FULL
+
+    out = _execute(args, FULL)
+    if out is None:
+        return 1
+    table = Table(title="registered cameras (map frame)")
+    for col in ("camera", "group", "method", "verdict", "position [m]", "RMSE [px]", "reason"):
+        table.add_column(col)
+    for c in out.cameras:
+        pos = ", ".join(f"{v:.3f}" for v in c.T_world_cam[:3, 3]) if c.T_world_cam is not None else "-"
+        table.add_row(c.name, c.group or "-", c.method, c.status, pos, f"{c.rmse_px:.2f}", c.reason)
+    Console().print(table)
+    metrics = Path(args.output) / "metrics.json"
+    if metrics.exists():
+        from .eval import print_tables
+        print_tables(json.loads(metrics.read_text()), Console())
+    print(f"results: {args.output}/ (report.html, cameras.yaml, ego_trajectory.tum, map.ply, layout.json, result.mcap)")
+    return 0 if any(c.T_world_cam is not None for c in out.cameras) else 1
+
+
+def cmd_calibrate_cmc(args) -> int:
+    """CMC-only relative calibration through the real node graph (no ego camera needed)."""
+    from .run import CMC
+
+    out = _execute(args, CMC)
+    if out is None:
         return 1
     for g in out.cameras:
         print(f"group {g.group_id}: " + ", ".join(f"{n} ({g.rmse_px[n]:.2f} px)" for n in g.names))
@@ -136,6 +172,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--raw", action="store_true", help="raw sensor_msgs/Image instead of compressed")
     p.add_argument("--preview", metavar="PNG", help="also write a picture: ego frame, CMC frame, top view")
     p.set_defaults(func=cmd_simulate)
+
+    p = verbs.add_parser("run", help="map the scene and register every CMC in it (the full node graph)")
+    _add_run_options(p)
+    p.set_defaults(func=cmd_run)
 
     p = verbs.add_parser("calibrate-cmc", help="relative calibration of each CMC group from agent keypoints only")
     _add_run_options(p)
