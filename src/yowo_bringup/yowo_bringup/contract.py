@@ -7,31 +7,10 @@ from dataclasses import dataclass, field
 
 from yowo_common.ros.bag import BagTopic, list_topics
 
-EGO_COLOR = ("/ego/color/image_raw", "/ego/color/image_raw/compressed")
-EGO_DEPTH = ("/ego/depth/image_raw", "/ego/depth/image_raw/compressedDepth")
-EGO_INFO = "/ego/color/camera_info"
-EGO_IMU = "/ego/imu"
+from yowo_common.topics import (EGO_COLOR, EGO_DEPTH, EGO_INFO, cmc_image_topics,  # noqa: F401  (the contract)
+                                cmc_info_topic, cmc_keypoints_topic)
+
 _CMC_TOPIC = re.compile(r"^/cmc/(?P<name>[A-Za-z0-9_]+)/(?P<kind>image_raw(/compressed)?|camera_info|agent_keypoints)$")
-
-
-def cmc_image_topics(name: str) -> tuple[str, str]:
-    return f"/cmc/{name}/image_raw", f"/cmc/{name}/image_raw/compressed"
-
-
-def cmc_info_topic(name: str) -> str:
-    return f"/cmc/{name}/camera_info"
-
-
-def cmc_keypoints_topic(name: str) -> str:
-    return f"/cmc/{name}/agent_keypoints"
-
-
-def gt_cmc_pose_topic(name: str) -> str:
-    return f"/gt/cmc/{name}/pose"
-
-
-GT_EGO_POSE = "/gt/ego/pose"
-GT_FLOOR = "/gt/layout/floor"
 
 
 @dataclass

@@ -11,9 +11,9 @@ import numpy as np
 import yaml
 
 from yowo_common.geometry import quat_xyzw_from_rotation, rotation_from_quat_xyzw, se3
+from yowo_common.topics import GT_EGO_POSE, GT_FLOOR
 from yowo_fusion.pipeline import RegisteredCmc
 
-from .contract import GT_EGO_POSE, GT_FLOOR
 from .evaluation import Trajectory
 
 

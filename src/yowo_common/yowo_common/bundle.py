@@ -70,7 +70,6 @@ FIXED_SIGMA = 1e-6
 def solve(problem: BundleProblem, max_iterations: int = 100) -> BundleResult:
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
-    cals = [cal3(c) for c in problem.cameras]
     for i, T in enumerate(problem.T_world_cam):
         values.insert(X(i), pose3(T))
         if i in problem.fixed_cameras:
@@ -83,26 +82,38 @@ def solve(problem: BundleProblem, max_iterations: int = 100) -> BundleResult:
         values.insert(L(int(j)), gtsam.Point3(*problem.points[j]))
     for j, (xyz, sigma) in problem.point_priors.items():
         graph.add(gtsam.PriorFactorPoint3(L(j), gtsam.Point3(*xyz), gtsam.noiseModel.Isotropic.Sigma(3, sigma)))
-    huber = gtsam.noiseModel.mEstimator.Huber.Create(problem.huber_k)
-    noise_cache: dict[float, gtsam.noiseModel.Base] = {}
-    o = problem.obs
-    for c, j, uv, s in zip(o.camera, o.point, o.uv, o.sigma_px):
-        model = noise_cache.get(float(s))
+    add_projection_factors(graph, problem.obs, problem.cameras, X, L, problem.huber_k)
+    result, initial_error, final_error, iterations = optimize(graph, values, max_iterations)
+    T_out = [result.atPose3(X(i)).matrix() for i in range(len(problem.T_world_cam))]
+    points = problem.points.copy()
+    for j in used:
+        points[j] = result.atPoint3(L(int(j)))
+    return BundleResult(T_out, points, reprojection_residuals(problem.cameras, T_out, points, problem.obs),
+                        initial_error, final_error, iterations)
+
+
+def add_projection_factors(graph, obs: Observations, cameras: list[CameraModel], pose_key, point_key,
+                           huber_k: float) -> None:
+    """One Huber-robust projection factor per observation (ideal pixels, Cal3_S2)."""
+    cals = [cal3(c) for c in cameras]
+    huber = gtsam.noiseModel.mEstimator.Huber.Create(huber_k)
+    models: dict[float, gtsam.noiseModel.Base] = {}
+    for c, j, uv, s in zip(obs.camera, obs.point, obs.uv, obs.sigma_px):
+        model = models.get(float(s))
         if model is None:
-            model = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(2, float(s)))
-            noise_cache[float(s)] = model
-        graph.add(gtsam.GenericProjectionFactorCal3_S2(gtsam.Point2(*uv), model, X(int(c)), L(int(j)), cals[c]))
+            model = models[float(s)] = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(2, float(s)))
+        graph.add(gtsam.GenericProjectionFactorCal3_S2(gtsam.Point2(*uv), model, pose_key(int(c)), point_key(int(j)),
+                                                       cals[c]))
+
+
+def optimize(graph, values, max_iterations: int):
+    """Levenberg-Marquardt: (result values, initial error, final error, iterations)."""
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max_iterations)
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     initial_error = graph.error(values)
     result = optimizer.optimize()
-    T_out = [result.atPose3(X(i)).matrix() for i in range(len(problem.T_world_cam))]
-    points = problem.points.copy()
-    for j in used:
-        points[j] = result.atPoint3(L(int(j)))
-    return BundleResult(T_out, points, reprojection_residuals(problem.cameras, T_out, points, o),
-                        initial_error, graph.error(result), optimizer.iterations())
+    return result, initial_error, graph.error(result), optimizer.iterations()
 
 
 def reprojection_residuals(cameras: list[CameraModel], T_world_cam: list[np.ndarray], points: np.ndarray,

@@ -1,6 +1,33 @@
-"""Names of YOWO's own topics and stages (the output side of the contract in
-shared/DESIGN.md §1-2), in one place for nodes, the runner and tests."""
+"""Topic and stage names of YOWO in one place: the recorded inputs and ground
+truth of shared/DESIGN.md §2, and YOWO's own outputs."""
 
+# --- inputs (recordings or live cameras) ---
+EGO_COLOR = ("/ego/color/image_raw", "/ego/color/image_raw/compressed")
+EGO_DEPTH = ("/ego/depth/image_raw", "/ego/depth/image_raw/compressedDepth")
+EGO_INFO = "/ego/color/camera_info"
+EGO_IMU = "/ego/imu"
+
+
+def cmc_image_topics(name: str) -> tuple[str, str]:
+    return f"/cmc/{name}/image_raw", f"/cmc/{name}/image_raw/compressed"
+
+
+def cmc_info_topic(name: str) -> str:
+    return f"/cmc/{name}/camera_info"
+
+
+def cmc_keypoints_topic(name: str) -> str:
+    return f"/cmc/{name}/agent_keypoints"
+
+
+def gt_cmc_pose_topic(name: str) -> str:
+    return f"/gt/cmc/{name}/pose"
+
+
+GT_EGO_POSE = "/gt/ego/pose"
+GT_FLOOR = "/gt/layout/floor"
+
+# --- YOWO's own topics ---
 REPLAY_STATUS = "/yowo/replay/status"
 GROUPS = "/yowo/cmc/groups"                 # yowo_msgs/CameraGroupArray, latched
 EGO_MAP = "/yowo/ego/map"                   # yowo_msgs/EgoMap, latched

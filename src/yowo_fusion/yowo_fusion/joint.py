@@ -22,7 +22,8 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import A, C, D, L, O, X
 
-from yowo_common.bundle import FIXED_SIGMA, Observations, cal3, pose3, reprojection_residuals
+from yowo_common.bundle import (FIXED_SIGMA, Observations, add_projection_factors, optimize, pose3,
+                                reprojection_residuals)
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import skew
 
@@ -94,20 +95,6 @@ def ros_covariance(cov_gtsam: np.ndarray, R_world_cam: np.ndarray) -> np.ndarray
     return J @ cov_gtsam @ J.T
 
 
-def _robust(sigma: float, k: float):
-    return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(k),
-                                          gtsam.noiseModel.Isotropic.Sigma(2, sigma))
-
-
-def _add_projections(graph, obs: Observations, cams: list[CameraModel], pose_key, point_key, k: float) -> None:
-    cals = [cal3(c) for c in cams]
-    models: dict[float, object] = {}
-    for c, j, uv, s in zip(obs.camera, obs.point, obs.uv, obs.sigma_px):
-        model = models.setdefault(float(s), _robust(float(s), k))
-        graph.add(gtsam.GenericProjectionFactorCal3_S2(gtsam.Point2(*uv), model, pose_key(int(c)), point_key(int(j)),
-                                                       cals[c]))
-
-
 def _linear(keys_and_blocks, b, sigma, values) -> gtsam.LinearContainerFactor:
     dim = len(b)
     jf = gtsam.JacobianFactor(*[x for kb in keys_and_blocks for x in kb], np.asarray(b, float),
@@ -136,10 +123,9 @@ def solve_joint(p: JointProblem, params: JointParams = JointParams()) -> JointRe
     if not params.estimate_head_offset:
         graph.add(gtsam.PriorFactorPoint3(O(0), gtsam.Point3(0, 0, 0), gtsam.noiseModel.Isotropic.Sigma(3, FIXED_SIGMA)))
 
-    _add_projections(graph, p.ego_obs, [p.ego_camera] * len(p.T_world_ego), lambda c: X(c), lambda j: L(j),
-                     params.huber_k)
-    _add_projections(graph, p.cmc_scene_obs, p.cmc_cameras, lambda c: C(c), lambda j: L(j), params.huber_k)
-    _add_projections(graph, p.cmc_agent_obs, p.cmc_cameras, lambda c: C(c), lambda j: A(j), params.huber_k)
+    add_projection_factors(graph, p.ego_obs, [p.ego_camera] * len(p.T_world_ego), X, L, params.huber_k)
+    add_projection_factors(graph, p.cmc_scene_obs, p.cmc_cameras, C, L, params.huber_k)
+    add_projection_factors(graph, p.cmc_agent_obs, p.cmc_cameras, C, A, params.huber_k)
     _add_a2e(graph, values, p, params)
     for k in np.flatnonzero(p.agent_ids == BOTTOM):
         # z of the ground point is 0 (the ego map's floor): linear in the point, exact.
@@ -147,11 +133,7 @@ def solve_joint(p: JointProblem, params: JointParams = JointParams()) -> JointRe
                           params.floor_sigma_m, values))
     _add_kinematics(graph, values, p, params)
 
-    lm_params = gtsam.LevenbergMarquardtParams()
-    lm_params.setMaxIterations(params.iterations)
-    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, lm_params)
-    initial_error = graph.error(values)
-    result = optimizer.optimize()
+    result, initial_error, final_error, _ = optimize(graph, values, params.iterations)
     T_ego = [result.atPose3(X(f)).matrix() for f in range(len(p.T_world_ego))]
     landmarks = p.landmarks.copy()
     for j in lm_used:
@@ -163,7 +145,7 @@ def solve_joint(p: JointProblem, params: JointParams = JointParams()) -> JointRe
     return JointResult(T_ego, landmarks, T_cmc, agent, np.asarray(result.atPoint3(O(0))), covs,
                        reprojection_residuals(p.cmc_cameras, T_cmc, agent, p.cmc_agent_obs),
                        reprojection_residuals(p.cmc_cameras, T_cmc, landmarks, p.cmc_scene_obs),
-                       initial_error, graph.error(result))
+                       initial_error, final_error)
 
 
 def _add_a2e(graph, values, p: JointProblem, params: JointParams) -> None:
