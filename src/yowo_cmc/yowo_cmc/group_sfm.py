@@ -19,6 +19,7 @@ from yowo_common.geometry import inv_se3, se3
 from .tracks import CameraTracks, TrackParams, resample
 
 MAX_IDS = 1000  # keypoint ids per grid time: key = grid index * MAX_IDS + id
+RANSAC_SEED = 0  # OpenCV's RANSAC draws from a global RNG: seed it so a bag always gives the same result
 
 
 @dataclass(frozen=True)
@@ -113,7 +114,11 @@ def pair_geometry(obs: GridObservations, a: int, b: int, params: SfmParams) -> P
         return PairGeometry(a, b, None, keys, np.zeros(len(keys), bool))
     pa = np.array([obs.per_camera[a][k] for k in keys])
     pb = np.array([obs.per_camera[b][k] for k in keys])
-    F, mask = cv2.findFundamentalMat(pa, pb, cv2.USAC_MAGSAC, params.ransac_px, 0.9999, 10000)
+    cv2.setRNGSeed(RANSAC_SEED)
+    try:
+        F, mask = cv2.findFundamentalMat(pa, pb, cv2.USAC_MAGSAC, params.ransac_px, 0.9999, 10000)
+    except cv2.error:  # degenerate configurations (e.g. all points in one spot) make USAC assert
+        F = None
     if F is None or F.shape != (3, 3):
         return PairGeometry(a, b, None, keys, np.zeros(len(keys), bool))
     return PairGeometry(a, b, F, keys, mask.ravel().astype(bool))
@@ -205,12 +210,12 @@ class IncrementalSfm:
         _, R, t, _ = cv2.recoverPose(E, na, nb, np.eye(3))  # SVD + cheirality check
         self.poses[a] = np.eye(4)
         self.poses[b] = inv_se3(se3(R, t.ravel()))         # T_l_b: R_lb = R^T, X_b = -R^T t
-        self._triangulate_new()
+        self.triangulate_new()
 
     def _views(self, key: int) -> list[int]:
         return [c for c in self.poses if key in self.obs.per_camera[c]]
 
-    def _triangulate_new(self) -> None:
+    def triangulate_new(self) -> None:
         candidates = set().union(*(self.obs.per_camera[c].keys() for c in self.poses)) - set(self.points)
         for key in candidates:
             views = self._views(key)
@@ -252,6 +257,7 @@ class IncrementalSfm:
         keys = [k for k in self.obs.per_camera[c] if k in self.points]
         obj = np.array([self.points[k] for k in keys])
         img = np.array([self.obs.per_camera[c][k] for k in keys])
+        cv2.setRNGSeed(RANSAC_SEED)
         ok, rvec, tvec, inliers = cv2.solvePnPRansac(
             obj, img, self.obs.cameras[c].K, None, iterationsCount=2000,
             reprojectionError=self.params.pnp_px, confidence=0.999, flags=cv2.SOLVEPNP_SQPNP)
@@ -262,7 +268,7 @@ class IncrementalSfm:
         idx = inliers.ravel()
         rvec, tvec = cv2.solvePnPRefineLM(obj[idx], img[idx], self.obs.cameras[c].K, None, rvec, tvec)
         self.poses[c] = inv_se3(se3(cv2.Rodrigues(rvec)[0], tvec.ravel()))
-        self._triangulate_new()
+        self.triangulate_new()
         return True
 
     def bundle_adjust(self, reference: int, second: int, sigma_by_id: dict[int, float]) -> dict:
@@ -283,8 +289,9 @@ class IncrementalSfm:
         problem = BundleProblem([self.obs.cameras[c] for c in cams], [self.poses[c] for c in cams],
                                 np.array([self.points[int(k)] for k in keys]), obs,
                                 fixed_cameras={index[reference]},
-                                # Scale gauge only: a loose prior on the second camera's centre.
-                                position_priors={index[second]: (self.poses[second][:3, 3], 0.01 * baseline)})
+                                # The scale gauge only (a prior on a centre would also pin the
+                                # baseline's direction to its noisy initial estimate).
+                                baseline_prior=(index[reference], index[second], baseline, 1e-4 * baseline))
         res = solve(problem)
         for c in cams:
             self.poses[c] = res.T_world_cam[index[c]]
@@ -309,7 +316,9 @@ def reconstruct_group(obs: GridObservations, members: list[int], pairs: list[Pai
             sfm.failed[c] = f"sees fewer than {params.min_pnp} of the group's triangulated agent points"
     # Two robust BA rounds: the second weights each keypoint id by its own residual noise.
     sigma_by_id: dict[int, float] = {}
-    for _ in range(2):
+    for round_ in range(2):
+        if round_:
+            sfm.triangulate_new()  # points rejected under the pre-BA poses get a second chance
         ba = sfm.bundle_adjust(init.a, init.b, sigma_by_id)
         ids = ba["obs"].point
         kp_ids = ba["keys"][ids] % MAX_IDS

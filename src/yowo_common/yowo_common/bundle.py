@@ -49,6 +49,8 @@ class BundleProblem:
     obs: Observations
     fixed_cameras: set[int] = field(default_factory=set)       # held (almost) fixed: gauge
     position_priors: dict[int, tuple[np.ndarray, float]] = field(default_factory=dict)  # cam -> (centre, sigma m)
+    # (cam a, cam b, distance, sigma): fixes the scale of a reconstruction without fixing a direction
+    baseline_prior: tuple[int, int, float, float] | None = None
     point_priors: dict[int, tuple[np.ndarray, float]] = field(default_factory=dict)     # point -> (xyz, sigma m)
     huber_k: float = 1.345
 
@@ -77,6 +79,9 @@ def solve(problem: BundleProblem, max_iterations: int = 100) -> BundleResult:
     for i, (centre, sigma) in problem.position_priors.items():
         # A prior on the camera centre only: a GPS-like factor on the pose's translation.
         graph.add(gtsam.GPSFactor(X(i), gtsam.Point3(*centre), gtsam.noiseModel.Isotropic.Sigma(3, sigma)))
+    if problem.baseline_prior is not None:
+        a, b, dist, sigma = problem.baseline_prior
+        graph.add(gtsam.RangeFactorPose3(X(a), X(b), dist, gtsam.noiseModel.Isotropic.Sigma(1, sigma)))
     used = np.unique(problem.obs.point)
     for j in used:
         values.insert(L(int(j)), gtsam.Point3(*problem.points[j]))
@@ -110,6 +115,9 @@ def optimize(graph, values, max_iterations: int):
     """Levenberg-Marquardt: (result values, initial error, final error, iterations)."""
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max_iterations)
+    # Converge fully: the default tolerances stop early in the flat valleys of weak geometries.
+    params.setRelativeErrorTol(1e-10)
+    params.setAbsoluteErrorTol(1e-10)
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     initial_error = graph.error(values)
     result = optimizer.optimize()
