@@ -155,6 +155,20 @@ def cmd_eval(args) -> int:
     return 0
 
 
+def cmd_bench(args) -> int:
+    """YOWO and the baselines on generated recordings -> BENCHMARKS.md + results.json."""
+    from .bench import SCENARIOS, run_bench, write_outputs
+
+    unknown = [s for s in args.scenarios if s not in SCENARIOS]
+    if unknown:
+        raise ValueError(f"unknown scenario(s) {', '.join(unknown)} (choose from {', '.join(SCENARIOS)})")
+    out = Path(args.output)
+    results = run_bench(args.preset, args.seeds, args.scenarios, out)
+    write_outputs(results, out, Path(args.markdown) if args.markdown else None)
+    print(f"wrote {out / 'BENCHMARKS.md'} and {out / 'results.json'}" + (f" and {args.markdown}" if args.markdown else ""))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="yowo", description="YOWO: map a scene and register its ceiling cameras from one walk.")
@@ -180,6 +194,15 @@ def build_parser() -> argparse.ArgumentParser:
     p = verbs.add_parser("calibrate-cmc", help="relative calibration of each CMC group from agent keypoints only")
     _add_run_options(p)
     p.set_defaults(func=cmd_calibrate_cmc)
+    p = verbs.add_parser("bench", help="YOWO and baselines on generated recordings -> BENCHMARKS.md")
+    p.add_argument("--preset", default="small", help="tiny | small | standard | large")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--scenarios", nargs="+", default=["normal"], help="normal, texture_poor, symmetric, "
+                   "dim_light, stationary, kp_noise_{0.5,1.0,2.0,5.0}px")
+    p.add_argument("-o", "--output", default="bench", help="directory for bags, results.json, BENCHMARKS.md")
+    p.add_argument("--markdown", help="also write the tables here (e.g. BENCHMARKS.md at the repo root)")
+    p.set_defaults(func=cmd_bench)
+
     p = verbs.add_parser("eval", help="metric tables of a results directory against a bag's ground truth")
     p.add_argument("results", help="results directory of yowo run / calibrate-cmc")
     p.add_argument("--bag", required=True, help="the recording, with /gt topics")

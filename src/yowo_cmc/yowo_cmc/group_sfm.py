@@ -34,6 +34,10 @@ class SfmParams:
     min_angle_deg: float = 1.0           # triangulation angle below which points are unreliable
     initial_sigma_px: float = 1.5
     tracks: TrackParams = field(default_factory=TrackParams)
+    # Switches for the ECCMP-style baseline: the pair with most inliers first, then the
+    # camera with most 2D-3D matches, one sigma for every keypoint id.
+    overlap_ordering: bool = True
+    per_id_sigma: bool = True
 
 
 @dataclass
@@ -204,9 +208,16 @@ class IncrementalSfm:
         pa = np.array([self.obs.per_camera[a][k] for k in keys])
         pb = np.array([self.obs.per_camera[b][k] for k in keys])
         Ka, Kb = self.obs.cameras[a].K, self.obs.cameras[b].K
-        E = Kb.T @ pair.F @ Ka                            # eq. F2E (x_b^T F x_a = 0 convention)
         na = cv2.undistortPoints(pa[:, None], Ka, None).reshape(-1, 2)
         nb = cv2.undistortPoints(pb[:, None], Kb, None).reshape(-1, 2)
+        # Deviation from the paper (E = K^T F K, eq. F2E): the agent's points lie close to two
+        # horizontal planes (head and floor), where the 7-DoF F is nearly degenerate and its E
+        # can be far off; the calibrated 5-point solver on the F inliers is well conditioned.
+        cv2.setRNGSeed(RANSAC_SEED)
+        thresh = self.params.ransac_px / np.sqrt(Ka[0, 0] * Kb[0, 0])
+        E, _ = cv2.findEssentialMat(na, nb, np.eye(3), cv2.USAC_MAGSAC, 0.9999, thresh)
+        if E is None or E.shape != (3, 3):
+            E = Kb.T @ pair.F @ Ka
         _, R, t, _ = cv2.recoverPose(E, na, nb, np.eye(3))  # SVD + cheirality check
         self.poses[a] = np.eye(4)
         self.poses[b] = inv_se3(se3(R, t.ravel()))         # T_l_b: R_lb = R^T, X_b = -R^T t
@@ -248,7 +259,7 @@ class IncrementalSfm:
             if len(keys) < self.params.min_pnp:
                 continue
             uv = np.array([self.obs.per_camera[c][k] for k in keys])
-            score = overlap_score(uv, self.obs.cameras[c], self.params)
+            score = overlap_score(uv, self.obs.cameras[c], self.params) if self.params.overlap_ordering else len(uv)
             if score > best_score:
                 best, best_score = c, score
         return best
@@ -284,7 +295,8 @@ class IncrementalSfm:
                     pt_i.append(kidx[k])
                     uv.append(p)
                     sig.append(sigma_by_id.get(k % MAX_IDS, self.params.initial_sigma_px))
-        obs = Observations(np.array(cam_i), np.array(pt_i), np.array(uv).reshape(-1, 2), np.array(sig))
+        obs = Observations(np.array(cam_i, dtype=int), np.array(pt_i, dtype=int), np.array(uv).reshape(-1, 2),
+                           np.array(sig, dtype=float))
         baseline = np.linalg.norm(self.poses[second][:3, 3])
         problem = BundleProblem([self.obs.cameras[c] for c in cams], [self.poses[c] for c in cams],
                                 np.array([self.points[int(k)] for k in keys]), obs,
@@ -306,7 +318,7 @@ def reconstruct_group(obs: GridObservations, members: list[int], pairs: list[Pai
               and p.num_inliers >= params.min_matches]
     if not inside:
         return None, {c: "no camera pair of its group has enough matches" for c in members}
-    init = max(inside, key=lambda p: match_score(obs, p, params))
+    init = max(inside, key=lambda p: match_score(obs, p, params) if params.overlap_ordering else p.num_inliers)
     sfm = IncrementalSfm(obs, members, params)
     sfm.initialise(init)
     while (c := sfm.next_camera()) is not None:
@@ -314,9 +326,11 @@ def reconstruct_group(obs: GridObservations, members: list[int], pairs: list[Pai
     for c in members:
         if c not in sfm.poses and c not in sfm.failed:
             sfm.failed[c] = f"sees fewer than {params.min_pnp} of the group's triangulated agent points"
+    if len(sfm.points) < params.min_pnp:
+        return None, {c: f"the initial pair triangulated only {len(sfm.points)} agent points" for c in members}
     # Two robust BA rounds: the second weights each keypoint id by its own residual noise.
     sigma_by_id: dict[int, float] = {}
-    for round_ in range(2):
+    for round_ in range(2 if params.per_id_sigma else 1):
         if round_:
             sfm.triangulate_new()  # points rejected under the pre-BA poses get a second chance
         ba = sfm.bundle_adjust(init.a, init.b, sigma_by_id)
