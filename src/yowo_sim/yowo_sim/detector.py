@@ -36,9 +36,10 @@ def detect(camera: CameraModel, T_world_cam: np.ndarray, keypoints_world: dict[i
     ids = np.array(sorted(keypoints_world), dtype=int)
     P_cam = transform_points(inv_se3(T_world_cam), np.array([keypoints_world[i] for i in ids]))
     uv, in_front = camera.project(P_cam)
-    visible = in_front & camera.in_image(uv)
-    cols = np.clip(np.round(uv[:, 0]).astype(int), 0, camera.width - 1)
-    rows = np.clip(np.round(uv[:, 1]).astype(int), 0, camera.height - 1)
+    visible = in_front & camera.in_image(uv) & np.isfinite(uv).all(axis=1)
+    safe = np.where(visible[:, None], uv, 0.0)  # points behind the camera project to NaN
+    cols = np.clip(np.round(safe[:, 0]).astype(int), 0, camera.width - 1)
+    rows = np.clip(np.round(safe[:, 1]).astype(int), 0, camera.height - 1)
     scene_z = static_depth[rows, cols]
     visible &= ~(np.isfinite(scene_z) & (scene_z < P_cam[:, 2] - spec.occlusion_margin_m))
     visible &= rng.random(len(ids)) >= spec.miss_rate
