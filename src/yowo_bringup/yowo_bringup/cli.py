@@ -155,6 +155,24 @@ def cmd_eval(args) -> int:
     return 0
 
 
+def cmd_demo(args) -> int:
+    """Make (or reuse) a sample recording, run the full graph on it, show the metrics."""
+    from rich.progress import Progress
+
+    from yowo_sim.capture import generate
+    from yowo_sim.presets import get_preset
+
+    bag = Path(args.bag)
+    if not (bag / "metadata.yaml").exists():
+        with Progress() as bar:
+            task = bar.add_task(f"generating the sample recording {bag} (preset {args.preset}, seed 0)", total=None)
+            generate(get_preset(args.preset), 0, bag, progress=lambda d, t: bar.update(task, completed=d, total=t))
+    run_args = build_parser().parse_args(["run", str(bag), "-o", args.output])
+    code = cmd_run(run_args)
+    print(f"\nreport: {Path(args.output) / 'report.html'}")
+    return code
+
+
 def cmd_bench(args) -> int:
     """YOWO and the baselines on generated recordings -> BENCHMARKS.md + results.json."""
     from .bench import SCENARIOS, run_bench, write_outputs
@@ -194,6 +212,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = verbs.add_parser("calibrate-cmc", help="relative calibration of each CMC group from agent keypoints only")
     _add_run_options(p)
     p.set_defaults(func=cmd_calibrate_cmc)
+    p = verbs.add_parser("demo", help="generate a sample recording, run the full graph, print the metrics")
+    p.add_argument("--preset", default="small")
+    p.add_argument("--bag", default="bags/demo_small", help="where the sample recording is (made if missing)")
+    p.add_argument("-o", "--output", default="results/demo")
+    p.set_defaults(func=cmd_demo)
+
     p = verbs.add_parser("bench", help="YOWO and baselines on generated recordings -> BENCHMARKS.md")
     p.add_argument("--preset", default="small", help="tiny | small | standard | large")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
