@@ -4,34 +4,10 @@ import json
 import subprocess
 import sys
 
-import numpy as np
 import yaml
-from geometry_msgs.msg import PoseStamped
-from std_msgs.msg import Header
-from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
 from cmc_synthetic import ceiling_camera, loop_walk, observe
-from yowo_common.ros.bag import BagWriter
-from yowo_common.rosconv import matrix_to_pose, model_to_camera_info, ns_to_time
-
-
-def write_keypoint_bag(path, cams, tracks):
-    with BagWriter(path) as bag:
-        t0 = min(int(t.stamps_ns.min()) for ct in tracks for t in ct.tracks.values())
-        for name, (cam, T) in cams.items():
-            bag.write(f"/gt/cmc/{name}/pose", PoseStamped(header=Header(stamp=ns_to_time(t0), frame_id="map"),
-                                                          pose=matrix_to_pose(T)), t0)
-        frames = []
-        for ct in tracks:
-            stamps = np.unique(np.concatenate([t.stamps_ns for t in ct.tracks.values()]))
-            for s in stamps:
-                frames.append((int(s), ct))
-        for s, ct in sorted(frames, key=lambda f: (f[0], f[1].name)):
-            h = Header(stamp=ns_to_time(s), frame_id=f"{ct.name}_optical_frame")
-            kps = [Keypoint2D(id=i, x=float(t.uv[k, 0]), y=float(t.uv[k, 1]), confidence=0.9)
-                   for i, t in ct.tracks.items() for k in np.flatnonzero(t.stamps_ns == s)]
-            bag.write(f"/cmc/{ct.name}/camera_info", model_to_camera_info(ct.camera, h), s)
-            bag.write(f"/cmc/{ct.name}/agent_keypoints", AgentKeypoints(header=h, camera_name=ct.name, keypoints=kps), s)
+from e2e_helpers import write_keypoint_bag
 
 
 def test_calibrate_cmc_graph(tmp_path, ros_env):

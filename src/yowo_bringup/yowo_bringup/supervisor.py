@@ -61,6 +61,7 @@ class Supervisor:
         with open(log_path, "w") as log:
             popen = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=self.env,
                                      start_new_session=True)  # our own Ctrl-C handling stops them in order
+        (self.log_dir / f"{spec.name}.pid").write_text(f"{popen.pid}\n")  # for users and tests
         proc = NodeProcess(spec, popen, log_path)
         self.procs.append(proc)
         return proc

@@ -1,0 +1,48 @@
+"""Helpers shared by the end-to-end tests: recordings built from synthetic tracks,
+and running the yowo CLI in its own process."""
+import subprocess
+import sys
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped
+from std_msgs.msg import Header
+from yowo_msgs.msg import AgentKeypoints, Keypoint2D
+
+from cmc_synthetic import ceiling_camera, loop_walk, observe
+from yowo_common.ros.bag import BagWriter
+from yowo_common.rosconv import matrix_to_pose, model_to_camera_info, ns_to_time
+
+
+def write_keypoint_bag(path, cams, tracks):
+    with BagWriter(path) as bag:
+        t0 = min(int(t.stamps_ns.min()) for ct in tracks for t in ct.tracks.values())
+        for name, (cam, T) in cams.items():
+            bag.write(f"/gt/cmc/{name}/pose", PoseStamped(header=Header(stamp=ns_to_time(t0), frame_id="map"),
+                                                          pose=matrix_to_pose(T)), t0)
+        frames = []
+        for ct in tracks:
+            stamps = np.unique(np.concatenate([t.stamps_ns for t in ct.tracks.values()]))
+            for s in stamps:
+                frames.append((int(s), ct))
+        for s, ct in sorted(frames, key=lambda f: (f[0], f[1].name)):
+            h = Header(stamp=ns_to_time(s), frame_id=f"{ct.name}_optical_frame")
+            kps = [Keypoint2D(id=i, x=float(t.uv[k, 0]), y=float(t.uv[k, 1]), confidence=0.9)
+                   for i, t in ct.tracks.items() for k in np.flatnonzero(t.stamps_ns == s)]
+            bag.write(f"/cmc/{ct.name}/camera_info", model_to_camera_info(ct.camera, h), s)
+            bag.write(f"/cmc/{ct.name}/agent_keypoints", AgentKeypoints(header=h, camera_name=ct.name, keypoints=kps), s)
+
+
+def three_camera_recording(path, seed=0, duration_s=20.0, tamper=None):
+    """A one-room recording with three CMCs; `tamper(cams, tracks)` may damage it first."""
+    cams = {"c1": ceiling_camera(0.3, 0.3, (2.5, 2.5)), "c2": ceiling_camera(4.7, 0.3, (2.5, 2.5), z=3.3),
+            "c3": ceiling_camera(2.5, 4.7, (2.5, 2.3))}
+    tracks = observe(cams, loop_walk((2.5, 2.5), (1.5, 1.2), 10.0), duration_s, sigma_px=0.5, seed=seed)
+    if tamper is not None:
+        tamper(cams, tracks)
+    write_keypoint_bag(path, cams, tracks)
+    return cams, tracks
+
+
+def yowo(*args, env, timeout=300):
+    return subprocess.run([sys.executable, "-m", "yowo_bringup.cli", *map(str, args)], env=env,
+                          capture_output=True, text=True, timeout=timeout)
