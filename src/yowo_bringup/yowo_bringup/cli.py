@@ -155,6 +155,15 @@ def cmd_eval(args) -> int:
     return 0
 
 
+def cmd_end_walk(args) -> int:
+    """Live operation: tell the running stages that the walk is over."""
+    from .run_node import end_walk
+
+    end_walk(args.linger)
+    print("end of walk announced on /yowo/replay/status")
+    return 0
+
+
 def cmd_demo(args) -> int:
     """Make (or reuse) a sample recording, run the full graph on it, show the metrics."""
     from rich.progress import Progress
@@ -212,6 +221,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = verbs.add_parser("calibrate-cmc", help="relative calibration of each CMC group from agent keypoints only")
     _add_run_options(p)
     p.set_defaults(func=cmd_calibrate_cmc)
+    p = verbs.add_parser("end-walk", help="live operation: the walk is over, let every stage finalise")
+    p.add_argument("--linger", type=float, default=5.0, help="seconds to keep the announcement up")
+    p.set_defaults(func=cmd_end_walk)
+
     p = verbs.add_parser("demo", help="generate a sample recording, run the full graph, print the metrics")
     p.add_argument("--preset", default="small")
     p.add_argument("--bag", default="bags/demo_small", help="where the sample recording is (made if missing)")

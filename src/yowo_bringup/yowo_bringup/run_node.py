@@ -94,3 +94,18 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, env: dict | Non
     if failure:
         raise RunFailed(failure)
     return outcome
+
+
+def end_walk(linger_s: float = 5.0) -> None:
+    """Live operation: announce the end of the walk (what a replay does at the end of a
+    recording), so every stage finalises with what it has received."""
+    from yowo_common.ros.stage import REPLAY
+
+    with ros_context([]):
+        node = Node("yowo_end_walk")
+        pub = node.create_publisher(ReplayStatus, topics.REPLAY_STATUS, LATCHED)
+        pub.publish(ReplayStatus(state=ReplayStatus.STATE_FINISHED, bag=f"live ({REPLAY} not used)"))
+        end = time.monotonic() + linger_s  # latched: stages that match late still get it
+        while time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        node.destroy_node()
