@@ -28,6 +28,7 @@ class SfmParams:
     ransac_px: float = 2.0               # MAGSAC threshold on the epipolar error
     grid_cols: int = 16                  # N_GW
     grid_rows: int = 12                  # N_GH
+    per_cell: int = 6                    # correspondences per grid cell fed to RANSAC
     min_pnp: int = 8
     pnp_px: float = 4.0
     max_reproj_px: float = 6.0           # triangulated points beyond this are not kept
@@ -36,6 +37,7 @@ class SfmParams:
     tracks: TrackParams = field(default_factory=TrackParams)
     # Switches for the ECCMP-style baseline: the pair with most inliers first, then the
     # camera with most 2D-3D matches, one sigma for every keypoint id.
+    min_init_fraction: float = 0.5      # of the initial pair's inliers that must triangulate
     overlap_ordering: bool = True
     per_id_sigma: bool = True
 
@@ -112,20 +114,46 @@ def sample_on_grid(cams: list[CameraTracks], params: TrackParams) -> GridObserva
     return GridObservations(grid, models, [c.name for c in cams], per_camera)
 
 
+def spread_subset(uv: np.ndarray, camera: CameraModel, params: SfmParams) -> np.ndarray:
+    """Indices keeping at most `per_cell` points per image grid cell: a long stationary
+    stretch puts thousands of near-identical correspondences in one spot, which would
+    dominate (and degenerate) a RANSAC estimate."""
+    cols = np.clip((uv[:, 0] / camera.width * params.grid_cols).astype(int), 0, params.grid_cols - 1)
+    rows = np.clip((uv[:, 1] / camera.height * params.grid_rows).astype(int), 0, params.grid_rows - 1)
+    cell = rows * params.grid_cols + cols
+    order = np.argsort(cell, kind="stable")
+    rank = np.arange(len(order)) - np.searchsorted(cell[order], cell[order])
+    return np.sort(order[rank < params.per_cell])
+
+
+def sampson_px(F: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
+    """First-order geometric (Sampson) distance of x_b^T F x_a = 0, in pixels."""
+    xa = np.column_stack([pa, np.ones(len(pa))])
+    xb = np.column_stack([pb, np.ones(len(pb))])
+    Fa, Ftb = xa @ F.T, xb @ F
+    num = np.sum(xb * Fa, axis=1)
+    return np.abs(num) / np.sqrt(Fa[:, 0] ** 2 + Fa[:, 1] ** 2 + Ftb[:, 0] ** 2 + Ftb[:, 1] ** 2 + 1e-300)
+
+
 def pair_geometry(obs: GridObservations, a: int, b: int, params: SfmParams) -> PairGeometry:
+    """MAGSAC fundamental matrix on a spatially spread subset; eq. inliers counted over
+    every co-visible correspondence."""
     keys = np.intersect1d(obs.keys(a), obs.keys(b))
     if len(keys) < params.min_matches:
         return PairGeometry(a, b, None, keys, np.zeros(len(keys), bool))
     pa = np.array([obs.per_camera[a][k] for k in keys])
     pb = np.array([obs.per_camera[b][k] for k in keys])
-    cv2.setRNGSeed(RANSAC_SEED)
-    try:
-        F, mask = cv2.findFundamentalMat(pa, pb, cv2.USAC_MAGSAC, params.ransac_px, 0.9999, 10000)
-    except cv2.error:  # degenerate configurations (e.g. all points in one spot) make USAC assert
-        F = None
+    sub = spread_subset(pa, obs.cameras[a], params)
+    F = None
+    if len(sub) >= params.min_matches:
+        cv2.setRNGSeed(RANSAC_SEED)
+        try:
+            F, _ = cv2.findFundamentalMat(pa[sub], pb[sub], cv2.USAC_MAGSAC, params.ransac_px, 0.9999, 10000)
+        except cv2.error:  # degenerate configurations (e.g. all points in one spot) make USAC assert
+            F = None
     if F is None or F.shape != (3, 3):
         return PairGeometry(a, b, None, keys, np.zeros(len(keys), bool))
-    return PairGeometry(a, b, F, keys, mask.ravel().astype(bool))
+    return PairGeometry(a, b, F, keys, sampson_px(F, pa, pb) <= params.ransac_px)
 
 
 def overlap_score(uv: np.ndarray, camera: CameraModel, params: SfmParams) -> float:
@@ -215,7 +243,8 @@ class IncrementalSfm:
         # can be far off; the calibrated 5-point solver on the F inliers is well conditioned.
         cv2.setRNGSeed(RANSAC_SEED)
         thresh = self.params.ransac_px / np.sqrt(Ka[0, 0] * Kb[0, 0])
-        E, _ = cv2.findEssentialMat(na, nb, np.eye(3), cv2.USAC_MAGSAC, 0.9999, thresh)
+        sub = spread_subset(pa, self.obs.cameras[a], self.params)
+        E, _ = cv2.findEssentialMat(na[sub], nb[sub], np.eye(3), cv2.USAC_MAGSAC, 0.9999, thresh)
         if E is None or E.shape != (3, 3):
             E = Kb.T @ pair.F @ Ka
         _, R, t, _ = cv2.recoverPose(E, na, nb, np.eye(3))  # SVD + cheirality check
@@ -318,9 +347,15 @@ def reconstruct_group(obs: GridObservations, members: list[int], pairs: list[Pai
               and p.num_inliers >= params.min_matches]
     if not inside:
         return None, {c: "no camera pair of its group has enough matches" for c in members}
-    init = max(inside, key=lambda p: match_score(obs, p, params) if params.overlap_ordering else p.num_inliers)
-    sfm = IncrementalSfm(obs, members, params)
-    sfm.initialise(init)
+    ranked = sorted(inside, key=lambda p: match_score(obs, p, params) if params.overlap_ordering else p.num_inliers,
+                    reverse=True)
+    for init in ranked:
+        sfm = IncrementalSfm(obs, members, params)
+        sfm.initialise(init)
+        # A wrong decomposition triangulates few of the pair's inliers in front of both
+        # cameras: then try the next pair (paper: geometric verification of the solution).
+        if len(sfm.points) >= params.min_init_fraction * init.num_inliers:
+            break
     while (c := sfm.next_camera()) is not None:
         sfm.register(c)
     for c in members:
