@@ -100,3 +100,15 @@ def test_layout_iou():
     two = [square, square + [4, 0]]
     assert layout_iou([np.array([[0, 0], [8, 0], [8, 4], [0, 4]], float)], two) == pytest.approx(1.0)
     assert layout_iou([], [square]) == 0.0
+
+
+def test_map_frame_from_first_pose():
+    from yowo_bringup.evaluation import map_frame_from_first_pose
+    from yowo_common.geometry import look_at
+    first = look_at([3.0, 4.0, 1.6], [5.0, 4.0, 0.5])       # looking along +x, down
+    T = map_frame_from_first_pose(first)
+    moved = T @ first
+    np.testing.assert_allclose(moved[:3, 3], [0, 0, 1.6], atol=1e-12)
+    assert moved[1, 2] == pytest.approx(0.0, abs=1e-12) and moved[0, 2] > 0   # optical axis in the x-z plane
+    turned = look_at([3.0, 4.0, 1.6], [3.0, 6.0, 0.5])        # looking along +y
+    np.testing.assert_allclose((map_frame_from_first_pose(turned) @ turned)[:3, 3], [0, 0, 1.6], atol=1e-12)

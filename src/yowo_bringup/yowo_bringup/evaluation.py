@@ -77,6 +77,18 @@ def relative_pose_errors(est: dict[str, np.ndarray], gt: dict[str, np.ndarray],
     return errors, alignments
 
 
+def map_frame_from_first_pose(T_world_first_cam: np.ndarray) -> np.ndarray:
+    """T_map_world of YOWO's map convention (yowo_ego): origin on the floor (z = 0 of
+    `world`) under the first ego camera, x along that camera's viewing direction
+    projected on the floor, z up. Ground truth is expressed in this frame before the
+    registration metrics: the definition of the frame, no fit to the estimate."""
+    forward = T_world_first_cam[:3, 2]
+    yaw = float(np.arctan2(forward[1], forward[0]))
+    R = Rotation.from_euler("z", -yaw).as_matrix()
+    origin = np.array([T_world_first_cam[0, 3], T_world_first_cam[1, 3], 0.0])
+    return se3(R, -R @ origin)
+
+
 # --- trajectories ---------------------------------------------------------------
 @dataclass
 class Trajectory:

@@ -14,7 +14,7 @@ from yowo_common.geometry import quat_xyzw_from_rotation, rotation_from_quat_xyz
 from yowo_common.topics import GT_EGO_POSE, GT_FLOOR
 from yowo_fusion.pipeline import RegisteredCmc
 
-from .evaluation import Trajectory
+from .evaluation import Trajectory, map_frame_from_first_pose
 
 
 def pose_entry(T: np.ndarray) -> dict:
@@ -105,4 +105,9 @@ def read_ground_truth(bag) -> GroundTruth:
         elif topic == GT_FLOOR:
             floor.append(points_to_array(msg.polygon.points)[:, :2])
     ego = Trajectory(np.array(ego_ns, dtype=np.int64), np.array(ego_T)) if ego_ns else None
+    if ego is not None:  # into YOWO's map convention (defined by the first ego pose)
+        T = map_frame_from_first_pose(ego.T_world_cam[np.argmin(ego.stamps_ns)])
+        cams = {n: T @ P for n, P in cams.items()}
+        ego = Trajectory(ego.stamps_ns, np.einsum("ij,njk->nik", T, ego.T_world_cam))
+        floor = [p @ T[:2, :2].T + T[:2, 3] for p in floor]
     return GroundTruth(cams, ego, floor)
