@@ -1,0 +1,99 @@
+"""ego_mapper_node: the head-mounted RGB-D stream -> frame-to-frame odometry online
+on /yowo/ego/odometry, and at the end of the walk the ego map (EgoMap), the map
+point cloud, the ego path and the scene layout, all latched."""
+from __future__ import annotations
+
+from nav_msgs.msg import Odometry, Path
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
+from std_msgs.msg import Header
+from yowo_msgs.msg import EgoMap, SceneLayout
+
+from yowo_common import topics
+from yowo_common.ros.context import spin_node
+from yowo_common.ros.stage import LATCHED, StageNode
+from yowo_common.rosconv import camera_info_to_model, decode_color, decode_depth, matrix_to_pose, ns_to_time, stamp_to_ns
+
+from .ego_messages import cloud_msg, ego_map_msg, layout_msg, path_msg
+from .frames import FrameError, StampPairer
+from .pipeline import EgoMapper, EgoParams
+
+MAX_EARLY_FRAMES = 30  # frames kept while waiting for the first CameraInfo
+
+
+class EgoMapperNode(StageNode):
+    def __init__(self):
+        super().__init__(topics.EGO_STAGE)
+        self.color_topic = self.declare_parameter("color_topic", topics.EGO_COLOR[1]).value
+        self.depth_topic = self.declare_parameter("depth_topic", topics.EGO_DEPTH[1]).value
+        self.info_topic = self.declare_parameter("info_topic", topics.EGO_INFO).value
+        self.mapper: EgoMapper | None = None
+        self.info_problem = ""
+        self.early: list[tuple[int, object, object]] = []
+        self.pairer = StampPairer()
+        self.pub_odom = self.output(Odometry, topics.EGO_ODOMETRY)
+        self.pub_map = self.output(EgoMap, topics.EGO_MAP, LATCHED)
+        self.pub_path = self.output(Path, topics.EGO_PATH, LATCHED)
+        self.pub_cloud = self.output(PointCloud2, topics.MAP_POINTS, LATCHED)
+        self.pub_layout = self.output(SceneLayout, topics.LAYOUT, LATCHED)
+        image_type = lambda t: CompressedImage if t.endswith(("/compressed", "/compressedDepth")) else Image  # noqa: E731
+        self.stream_input(CameraInfo, self.info_topic, self.on_info)
+        self.stream_input(image_type(self.color_topic), self.color_topic,
+                          lambda m: self.on_pairs(self.pairer.add_color(stamp_to_ns(m.header.stamp), m)))
+        self.stream_input(image_type(self.depth_topic), self.depth_topic,
+                          lambda m: self.on_pairs(self.pairer.add_depth(stamp_to_ns(m.header.stamp), m)))
+
+    def on_info(self, msg: CameraInfo) -> None:
+        if self.mapper is not None or self.info_problem:
+            return
+        try:
+            self.mapper = EgoMapper(camera_info_to_model(msg), EgoParams(), self.info_topic)
+        except ValueError as exc:
+            self.info_problem = f"{self.info_topic}: {exc}"
+            self.get_logger().error(self.info_problem)
+            return
+        pending, self.early = self.early, []
+        self.on_pairs(pending)
+
+    def on_pairs(self, pairs) -> None:
+        if self.mapper is None:
+            self.early = (self.early + list(pairs))[-MAX_EARLY_FRAMES:]
+            return
+        for stamp, color_msg, depth_msg in pairs:
+            try:
+                color = decode_color(color_msg)
+                depth = decode_depth(depth_msg)
+            except ValueError as exc:
+                why = f"undecodable image ({exc})"
+                self.mapper.rejected[why] = self.mapper.rejected.get(why, 0) + 1
+                continue
+            try:
+                result = self.mapper.add(stamp, color, depth, self.color_topic, self.depth_topic)
+            except FrameError:
+                continue  # counted by the mapper, reported at the end
+            self.pub_odom.publish(self._odometry(result))
+
+    def _odometry(self, result) -> Odometry:
+        msg = Odometry(header=Header(stamp=ns_to_time(result.stamp_ns), frame_id="odom"),
+                       child_frame_id="ego_optical_frame")
+        msg.pose.pose = matrix_to_pose(result.T_odom_cam)
+        return msg
+
+    def finalize(self) -> str:
+        if self.mapper is None:
+            raise ValueError(self.info_problem or f"no usable {self.info_topic} received; no ego map")
+        r = self.mapper.finish()
+        self.pub_map.publish(ego_map_msg(r))
+        self.pub_path.publish(path_msg(r.stamps_ns, r.T_world_cam))
+        self.pub_cloud.publish(cloud_msg(r))
+        self.pub_layout.publish(layout_msg(r))
+        text = (f"{len(r.stamps_ns)} frames, {len(r.keyframe_frames)} keyframes, {len(r.landmarks)} landmarks, "
+                f"{len(r.cloud_points)} cloud points, {len(r.layout.floor_polygons)} floor polygon(s)")
+        return "; ".join([text, *r.warnings])
+
+
+def main(args=None):
+    spin_node(EgoMapperNode, args)
+
+
+if __name__ == "__main__":
+    main()

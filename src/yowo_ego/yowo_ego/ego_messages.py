@@ -1,0 +1,55 @@
+"""EgoMapResult -> messages (EgoMap, Path, PointCloud2, SceneLayout); no rclpy."""
+from __future__ import annotations
+
+import numpy as np
+from geometry_msgs.msg import Point32, Polygon, PoseStamped
+from nav_msgs.msg import Path
+from std_msgs.msg import Header
+from yowo_msgs.msg import EgoMap, Plane, SceneLayout
+
+from yowo_common.rosconv import (array_to_points, matrix_to_pose, model_to_camera_info, ns_to_time,
+                                 xyz_rgb_to_pointcloud2)
+
+from .pipeline import EgoMapResult
+
+WORLD_FRAME = "map"
+
+
+def _header(stamp_ns: int) -> Header:
+    return Header(stamp=ns_to_time(int(stamp_ns)), frame_id=WORLD_FRAME)
+
+
+def ego_map_msg(r: EgoMapResult) -> EgoMap:
+    """Every tracked frame's pose (the fusion's a2e factor needs the dense trajectory);
+    observations indexed by frame (keyframe -> its frame index)."""
+    stamp = int(r.stamps_ns[-1])
+    return EgoMap(
+        header=_header(stamp), camera_info=model_to_camera_info(r.camera, _header(stamp)),
+        stamps=[ns_to_time(int(s)) for s in r.stamps_ns], poses=[matrix_to_pose(T) for T in r.T_world_cam],
+        landmarks=array_to_points(r.landmarks), descriptor_type="SIFT",
+        descriptor_size=int(r.descriptors.shape[1]) if r.descriptors.ndim == 2 else 0,
+        descriptors=np.ascontiguousarray(r.descriptors, dtype=np.uint8).tobytes(),
+        obs_pose_index=[int(i) for i in r.keyframe_frames[r.obs_keyframe]],
+        obs_landmark_index=[int(i) for i in r.obs_landmark],
+        obs_x=[float(v) for v in r.obs_uv[:, 0]], obs_y=[float(v) for v in r.obs_uv[:, 1]])
+
+
+def path_msg(stamps_ns: np.ndarray, T_world_cam: np.ndarray) -> Path:
+    return Path(header=_header(stamps_ns[-1]),
+                poses=[PoseStamped(header=_header(s), pose=matrix_to_pose(T)) for s, T in zip(stamps_ns, T_world_cam)])
+
+
+def cloud_msg(r: EgoMapResult):
+    rgb = np.clip(np.asarray(r.cloud_colors) * 255.0, 0, 255).astype(np.uint8) if len(r.cloud_colors) else None
+    return xyz_rgb_to_pointcloud2(r.cloud_points, rgb, _header(r.stamps_ns[-1]))
+
+
+def layout_msg(r: EgoMapResult) -> SceneLayout:
+    lay = r.layout
+    return SceneLayout(
+        header=_header(r.stamps_ns[-1]),
+        planes=[Plane(kind=int(p.kind), coefficients=[float(v) for v in p.coefficients],
+                      boundary=array_to_points(p.boundary), num_points=int(p.num_points)) for p in lay.planes],
+        floor_polygons=[Polygon(points=[Point32(x=float(x), y=float(y), z=float(lay.floor_height)) for x, y in poly])
+                        for poly in lay.floor_polygons],
+        floor_height=float(lay.floor_height), ceiling_height=float(lay.ceiling_height))

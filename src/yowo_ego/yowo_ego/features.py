@@ -1,0 +1,122 @@
+"""Scene keypoints of the ego keyframes (paper: keypoint detection and matching;
+SuperPoint/SuperGlue/LoFTR replaced by OpenCV SIFT with the ratio test and a
+mutual check, which needs no network and handles the viewpoint changes of a
+head-mounted camera), and the relative pose of two keyframes from matches with
+depth (PnP RANSAC), used for loop closures and for re-tracking after fast turns."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from yowo_common.geometry import inv_se3
+
+
+@dataclass(frozen=True)
+class FeatureParams:
+    max_features: int = 1500
+    ratio: float = 0.8                  # Lowe's ratio test
+    depth_edge_ratio: float = 0.03      # keypoints on depth discontinuities get no depth
+    pnp_px: float = 3.0                 # PnP RANSAC reprojection threshold
+    pnp_min_inliers: int = 25
+
+
+@dataclass
+class KeyframeFeatures:
+    """Keypoints of one image in undistorted pixels, their SIFT descriptors and depth."""
+
+    uv: np.ndarray            # (N, 2) float
+    descriptors: np.ndarray   # (N, 128) float32
+    depth: np.ndarray         # (N,) metres, NaN where the depth is missing or on an edge
+
+    def __len__(self) -> int:
+        return len(self.uv)
+
+
+def sample_depth(depth: np.ndarray, uv: np.ndarray, edge_ratio: float) -> np.ndarray:
+    """Depth at the nearest pixel; NaN when the 3x3 neighbourhood spans a depth
+    edge (the keypoint may belong to either side) or holds invalid pixels."""
+    h, w = depth.shape
+    u = np.clip(np.round(uv[:, 0]).astype(int), 1, w - 2)
+    v = np.clip(np.round(uv[:, 1]).astype(int), 1, h - 2)
+    patch = np.stack([depth[v + dv, u + du] for dv in (-1, 0, 1) for du in (-1, 0, 1)], axis=1)
+    with np.errstate(invalid="ignore"):
+        spread = np.ptp(patch, axis=1)
+        z = depth[v, u].astype(float)
+        bad = ~np.isfinite(spread) | (spread > edge_ratio * z) | ~(z > 0)
+    z[bad] = np.nan
+    return z
+
+
+class FeatureExtractor:
+    def __init__(self, params: FeatureParams = FeatureParams()):
+        self.params = params
+        self._sift = cv2.SIFT_create(params.max_features)
+
+    def __call__(self, gray: np.ndarray, depth: np.ndarray) -> KeyframeFeatures:
+        kps, desc = self._sift.detectAndCompute(gray, None)
+        if desc is None or not kps:
+            return KeyframeFeatures(np.zeros((0, 2)), np.zeros((0, 128), np.float32), np.zeros(0))
+        uv = np.array([k.pt for k in kps], dtype=float)
+        return KeyframeFeatures(uv, desc.astype(np.float32), sample_depth(depth, uv, self.params.depth_edge_ratio))
+
+
+def match(a: KeyframeFeatures, b: KeyframeFeatures, ratio: float = 0.8) -> np.ndarray:
+    """(M, 2) index pairs (i in a, j in b): Lowe's ratio test in both directions
+    and mutual nearest neighbours, from one distance matrix (a BLAS product)."""
+    if len(a) < 2 or len(b) < 2:
+        return np.zeros((0, 2), int)
+    da, db = a.descriptors, b.descriptors
+    d2 = (da * da).sum(1)[:, None] + (db * db).sum(1)[None, :] - 2.0 * da @ db.T
+    np.maximum(d2, 0.0, out=d2)
+    two_ab = np.partition(d2, 1, axis=1)[:, :2]
+    two_ba = np.partition(d2, 1, axis=0)[:2, :]
+    nn_ab, nn_ba = d2.argmin(axis=1), d2.argmin(axis=0)
+    i = np.arange(len(da))
+    r2 = ratio * ratio
+    ok = (nn_ba[nn_ab] == i) & (two_ab[:, 0] < r2 * two_ab[:, 1]) & (two_ba[0, nn_ab] < r2 * two_ba[1, nn_ab])
+    return np.column_stack([i[ok], nn_ab[ok]]).astype(int)
+
+
+def backproject(uv: np.ndarray, depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Undistorted pixels with z-depth -> points in the camera frame."""
+    rays = np.column_stack([(uv - K[:2, 2]) / np.diag(K)[:2], np.ones(len(uv))])
+    return rays * np.asarray(depth, dtype=float)[:, None]
+
+
+@dataclass
+class PnpResult:
+    T_b_a: np.ndarray         # maps points of keyframe a into keyframe b
+    inliers: np.ndarray       # indices into the matches passed in
+
+
+def relative_pose(a: KeyframeFeatures, b: KeyframeFeatures, matches: np.ndarray, K: np.ndarray,
+                  params: FeatureParams = FeatureParams()) -> PnpResult | None:
+    """T_b_a from a's keypoints lifted with a's depth and their matches in b (PnP
+    RANSAC); None when too few inliers support it."""
+    ok = np.isfinite(a.depth[matches[:, 0]]) if len(matches) else np.zeros(0, bool)
+    if ok.sum() < params.pnp_min_inliers:
+        return None
+    idx = np.flatnonzero(ok)
+    X = backproject(a.uv[matches[idx, 0]], a.depth[matches[idx, 0]], K)
+    found, rvec, tvec, inliers = cv2.solvePnPRansac(X, b.uv[matches[idx, 1]], K, None,
+                                                    reprojectionError=params.pnp_px, iterationsCount=300,
+                                                    confidence=0.999, flags=cv2.SOLVEPNP_SQPNP)
+    if not found or inliers is None or len(inliers) < params.pnp_min_inliers:
+        return None
+    inl = inliers.ravel()
+    # Polish on the inliers (SQPnP inside RANSAC sees only minimal samples).
+    rvec, tvec = cv2.solvePnPRefineLM(X[inl], b.uv[matches[idx[inl], 1]], K, None, rvec, tvec)
+    T = np.eye(4)
+    T[:3, :3] = cv2.Rodrigues(rvec)[0]
+    T[:3, 3] = tvec.ravel()
+    return PnpResult(T, idx[inl])
+
+
+def pose_from_images(gray_src: np.ndarray, depth_src: np.ndarray, gray_tgt: np.ndarray, depth_tgt: np.ndarray,
+                     K: np.ndarray, extractor: FeatureExtractor) -> np.ndarray | None:
+    """T_target_source of two raw images, or None."""
+    fs, ft = extractor(gray_src, depth_src), extractor(gray_tgt, depth_tgt)
+    r = relative_pose(ft, fs, match(ft, fs, extractor.params.ratio), K, extractor.params)
+    return None if r is None else inv_se3(r.T_b_a)

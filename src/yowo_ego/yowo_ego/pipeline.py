@@ -1,0 +1,243 @@
+"""Ego-camera processing end to end (paper "Ego-camera Processing"):
+
+    frames --(RGB-D odometry, keyframes)--> initial poses
+           --(loop closures + pose graph: multiway registration)--> keyframe poses
+           --(SIFT matches, epipolar + depth-consistency filter, tracks)--> 2D-3D matches
+           --(bundle adjustment, eq. ego_bd)--> refined poses + landmarks
+           --(TSDF cloud, planar patches, floor, R_rect eq. rot_gp2w)--> world frame (z up)
+           --> layout (walls, floor polygon, ceiling)
+
+``EgoMapper`` is streaming: ``add()`` tracks each frame as it arrives (the node
+publishes that odometry online) and extracts keyframe features on a worker
+thread; ``finish()`` runs everything that needs the whole recording.
+``map_recording()`` is the offline entry for an iterable of decoded frames.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from yowo_common.camera import CameraModel
+from yowo_common.geometry import transform_points
+
+from .features import FeatureExtractor, FeatureParams, KeyframeFeatures, backproject
+from .frames import FrameError, Undistorter, make_frame, pinhole
+from .layout import Layout, LayoutParams, build_layout
+from .odometry import KeyframeTracker, OdometryParams, TrackResult
+from .posegraph import LoopParams, multiway_registration
+from .refine import BundleParams, bundle_adjust
+from .scene import (CloudParams, PlanarPatch, Rectification, find_floor, fuse_cloud, planar_patches, rectify,
+                    up_from_cameras)
+from .tracks import FilterParams, build_tracks, filter_matches
+
+
+@dataclass(frozen=True)
+class EgoParams:
+    odometry: OdometryParams = OdometryParams()
+    features: FeatureParams = FeatureParams()
+    loops: LoopParams = LoopParams()
+    filter: FilterParams = FilterParams()
+    bundle: BundleParams = BundleParams()
+    cloud: CloudParams = CloudParams()
+    layout: LayoutParams = LayoutParams()
+    bundle_adjustment: bool = True       # False: stop after multiway registration (ablation)
+
+
+@dataclass
+class EgoMapResult:
+    """Everything in the world frame `map` (z up, floor z = 0) unless noted."""
+
+    camera: CameraModel                  # as received, with distortion
+    stamps_ns: np.ndarray                # (F,) every tracked frame
+    T_world_cam: np.ndarray              # (F, 4, 4) final poses
+    keyframe_frames: np.ndarray          # (K,) frame index of each keyframe
+    T_world_kf: np.ndarray               # (K, 4, 4)
+    landmarks: np.ndarray                # (P, 3)
+    descriptors: np.ndarray              # (P, 128) uint8 (SIFT)
+    obs_keyframe: np.ndarray             # (M,) index into keyframes
+    obs_landmark: np.ndarray             # (M,) index into landmarks
+    obs_uv: np.ndarray                   # (M, 2) raw (distorted) image pixels
+    cloud_points: np.ndarray             # (N, 3)
+    cloud_colors: np.ndarray             # (N, 3) in [0, 1]
+    layout: Layout
+    rectification: Rectification
+    trajectories: dict[str, np.ndarray]  # stage -> (F, 4, 4) world poses: odometry, multiway, bundle
+    stats: dict[str, float] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def keyframe_stamps_ns(self) -> np.ndarray:
+        return self.stamps_ns[self.keyframe_frames]
+
+
+class EgoMapper:
+    def __init__(self, camera: CameraModel, params: EgoParams = EgoParams(), topic: str = "camera_info"):
+        problems = camera.problems()
+        if problems:
+            raise ValueError(f"{topic}: unusable ego intrinsics: {'; '.join(problems)}")
+        self.camera = camera
+        self.params = params
+        self.ideal = pinhole(camera)
+        self._undistort = Undistorter(camera)
+        self._extractor = FeatureExtractor(params.features)
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ego_features")
+        self._features: list[Future] = []
+        self.tracker = KeyframeTracker(camera.K, params.odometry, on_keyframe=self._on_keyframe)
+        self.rejected: dict[str, int] = {}
+        self._last_stamp = -1
+        self._t_track = 0.0
+
+    def _on_keyframe(self, kf, gray, depth) -> None:
+        self._features.append(self._pool.submit(self._extractor, gray, depth))
+
+    @property
+    def frames(self) -> int:
+        return len(self.tracker.results)
+
+    def add(self, stamp_ns: int, color: np.ndarray, depth: np.ndarray, color_topic: str = "colour",
+            depth_topic: str = "depth") -> TrackResult:
+        """Track one decoded frame (RGB uint8, depth in metres with NaN/0 invalid).
+        Raises FrameError (counted in ``rejected``) for frames that cannot be used."""
+        try:
+            if stamp_ns <= self._last_stamp:
+                raise FrameError(color_topic, "stamp not after the previous frame's",
+                                 f" ({stamp_ns} <= {self._last_stamp} ns)")
+            frame = make_frame(stamp_ns, color, depth, self.camera, self._undistort, color_topic, depth_topic)
+        except FrameError as exc:
+            self.rejected[exc.key] = self.rejected.get(exc.key, 0) + 1
+            raise
+        t0 = time.perf_counter()
+        result = self.tracker.track(frame)
+        self._t_track += time.perf_counter() - t0
+        self._last_stamp = stamp_ns
+        return result
+
+    def finish(self) -> EgoMapResult:
+        if len(self.tracker.results) < 2:
+            raise ValueError(f"ego camera: {len(self.tracker.results)} usable RGB-D frame(s); mapping needs at "
+                             "least 2" + (f" (rejected: {self.rejected})" if self.rejected else ""))
+        stats: dict[str, float] = {"frames": self.frames, "tracking_s": self._t_track}
+        warnings = [f"{n} frame(s) rejected: {why}" for why, n in self.rejected.items()]
+        t0 = time.perf_counter()
+        features: list[KeyframeFeatures] = [f.result() for f in self._features]
+        self._pool.shutdown()
+        stats["feature_wait_s"] = time.perf_counter() - t0
+        tr, p = self.tracker, self.params
+        keyframes = tr.keyframes
+        K = self.ideal.K
+        stats.update(keyframes=len(keyframes), breaks=tr.breaks,
+                     recovered=sum(r.status == "recovered" for r in tr.results))
+        if tr.breaks:
+            warnings.append(f"odometry lost track {tr.breaks} time(s); segments joined by loop closures or weak "
+                            "constant-velocity edges")
+        T_odometry = [k.T_odom_cam for k in keyframes]
+
+        t0 = time.perf_counter()
+        mw = multiway_registration(keyframes, features, tr.edges, tr.odometry, p.loops)
+        stats.update(multiway_s=time.perf_counter() - t0, edges_corrected=mw.edges_corrected,
+                     loops_tried=mw.loops_tried,
+                     loops_verified=mw.loops_verified, loops_kept=mw.loops_kept)
+        T_kf = mw.T_odom_kf
+
+        T_bundle = T_kf
+        landmarks = np.zeros((0, 3))
+        descriptors = np.zeros((0, 128), np.uint8)
+        obs_kf = obs_lm = np.zeros(0, int)
+        obs_uv = np.zeros((0, 2))
+        if p.bundle_adjustment:
+            t0 = time.perf_counter()
+            accepted, n_matches, n_epi, n_depth = [], 0, 0, 0
+            for pair in mw.pairs:
+                fa, fb = features[pair.a], features[pair.b]
+                m = pair.matches
+                res = filter_matches(fa.uv[m[:, 0]], fb.uv[m[:, 1]], fa.depth[m[:, 0]], fb.depth[m[:, 1]],
+                                     T_kf[pair.a], T_kf[pair.b], K, p.filter)
+                accepted.append((pair.a, pair.b, m[res.keep]))
+                n_matches += len(m)
+                n_epi += res.epipolar_rejected
+                n_depth += res.depth_rejected
+            tracks = build_tracks(accepted, [len(f) for f in features])
+            stats.update(matches=n_matches, epipolar_rejected=n_epi, depth_rejected=n_depth, tracks=tracks.count)
+            if tracks.count >= 10:
+                ba = bundle_adjust(tracks, features, T_kf, self.ideal, p.bundle)
+                T_bundle = ba.T_world_kf
+                # Landmarks that kept at least two observations after outlier removal.
+                counts = np.bincount(ba.obs.point, minlength=len(ba.landmarks))
+                keep = counts >= 2
+                remap = np.cumsum(keep) - 1
+                sel = keep[ba.obs.point]
+                landmarks = ba.landmarks[keep]
+                descriptors = np.clip(np.round(ba.descriptors[keep]), 0, 255).astype(np.uint8)
+                obs_kf, obs_lm = ba.obs.camera[sel], remap[ba.obs.point[sel]]
+                obs_uv = ba.obs.uv[sel]
+                stats.update(bundle_s=time.perf_counter() - t0, landmarks=len(landmarks), observations=len(obs_kf),
+                             bundle_rmse_px=ba.rmse_px, bundle_sigma_px=ba.sigma_px, bundle_dropped=ba.dropped,
+                             bundle_iterations=ba.iterations)
+            else:
+                warnings.append(f"only {tracks.count} feature tracks survived the filters; bundle adjustment "
+                                "skipped")
+
+        t0 = time.perf_counter()
+        points, colors = fuse_cloud(keyframes, T_bundle, tr.odometry.K, p.cloud)
+        cams = np.array([T[:3, 3] for T in T_bundle])
+        patches, small, small_normals = planar_patches(points, cams, p.cloud)
+        try:
+            n, c, support = find_floor(patches, small, small_normals, cams, up_from_cameras(T_bundle), p.cloud)
+        except ValueError as exc:
+            # No floor plane: fall back to the head's mean up direction and the lowest points.
+            warnings.append(f"{exc}; using the camera's mean up direction instead")
+            n = up_from_cameras(T_bundle)
+            c = small[np.argmin(small @ n)] if len(small) else cams[0] - 1.6 * n
+            support = 0
+        rect = rectify(n, c, T_bundle[0], support)
+        W = rect.T_world_odom
+        stats.update(cloud_s=time.perf_counter() - t0, cloud_points=len(points), patches=len(patches),
+                     floor_points=support, camera_height_m=rect.camera_height_m)
+
+        def frame_poses(T_keyframes: list[np.ndarray]) -> np.ndarray:
+            return np.array([W @ T_keyframes[r.keyframe] @ r.T_kf_cam for r in tr.results])
+
+        trajectories = {"odometry": frame_poses(T_odometry), "multiway": frame_poses(T_kf)}
+        if p.bundle_adjustment:
+            trajectories["bundle"] = frame_poses(T_bundle)
+        final = trajectories["bundle" if p.bundle_adjustment else "multiway"]
+        points_w = transform_points(W, points)
+        patches_w = [_transform_patch(W, q) for q in patches]
+        cams_w = transform_points(W, cams)
+        t0 = time.perf_counter()
+        layout = build_layout(points_w, patches_w, cams_w, p.layout)
+        stats.update(layout_s=time.perf_counter() - t0, walls=sum(q.kind == 2 for q in layout.planes),
+                     ceiling_height_m=layout.ceiling_height)
+        # Observations back to raw pixels for other stages.
+        raw_uv = self.camera.project(backproject(obs_uv, np.ones(len(obs_uv)), K))[0] if len(obs_uv) else obs_uv
+        return EgoMapResult(
+            self.camera, np.array([r.stamp_ns for r in tr.results], dtype=np.int64), final,
+            np.array([k.frame_index for k in keyframes], dtype=int), np.array([W @ T for T in T_bundle]),
+            transform_points(W, landmarks) if len(landmarks) else landmarks, descriptors, obs_kf, obs_lm, raw_uv,
+            points_w, colors, layout, rect, trajectories, stats, warnings)
+
+
+def _transform_patch(T: np.ndarray, patch: PlanarPatch) -> PlanarPatch:
+    n = T[:3, :3] @ patch.normal
+    c = transform_points(T, patch.center)[0]
+    return PlanarPatch(n, c, float(-n @ c), transform_points(T, patch.corners), patch.num_points)
+
+
+def map_recording(frames: Iterable[tuple[int, np.ndarray, np.ndarray]], camera: CameraModel,
+                  params: EgoParams = EgoParams()) -> EgoMapResult:
+    """Offline entry: (stamp_ns, RGB uint8, depth metres) in time order. Unusable
+    frames are skipped and reported in the result's warnings."""
+    mapper = EgoMapper(camera, params)
+    t0 = time.perf_counter()
+    for stamp_ns, color, depth in frames:
+        try:
+            mapper.add(stamp_ns, color, depth)
+        except FrameError:
+            pass
+    result = mapper.finish()
+    result.stats["total_s"] = time.perf_counter() - t0
+    return result

@@ -1,0 +1,101 @@
+"""Ego frames from a rosbag2 recording for the offline entry ``map_recording``
+(bag I/O through yowo_common.ros.bag, which deserialises with rclpy; the
+algorithm modules never import it)."""
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from yowo_common.camera import CameraModel
+from yowo_common.ros.bag import list_topics, read_messages
+from yowo_common.rosconv import camera_info_to_model, decode_color, decode_depth, stamp_to_ns
+
+from .frames import StampPairer
+from .pipeline import EgoMapResult, EgoParams, map_recording
+
+COLOR_TOPICS = ("/ego/color/image_raw", "/ego/color/image_raw/compressed")
+DEPTH_TOPICS = ("/ego/depth/image_raw", "/ego/depth/image_raw/compressedDepth")
+INFO_TOPIC = "/ego/color/camera_info"
+
+
+@dataclass
+class EgoTopics:
+    color: str
+    depth: str
+    info: str = INFO_TOPIC
+
+
+@dataclass
+class EgoRecording:
+    """Frames of one recording; ``camera`` is known once the first CameraInfo was read."""
+
+    topics: EgoTopics
+    camera: CameraModel | None = None
+    problems: list[str] = field(default_factory=list)
+
+
+def find_ego_topics(bag) -> EgoTopics:
+    present = {t.name for t in list_topics(bag) if t.count > 0}
+    color = next((t for t in COLOR_TOPICS if t in present), None)
+    depth = next((t for t in DEPTH_TOPICS if t in present), None)
+    missing = [what for what, t in (("colour " + " or ".join(COLOR_TOPICS), color),
+                                    ("depth " + " or ".join(DEPTH_TOPICS), depth)) if t is None]
+    if INFO_TOPIC not in present:
+        missing.append(INFO_TOPIC)
+    if missing:
+        raise ValueError(f"{bag}: no ego camera: missing {'; '.join(missing)}")
+    return EgoTopics(color, depth)
+
+
+def read_ego_frames(bag, recording: EgoRecording) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """(stamp_ns, RGB, depth m) pairs in stamp order; undecodable messages and a
+    bad CameraInfo are recorded in ``recording.problems``. Frames arriving before
+    the first CameraInfo are held back until it comes."""
+    t = recording.topics
+    pairer = StampPairer()
+    pending: list[tuple[int, np.ndarray, np.ndarray]] = []
+    for topic, _, msg in read_messages(bag, [t.color, t.depth, t.info]):
+        if topic == t.info:
+            if recording.camera is None:
+                try:
+                    recording.camera = camera_info_to_model(msg)
+                except ValueError as exc:
+                    problem = f"{t.info}: {exc}"
+                    if problem not in recording.problems:
+                        recording.problems.append(problem)
+            continue
+        stamp = stamp_to_ns(msg.header.stamp)
+        try:
+            image = decode_color(msg) if topic == t.color else decode_depth(msg)
+        except ValueError as exc:
+            recording.problems.append(f"{topic} @ {stamp} ns: {exc}")
+            continue
+        pairs = pairer.add_color(stamp, image) if topic == t.color else pairer.add_depth(stamp, image)
+        for stamp_ns, color, depth in pairs:
+            pending.append((stamp_ns, color, depth))
+        if recording.camera is not None:
+            yield from pending
+            pending.clear()
+    if recording.camera is None:
+        if not any(p.startswith(t.info) for p in recording.problems):
+            recording.problems.append(f"{t.info}: no CameraInfo in the recording")
+        return
+    yield from pending
+    if pairer.dropped:
+        recording.problems.append(f"{pairer.dropped} colour/depth image(s) without a partner within 5 ms dropped")
+
+
+def map_bag(bag, params: EgoParams = EgoParams()) -> tuple[EgoMapResult, EgoRecording]:
+    """``map_recording`` on a recording's ego frames. Raises ValueError naming the
+    topic when nothing usable exists (no ego topics, no valid CameraInfo, no frames)."""
+    recording = EgoRecording(find_ego_topics(bag))
+    frames = read_ego_frames(bag, recording)
+    first = next(frames, None)
+    if first is None:
+        raise ValueError(f"{bag}: no usable ego frames: " + ("; ".join(recording.problems) or "none recorded"))
+    result = map_recording(itertools.chain([first], frames), recording.camera, params)
+    result.warnings.extend(recording.problems)
+    return result, recording

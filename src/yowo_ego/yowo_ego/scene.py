@@ -1,0 +1,178 @@
+"""Point cloud from the optimised keyframe poses (TSDF fusion), planar patches
+(Open3D ``detect_planar_patches``, the detector the paper cites), the ground
+plane and the vertical rectification R_rect (paper eq. rot_gp2w).
+
+Ground plane: the paper takes the plane with the most points. That can be a
+large wall, so here the ground is the plane with the most points among the
+patches that are horizontal-ish (within ``floor_max_tilt_deg`` of the up
+direction the head-mounted camera suggests: the mean of the keyframes' image-up
+axes) and lie below the camera centres; its normal is then re-fitted to every
+cloud point near it (all rooms share one floor). Patch normals have no
+consistent sign, so they are oriented towards the cameras.
+
+World frame (REP 103, z up): R_rect turns the floor normal onto +z; the origin
+is the first ego camera centre projected onto the floor, so the floor is z = 0;
+world +x is the first camera's viewing direction projected onto the floor (the
+agent's initial heading, as a body frame's x would be).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+from scipy.spatial import cKDTree
+
+from yowo_common.geometry import inv_se3, rotation_aligning, se3, transform_points
+
+from .odometry import Keyframe
+
+
+@dataclass(frozen=True)
+class CloudParams:
+    voxel_m: float = 0.03
+    block_resolution: int = 8
+    depth_max_m: float = 5.0
+    trunc_voxels: float = 4.0
+    min_weight: float = 2.0              # TSDF surface points seen fewer times are dropped
+    plane_voxel_m: float = 0.06          # cloud resolution for plane detection
+    plane_min_points: int = 60
+    plane_min_edge_m: float = 0.4
+    floor_max_tilt_deg: float = 35.0
+    floor_below_camera_m: float = 0.5
+    floor_refit_band_m: float = 0.04
+
+
+@dataclass
+class PlanarPatch:
+    normal: np.ndarray                   # unit, oriented towards the cameras
+    center: np.ndarray
+    d: float                             # n . p + d = 0
+    corners: np.ndarray                  # (4, 3) patch rectangle
+    num_points: int
+
+
+@dataclass
+class Rectification:
+    T_world_odom: np.ndarray             # applied to every pose, landmark and cloud point
+    R_rect: np.ndarray                   # eq. rot_gp2w (before the heading turn)
+    floor_normal_odom: np.ndarray        # v_gp
+    floor_points: int
+    camera_height_m: float               # first camera centre above the floor
+
+
+def fuse_cloud(keyframes: list[Keyframe], T_odom_kf: list[np.ndarray], K_small: np.ndarray,
+               params: CloudParams = CloudParams()) -> tuple[np.ndarray, np.ndarray]:
+    """TSDF-fuse the keyframes' (downsampled) RGB-D images; returns surface
+    points (N, 3) and colours (N, 3) in [0, 1], in the frame of the poses."""
+    vbg = o3d.t.geometry.VoxelBlockGrid(
+        ("tsdf", "weight", "color"), (o3d.core.float32, o3d.core.float32, o3d.core.float32),
+        ((1), (1), (3)), params.voxel_m, params.block_resolution, 20000)
+    K = o3d.core.Tensor(K_small)
+    for kf, T in zip(keyframes, T_odom_kf):
+        depth = o3d.t.geometry.Image(o3d.core.Tensor(kf.depth_mm))
+        color = o3d.t.geometry.Image(o3d.core.Tensor(np.ascontiguousarray(kf.color)))
+        extrinsic = o3d.core.Tensor(inv_se3(T))
+        coords = vbg.compute_unique_block_coordinates(depth, K, extrinsic, 1000.0, params.depth_max_m,
+                                                      params.trunc_voxels)
+        vbg.integrate(coords, depth, color, K, extrinsic, 1000.0, params.depth_max_m, params.trunc_voxels)
+    pcd = vbg.extract_point_cloud(weight_threshold=params.min_weight)
+    if "positions" not in pcd.point or len(pcd.point.positions) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    colors = pcd.point.colors.numpy().astype(float)
+    if colors.size and colors.max() > 1.0:     # uint8 input keeps the 0..255 range
+        colors /= 255.0
+    return pcd.point.positions.numpy().astype(float), np.clip(colors, 0.0, 1.0)
+
+
+def planar_patches(points: np.ndarray, cameras: np.ndarray, params: CloudParams = CloudParams()
+                   ) -> tuple[list[PlanarPatch], np.ndarray, np.ndarray]:
+    """Planar patches of a (downsampled) cloud. Returns the patches, the
+    downsampled points and their normals (oriented towards the nearest camera)."""
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points)).voxel_down_sample(params.plane_voxel_m)
+    pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=3 * params.plane_voxel_m, max_nn=30))
+    pts = np.asarray(pcd.points)
+    normals = np.asarray(pcd.normals)
+    # Orient point normals towards the closest camera centre (the side it was seen from).
+    nearest = cameras[cKDTree(cameras).query(pts)[1]]
+    flip = np.einsum("ij,ij->i", normals, nearest - pts) < 0
+    normals[flip] *= -1
+    pcd.normals = o3d.utility.Vector3dVector(normals)
+    boxes = pcd.detect_planar_patches(normal_variance_threshold_deg=60, coplanarity_deg=75, outlier_ratio=0.75,
+                                      min_plane_edge_length=params.plane_min_edge_m,
+                                      min_num_points=params.plane_min_points,
+                                      search_param=o3d.geometry.KDTreeSearchParamKNN(knn=30))
+    patches = []
+    for box in boxes:
+        R = np.asarray(box.R)
+        n = R[:, 2] / np.linalg.norm(R[:, 2])
+        c = np.asarray(box.center)
+        inside = box.get_point_indices_within_bounding_box(pcd.points)
+        if len(inside) and np.mean(normals[inside] @ n) < 0:
+            n = -n
+        ext = np.asarray(box.extent)
+        u, v = R[:, 0] * ext[0] / 2, R[:, 1] * ext[1] / 2
+        corners = np.array([c - u - v, c + u - v, c + u + v, c - u + v])
+        patches.append(PlanarPatch(n, c, float(-n @ c), corners, len(inside)))
+    return patches, pts, normals
+
+
+def _fit_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    centroid = points.mean(axis=0)
+    _, _, Vt = np.linalg.svd(points - centroid, full_matrices=False)
+    return Vt[2], centroid
+
+
+def find_floor(patches: list[PlanarPatch], points: np.ndarray, normals: np.ndarray, cameras: np.ndarray,
+               up_guess: np.ndarray, params: CloudParams = CloudParams()) -> tuple[np.ndarray, np.ndarray, int]:
+    """(floor normal pointing up, a point on the floor, supporting points).
+    Among the horizontal-ish patches below the cameras, the floor is the plane
+    whose infinite extension is supported by the most cloud points with a
+    matching normal: the floor continues through every room, a table top or a
+    box lid does not (the patch detector splits the floor into many pieces, so
+    the largest single patch can be furniture)."""
+    up_guess = up_guess / np.linalg.norm(up_guess)
+    cos_tilt = np.cos(np.radians(params.floor_max_tilt_deg))
+    best = None
+    for p in patches:
+        n = p.normal if p.normal @ up_guess > 0 else -p.normal
+        if n @ up_guess < cos_tilt or np.median((cameras - p.center) @ n) < params.floor_below_camera_m:
+            continue
+        support = int(np.sum((np.abs((points - p.center) @ n) <= params.floor_refit_band_m)
+                             & (normals @ n >= cos_tilt)))
+        if best is None or support > best[0]:
+            best = (support, n, p.center)
+    if best is None:
+        raise ValueError("no horizontal plane below the camera found in the point cloud: cannot find the floor")
+    support, n, c = best
+    # Re-fit to every point near the plane, twice with a shrinking band.
+    for band in (2 * params.floor_refit_band_m, params.floor_refit_band_m):
+        near = (np.abs((points - c) @ n) <= band) & (normals @ n >= cos_tilt)
+        if near.sum() < 3:
+            break
+        support = int(near.sum())
+        n_fit, c = _fit_plane(points[near])
+        n = n_fit if n_fit @ n > 0 else -n_fit
+    return n, c, support
+
+
+def rectify(floor_normal: np.ndarray, floor_point: np.ndarray, T_odom_first: np.ndarray,
+            support: int = 0) -> Rectification:
+    """T_world_odom: eq. rot_gp2w (floor normal -> +z), then the heading and
+    origin conventions of the module docstring."""
+    R_rect = rotation_aligning(floor_normal, [0.0, 0.0, 1.0])
+    forward = R_rect @ T_odom_first[:3, 2]
+    yaw = np.arctan2(forward[1], forward[0]) if np.hypot(forward[0], forward[1]) > 1e-6 else 0.0
+    c, s = np.cos(-yaw), np.sin(-yaw)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ R_rect
+    first = R @ T_odom_first[:3, 3]
+    floor_z = float((R @ floor_point)[2])
+    T = se3(R, [-first[0], -first[1], -floor_z])
+    return Rectification(T, R_rect, np.asarray(floor_normal, float), support,
+                         float(transform_points(T, T_odom_first[:3, 3])[0, 2]))
+
+
+def up_from_cameras(T_odom_cam: list[np.ndarray]) -> np.ndarray:
+    """Mean image-up direction (-y of the optical frame) of a head-worn camera."""
+    up = -np.mean([T[:3, 1] for T in T_odom_cam], axis=0)
+    return up / np.linalg.norm(up)
