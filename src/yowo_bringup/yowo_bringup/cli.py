@@ -45,6 +45,10 @@ def cmd_simulate(args) -> int:
         overrides["cmc_images"] = False
     if args.raw:
         overrides["raw_images"] = True
+    if args.ego_hz:
+        overrides["ego_hz"] = args.ego_hz
+    if args.cmc_hz:
+        overrides["cmc_hz"] = args.cmc_hz
     preset = get_preset(args.preset, **overrides)
     with Progress() as bar:
         task = bar.add_task(f"simulating '{args.preset}' (seed {args.seed})", total=None)
@@ -211,6 +215,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="new rosbag2 directory to write (MCAP)")
     p.add_argument("--no-cmc-images", action="store_true", help="record CMC keypoints only, no images")
     p.add_argument("--raw", action="store_true", help="raw sensor_msgs/Image instead of compressed")
+    p.add_argument("--ego-hz", type=float, help="ego camera rate (default 15)")
+    p.add_argument("--cmc-hz", type=float, help="CMC rate (default 10)")
     p.add_argument("--preview", metavar="PNG", help="also write a picture: ego frame, CMC frame, top view")
     p.set_defaults(func=cmd_simulate)
 
