@@ -3,11 +3,9 @@ multi-process graph (replay, ego mapper, one tracker per CMC, group SfM, fusion)
 then `yowo eval`, checked against the simulator's ground truth."""
 import json
 
-import numpy as np
 import yaml
 
 from e2e_helpers import yowo
-from yowo_bringup.results import read_camera_poses
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
 
@@ -29,10 +27,3 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
     log = yaml.safe_load((out / "run_log.yaml").read_text())
     for topic, n in log["replay_published"].items():  # lossless: every message reached every stage
         assert log["received"][topic] and all(v == n for v in log["received"][topic].values()), topic
-    # The same recording gives the same cameras (the ego stage is not yet bit-repeatable:
-    # unseeded RANSAC in its worker thread leaves sub-millimetre differences).
-    r2 = yowo("run", bag, "-o", tmp_path / "again", "--timeout", "600", env=ros_env, timeout=700)
-    assert r2.returncode == 0
-    first, again = read_camera_poses(out / "cameras.yaml"), read_camera_poses(tmp_path / "again" / "cameras.yaml")
-    assert first.keys() == again.keys()
-    assert max(np.abs(first[n] - again[n]).max() for n in first) < 5e-3

@@ -15,7 +15,7 @@ from yowo_common.geometry import inv_se3
 
 @dataclass(frozen=True)
 class FeatureParams:
-    max_features: int = 1500
+    max_features: int = 1000
     ratio: float = 0.8                  # Lowe's ratio test
     depth_edge_ratio: float = 0.03      # keypoints on depth discontinuities get no depth
     pnp_px: float = 3.0                 # PnP RANSAC reprojection threshold
@@ -100,6 +100,7 @@ def relative_pose(a: KeyframeFeatures, b: KeyframeFeatures, matches: np.ndarray,
         return None
     idx = np.flatnonzero(ok)
     X = backproject(a.uv[matches[idx, 0]], a.depth[matches[idx, 0]], K)
+    cv2.setRNGSeed(0)  # OpenCV's RANSAC draws from a global (per-thread) RNG: same input, same result
     found, rvec, tvec, inliers = cv2.solvePnPRansac(X, b.uv[matches[idx, 1]], K, None,
                                                     reprojectionError=params.pnp_px, iterationsCount=300,
                                                     confidence=0.999, flags=cv2.SOLVEPNP_SQPNP)

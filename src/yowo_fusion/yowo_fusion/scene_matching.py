@@ -79,6 +79,7 @@ def match_scene(rgb: np.ndarray, camera: CameraModel, T_world_cam_prior: np.ndar
     lm_idx, feat_idx = lm_idx[first], feat_idx[first]
     T_cam_world = inv_se3(T_world_cam_prior)
     rvec0, _ = cv2.Rodrigues(T_cam_world[:3, :3])
+    cv2.setRNGSeed(0)  # deterministic RANSAC: the same recording gives the same cameras
     ok, rvec, tvec, inliers = cv2.solvePnPRansac(
         landmarks[lm_idx], uv_feat[feat_idx], camera.K, None, rvec0.copy(), T_cam_world[:3, 3].copy(),
         useExtrinsicGuess=True, iterationsCount=1000, reprojectionError=params.pnp_px, confidence=0.999,
