@@ -1,19 +1,23 @@
 """Planar scene layout in the rectified world frame (z up, floor z = 0): walls
-as vertical planar patches, the ceiling as the largest horizontal patch above
-the cameras, and the floor outline in top view.
+as vertical planes, the ceiling as the largest downward-facing planar patch
+above the cameras, and the floor outline in top view.
 
-Floor outline: every cloud point between the floor and just below the ceiling
-(floor, furniture and walls alike) marks its top-view cell as inside the scene;
-a morphological closing bridges unobserved gaps, enclosed holes (e.g. under
-furniture) are filled, an opening removes thin spurs, and each remaining region
-becomes a polygon (OpenCV contours through the boundary cells' centres, which
-is where the wall points lie on average)."""
+Floor outline (top-view grid aligned with the dominant wall direction): every
+cloud point between the floor and just below the ceiling (floor, furniture and
+walls alike) marks its cell as inside the scene; so does an unobserved cell
+with walls or furniture seen beyond it in three of the four directions (the
+one left may be a wall the camera never looked at). A morphological
+closing bridges gaps, enclosed holes (e.g. under furniture) are filled, an
+opening removes thin spurs, and each remaining region becomes a polygon
+(OpenCV contours through the boundary cells' centres, which is where the wall
+points lie on average)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+import open3d as o3d
 from shapely.geometry import Polygon
 from shapely.geometry.polygon import orient
 
@@ -28,12 +32,19 @@ class LayoutParams:
     floor_band_m: float = 0.15           # points from this far below the floor count
     below_ceiling_m: float = 0.25        # ceiling points (and lamps) do not
     default_top_m: float = 2.3           # upper bound when no ceiling was found
+    wall_from_m: float = 0.3             # points above this height block the inside test
+    wall_min_points: int = 2
+    enclosing_sides: int = 3             # of the four wall directions, for unobserved floor to count
     close_m: float = 0.35
     open_m: float = 0.2
     min_area_m2: float = 1.0
     simplify_m: float = 0.05
     wall_max_tilt_deg: float = 10.0
     wall_min_height_m: float = 0.6
+    wall_ransac_m: float = 0.04
+    wall_min_points_plane: int = 150     # at the 6 cm sampling of the cloud: ~0.5 m^2
+    wall_gap_m: float = 0.5
+    max_walls: int = 60
     horizontal_max_tilt_deg: float = 10.0
     ceiling_above_camera_m: float = 0.3
 
@@ -59,11 +70,27 @@ def _disk(diameter_m: float, cell_m: float) -> np.ndarray:
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (n, n))
 
 
-def floor_polygons(points: np.ndarray, top_m: float, params: LayoutParams = LayoutParams()) -> list[np.ndarray]:
+def wall_orientation(walls: list[LayoutPlane]) -> float:
+    """Dominant wall direction (rad, modulo 90 deg): the circular mean of 4x the
+    wall normals' angles, weighted by their support (rooms are mostly rectilinear)."""
+    if not walls:
+        return 0.0
+    a = np.array([np.arctan2(w.coefficients[1], w.coefficients[0]) for w in walls])
+    w = np.array([max(w.num_points, 1) for w in walls], dtype=float)
+    return float(np.arctan2((w * np.sin(4 * a)).sum(), (w * np.cos(4 * a)).sum()) / 4)
+
+
+def floor_polygons(points: np.ndarray, top_m: float, params: LayoutParams = LayoutParams(),
+                   orientation_rad: float = 0.0) -> list[np.ndarray]:
     """Top-view outline(s) of the space the points occupy between the floor
-    (z = 0) and top_m."""
+    (z = 0) and top_m. Unobserved floor (a head-worn camera rarely sees every
+    corner) counts as inside when walls or furniture were seen beyond it in
+    ``enclosing_sides`` of the four wall directions; the grid is aligned with
+    ``orientation_rad``."""
     sel = (points[:, 2] > -params.floor_band_m) & (points[:, 2] < top_m)
-    xy = points[sel, :2]
+    c, s = np.cos(orientation_rad), np.sin(orientation_rad)
+    R = np.array([[c, s], [-s, c]])                       # world -> grid axes
+    xy = points[sel, :2] @ R.T
     if len(xy) < 10:
         return []
     cell = params.cell_m
@@ -73,6 +100,15 @@ def floor_polygons(points: np.ndarray, top_m: float, params: LayoutParams = Layo
     shape = ij.max(axis=0) + pad + 1
     occ = np.zeros((shape[1], shape[0]), np.uint8)
     occ[ij[:, 1], ij[:, 0]] = 255
+    tall = points[sel, 2] > params.wall_from_m
+    walls = np.zeros(occ.shape, np.int32)
+    np.add.at(walls, (ij[tall, 1], ij[tall, 0]), 1)
+    walls = walls >= params.wall_min_points
+    hits = np.zeros(occ.shape, np.uint8)
+    for axis in (0, 1):
+        hits += np.maximum.accumulate(walls, axis=axis)
+        hits += np.flip(np.maximum.accumulate(np.flip(walls, axis), axis=axis), axis)
+    occ[hits >= params.enclosing_sides] = 255
     occ = cv2.morphologyEx(occ, cv2.MORPH_CLOSE, _disk(params.close_m, cell))
     # Fill enclosed holes: everything the outside cannot reach.
     outside = occ.copy()
@@ -82,40 +118,81 @@ def floor_polygons(points: np.ndarray, top_m: float, params: LayoutParams = Layo
     occ = cv2.morphologyEx(occ, cv2.MORPH_OPEN, _disk(params.open_m, cell))
     contours, _ = cv2.findContours(occ, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     out = []
-    for c in contours:
-        c = cv2.approxPolyDP(c, params.simplify_m / cell, True).reshape(-1, 2)
-        if len(c) < 3:
+    for contour in contours:
+        contour = cv2.approxPolyDP(contour, params.simplify_m / cell, True).reshape(-1, 2)
+        if len(contour) < 3:
             continue
-        poly = Polygon(origin + (c + 0.5) * cell).buffer(0)
+        poly = Polygon((origin + (contour + 0.5) * cell) @ R).buffer(0)
         if poly.geom_type != "Polygon" or poly.area < params.min_area_m2:
             continue
         out.append(np.asarray(orient(poly, 1.0).exterior.coords)[:-1])
     return out
 
 
-def build_layout(points: np.ndarray, patches: list[PlanarPatch], cameras: np.ndarray,
-                 params: LayoutParams = LayoutParams()) -> Layout:
-    """Layout from the rectified cloud, its planar patches and the camera centres."""
-    sin_wall = np.sin(np.radians(params.wall_max_tilt_deg))
+def extract_walls(points: np.ndarray, normals: np.ndarray, params: LayoutParams = LayoutParams()
+                  ) -> list[LayoutPlane]:
+    """Vertical planes by sequential RANSAC (Open3D ``segment_plane``) on the
+    points whose normal is horizontal; each plane is split into wall pieces at
+    gaps along it (collinear walls of neighbouring rooms share a plane).
+    The planar patch detector misses or fragments walls behind furniture and
+    posters too often to be the layout's walls."""
+    sin_tilt = np.sin(np.radians(params.wall_max_tilt_deg))
+    idx = np.flatnonzero(np.abs(normals[:, 2]) <= sin_tilt)
+    walls = []
+    while len(idx) >= params.wall_min_points_plane and len(walls) < params.max_walls:
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[idx]))
+        plane, inliers = cloud.segment_plane(params.wall_ransac_m, 3, 200)
+        inliers = np.asarray(inliers, dtype=int)
+        if len(inliers) < params.wall_min_points_plane:
+            break
+        n = np.asarray(plane[:3], dtype=float)
+        members = idx[inliers]
+        idx = np.delete(idx, inliers)
+        if abs(n[2]) > sin_tilt:
+            continue                      # a slanted surface (furniture, a stair), not a wall
+        n = np.array([n[0], n[1], 0.0]) / np.hypot(n[0], n[1])
+        # Orient the normal like the points' own normals (towards the room side seen).
+        if np.mean(normals[members] @ n) < 0:
+            n = -n
+        along = np.array([-n[1], n[0], 0.0])
+        u = points[members] @ along
+        order = np.argsort(u)
+        cuts = np.flatnonzero(np.diff(u[order]) > params.wall_gap_m) + 1
+        for piece in np.split(order, cuts):
+            pts = points[members[piece]]
+            z = pts[:, 2]
+            if len(piece) < params.wall_min_points_plane / 2 or np.ptp(z) < params.wall_min_height_m:
+                continue
+            d = -float(np.median(pts @ n))
+            u0, u1 = u[piece].min(), u[piece].max()
+            base = -d * n
+            corners = np.array([base + u0 * along + z.min() * np.array([0, 0, 1.0]),
+                                base + u1 * along + z.min() * np.array([0, 0, 1.0]),
+                                base + u1 * along + z.max() * np.array([0, 0, 1.0]),
+                                base + u0 * along + z.max() * np.array([0, 0, 1.0])])
+            walls.append(LayoutPlane(KIND_WALL, np.append(n, d), corners, len(piece)))
+    return walls
+
+
+def build_layout(points: np.ndarray, sampled: np.ndarray, normals: np.ndarray, patches: list[PlanarPatch],
+                 cameras: np.ndarray, params: LayoutParams = LayoutParams()) -> Layout:
+    """Layout from the rectified cloud (all points, and a downsampled copy with
+    normals), its planar patches (for the ceiling) and the camera centres."""
     cos_h = np.cos(np.radians(params.horizontal_max_tilt_deg))
     top_camera = float(np.max(cameras[:, 2])) if len(cameras) else 0.0
-    planes, ceilings = [], []
-    for p in patches:
-        n = p.normal
-        if abs(n[2]) <= sin_wall and np.ptp(p.corners[:, 2]) >= params.wall_min_height_m:
-            n = np.array([n[0], n[1], 0.0]) / np.hypot(n[0], n[1])   # walls are vertical by definition
-            planes.append(LayoutPlane(KIND_WALL, np.append(n, -n @ p.center), p.corners, p.num_points))
-        elif n[2] <= -cos_h and p.center[2] > top_camera + params.ceiling_above_camera_m:
-            ceilings.append(p)
+    planes = extract_walls(sampled, normals, params)
+    ceilings = [p for p in patches if p.normal[2] <= -cos_h
+                and p.center[2] > top_camera + params.ceiling_above_camera_m]
     ceiling = max(ceilings, key=lambda p: p.num_points, default=None)
     ceiling_height = float(ceiling.center[2]) if ceiling is not None else float("nan")
     if ceiling is not None:
         planes.append(LayoutPlane(KIND_CEILING, np.array([0.0, 0.0, -1.0, ceiling_height]), ceiling.corners,
                                   ceiling.num_points))
     top = ceiling_height - params.below_ceiling_m if ceiling is not None else params.default_top_m
-    polygons = floor_polygons(points, top, params)
+    walls = [q for q in planes if q.kind == KIND_WALL]
+    polygons = floor_polygons(points, top, params, wall_orientation(walls))
+    floor_support = int(np.sum((np.abs(sampled[:, 2]) < 0.05) & (normals[:, 2] > cos_h)))
     for poly in polygons:
-        boundary = np.column_stack([poly, np.zeros(len(poly))])
-        floor_support = int(np.sum(np.abs(points[:, 2]) < 0.05))
-        planes.append(LayoutPlane(KIND_FLOOR, np.array([0.0, 0.0, 1.0, 0.0]), boundary, floor_support))
+        planes.append(LayoutPlane(KIND_FLOOR, np.array([0.0, 0.0, 1.0, 0.0]),
+                                  np.column_stack([poly, np.zeros(len(poly))]), floor_support))
     return Layout(polygons, 0.0, ceiling_height, planes)

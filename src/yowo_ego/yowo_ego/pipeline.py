@@ -30,7 +30,7 @@ from .layout import Layout, LayoutParams, build_layout
 from .odometry import KeyframeTracker, OdometryParams, TrackResult
 from .posegraph import LoopParams, multiway_registration
 from .refine import BundleParams, bundle_adjust
-from .scene import (CloudParams, PlanarPatch, Rectification, find_floor, fuse_cloud, planar_patches, rectify,
+from .scene import (CloudParams, Rectification, find_floor, fuse_cloud, planar_patches, rectify,
                     up_from_cameras)
 from .tracks import FilterParams, build_tracks, filter_matches
 
@@ -89,10 +89,16 @@ class EgoMapper:
         self.tracker = KeyframeTracker(camera.K, params.odometry, on_keyframe=self._on_keyframe)
         self.rejected: dict[str, int] = {}
         self._last_stamp = -1
-        self._t_track = 0.0
+        self._t_track = self._cpu_track = self._cpu_features = 0.0
 
     def _on_keyframe(self, kf, gray, depth) -> None:
-        self._features.append(self._pool.submit(self._extractor, gray, depth))
+        self._features.append(self._pool.submit(self._extract, gray, depth))
+
+    def _extract(self, gray, depth) -> KeyframeFeatures:
+        t0 = time.thread_time()
+        features = self._extractor(gray, depth)
+        self._cpu_features += time.thread_time() - t0
+        return features
 
     @property
     def frames(self) -> int:
@@ -110,9 +116,10 @@ class EgoMapper:
         except FrameError as exc:
             self.rejected[exc.key] = self.rejected.get(exc.key, 0) + 1
             raise
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         result = self.tracker.track(frame)
         self._t_track += time.perf_counter() - t0
+        self._cpu_track += time.thread_time() - c0
         self._last_stamp = stamp_ns
         return result
 
@@ -120,12 +127,14 @@ class EgoMapper:
         if len(self.tracker.results) < 2:
             raise ValueError(f"ego camera: {len(self.tracker.results)} usable RGB-D frame(s); mapping needs at "
                              "least 2" + (f" (rejected: {self.rejected})" if self.rejected else ""))
-        stats: dict[str, float] = {"frames": self.frames, "tracking_s": self._t_track}
+        stats: dict[str, float] = {"frames": self.frames, "tracking_s": self._t_track,
+                                   "tracking_cpu_s": self._cpu_track}
+        c_finish = time.thread_time()
         warnings = [f"{n} frame(s) rejected: {why}" for why, n in self.rejected.items()]
         t0 = time.perf_counter()
         features: list[KeyframeFeatures] = [f.result() for f in self._features]
         self._pool.shutdown()
-        stats["feature_wait_s"] = time.perf_counter() - t0
+        stats.update(feature_wait_s=time.perf_counter() - t0, features_cpu_s=self._cpu_features)
         tr, p = self.tracker, self.params
         keyframes = tr.keyframes
         K = self.ideal.K
@@ -206,12 +215,11 @@ class EgoMapper:
             trajectories["bundle"] = frame_poses(T_bundle)
         final = trajectories["bundle" if p.bundle_adjustment else "multiway"]
         points_w = transform_points(W, points)
-        patches_w = [_transform_patch(W, q) for q in patches]
-        cams_w = transform_points(W, cams)
         t0 = time.perf_counter()
-        layout = build_layout(points_w, patches_w, cams_w, p.layout)
+        layout = build_layout(points_w, transform_points(W, small), small_normals @ W[:3, :3].T,
+                              [q.transformed(W) for q in patches], transform_points(W, cams), p.layout)
         stats.update(layout_s=time.perf_counter() - t0, walls=sum(q.kind == 2 for q in layout.planes),
-                     ceiling_height_m=layout.ceiling_height)
+                     ceiling_height_m=layout.ceiling_height, finish_cpu_s=time.thread_time() - c_finish)
         # Observations back to raw pixels for other stages.
         raw_uv = self.camera.project(backproject(obs_uv, np.ones(len(obs_uv)), K))[0] if len(obs_uv) else obs_uv
         return EgoMapResult(
@@ -219,12 +227,6 @@ class EgoMapper:
             np.array([k.frame_index for k in keyframes], dtype=int), np.array([W @ T for T in T_bundle]),
             transform_points(W, landmarks) if len(landmarks) else landmarks, descriptors, obs_kf, obs_lm, raw_uv,
             points_w, colors, layout, rect, trajectories, stats, warnings)
-
-
-def _transform_patch(T: np.ndarray, patch: PlanarPatch) -> PlanarPatch:
-    n = T[:3, :3] @ patch.normal
-    c = transform_points(T, patch.center)[0]
-    return PlanarPatch(n, c, float(-n @ c), transform_points(T, patch.corners), patch.num_points)
 
 
 def map_recording(frames: Iterable[tuple[int, np.ndarray, np.ndarray]], camera: CameraModel,

@@ -56,13 +56,15 @@ def depth_sigma(z: np.ndarray, params: BundleParams) -> np.ndarray:
 
 def landmarks_from_tracks(tracks: Tracks, features: list[KeyframeFeatures], T_world_kf: list[np.ndarray],
                           K: np.ndarray, params: BundleParams = BundleParams()):
-    """(track ids kept, initial landmark positions, per-observation arrays) from
-    the median depth back-projection of each track; tracks without any depth or
+    """(landmark of each kept observation, initial landmark positions, keyframe,
+    feature, undistorted pixel and depth of each kept observation). A landmark
+    starts at the mean depth back-projection of its observations (the matches
+    already passed the depth-consistency filter); tracks without any depth or
     shorter than min_track_length are left out."""
     kf, feat, trk = tracks.keyframe, tracks.feature, tracks.track
     uv = np.zeros((len(kf), 2))
     depth = np.full(len(kf), np.nan)
-    world = np.full((len(kf), 3), np.nan)
+    world = np.zeros((len(kf), 3))
     for k in np.unique(kf):
         sel = kf == k
         f = features[k]
@@ -71,19 +73,14 @@ def landmarks_from_tracks(tracks: Tracks, features: list[KeyframeFeatures], T_wo
         has = sel & np.isfinite(depth)
         world[has] = transform_points(T_world_kf[k], backproject(uv[has], depth[has], K))
     n_tracks = tracks.count
+    has = np.isfinite(depth)
     length = np.bincount(trk, minlength=n_tracks)
-    with_depth = np.bincount(trk, weights=np.isfinite(depth).astype(float), minlength=n_tracks)
+    with_depth = np.bincount(trk, weights=has.astype(float), minlength=n_tracks)
+    sums = np.column_stack([np.bincount(trk, weights=world[:, i] * has, minlength=n_tracks) for i in range(3)])
     keep_track = (length >= params.min_track_length) & (with_depth > 0)
-    sel = keep_track[trk]
+    points = sums[keep_track] / with_depth[keep_track, None]
     new_id = np.cumsum(keep_track) - 1
-    points = np.zeros((int(keep_track.sum()), 3))
-    order = np.argsort(trk, kind="stable")
-    starts = np.searchsorted(trk[order], np.arange(n_tracks))
-    ends = np.searchsorted(trk[order], np.arange(n_tracks), side="right")
-    for t in np.flatnonzero(keep_track):
-        idx = order[starts[t]:ends[t]]
-        w = world[idx]
-        points[new_id[t]] = np.median(w[np.isfinite(w[:, 0])], axis=0)
+    sel = keep_track[trk]
     return new_id[trk[sel]], points, kf[sel], feat[sel], uv[sel], depth[sel]
 
 

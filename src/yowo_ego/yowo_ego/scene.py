@@ -38,6 +38,8 @@ class CloudParams:
     plane_voxel_m: float = 0.06          # cloud resolution for plane detection
     plane_min_points: int = 60
     plane_min_edge_m: float = 0.4
+    patch_normal_cos: float = 0.94       # a point belongs to a patch when its normal is within 20 deg
+    floor_bin_m: float = 0.02            # height histogram of upward-facing points
     floor_max_tilt_deg: float = 35.0
     floor_below_camera_m: float = 0.5
     floor_refit_band_m: float = 0.04
@@ -50,6 +52,11 @@ class PlanarPatch:
     d: float                             # n . p + d = 0
     corners: np.ndarray                  # (4, 3) patch rectangle
     num_points: int
+
+    def transformed(self, T: np.ndarray) -> "PlanarPatch":
+        n = T[:3, :3] @ self.normal
+        c = transform_points(T, self.center)[0]
+        return PlanarPatch(n, c, float(-n @ c), transform_points(T, self.corners), self.num_points)
 
 
 @dataclass
@@ -107,13 +114,21 @@ def planar_patches(points: np.ndarray, cameras: np.ndarray, params: CloudParams 
         R = np.asarray(box.R)
         n = R[:, 2] / np.linalg.norm(R[:, 2])
         c = np.asarray(box.center)
-        inside = box.get_point_indices_within_bounding_box(pcd.points)
-        if len(inside) and np.mean(normals[inside] @ n) < 0:
+        inside = np.asarray(box.get_point_indices_within_bounding_box(pcd.points), dtype=int)
+        # A patch's box can be thick and hold other surfaces too (the floor's box
+        # may reach the ceiling): its own points are those whose normal agrees,
+        # and the plane sits at their median offset, not at the box centre.
+        dots = normals[inside] @ n
+        own = inside[np.abs(dots) >= params.patch_normal_cos]
+        if len(own) == 0:
+            continue
+        if np.mean(normals[own] @ n) < 0:
             n = -n
+        c = c + (np.median(pts[own] @ n) - c @ n) * n
         ext = np.asarray(box.extent)
         u, v = R[:, 0] * ext[0] / 2, R[:, 1] * ext[1] / 2
         corners = np.array([c - u - v, c + u - v, c + u + v, c - u + v])
-        patches.append(PlanarPatch(n, c, float(-n @ c), corners, len(inside)))
+        patches.append(PlanarPatch(n, c, float(-n @ c), corners, len(own)))
     return patches, pts, normals
 
 
@@ -126,28 +141,31 @@ def _fit_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def find_floor(patches: list[PlanarPatch], points: np.ndarray, normals: np.ndarray, cameras: np.ndarray,
                up_guess: np.ndarray, params: CloudParams = CloudParams()) -> tuple[np.ndarray, np.ndarray, int]:
     """(floor normal pointing up, a point on the floor, supporting points).
-    Among the horizontal-ish patches below the cameras, the floor is the plane
-    whose infinite extension is supported by the most cloud points with a
-    matching normal: the floor continues through every room, a table top or a
-    box lid does not (the patch detector splits the floor into many pieces, so
-    the largest single patch can be furniture)."""
+
+    The direction: the normal of the largest planar patch within
+    ``floor_max_tilt_deg`` of the up guess. The height: the most populated
+    level, below the cameras, of the cloud points facing that way (a height
+    histogram): the floor continues through every room, while the patch
+    detector splits it into pieces, so its largest single patch can be a table
+    top. Finally a plane fit to every upward-facing point near that level."""
     up_guess = up_guess / np.linalg.norm(up_guess)
     cos_tilt = np.cos(np.radians(params.floor_max_tilt_deg))
-    best = None
-    for p in patches:
-        n = p.normal if p.normal @ up_guess > 0 else -p.normal
-        if n @ up_guess < cos_tilt or np.median((cameras - p.center) @ n) < params.floor_below_camera_m:
-            continue
-        support = int(np.sum((np.abs((points - p.center) @ n) <= params.floor_refit_band_m)
-                             & (normals @ n >= cos_tilt)))
-        if best is None or support > best[0]:
-            best = (support, n, p.center)
-    if best is None:
-        raise ValueError("no horizontal plane below the camera found in the point cloud: cannot find the floor")
-    support, n, c = best
-    # Re-fit to every point near the plane, twice with a shrinking band.
+    horizontal = [(p.num_points, p.normal if p.normal @ up_guess > 0 else -p.normal) for p in patches]
+    horizontal = [(k, n) for k, n in horizontal if n @ up_guess >= cos_tilt]
+    if not horizontal:
+        raise ValueError("no horizontal planar patch in the point cloud: cannot find the floor")
+    n = max(horizontal, key=lambda t: t[0])[1]
+    facing = normals @ n >= params.patch_normal_cos
+    h = points[facing] @ n
+    below = h <= np.median(cameras @ n) - params.floor_below_camera_m
+    if below.sum() < 3:
+        raise ValueError("no upward-facing surface below the cameras: cannot find the floor")
+    counts, edges = np.histogram(h[below], bins=np.arange(h[below].min(), h[below].max() + 2 * params.floor_bin_m,
+                                                          params.floor_bin_m))
+    level = edges[np.argmax(counts)] + params.floor_bin_m / 2
+    c, support = n * level, 0
     for band in (2 * params.floor_refit_band_m, params.floor_refit_band_m):
-        near = (np.abs((points - c) @ n) <= band) & (normals @ n >= cos_tilt)
+        near = facing & (np.abs((points - c) @ n) <= band)
         if near.sum() < 3:
             break
         support = int(near.sum())

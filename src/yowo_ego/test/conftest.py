@@ -1,0 +1,25 @@
+"""Shared fixtures: one synthetic room and its renderer per test session (building
+the textured scene is the slow part)."""
+import pytest
+
+from yowo_common.camera import CameraModel
+from yowo_sim.render import Renderer
+from yowo_sim.scene import SceneSpec, build_scene
+
+
+
+@pytest.fixture(scope="session")
+def ego_camera():
+    """The simulator's ego camera (VGA, 70 deg horizontal field of view)."""
+    return CameraModel.from_fov(640, 480, 70.0)
+
+
+@pytest.fixture(scope="session")
+def room():
+    """A 4 m x 4 m room with furniture, rich texture (the 'tiny' preset's layout)."""
+    return build_scene(SceneSpec(layout="room_4x4", num_furniture=2, seed=1))
+
+
+@pytest.fixture(scope="session")
+def renderer(room):
+    return Renderer(room)
