@@ -12,13 +12,12 @@ import numpy as np
 from yowo_common.camera import CameraModel
 from yowo_common.ros.bag import list_topics, read_messages
 from yowo_common.rosconv import camera_info_to_model, decode_color, decode_depth, stamp_to_ns
+from yowo_common.topics import EGO_COLOR, EGO_DEPTH, EGO_INFO
 
 from .frames import StampPairer
 from .pipeline import EgoMapResult, EgoParams, map_recording
 
-COLOR_TOPICS = ("/ego/color/image_raw", "/ego/color/image_raw/compressed")
-DEPTH_TOPICS = ("/ego/depth/image_raw", "/ego/depth/image_raw/compressedDepth")
-INFO_TOPIC = "/ego/color/camera_info"
+COLOR_TOPICS, DEPTH_TOPICS, INFO_TOPIC = EGO_COLOR, EGO_DEPTH, EGO_INFO
 
 
 @dataclass
