@@ -131,9 +131,9 @@ def test_one_detection_per_frame_in_order(run):
 
 
 def test_keypoints_match_ground_truth(run):
-    """Measured on seeds 5 and 8 (and 8 more sequences of other layouts): head top
-    median 0.5-1.7 px, 90th percentile 1.2-7.6 px; ground point median 0.9-4.2 px,
-    90th percentile 2-5.7 px."""
+    """Seed 5 measures 0.39 / 1.26 px (median / 90th percentile) at the head top and
+    1.35 / 2.25 px at the ground point; over seeds 5, 8, 10, 12, 14-17 of this
+    scenario 0.3-2.0 / 1.0-4.3 px and 1.1-5.3 / 2.0-5.5 px."""
     seq, _, out = run
     assert seq.full.sum() > 100
     head, ground = errors(seq, out, HEAD_TOP, seq.full), errors(seq, out, GROUND, seq.full)
@@ -183,7 +183,7 @@ def test_background_is_agent_free(run):
     seq, detector, _ = run
     diff = np.abs(detector.background.astype(float) - seq.background.astype(float)).max(axis=2)
     assert np.median(diff) < 3.0
-    assert np.mean(diff > 20) < 0.002   # no agent (or ghost) left: JPEG edges only
+    assert np.mean(diff > 20) < 0.005   # JPEG at edges only; the agent alone covers 1-3 % of the image
 
 
 def test_stream_without_agent_gives_empty_detections(run):

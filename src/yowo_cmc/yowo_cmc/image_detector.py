@@ -9,10 +9,14 @@ are raw (distorted) pixels.
 * Background: per-pixel median of frames spread over the first `warmup_s` (a
   walking agent covers each pixel only briefly), then a running average updated
   only away from the tracked agent, so an agent standing still for minutes is
-  never absorbed. A blob whose outline has weaker edges in the frame than in the
-  background is not an object but a flaw of the background (a ghost of where the
-  agent stood during the warm-up, or agent colour blended in) and is healed
-  quickly. Pixels that are a uniformly darker copy of the background are shadows.
+  never absorbed. A blob whose outline is a weaker edge in the frame than both
+  the background's edge there and the frame's texture around it is no object
+  but a flaw of the background (the ghost of a spot where the agent stood during
+  the warm-up, or agent colour blended in) and is healed quickly; the warm-up
+  frames are run twice, so that such flaws are healed before detections count.
+  Pixels that are a uniformly darker copy of the background are shadows. (An
+  agent that stands still for most of the warm-up without ever leaving the spot
+  stays in the background: it is missed until it moves away.)
 * Silhouette: hysteresis threshold on the colour difference (weak pixels count
   when connected to strong ones), morphology, connected components with size
   gates; the agent's blob is the one nearest to the track's last position (else
@@ -31,11 +35,11 @@ are raw (distorted) pixels.
   squares to a fraction of a degree. Without such edges the agent's estimate
   stands if the agent was seen in enough places. The camera is taken to look
   down and not to be mounted upside down (this picks the sign of d).
-* Head top: the outline point farthest from the nadir d, its sideways position
-  averaged over the top few pixels, corrected for the round head: seen from
-  above, the outline's top lies above the projected top point by
-  (r / D) (1 - sin(theta)) (head radius r, its distance D, theta its angle from
-  the nadir).
+* Head top: the outline point farthest from the nadir d; sideways, the middle
+  between the head's left and right edges (robust to hair blending into the
+  background on one side); corrected for the round head: seen from above, the
+  outline's top lies above the projected top point by (r / D) (1 - sin(theta))
+  (head radius r, its distance D, theta its angle from the nadir).
 * Ground point: with rho = agent height / camera height above the floor, the
   point under the head top lies in the same vertical plane at
   tan(theta_ground) = (1 - rho) tan(theta_head) (the homology between the head
@@ -45,13 +49,13 @@ are raw (distorted) pixels.
   the head. Per frame the ground point so carries the head top's pixel noise
   instead of the feet's decimetre-level gait motion (and survives feet hidden
   behind furniture). With the head cut off by the image border it comes from the
-  lowest point alone.
+  lowest point alone, at lower confidence.
 
 Frames wait for the background (held JPEG-encoded at quality 95, ~80 kB each at
-640x480: 16 MB for the default 20 s warm-up at 10 Hz), then until the estimates of
-d and rho have settled (held as outlines, ~3 kB per frame with the agent); both
-keep being refined, from at most `max_geometry_frames` distinct silhouettes
-(~8 kB each).
+640x480: 16 MB for the default 20 s warm-up at 10 Hz; processed twice), then
+until the estimates of d and rho have settled (held as outlines, ~3 kB per frame
+with the agent); both keep being refined, from at most `max_geometry_frames`
+distinct silhouettes (~8 kB each).
 """
 from __future__ import annotations
 
@@ -98,6 +102,8 @@ class DetectorParams:
     scene_cone_deg: float = 8.0      # scene edges may move the agent's vertical this far (by its misfit)
     top_band_px: float = 3.0         # outline points this close to the top set the head's sideways position
     head_radius: float = 0.05        # head radius / agent height (anthropometric; 0 disables the correction)
+    max_height_misfit: float = 0.1   # silhouettes whose head and lowest point imply a height ratio this far
+    #                                  from rho are partly hidden: no keypoints (the gait alone scatters 0.035)
     foot_reach: float = 0.11         # mean horizontal distance, / agent height, from the point under the head
     #                                  to the sole point nearest to the camera (shoe length and stride;
     #                                  measured on simulated walks of the anthropometric body model)
@@ -310,7 +316,7 @@ class _Geometry:
         sils = [s.astype(np.float64) for s in self.silhouettes]
         normals = np.array([np.linalg.eigh(b.T @ b)[1][:, 0] for b in sils])
         sigma = np.full(len(normals), AXIS_SIGMA_DEG)
-        d = _robust_null(normals, sigma, init=_robust_null(normals, 4.0 * sigma))
+        d_agent = _robust_null(normals, sigma, init=_robust_null(normals, 4.0 * sigma))
         scene_n, scene_sigma = _scene_line_normals(self.camera, background)
         at = np.mean([b.mean(axis=0) for b in sils], axis=0)
 
@@ -318,22 +324,25 @@ class _Geometry:
             return np.median(np.degrees(np.arcsin(np.clip(np.abs(c @ normals.T), 0.0, 1.0))), axis=-1)
 
         def offset(c):  # small along the directions the agent's planes leave open
-            return np.maximum(agent_misfit(c) - agent_misfit(d), 0.0)
+            return np.maximum(agent_misfit(c) - agent_misfit(d_agent), 0.0)
         scene_d = _scene_vertical(scene_n, scene_sigma, offset, self.p.scene_cone_deg, at)
         if scene_d is not None:
             d = _robust_null(np.vstack([normals, scene_n]), np.concatenate([sigma, scene_sigma]), init=scene_d)
-        elif _spread_deg(normals, d) < MIN_AXIS_SPREAD_DEG:
-            return False  # no vertical edges in the scene to pick d on the band
+        elif _spread_deg(normals, d_agent) >= MIN_AXIS_SPREAD_DEG:
+            d = d_agent
+        else:
+            return False  # the agent's axes only fix a band, and no scene edges pick d on it
         d = _orient_down(d, at)
         if d[2] <= -LEVEL_TOLERANCE:
             return False  # a camera looking up: not a ceiling camera, or a wrong vertical
         if np.median(np.degrees(np.arcsin(np.clip(np.abs(normals @ d), 0.0, 1.0)))) > 2.0 * AXIS_SIGMA_DEG:
             return False  # the silhouettes are not upright people (or the background is spoilt)
+        def rho_from(b, rho):
+            top, _, theta = _top(b, d, rho, self.p, self.f)
+            return _rho_from_feet(top @ d, theta.min(), self.p.foot_reach)
         rho = self.rho if self.rho is not None else 0.6
         for _ in range(2):  # the head-top correction depends on rho
-            rho = float(np.median([_rho_from_feet(_top(b, d, rho, self.p, self.f)[0] @ d,
-                                                  np.arccos(np.clip(b @ d, -1.0, 1.0)).min(),
-                                                  self.p.foot_reach) for b in sils]))
+            rho = float(np.median([rho_from(b, rho) for b in sils]))
         self.d, self.rho = d, rho
         return True
 
@@ -405,6 +414,7 @@ class AgentDetector:
         return self._accept(stamp_ns, self._silhouette(stamp_ns, rgb))
 
     def flush(self) -> list[AgentDetection]:
+        """End of the stream: the detections of all frames still waiting."""
         out = self._start_background() if self._model is None and self._held else []
         if self._model_u8 is not None:
             self.geometry.update(self.p.min_geometry_frames, self._model_u8, final=True)
@@ -564,22 +574,25 @@ class AgentDetector:
         near_top = theta > theta.max() - 4 * p.top_band_px / self.f
         near_bottom = theta < theta.min() + 4 * p.top_band_px / self.f
         head_ok, feet_ok = not at_border[near_top].any(), not at_border[near_bottom].any()
+        # The silhouette's height against rho: it is too short when furniture hides
+        # the head or the feet (which one is unknown) or hair blends in.
+        misfit = abs(_rho_from_feet(top @ d, theta.min(), p.foot_reach) - rho) if head_ok and feet_ok else 0.0
+        if misfit > p.max_height_misfit:
+            return _empty(stamp_ns)
         if head_ok:
             contrast = min(1.0, float(np.median(sil.contrast[near_top])) / p.diff_high)
-            agree = 1.0
-            if feet_ok:
-                # Feet that disagree with rho: hidden feet or a camouflaged head.
-                agree = 1.0 / (1.0 + ((_rho_from_feet(top @ d, theta.min(), p.foot_reach) - rho) / 0.05) ** 2)
+            agree = 1.0 / (1.0 + (misfit / (0.5 * p.max_height_misfit)) ** 2)
             c = sil.confidence * (0.5 + 0.5 * contrast) * (0.5 + 0.5 * agree)
             t_ground = np.arctan((1.0 - rho) * np.tan(np.arccos(np.clip(top @ d, -1.0, 1.0))))
             ids, rays, conf = [HEAD_TOP, GROUND], [top, np.cos(t_ground) * d + np.sin(t_ground) * u], [c, c]
         elif feet_ok:
-            # Head cut off: the lowest sole point, moved out by the mean foot reach.
+            # Head cut off: the lowest sole point, moved out by the mean foot reach
+            # (the gait's foot motion stays in it: about 10 px median error, so less trusted).
             m = b[near_bottom].mean(axis=0)
             u_f = m - (m @ d) * d
             u_f /= np.linalg.norm(u_f)
             t_ground = np.arctan(np.tan(theta.min()) + p.foot_reach * rho)
-            ids, rays, conf = [GROUND], [np.cos(t_ground) * d + np.sin(t_ground) * u_f], [0.5 * sil.confidence]
+            ids, rays, conf = [GROUND], [np.cos(t_ground) * d + np.sin(t_ground) * u_f], [0.3 * sil.confidence]
         else:
             return _empty(stamp_ns)
         uv, in_front = self.camera.project(np.array(rays))
