@@ -2,6 +2,9 @@
 the textured scene is the slow part)."""
 import pytest
 
+from yowo_sim.capture import generate
+from yowo_sim.presets import get_preset
+
 from yowo_common.camera import CameraModel
 from yowo_sim.render import Renderer
 from yowo_sim.scene import SceneSpec, build_scene
@@ -23,3 +26,11 @@ def room():
 @pytest.fixture(scope="session")
 def renderer(room):
     return Renderer(room)
+
+
+@pytest.fixture(scope="session")
+def tiny_bag(tmp_path_factory):
+    """A generated 'tiny' recording (seed 0: a fast turn makes odometry alone drift ~2 cm)."""
+    bag = tmp_path_factory.mktemp("ego") / "tiny"
+    generate(get_preset("tiny", cmc_images=False), 0, bag)
+    return bag

@@ -6,7 +6,9 @@ from scipy.spatial.transform import Rotation
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import look_at, rotation_angle_deg, se3
 from yowo_ego.frames import make_frame
-from yowo_ego.odometry import LOST, KeyframeTracker, downsample, orthonormalize
+from yowo_ego.odometry import (LOST, Keyframe, KeyframeTracker, OdometryEdge, TrackResult, downsample,
+                               orthonormalize)
+from yowo_ego.pipeline import frames_between_keyframes
 
 # Looking across the room at two walls, the floor and a box.
 T_START = look_at((0.8, 0.9, 1.6), (3.5, 3.2, 0.7))
@@ -81,3 +83,21 @@ def test_orthonormalize_keeps_chained_poses_rigid():
         noisy[:3, :3] += rng.normal(0, 1e-6, (3, 3)).astype(np.float32)  # float32-level noise, as Open3D returns
         T = orthonormalize(T @ noisy)
     assert np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-12)
+
+
+def test_frames_between_keyframes_share_the_keyframe_correction():
+    """Keyframe b was tracked 0.1 m / 2 deg off; after optimisation the frames
+    between a and b take the correction in proportion to their time."""
+    step = _motion([0.0, 2.0, 0.0], [0.0, 0.0, 0.5])
+    tracked_b = _motion([0.0, 4.0, 0.0], [0.1, 0.0, 1.0])      # what tracking said
+    true_b = step @ step                                       # what the optimisation found
+    kfs = [Keyframe(i, 2 * i, 2 * i, np.eye(4), None, None, 0) for i in range(2)]
+    results = [TrackResult(0, 0, 0, np.eye(4), np.eye(4), 1.0, "tracked", True),
+               TrackResult(1, 1, 0, step, step, 1.0, "tracked", False),          # midway, tracked right
+               TrackResult(2, 2, 1, np.eye(4), tracked_b, 1.0, "tracked", True)]
+    edges = [OdometryEdge(1, 0, tracked_b, np.eye(6), "odometry")]
+    T = frames_between_keyframes(results, edges, kfs, [np.eye(4), true_b])
+    assert np.allclose(T[2], true_b)
+    delta = true_b @ np.linalg.inv(tracked_b)
+    half = se3((Rotation.from_matrix(delta[:3, :3]) ** 0.5).as_matrix(), 0.5 * delta[:3, 3])
+    assert np.allclose(T[1], half @ step)

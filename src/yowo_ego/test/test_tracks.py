@@ -1,8 +1,12 @@
-"""Epipolar and depth/triangulation consistency filter; multi-view tracks."""
+"""Epipolar and depth/triangulation consistency filter; multi-view tracks; the
+PnP check of tracking edges."""
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from yowo_common.geometry import inv_se3, se3, transform_points
+from yowo_common.geometry import inv_se3, rotation_angle_deg, se3, transform_points
+from yowo_ego.features import KeyframeFeatures, match, relative_pose
+from yowo_ego.odometry import Keyframe, OdometryEdge, RgbdOdometry
+from yowo_ego.posegraph import LoopParams, PairMatches, verify_edge
 from yowo_ego.tracks import build_tracks, filter_matches
 
 K = np.array([[457.0, 0.0, 319.5], [0.0, 457.0, 239.5], [0.0, 0.0, 1.0]])
@@ -82,3 +86,32 @@ def test_tracks_chain_matches_and_drop_conflicts():
     tracks = build_tracks(pairs, [3, 3, 8])
     assert tracks.count == 1                       # the conflicting track is dropped
     assert sorted(zip(tracks.keyframe.tolist(), tracks.feature.tolist())) == [(0, 1), (1, 1), (2, 6)]
+
+
+def test_tracking_edge_is_checked_against_pnp():
+    """A tracking edge 2 deg off (a wrong dense minimum) is replaced by the PnP
+    estimate from the keyframes' matches; a right one is kept."""
+    X = scene(300, seed=3)
+    rng = np.random.default_rng(4)
+    feats = []
+    for T in (T_A, T_B):
+        uv, z = project(T, X)
+        feats.append(KeyframeFeatures(uv + rng.normal(0, 0.3, uv.shape), rng.normal(size=(300, 128)).astype(np.float32),
+                                      z))
+    feats[1].descriptors[:] = feats[0].descriptors                  # every point matches its twin
+    m = match(feats[0], feats[1])
+    assert len(m) == 300
+    pair = PairMatches(0, 1, m, relative_pose(feats[0], feats[1], m, K))
+    blank = np.zeros((240, 320, 3), np.uint8), np.zeros((240, 320), np.uint16)
+    kfs = [Keyframe(i, i, i, np.eye(4), *blank, 0) for i in range(2)]
+    odometry = RgbdOdometry(K)
+    T_true = inv_se3(T_A) @ T_B                                     # T_a_b
+    wrong = T_true @ se3(Rotation.from_euler("x", 2.0, degrees=True).as_matrix(), [0.0, 0.03, 0.0])
+    fixed, replaced = verify_edge(OdometryEdge(1, 0, wrong, np.eye(6), "odometry"), pair, feats, kfs, odometry,
+                                  LoopParams())
+    assert replaced
+    assert np.linalg.norm(fixed.T_target_source[:3, 3] - T_true[:3, 3]) < 0.005
+    assert rotation_angle_deg(fixed.T_target_source[:3, :3], T_true[:3, :3]) < 0.1
+    kept, replaced = verify_edge(OdometryEdge(1, 0, T_true, np.eye(6), "odometry"), pair, feats, kfs, odometry,
+                                 LoopParams())
+    assert not replaced and kept.T_target_source is T_true

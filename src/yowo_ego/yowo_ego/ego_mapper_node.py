@@ -18,6 +18,9 @@ from .frames import FrameError, StampPairer
 from .pipeline import EgoMapper, EgoParams
 
 MAX_EARLY_FRAMES = 30  # frames kept while waiting for the first CameraInfo
+# Online odometry is expressed in the first ego camera's optical frame: gravity and
+# the map frame are only known once the floor has been found at the end of the walk.
+ODOM_FRAME, EGO_FRAME = "odom", "ego_optical_frame"
 
 
 class EgoMapperNode(StageNode):
@@ -60,21 +63,27 @@ class EgoMapperNode(StageNode):
             return
         for stamp, color_msg, depth_msg in pairs:
             try:
-                color = decode_color(color_msg)
-                depth = decode_depth(depth_msg)
-            except ValueError as exc:
-                why = f"undecodable image ({exc})"
-                self.mapper.rejected[why] = self.mapper.rejected.get(why, 0) + 1
-                continue
-            try:
+                color = self._decode(self.color_topic, color_msg, decode_color)
+                depth = self._decode(self.depth_topic, depth_msg, decode_depth)
                 result = self.mapper.add(stamp, color, depth, self.color_topic, self.depth_topic)
-            except FrameError:
-                continue  # counted by the mapper, reported at the end
+            except FrameError as exc:
+                # Counted (reported in the final status); logged the first time it happens.
+                if self.mapper.rejected.get(exc.key, 0) == 1:
+                    self.get_logger().warning(f"{exc}; further frames with this problem are only counted")
+                continue
             self.pub_odom.publish(self._odometry(result))
 
+    def _decode(self, topic: str, msg, decode):
+        try:
+            return decode(msg)
+        except ValueError as exc:
+            error = FrameError(topic, "cannot decode the image", f": {exc}")
+            self.mapper.rejected[error.key] = self.mapper.rejected.get(error.key, 0) + 1
+            raise error from exc
+
     def _odometry(self, result) -> Odometry:
-        msg = Odometry(header=Header(stamp=ns_to_time(result.stamp_ns), frame_id="odom"),
-                       child_frame_id="ego_optical_frame")
+        msg = Odometry(header=Header(stamp=ns_to_time(result.stamp_ns), frame_id=ODOM_FRAME),
+                       child_frame_id=EGO_FRAME)
         msg.pose.pose = matrix_to_pose(result.T_odom_cam)
         return msg
 

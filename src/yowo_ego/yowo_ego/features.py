@@ -115,6 +115,18 @@ def relative_pose(a: KeyframeFeatures, b: KeyframeFeatures, matches: np.ndarray,
     return PnpResult(T, idx[inl])
 
 
+def support(a: KeyframeFeatures, b: KeyframeFeatures, matches: np.ndarray, T_b_a: np.ndarray, K: np.ndarray,
+            px: float = 3.0) -> int:
+    """How many matches (with depth in a) reproject within ``px`` under T_b_a."""
+    if len(matches) == 0:
+        return 0
+    ok = np.isfinite(a.depth[matches[:, 0]])
+    X = backproject(a.uv[matches[ok, 0]], a.depth[matches[ok, 0]], K) @ T_b_a[:3, :3].T + T_b_a[:3, 3]
+    front = X[:, 2] > 1e-6
+    uv = X[:, :2] / np.where(front, X[:, 2], 1.0)[:, None] @ K[:2, :2].T + K[:2, 2]
+    return int(np.sum(front & (np.linalg.norm(uv - b.uv[matches[ok, 1]], axis=1) <= px)))
+
+
 def pose_from_images(gray_src: np.ndarray, depth_src: np.ndarray, gray_tgt: np.ndarray, depth_tgt: np.ndarray,
                      K: np.ndarray, extractor: FeatureExtractor) -> np.ndarray | None:
     """T_target_source of two raw images, or None."""

@@ -10,7 +10,9 @@ one left may be a wall the camera never looked at). A morphological
 closing bridges gaps, enclosed holes (e.g. under furniture) are filled, an
 opening removes thin spurs, and each remaining region becomes a polygon
 (OpenCV contours through the boundary cells' centres, which is where the wall
-points lie on average)."""
+points lie on average). Rooms are assumed rectangular (Manhattan layout): the
+walls cut the region into rooms and a room observed over a good part of its
+bounding box (``room_fill_min``) is completed to that box."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -35,6 +37,8 @@ class LayoutParams:
     wall_from_m: float = 0.3             # points above this height block the inside test
     wall_min_points: int = 2
     enclosing_sides: int = 3             # of the four wall directions, for unobserved floor to count
+    door_gap_m: float = 1.2              # wall pieces this far apart count as one wall (a door)
+    room_fill_min: float = 0.3           # observed fraction of a room's box for rectangle completion
     close_m: float = 0.35
     open_m: float = 0.2
     min_area_m2: float = 1.0
@@ -81,12 +85,12 @@ def wall_orientation(walls: list[LayoutPlane]) -> float:
 
 
 def floor_polygons(points: np.ndarray, top_m: float, params: LayoutParams = LayoutParams(),
-                   orientation_rad: float = 0.0) -> list[np.ndarray]:
+                   orientation_rad: float = 0.0, walls: list[LayoutPlane] = ()) -> list[np.ndarray]:
     """Top-view outline(s) of the space the points occupy between the floor
-    (z = 0) and top_m. Unobserved floor (a head-worn camera rarely sees every
-    corner) counts as inside when walls or furniture were seen beyond it in
-    ``enclosing_sides`` of the four wall directions; the grid is aligned with
-    ``orientation_rad``."""
+    (z = 0) and top_m, on a grid aligned with ``orientation_rad``. Unobserved
+    floor (a head-worn camera rarely sees every corner) counts as inside when
+    walls or furniture were seen beyond it in ``enclosing_sides`` of the four
+    wall directions, and rooms are completed to rectangles (below)."""
     sel = (points[:, 2] > -params.floor_band_m) & (points[:, 2] < top_m)
     c, s = np.cos(orientation_rad), np.sin(orientation_rad)
     R = np.array([[c, s], [-s, c]])                       # world -> grid axes
@@ -101,13 +105,13 @@ def floor_polygons(points: np.ndarray, top_m: float, params: LayoutParams = Layo
     occ = np.zeros((shape[1], shape[0]), np.uint8)
     occ[ij[:, 1], ij[:, 0]] = 255
     tall = points[sel, 2] > params.wall_from_m
-    walls = np.zeros(occ.shape, np.int32)
-    np.add.at(walls, (ij[tall, 1], ij[tall, 0]), 1)
-    walls = walls >= params.wall_min_points
+    blocking = np.zeros(occ.shape, np.int32)
+    np.add.at(blocking, (ij[tall, 1], ij[tall, 0]), 1)
+    blocking = blocking >= params.wall_min_points
     hits = np.zeros(occ.shape, np.uint8)
     for axis in (0, 1):
-        hits += np.maximum.accumulate(walls, axis=axis)
-        hits += np.flip(np.maximum.accumulate(np.flip(walls, axis), axis=axis), axis)
+        hits += np.maximum.accumulate(blocking, axis=axis)
+        hits += np.flip(np.maximum.accumulate(np.flip(blocking, axis), axis=axis), axis)
     occ[hits >= params.enclosing_sides] = 255
     occ = cv2.morphologyEx(occ, cv2.MORPH_CLOSE, _disk(params.close_m, cell))
     # Fill enclosed holes: everything the outside cannot reach.
@@ -116,6 +120,8 @@ def floor_polygons(points: np.ndarray, top_m: float, params: LayoutParams = Layo
     cv2.floodFill(outside, mask, (0, 0), 128)
     occ[outside == 0] = 255
     occ = cv2.morphologyEx(occ, cv2.MORPH_OPEN, _disk(params.open_m, cell))
+    if walls:
+        occ = _complete_rooms(occ, [(w.boundary[:2, :2] @ R.T - origin) / cell for w in walls], params)
     contours, _ = cv2.findContours(occ, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     out = []
     for contour in contours:
@@ -129,6 +135,29 @@ def floor_polygons(points: np.ndarray, top_m: float, params: LayoutParams = Layo
     return out
 
 
+def _complete_rooms(occ: np.ndarray, wall_segments: list[np.ndarray], params: LayoutParams) -> np.ndarray:
+    """Rectangular-room completion (a Manhattan-layout assumption): the walls,
+    lengthened across door-sized gaps, cut the inside region into rooms; a room
+    that fills at least ``room_fill_min`` of its axis-aligned bounding box is
+    taken to be that whole box (the parts of it the camera never saw)."""
+    barrier = np.zeros(occ.shape, np.uint8)
+    reach = params.door_gap_m / 2 / params.cell_m
+    for seg in wall_segments:
+        a, b = seg
+        d = (b - a) / max(np.linalg.norm(b - a), 1e-9)
+        p0, p1 = np.round(a - reach * d).astype(int), np.round(b + reach * d).astype(int)
+        cv2.line(barrier, tuple(int(v) for v in p0), tuple(int(v) for v in p1), 255, 2)
+    rooms = np.where(barrier > 0, 0, occ)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(rooms, connectivity=4)
+    out = occ.copy()
+    min_cells = params.min_area_m2 / params.cell_m**2
+    for k in range(1, n):
+        x, y, w, h, area = stats[k]
+        if area >= min_cells and area >= params.room_fill_min * w * h:
+            out[y:y + h, x:x + w] = 255
+    return out
+
+
 def extract_walls(points: np.ndarray, normals: np.ndarray, params: LayoutParams = LayoutParams()
                   ) -> list[LayoutPlane]:
     """Vertical planes by sequential RANSAC (Open3D ``segment_plane``) on the
@@ -139,6 +168,7 @@ def extract_walls(points: np.ndarray, normals: np.ndarray, params: LayoutParams 
     sin_tilt = np.sin(np.radians(params.wall_max_tilt_deg))
     idx = np.flatnonzero(np.abs(normals[:, 2]) <= sin_tilt)
     walls = []
+    o3d.utility.random.seed(0)          # the same recording gives the same layout
     while len(idx) >= params.wall_min_points_plane and len(walls) < params.max_walls:
         cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[idx]))
         plane, inliers = cloud.segment_plane(params.wall_ransac_m, 3, 200)
@@ -190,7 +220,7 @@ def build_layout(points: np.ndarray, sampled: np.ndarray, normals: np.ndarray, p
                                   ceiling.num_points))
     top = ceiling_height - params.below_ceiling_m if ceiling is not None else params.default_top_m
     walls = [q for q in planes if q.kind == KIND_WALL]
-    polygons = floor_polygons(points, top, params, wall_orientation(walls))
+    polygons = floor_polygons(points, top, params, wall_orientation(walls), walls)
     floor_support = int(np.sum((np.abs(sampled[:, 2]) < 0.05) & (normals[:, 2] > cos_h)))
     for poly in polygons:
         planes.append(LayoutPlane(KIND_FLOOR, np.array([0.0, 0.0, 1.0, 0.0]),

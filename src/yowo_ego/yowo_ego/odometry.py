@@ -2,20 +2,24 @@
 RGB-D odometry of every frame against the current keyframe, checked, with
 fall-backs, and keyframe selection.
 
-Tracking is frame-to-keyframe (Open3D's tensor ``rgbd_odometry_multi_scale``,
-Hybrid = point-to-plane depth term + photometric term; the depth term alone
-cannot see sliding along a flat wall). Every result is checked, because Open3D
-reports convergence even when it diverged: overlap (fitness), inlier RMSE and a
-plausible motion since the previous frame. A failed attempt is retried from the
-zero-motion guess, then against the previous frame (which becomes a keyframe),
-then from a feature-based guess (SIFT + depth + PnP RANSAC), which survives
-rotations of tens of degrees between frames. When all fail, the frame starts a
-new segment (a "break"): its pose is the constant-velocity prediction and the
-pose graph later only connects it through loop closures, or a weak edge.
+Tracking is frame-to-keyframe with Open3D's tensor ``rgbd_odometry_multi_scale``
+at half resolution. Hybrid (point-to-plane depth term + photometric term) is
+tried first: the depth term alone cannot see sliding along a flat wall. Open3D
+reports convergence even when it settled in a wrong minimum, so every result is
+checked: overlap (fitness), inlier RMSE and a plausible motion since the
+previous frame. A rejected attempt is retried with point-to-plane first (wider
+basin), then from the zero-motion instead of the constant-velocity guess, then
+against the previous frame (which becomes a keyframe), then from a feature guess
+(SIFT + depth + PnP RANSAC), which survives head turns of 40 deg between
+frames and stands on its own where dense odometry cannot refine it. An accepted result is polished by a few point-to-plane iterations
+(removes the photometric term's mm-level bias where geometry allows). When all
+fails the frame starts a new segment (a "break"), joined to the last by a weak
+edge that loop closures may override. IMU input is not used yet: a gyro
+rotation would enter as one more initial guess in ``_attempts``.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -300,12 +304,18 @@ class KeyframeTracker:
         if best is None:
             guess = pose_from_images(level.full_gray, level.full_depth, prev.full_gray, prev.full_depth,
                                      self.odometry.K_full, self._features)
-            if guess is not None:
+            if guess is not None and self._plausible(guess, dt_s):
+                status = RECOVERED
                 for cascade in p.cascades:
                     T, fit, rmse = self.odometry.register(level.rgbd, self._kf.rgbd, guess, cascade)
                     if fit >= p.min_fitness and rmse <= p.max_inlier_rmse and self._plausible(T, dt_s):
-                        best, status = (T, fit), RECOVERED
+                        best = (T, fit)
                         break
+                else:
+                    # Dense odometry cannot refine it (degenerate geometry: a corner of two
+                    # walls); the feature pose stands, as a keyframe (fitness 0) whose edge
+                    # the multiway registration checks again.
+                    best = (guess, 0.0)
         if best is None:
             # Break: a new keyframe and segment, joined to the last by a weak edge
             # from the least bad attempt (or the constant-velocity prediction);

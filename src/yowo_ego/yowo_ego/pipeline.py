@@ -20,19 +20,23 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from yowo_common.camera import CameraModel
-from yowo_common.geometry import transform_points
+from yowo_common.geometry import inv_se3, se3, transform_points
 
 from .features import FeatureExtractor, FeatureParams, KeyframeFeatures, backproject
 from .frames import FrameError, Undistorter, make_frame, pinhole
-from .layout import Layout, LayoutParams, build_layout
-from .odometry import KeyframeTracker, OdometryParams, TrackResult
+from .layout import KIND_WALL, Layout, LayoutParams, build_layout
+from .odometry import Keyframe, KeyframeTracker, OdometryEdge, OdometryParams, TrackResult
 from .posegraph import LoopParams, multiway_registration
 from .refine import BundleParams, bundle_adjust
 from .scene import (CloudParams, Rectification, find_floor, fuse_cloud, planar_patches, rectify,
                     up_from_cameras)
 from .tracks import FilterParams, build_tracks, filter_matches
+
+
+MIN_TRACKS = 10        # fewer feature tracks than this: no bundle adjustment
 
 
 @dataclass(frozen=True)
@@ -152,43 +156,11 @@ class EgoMapper:
                      loops_verified=mw.loops_verified, loops_kept=mw.loops_kept)
         T_kf = mw.T_odom_kf
 
-        T_bundle = T_kf
-        landmarks = np.zeros((0, 3))
-        descriptors = np.zeros((0, 128), np.uint8)
-        obs_kf = obs_lm = np.zeros(0, int)
-        obs_uv = np.zeros((0, 2))
+        T_bundle, scene_map = T_kf, _SceneMap.empty()
         if p.bundle_adjustment:
             t0 = time.perf_counter()
-            accepted, n_matches, n_epi, n_depth = [], 0, 0, 0
-            for pair in mw.pairs:
-                fa, fb = features[pair.a], features[pair.b]
-                m = pair.matches
-                res = filter_matches(fa.uv[m[:, 0]], fb.uv[m[:, 1]], fa.depth[m[:, 0]], fb.depth[m[:, 1]],
-                                     T_kf[pair.a], T_kf[pair.b], K, p.filter)
-                accepted.append((pair.a, pair.b, m[res.keep]))
-                n_matches += len(m)
-                n_epi += res.epipolar_rejected
-                n_depth += res.depth_rejected
-            tracks = build_tracks(accepted, [len(f) for f in features])
-            stats.update(matches=n_matches, epipolar_rejected=n_epi, depth_rejected=n_depth, tracks=tracks.count)
-            if tracks.count >= 10:
-                ba = bundle_adjust(tracks, features, T_kf, self.ideal, p.bundle)
-                T_bundle = ba.T_world_kf
-                # Landmarks that kept at least two observations after outlier removal.
-                counts = np.bincount(ba.obs.point, minlength=len(ba.landmarks))
-                keep = counts >= 2
-                remap = np.cumsum(keep) - 1
-                sel = keep[ba.obs.point]
-                landmarks = ba.landmarks[keep]
-                descriptors = np.clip(np.round(ba.descriptors[keep]), 0, 255).astype(np.uint8)
-                obs_kf, obs_lm = ba.obs.camera[sel], remap[ba.obs.point[sel]]
-                obs_uv = ba.obs.uv[sel]
-                stats.update(bundle_s=time.perf_counter() - t0, landmarks=len(landmarks), observations=len(obs_kf),
-                             bundle_rmse_px=ba.rmse_px, bundle_sigma_px=ba.sigma_px, bundle_dropped=ba.dropped,
-                             bundle_iterations=ba.iterations)
-            else:
-                warnings.append(f"only {tracks.count} feature tracks survived the filters; bundle adjustment "
-                                "skipped")
+            T_bundle, scene_map = self._refine(mw, features, T_kf, stats, warnings)
+            stats["bundle_s"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
         points, colors = fuse_cloud(keyframes, T_bundle, tr.odometry.K, p.cloud)
@@ -208,7 +180,7 @@ class EgoMapper:
                      floor_points=support, camera_height_m=rect.camera_height_m)
 
         def frame_poses(T_keyframes: list[np.ndarray]) -> np.ndarray:
-            return np.array([W @ T_keyframes[r.keyframe] @ r.T_kf_cam for r in tr.results])
+            return W @ frames_between_keyframes(tr.results, tr.edges, keyframes, T_keyframes)
 
         trajectories = {"odometry": frame_poses(T_odometry), "multiway": frame_poses(T_kf)}
         if p.bundle_adjustment:
@@ -218,15 +190,88 @@ class EgoMapper:
         t0 = time.perf_counter()
         layout = build_layout(points_w, transform_points(W, small), small_normals @ W[:3, :3].T,
                               [q.transformed(W) for q in patches], transform_points(W, cams), p.layout)
-        stats.update(layout_s=time.perf_counter() - t0, walls=sum(q.kind == 2 for q in layout.planes),
+        stats.update(layout_s=time.perf_counter() - t0, walls=sum(q.kind == KIND_WALL for q in layout.planes),
                      ceiling_height_m=layout.ceiling_height, finish_cpu_s=time.thread_time() - c_finish)
+        m = scene_map
         # Observations back to raw pixels for other stages.
-        raw_uv = self.camera.project(backproject(obs_uv, np.ones(len(obs_uv)), K))[0] if len(obs_uv) else obs_uv
+        raw_uv = self.camera.project(backproject(m.obs_uv, np.ones(len(m.obs_uv)), K))[0] if len(m.obs_uv) \
+            else m.obs_uv
         return EgoMapResult(
             self.camera, np.array([r.stamp_ns for r in tr.results], dtype=np.int64), final,
             np.array([k.frame_index for k in keyframes], dtype=int), np.array([W @ T for T in T_bundle]),
-            transform_points(W, landmarks) if len(landmarks) else landmarks, descriptors, obs_kf, obs_lm, raw_uv,
-            points_w, colors, layout, rect, trajectories, stats, warnings)
+            transform_points(W, m.landmarks) if len(m.landmarks) else m.landmarks, m.descriptors, m.obs_keyframe,
+            m.obs_landmark, raw_uv, points_w, colors, layout, rect, trajectories, stats, warnings)
+
+    def _refine(self, mw, features: list[KeyframeFeatures], T_kf: list[np.ndarray], stats: dict,
+                warnings: list[str]) -> tuple[list[np.ndarray], "_SceneMap"]:
+        """Visual refinement: filtered matches of every registered keyframe pair ->
+        tracks -> bundle adjustment. Returns the refined keyframe poses and the map."""
+        p, K = self.params, self.ideal.K
+        accepted, n_matches, n_epi, n_depth = [], 0, 0, 0
+        for pair in mw.pairs:
+            fa, fb = features[pair.a], features[pair.b]
+            m = pair.matches
+            res = filter_matches(fa.uv[m[:, 0]], fb.uv[m[:, 1]], fa.depth[m[:, 0]], fb.depth[m[:, 1]],
+                                 T_kf[pair.a], T_kf[pair.b], K, p.filter)
+            accepted.append((pair.a, pair.b, m[res.keep]))
+            n_matches += len(m)
+            n_epi += res.epipolar_rejected
+            n_depth += res.depth_rejected
+        tracks = build_tracks(accepted, [len(f) for f in features])
+        stats.update(matches=n_matches, epipolar_rejected=n_epi, depth_rejected=n_depth, tracks=tracks.count)
+        if tracks.count < MIN_TRACKS:
+            warnings.append(f"only {tracks.count} feature tracks survived the filters; bundle adjustment skipped")
+            return T_kf, _SceneMap.empty()
+        ba = bundle_adjust(tracks, features, T_kf, self.ideal, p.bundle)
+        # Landmarks that kept at least two observations after outlier removal.
+        counts = np.bincount(ba.obs.point, minlength=len(ba.landmarks))
+        keep = counts >= 2
+        remap = np.cumsum(keep) - 1
+        sel = keep[ba.obs.point]
+        stats.update(landmarks=int(keep.sum()), observations=int(sel.sum()), bundle_rmse_px=ba.rmse_px,
+                     bundle_sigma_px=ba.sigma_px, bundle_dropped=ba.dropped, bundle_iterations=ba.iterations)
+        return ba.T_world_kf, _SceneMap(ba.landmarks[keep], np.clip(np.round(ba.descriptors[keep]), 0, 255)
+                                        .astype(np.uint8), ba.obs.camera[sel], remap[ba.obs.point[sel]],
+                                        ba.obs.uv[sel])
+
+
+@dataclass
+class _SceneMap:
+    """Landmarks (odometry frame) with descriptors and undistorted observations."""
+
+    landmarks: np.ndarray
+    descriptors: np.ndarray
+    obs_keyframe: np.ndarray
+    obs_landmark: np.ndarray
+    obs_uv: np.ndarray
+
+    @staticmethod
+    def empty() -> "_SceneMap":
+        return _SceneMap(np.zeros((0, 3)), np.zeros((0, 128), np.uint8), np.zeros(0, int), np.zeros(0, int),
+                         np.zeros((0, 2)))
+
+
+def frames_between_keyframes(results: list[TrackResult], edges: list[OdometryEdge], keyframes: list[Keyframe],
+                             T_keyframes: list[np.ndarray]) -> np.ndarray:
+    """Every frame's pose from its keyframe's (optimised) pose and its tracked
+    offset. Tracking and the optimised keyframes disagree about the next
+    keyframe by a correction; frames between two keyframes take that correction
+    in proportion to their time (the drift accumulated along the way), so a
+    corrected edge does not leave the frames before it behind."""
+    tracked = {e.target: e.T_target_source for e in edges if e.source == e.target + 1}
+    stamps = np.array([k.stamp_ns for k in keyframes], dtype=np.int64)
+    out = np.empty((len(results), 4, 4))
+    for i, r in enumerate(results):
+        a = r.keyframe
+        T = r.T_kf_cam
+        if a + 1 < len(keyframes) and a in tracked and stamps[a] < r.stamp_ns < stamps[a + 1]:
+            final = inv_se3(T_keyframes[a]) @ T_keyframes[a + 1]
+            delta = final @ inv_se3(tracked[a])
+            alpha = (r.stamp_ns - stamps[a]) / (stamps[a + 1] - stamps[a])
+            partial = se3((Rotation.from_matrix(delta[:3, :3]) ** alpha).as_matrix(), alpha * delta[:3, 3])
+            T = partial @ T
+        out[i] = T_keyframes[a] @ T
+    return out
 
 
 def map_recording(frames: Iterable[tuple[int, np.ndarray, np.ndarray]], camera: CameraModel,

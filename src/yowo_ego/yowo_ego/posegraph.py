@@ -1,8 +1,18 @@
 """Multiway registration of the keyframes (paper: ICP with multiway
-registration [Choi et al. 2015]): loop-closure candidates between
-non-consecutive keyframes, verified by SIFT matches + PnP RANSAC and refined by
-dense RGB-D odometry, then Open3D's global pose-graph optimisation (line
-process: wrong loop closures are pruned)."""
+registration [Choi et al. 2015]), as an Open3D pose graph:
+
+- odometry edges between consecutive keyframes, each checked against the two
+  keyframes' SIFT matches + PnP RANSAC: dense odometry can settle in a wrong
+  minimum that still fits well, PnP on SIFT is independent of it and
+  millimetre-accurate on these images; an edge that disagrees is replaced
+  (dense odometry restarted from PnP, or PnP itself); keyframes with too few
+  common features are checked across a neighbour (PnP over two edges);
+- loop-closure edges between non-consecutive keyframes that the (corrected)
+  odometry places close together and looking the same way, verified by SIFT +
+  PnP RANSAC (the PnP estimate is the edge; Choi et al. refine every loop
+  densely, which costs more than it adds here);
+- Open3D's global optimisation (Levenberg-Marquardt with a line process on the
+  loop edges, which prunes the ones inconsistent with the rest)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -12,7 +22,7 @@ import open3d as o3d
 
 from yowo_common.geometry import inv_se3, rotation_angle_deg
 
-from .features import FeatureParams, KeyframeFeatures, PnpResult, match, relative_pose
+from .features import FeatureParams, KeyframeFeatures, PnpResult, match, relative_pose, support
 from .odometry import Keyframe, OdometryEdge, RgbdOdometry, o3d_rgbd, orthonormalize
 
 reg = o3d.pipelines.registration
@@ -26,10 +36,17 @@ class LoopParams:
     max_per_keyframe: int = 2            # nearest candidates verified per keyframe
     break_window: int = 4                # keyframes either side of a tracking break, all pairs tried
     features: FeatureParams = FeatureParams()
-    # A tracking edge and the PnP estimate agree within these bounds (else the
-    # edge is replaced); so must a dense refinement started from PnP.
-    agree_m: float = 0.05
-    agree_deg: float = 2.0
+    # A tracking edge and the PnP estimate agree within these bounds; so must a
+    # dense refinement started from PnP. PnP on SIFT is accurate to a few mm /
+    # 0.1 deg here, while wrong dense minima are off by 0.3-4 deg.
+    agree_m: float = 0.01
+    agree_deg: float = 0.25
+    # When they disagree, the tracking edge stays if the SIFT matches support it
+    # almost as well as the PnP estimate (PnP may be the ambiguous one).
+    keep_support_ratio: float = 0.7
+    # A pair whose matches are too few for the default check is retried with
+    # looser matching (the support comparison still guards the result).
+    retry_features: FeatureParams = FeatureParams(ratio=0.9, pnp_min_inliers=15)
     # Open3D global optimisation.
     max_correspondence_distance_m: float = 0.05
     edge_prune_threshold: float = 0.25
@@ -110,24 +127,69 @@ def dense_edge(pair: PairMatches, kf_a: Keyframe, kf_b: Keyframe, odometry: Rgbd
     return None
 
 
-def verify_edge(edge: OdometryEdge, pair: PairMatches, keyframes: list[Keyframe], odometry: RgbdOdometry,
-                params: LoopParams) -> tuple[OdometryEdge, bool]:
+def verify_edge(edge: OdometryEdge, pair: PairMatches, features: list[KeyframeFeatures], keyframes: list[Keyframe],
+                odometry: RgbdOdometry, params: LoopParams) -> tuple[OdometryEdge, bool]:
     """Check a tracking edge against the keyframes' SIFT + PnP estimate. Dense
-    odometry can settle in a wrong minimum that still fits well (a single wall:
-    rotation and translation trade off), so an edge that disagrees is replaced
-    by the dense result started from PnP, or by the PnP estimate itself.
-    Returns the edge to use and whether it was replaced."""
-    if pair.pnp is None:
+    odometry can settle in a wrong minimum that still fits well (along a wall,
+    rotation and translation trade off), so an edge that disagrees with PnP
+    and is clearly less supported by the matches is replaced: by the dense
+    result restarted from PnP if that agrees with PnP, else by PnP itself.
+    A PnP estimate from the looser retry matching must be confirmed by the
+    dense restart, unless the edge is a tracking break's guess. Returns the
+    edge to use and whether it was replaced."""
+    fa, fb = features[pair.a], features[pair.b]
+    K = odometry.K_full
+    matches, pnp, loose = pair.matches, pair.pnp, False
+    if pnp is None:
+        matches, loose = match(fa, fb, params.retry_features.ratio), True
+        pnp = relative_pose(fa, fb, matches, K, params.retry_features)
+    if pnp is None:
         return edge, False
-    T_pnp = inv_se3(pair.pnp.T_b_a)
-    if edge.kind == "odometry" and _agree(edge.T_target_source, T_pnp, params):
+    T_pnp = inv_se3(pnp.T_b_a)
+    if edge.kind == "odometry" and (
+            _agree(edge.T_target_source, T_pnp, params)
+            or support(fa, fb, matches, inv_se3(edge.T_target_source), K)
+            >= params.keep_support_ratio * support(fa, fb, matches, pnp.T_b_a, K)):
         return edge, False
     kf_a, kf_b = keyframes[pair.a], keyframes[pair.b]
-    fixed = dense_edge(pair, kf_a, kf_b, odometry, params)
-    if fixed is None:
+    fixed = dense_edge(PairMatches(pair.a, pair.b, matches, pnp), kf_a, kf_b, odometry, params)
+    if fixed is None and (not loose or edge.kind == "break"):   # a break edge is only a guess anyway
         fixed = OdometryEdge(kf_b.index, kf_a.index, T_pnp,
                              odometry.information(kf_b.depth_mm, kf_a.depth_mm, T_pnp), "odometry")
-    return fixed, True
+    return (edge, False) if fixed is None else (fixed, True)
+
+
+def _verify_across(edges: list[OdometryEdge], checked: list[bool], pairs: list[PairMatches],
+                   features: list[KeyframeFeatures], keyframes: list[Keyframe], odometry: RgbdOdometry,
+                   params: LoopParams) -> int:
+    """Edges a -> a+1 whose keyframes share too few matches to be checked are
+    checked across a neighbour instead: PnP between a-1 and a+1 (or a and a+2)
+    combined with the neighbour's checked edge implies the edge. Returns how
+    many edges were replaced (in place); the extra pairs join ``pairs``."""
+    K = odometry.K_full
+    n, replaced = len(edges), 0
+    step = {e.target: i for i, e in enumerate(edges) if e.source == e.target + 1}
+    for i, e in enumerate(edges):
+        a, b = e.target, e.source
+        if checked[i] or b != a + 1:
+            continue
+        for lo, hi, via in ((a - 1, b, step.get(a - 1)), (a, b + 1, step.get(b))):
+            if lo < 0 or hi >= len(keyframes) or via is None or not checked[via]:
+                continue
+            pair = match_pair(features[lo], features[hi], lo, hi, K, params.features)
+            if pair.pnp is None:
+                continue
+            pairs.append(pair)
+            T_lo_hi = inv_se3(pair.pnp.T_b_a)
+            T_via = edges[via].T_target_source
+            implied = inv_se3(T_via) @ T_lo_hi if lo == a - 1 else T_lo_hi @ inv_se3(T_via)
+            if not _agree(e.T_target_source, implied, params):
+                edges[i] = OdometryEdge(b, a, implied, odometry.information(keyframes[b].depth_mm,
+                                                                             keyframes[a].depth_mm, implied),
+                                        "odometry")
+                replaced += 1
+            break
+    return replaced
 
 
 def chain_poses(n: int, edges: list[OdometryEdge]) -> list[np.ndarray]:
@@ -164,14 +226,16 @@ def multiway_registration(keyframes: list[Keyframe], features: list[KeyframeFeat
                           odometry_edges: list[OdometryEdge], odometry: RgbdOdometry,
                           params: LoopParams = LoopParams()) -> MultiwayResult:
     K = odometry.K_full
-    pairs, edges, corrected = [], [], 0
+    pairs, edges, checked, corrected = [], [], [], 0
     for e in odometry_edges:
         a, b = e.target, e.source
         pair = match_pair(features[a], features[b], a, b, K, params.features)
         pairs.append(pair)
-        e, replaced = verify_edge(e, pair, keyframes, odometry, params)
+        e, replaced = verify_edge(e, pair, features, keyframes, odometry, params)
         edges.append(e)
+        checked.append(pair.pnp is not None)
         corrected += replaced
+    corrected += _verify_across(edges, checked, pairs, features, keyframes, odometry, params)
     # Re-initialise the nodes along the verified chain (tracking built on the old edges).
     T_init = chain_poses(len(keyframes), edges)
     nodes = [Keyframe(k.index, k.frame_index, k.stamp_ns, T, k.color, k.depth_mm, k.segment)

@@ -3,12 +3,14 @@
 plane and the vertical rectification R_rect (paper eq. rot_gp2w).
 
 Ground plane: the paper takes the plane with the most points. That can be a
-large wall, so here the ground is the plane with the most points among the
-patches that are horizontal-ish (within ``floor_max_tilt_deg`` of the up
-direction the head-mounted camera suggests: the mean of the keyframes' image-up
-axes) and lie below the camera centres; its normal is then re-fitted to every
-cloud point near it (all rooms share one floor). Patch normals have no
-consistent sign, so they are oriented towards the cameras.
+large wall, and the patch detector splits the floor into many pieces, so here:
+the direction is the normal of the largest patch within ``floor_max_tilt_deg``
+of the up direction a head-worn camera suggests (the mean of the keyframes'
+image-up axes); the floor is the most populated height level, below the
+cameras, of the cloud points facing that way; its plane is then re-fitted to
+all of those points (every room shares one floor). Patch normals have no
+consistent sign, so they are oriented like the points' own normals, which face
+the nearest camera.
 
 World frame (REP 103, z up): R_rect turns the floor normal onto +z; the origin
 is the first ego camera centre projected onto the floor, so the floor is z = 0;
@@ -47,7 +49,7 @@ class CloudParams:
 
 @dataclass
 class PlanarPatch:
-    normal: np.ndarray                   # unit, oriented towards the cameras
+    normal: np.ndarray                   # unit, facing the side the cameras saw
     center: np.ndarray
     d: float                             # n . p + d = 0
     corners: np.ndarray                  # (4, 3) patch rectangle

@@ -23,7 +23,7 @@ from scipy.sparse.csgraph import connected_components
 
 from yowo_common.geometry import inv_se3, skew, transform_points
 
-from .features import KeyframeFeatures, backproject
+from .features import backproject
 
 
 @dataclass(frozen=True)

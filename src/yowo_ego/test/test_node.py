@@ -1,0 +1,48 @@
+"""ego_mapper_node wiring: the recording's ego messages handed to the node's
+callbacks (no DDS needed), then the end-of-stream outputs."""
+import pytest
+import rclpy
+from sensor_msgs.msg import CameraInfo, CompressedImage
+
+from yowo_common.ros.bag import read_messages
+from yowo_common.rosconv import stamp_to_ns
+from yowo_ego.ego_mapper_node import EgoMapperNode
+from yowo_ego.recording import COLOR_TOPICS, DEPTH_TOPICS, INFO_TOPIC
+
+
+@pytest.fixture
+def node():
+    rclpy.init()
+    n = EgoMapperNode()
+    n.published.clear()
+    yield n
+    n.destroy_node()
+    rclpy.try_shutdown()
+
+
+def test_node_streams_odometry_and_publishes_the_map(node, tiny_bag):
+    frames = 0
+    for topic, _, msg in read_messages(tiny_bag, [COLOR_TOPICS[1], DEPTH_TOPICS[1], INFO_TOPIC]):
+        if frames == 45:                   # the first 3 s are enough for the wiring
+            break
+        if topic == INFO_TOPIC:
+            node.on_info(msg)
+        elif topic == COLOR_TOPICS[1]:
+            node.on_pairs(node.pairer.add_color(stamp_to_ns(msg.header.stamp), msg))
+            frames += 1
+        else:
+            node.on_pairs(node.pairer.add_depth(stamp_to_ns(msg.header.stamp), msg))
+    assert node.published["/yowo/ego/odometry"] >= frames - 1     # online, one per frame (the last
+    # colour image may still wait for its depth)
+    # A corrupt image is reported against its topic and skipped, the stream goes on.
+    node.on_pairs([(10**19, CompressedImage(format="jpeg", data=b"broken"), CompressedImage(data=b"x"))])
+    summary = node.finalize()
+    for topic in ("/yowo/ego/map", "/yowo/ego/path", "/yowo/map/points", "/yowo/layout"):
+        assert node.published[topic] == 1
+    assert "1 frame(s) rejected: /ego/color/image_raw/compressed: cannot decode the image" in summary
+
+
+def test_node_without_usable_camera_info_fails_with_the_reason(node):
+    node.on_info(CameraInfo(width=640, height=480))                 # K = 0
+    with pytest.raises(ValueError, match="/ego/color/camera_info: .*focal"):
+        node.finalize()
