@@ -1,0 +1,61 @@
+from dataclasses import replace
+
+from yowo_bringup.evaluation import relative_pose_errors
+from yowo_cmc.group_sfm import SfmParams
+from yowo_cmc.omecc_style import OmeccParams, calibrate_groups_omecc
+from yowo_cmc.tracks import TrackParams
+
+from cmc_synthetic import HEIGHT, ceiling_camera, loop_walk, observe
+from test_group_sfm import three_camera_rig
+
+EXACT = OmeccParams(sfm=SfmParams(tracks=TrackParams(window_s=0.0, gate_px=1e9)))
+
+
+def relative_errors(group, cams):
+    gt = {n: cams[n][1] for n in group.T_local_cam}
+    errs, align = relative_pose_errors(group.T_local_cam, gt, {"g": list(gt)})
+    return max(e.eps_pos_m for e in errs), max(e.eps_rot_deg for e in errs), align["g"].s
+
+
+def test_noise_free_rig_exact_up_to_scale_and_metric_from_height():
+    cams = three_camera_rig()
+    tracks = observe(cams, loop_walk((3.0, 2.5), (2.0, 1.5)), 20.0)
+    result = calibrate_groups_omecc(tracks, replace(EXACT, person_height_m=HEIGHT))
+    assert result.ungrouped == {}
+    (group,) = result.groups
+    assert sorted(group.names) == ["a", "b", "c"]
+    assert group.T_local_cam[group.reference] is not None
+    pos, rot, scale = relative_errors(group, cams)
+    assert pos < 1e-4 and rot < 1e-3
+    assert abs(scale - 1.0) < 1e-3          # the right height gives the right metric scale
+    assert max(group.rmse_px.values()) < 1e-3
+
+
+def test_scale_follows_the_height_prior():
+    """The method knows an average height (1.70 m), the agent is 1.75 m: the map comes
+    out 1.70 / 1.75 the true size, which is the only source of scale."""
+    cams = three_camera_rig()
+    tracks = observe(cams, loop_walk((3.0, 2.5), (2.0, 1.5)), 20.0)
+    (group,) = calibrate_groups_omecc(tracks, EXACT).groups
+    pos, rot, scale = relative_errors(group, cams)
+    assert pos < 1e-4 and rot < 1e-3
+    assert abs(1.0 / scale - 1.70 / HEIGHT) < 2e-3
+
+
+def test_noisy_distorted_unequal_rates():
+    cams = three_camera_rig(D=[-0.2, 0.04, 0, 0, 0])
+    tracks = observe(cams, loop_walk((3.0, 2.5), (2.0, 1.5)), 40.0, rate_hz={"a": 10.0, "b": 15.0, "c": 7.5},
+                     offsets_s=[0.0, 0.031, 0.057], sigma_px=1.0, seed=3)
+    (group,) = calibrate_groups_omecc(tracks, OmeccParams(person_height_m=HEIGHT)).groups
+    pos, rot, scale = relative_errors(group, cams)
+    assert pos < 0.01 and rot < 0.2
+    assert abs(scale - 1.0) < 0.01
+    assert max(group.rmse_px.values()) < 2.0
+
+
+def test_isolated_camera_reported():
+    cams = three_camera_rig()
+    cams["blind"] = ceiling_camera(30.0, 30.0, (35.0, 35.0))
+    result = calibrate_groups_omecc(observe(cams, loop_walk((3.0, 2.5), (2.0, 1.5)), 20.0, sigma_px=0.5))
+    assert sorted(result.groups[0].names) == ["a", "b", "c"]
+    assert result.ungrouped["blind"].startswith("seen in 0 frames")
