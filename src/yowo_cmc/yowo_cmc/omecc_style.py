@@ -10,10 +10,11 @@ so only the calibration of each group differs:
 
 1. Rough initialisation (OMECC itself starts from rough manual poses; we have none, so
    we build what such a system could get without markers): the 5-point essential matrix
-   of every camera pair of the group (``IncrementalSfm.initialise``), each pair's
-   arbitrary scale fixed by the median head-top to ground distance of its triangulated
-   agent = the prior height, then the relative poses chained along the maximum spanning
-   tree of the pairs (weight = inliers).
+   of every camera pair of the group (``IncrementalSfm.initialise``); rotations chained
+   along the maximum spanning tree of the pairs (weight = inliers), camera centres by
+   linear translation averaging of the pairs' baseline directions, pairs that disagree
+   with the rest dropped; the agent triangulated with these poses and everything scaled
+   so that the median head-top to ground distance = the prior height.
 2. Factor graph (GTSAM built-in factors only): a Pose3 per camera (the root camera
    fixed), a Point3 per (grid time, keypoint id) seen by two or more cameras,
    Huber-robust ``GenericProjectionFactorCal3_S2`` per observation, and a
@@ -36,6 +37,7 @@ from gtsam.symbol_shorthand import L, X
 
 from yowo_common.bundle import FIXED_SIGMA, Observations, add_projection_factors, optimize, pose3, \
     reprojection_residuals, robust_sigma
+from yowo_common.geometry import inv_se3, rotation_angle_deg, se3, skew
 
 from .group_sfm import MAX_IDS, CameraGroupResult, GridObservations, GroupingResult, IncrementalSfm, PairGeometry, \
     SfmParams, group_cameras, pair_geometry, sample_on_grid, triangulate
@@ -51,7 +53,9 @@ class OmeccParams:
     person_height_sigma_m: float = 0.10
     sigma_px: float = 1.5                # projection factor noise (Huber inlier scale)
     huber_k: float = 1.345
-    min_height_pairs: int = 5            # head/ground instants a pair needs to get a scale
+    min_height_pairs: int = 5            # head/ground instants a group needs to get a scale
+    max_rotation_disagreement_deg: float = 15.0  # pair rotation vs the spanning tree's
+    max_direction_disagreement_deg: float = 20.0  # pair baseline direction vs the averaged centres
     max_iterations: int = 200
     sfm: SfmParams = field(default_factory=SfmParams)
 
@@ -66,49 +70,87 @@ def head_ground_pairs(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return heads[ok], grounds[ok]
 
 
-def scaled_pair_pose(obs: GridObservations, pair: PairGeometry, params: OmeccParams) -> np.ndarray | None:
-    """T_a_b of a camera pair from its essential matrix, in metres by the height prior;
-    None when the decomposition triangulates too little of the agent."""
+def pair_pose(obs: GridObservations, pair: PairGeometry, params: OmeccParams) -> np.ndarray | None:
+    """T_a_b (unit baseline) of a camera pair from its essential matrix; None when the
+    decomposition triangulates too little of the agent (a wrong solution)."""
     sfm = IncrementalSfm(obs, [pair.a, pair.b], params.sfm)
     sfm.initialise(pair)
     if len(sfm.points) < params.sfm.min_init_fraction * pair.num_inliers:
         return None
-    heads, grounds = head_ground_pairs(np.fromiter(sfm.points, dtype=np.int64))
-    if len(heads) < params.min_height_pairs:
-        return None
-    lengths = np.linalg.norm(np.array([sfm.points[h] - sfm.points[g] for h, g in zip(heads, grounds)]), axis=1)
-    T = sfm.poses[pair.b].copy()
-    T[:3, 3] *= params.person_height_m / np.median(lengths)
-    return T
+    return sfm.poses[pair.b]
 
 
 def initial_poses(obs: GridObservations, members: list[int], pairs: list[PairGeometry], params: OmeccParams
                   ) -> tuple[int | None, dict[int, np.ndarray], dict[int, str]]:
-    """Root camera and T_root_cam of every member reachable over pairs with a usable
-    scaled essential matrix (maximum spanning tree by inliers)."""
+    """Root camera and T_root_cam (arbitrary scale) of the members reachable over pairs
+    with a usable essential matrix: rotations chained along the maximum spanning tree of
+    the pairs (weight = inliers), centres by linear translation averaging of every pair's
+    baseline direction (each pair's E has its own unknown scale, so the directions are
+    averaged, not chained)."""
     G = nx.Graph()
     G.add_nodes_from(members)
     relative = {}
     for p in pairs:
         if p.a in members and p.b in members and p.F is not None and p.num_inliers >= params.sfm.min_matches:
-            T = scaled_pair_pose(obs, p, params)
+            T = pair_pose(obs, p, params)
             if T is not None:
-                relative[(p.a, p.b)] = T
-                relative[(p.b, p.a)] = np.linalg.inv(T)
+                relative[(p.a, p.b)], relative[(p.b, p.a)] = T, inv_se3(T)
                 G.add_edge(p.a, p.b, weight=p.num_inliers)
-    tree = nx.maximum_spanning_tree(G)
-    largest = max(nx.connected_components(tree), key=len)
-    if len(largest) < 2:
-        return None, {}, {c: "no camera pair of its group gives a usable essential matrix and height scale"
-                          for c in members}
+    # The agent's points lie near two planes, where some pairs' E is far off: drop the pairs
+    # that disagree with the rest (rotation against the tree's, direction against the
+    # averaged centres), worst first, until every remaining pair agrees.
+    while True:
+        root, R, centre, bad = _average(G, members, relative, params)
+        if root is None or bad is None:
+            break
+        G.remove_edge(*bad)
+    failed = {c: "no usable, consistent essential matrices to two cameras of its group" for c in members
+              if root is None or c not in centre}
+    if root is None:
+        return None, {}, failed
+    return root, {c: se3(R[c], centre[c]) for c in centre}, failed
+
+
+def _average(G: nx.Graph, members: list[int], relative: dict, params: OmeccParams):
+    """(root, rotations, centres, worst inconsistent pair or None) of the largest part of
+    G where every camera has two pairs (one pair leaves its distance along the baseline free)."""
+    core = nx.k_core(G, 2) if len(members) > 2 else G
+    comps = [c for c in nx.connected_components(core) if len(c) >= 2]
+    if not comps:
+        return None, {}, {}, None
+    core = core.subgraph(max(comps, key=len))
+    tree = nx.maximum_spanning_tree(core)
     # Root: the camera with the most inliers to its tree neighbours (the best-anchored).
-    root = max(largest, key=lambda c: sum(d["weight"] for *_, d in tree.edges(c, data=True)))
-    poses = {root: np.eye(4)}
+    root = max(core, key=lambda c: sum(d["weight"] for *_, d in tree.edges(c, data=True)))
+    R = {root: np.eye(3)}
     for parent, child in nx.bfs_edges(tree, root):
-        poses[child] = poses[parent] @ relative[(parent, child)]
-    failed = {c: "no usable essential matrix with a scale to the rest of its group" for c in members
-              if c not in poses}
-    return root, poses, failed
+        R[child] = R[parent] @ relative[(parent, child)][:3, :3]
+    rot_err = {(i, j): rotation_angle_deg(R[i].T @ R[j], relative[(i, j)][:3, :3]) for i, j in core.edges}
+    worst = max(rot_err, key=rot_err.get)
+    if rot_err[worst] > params.max_rotation_disagreement_deg:
+        return root, R, {}, worst
+    # [d_ij]_x (c_j - c_i) = 0 for every pair, root centre at 0: the null vector of A.
+    cams = sorted(c for c in core if c != root)
+    col = {c: 3 * i for i, c in enumerate(cams)}
+    rows, dirs = [], {}
+    for i, j in core.edges:
+        d = R[i] @ relative[(i, j)][:3, 3]
+        d /= np.linalg.norm(d)
+        row = np.zeros((3, 3 * len(cams)))
+        for c, sign in ((j, 1.0), (i, -1.0)):
+            if c != root:
+                row[:, col[c]:col[c] + 3] = sign * skew(d)
+        rows.append(row)
+        dirs[(i, j)] = d
+    x = np.linalg.svd(np.vstack(rows))[2][-1]
+    centre = {root: np.zeros(3)} | {c: x[col[c]:col[c] + 3] for c in cams}
+    if sum(d @ (centre[j] - centre[i]) for (i, j), d in dirs.items()) < 0:
+        centre = {c: -v for c, v in centre.items()}
+    dir_err = {e: np.degrees(np.arccos(np.clip(d @ (centre[e[1]] - centre[e[0]])
+                                               / max(np.linalg.norm(centre[e[1]] - centre[e[0]]), 1e-12), -1, 1)))
+               for e, d in dirs.items()}
+    worst = max(dir_err, key=dir_err.get)
+    return root, R, centre, worst if dir_err[worst] > params.max_direction_disagreement_deg else None
 
 
 def calibrate_group(obs: GridObservations, members: list[int], pairs: list[PairGeometry], group_id: str,
@@ -134,6 +176,17 @@ def calibrate_group(obs: GridObservations, members: list[int], pairs: list[PairG
     keys = np.array(keys, dtype=np.int64)
     points = np.array(points).reshape(-1, 3)
     kidx = {int(k): i for i, k in enumerate(keys)}
+    heads, grounds = head_ground_pairs(keys)
+    if len(heads) < params.min_height_pairs:
+        return None, {c: (f"its group's cameras see the agent's head top and ground point together at only "
+                          f"{len(heads)} instants (needs {params.min_height_pairs} for the height scale)")
+                      for c in members}
+    # Metric initialisation: the median head-top to ground distance = the prior height.
+    scale = params.person_height_m / np.median(np.linalg.norm(
+        points[[kidx[int(h)] for h in heads]] - points[[kidx[int(g)] for g in grounds]], axis=1))
+    points *= scale
+    for T in init.values():
+        T[:3, 3] *= scale
     cam_i, pt_i, uv = [], [], []
     for c in cams:
         for k, p in obs.per_camera[c].items():
@@ -152,7 +205,6 @@ def calibrate_group(obs: GridObservations, members: list[int], pairs: list[PairG
         values.insert(L(j), gtsam.Point3(*P))
     add_projection_factors(graph, o, [obs.cameras[c] for c in cams], X, L, params.huber_k)
     height = gtsam.noiseModel.Isotropic.Sigma(1, params.person_height_sigma_m)
-    heads, grounds = head_ground_pairs(keys)
     for h, g in zip(heads, grounds):
         graph.add(gtsam.RangeFactor3(L(kidx[int(h)]), L(kidx[int(g)]), params.person_height_m, height))
     result, *_ = optimize(graph, values, params.max_iterations)
