@@ -64,18 +64,24 @@ class FeatureExtractor:
 
 def match(a: KeyframeFeatures, b: KeyframeFeatures, ratio: float = 0.8) -> np.ndarray:
     """(M, 2) index pairs (i in a, j in b): Lowe's ratio test in both directions
-    and mutual nearest neighbours, from one distance matrix (a BLAS product)."""
+    and mutual nearest neighbours, from one distance matrix (a BLAS product).
+    Second-nearest distances: the row (column) minimum once the nearest entry is
+    masked, which is several times cheaper than a partial sort."""
     if len(a) < 2 or len(b) < 2:
         return np.zeros((0, 2), int)
     da, db = a.descriptors, b.descriptors
     d2 = (da * da).sum(1)[:, None] + (db * db).sum(1)[None, :] - 2.0 * da @ db.T
     np.maximum(d2, 0.0, out=d2)
-    two_ab = np.partition(d2, 1, axis=1)[:, :2]
-    two_ba = np.partition(d2, 1, axis=0)[:2, :]
+    i, j = np.arange(len(da)), np.arange(len(db))
     nn_ab, nn_ba = d2.argmin(axis=1), d2.argmin(axis=0)
-    i = np.arange(len(da))
+    best_ab, best_ba = d2[i, nn_ab], d2[nn_ba, j]
+    d2[i, nn_ab] = np.inf
+    second_ab = d2.min(axis=1)
+    d2[i, nn_ab] = best_ab
+    d2[nn_ba, j] = np.inf
+    second_ba = d2.min(axis=0)
     r2 = ratio * ratio
-    ok = (nn_ba[nn_ab] == i) & (two_ab[:, 0] < r2 * two_ab[:, 1]) & (two_ba[0, nn_ab] < r2 * two_ba[1, nn_ab])
+    ok = (nn_ba[nn_ab] == i) & (best_ab < r2 * second_ab) & (best_ba[nn_ab] < r2 * second_ba[nn_ab])
     return np.column_stack([i[ok], nn_ab[ok]]).astype(int)
 
 

@@ -4,6 +4,8 @@ algorithm modules never import it)."""
 from __future__ import annotations
 
 import itertools
+import queue
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
@@ -87,11 +89,45 @@ def read_ego_frames(bag, recording: EgoRecording) -> Iterator[tuple[int, np.ndar
         recording.problems.append(f"{pairer.dropped} colour/depth image(s) without a partner within 5 ms dropped")
 
 
+def prefetch(items: Iterator, depth: int = 8) -> Iterator:
+    """``items`` produced on a background thread, ``depth`` ahead of the consumer:
+    image decoding (OpenCV releases the GIL) overlaps with tracking (so does
+    Open3D). Exceptions of the producer are raised in the consumer."""
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    done = object()
+    stop = threading.Event()
+
+    def produce():
+        try:
+            for item in items:
+                if stop.is_set():
+                    return
+                q.put(item)
+        except BaseException as exc:  # handed over to the consumer
+            q.put(exc)
+        q.put(done)
+
+    thread = threading.Thread(target=produce, name="ego_decode", daemon=True)
+    thread.start()
+    try:
+        while (item := q.get()) is not done:
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        while thread.is_alive():     # unblock a producer waiting on a full queue
+            try:
+                q.get_nowait()
+            except queue.Empty:
+                thread.join(0.01)
+
+
 def map_bag(bag, params: EgoParams = EgoParams()) -> tuple[EgoMapResult, EgoRecording]:
     """``map_recording`` on a recording's ego frames. Raises ValueError naming the
     topic when nothing usable exists (no ego topics, no valid CameraInfo, no frames)."""
     recording = EgoRecording(find_ego_topics(bag))
-    frames = read_ego_frames(bag, recording)
+    frames = prefetch(read_ego_frames(bag, recording))
     first = next(frames, None)
     if first is None:
         raise ValueError(f"{bag}: no usable ego frames: " + ("; ".join(recording.problems) or "none recorded"))

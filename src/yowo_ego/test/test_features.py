@@ -1,0 +1,25 @@
+"""Descriptor matching: mutual nearest neighbours with the ratio test both ways."""
+import numpy as np
+
+from yowo_ego.features import KeyframeFeatures, match
+
+
+def features(desc):
+    return KeyframeFeatures(np.zeros((len(desc), 2)), desc.astype(np.float32), np.full(len(desc), np.nan))
+
+
+def test_match_recovers_a_permutation_and_rejects_ambiguous_and_one_sided_pairs():
+    rng = np.random.default_rng(0)
+    a = rng.uniform(0, 100, (200, 128))
+    perm = rng.permutation(200)
+    b = a[perm] + rng.normal(0, 1.0, (200, 128))
+    # b[0] gets a near-twin: the ratio test in b must drop a's match to it.
+    b = np.vstack([b, b[0] + rng.normal(0, 0.5, 128)])
+    # a[-1] gets a twin in a: b's best match is ambiguous from b's side.
+    a = np.vstack([a, a[perm[1]] + rng.normal(0, 0.5, 128)])
+    m = match(features(a), features(b))
+    truth = dict(zip(perm, range(200)))
+    assert all(truth.get(i) == j for i, j in m)
+    matched_a = set(m[:, 0])
+    assert perm[0] not in matched_a and perm[1] not in matched_a and 200 not in matched_a
+    assert len(m) == 198          # every unambiguous point
