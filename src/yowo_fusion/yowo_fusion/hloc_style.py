@@ -50,6 +50,8 @@ class HlocParams:
     # Prior mode
     prior_min_overlap: float = 0.05     # fraction of a keyframe's 3D keypoints in the prior's view
     prior_gate_px: float = 40.0         # match accepted only this close to its prior projection
+    prior_cell_px: int = 32             # z-buffer cell for the visibility of keyframe points
+    prior_depth_tolerance: float = 0.1  # relative depth beyond a cell's nearest point: hidden
 
 
 @dataclass
@@ -189,16 +191,27 @@ def mutual_ratio_matches(da: np.ndarray, db: np.ndarray, ratio: float, allowed: 
 
 def _prior_candidates(db: KeyframeDatabase, camera: CameraModel, T_prior: np.ndarray, params: HlocParams
                       ) -> list[int]:
-    """Database entries whose lifted keypoints fall most into the prior camera's image."""
+    """Database entries with the most lifted keypoints visible in the prior camera: inside
+    its image and not behind the nearest map point of their image cell (a coarse z-buffer
+    of every keyframe's points, so keyframes of the room behind a wall do not count)."""
+    cell = params.prior_cell_px
+    cols, rows = -(-camera.width // cell), -(-camera.height // cell)
+    seen = []
+    for P in db.points:
+        P_cam = transform_points(inv_se3(T_prior), np.nan_to_num(P, nan=0.0))
+        uv, front = camera.project(P_cam)
+        ok = front & camera.in_image(uv) & np.isfinite(P).all(axis=1)
+        z = P_cam[:, 2]
+        c = np.where(ok, (uv[:, 1] // cell).clip(0, rows - 1) * cols + (uv[:, 0] // cell).clip(0, cols - 1), -1)
+        seen.append((ok, c.astype(int), z))
+    nearest = np.full(rows * cols, np.inf)
+    for ok, c, z in seen:
+        np.minimum.at(nearest, c[ok], z[ok])
     scores = []
-    for e, P in enumerate(db.points):
-        P = P[np.isfinite(P).all(axis=1)]
-        if len(P) == 0:
-            continue
-        uv, front = camera.project_world(T_prior, P)
-        inside = int((front & camera.in_image(uv)).sum())
-        if inside >= params.prior_min_overlap * len(P):
-            scores.append((inside, e))
+    for e, (ok, c, z) in enumerate(seen):
+        visible = ok & (z <= nearest[np.maximum(c, 0)] * (1 + params.prior_depth_tolerance))
+        if visible.sum() >= params.prior_min_overlap * np.isfinite(db.points[e]).all(axis=1).sum():
+            scores.append((int(visible.sum()), e))
     return [e for _, e in sorted(scores, reverse=True)[:params.num_retrieved]]
 
 
