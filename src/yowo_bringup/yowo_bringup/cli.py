@@ -72,7 +72,8 @@ def _execute(args, mode: str):
     from .run import plan_run
     from .run_node import RunFailed, execute
 
-    plan = plan_run(args.bag, args.output, mode=mode, rate=args.rate, overrides=_load_overrides(args))
+    plan = plan_run(args.bag, args.output, mode=mode, rate=args.rate, overrides=_load_overrides(args),
+                    source=args.cmc_source)
     for w in plan.warnings:
         print(f"warning: {w}", file=sys.stderr)
     print(f"{mode} run of {args.bag}: {len(plan.cameras)} CMCs ({', '.join(plan.cameras)}), "
@@ -145,6 +146,9 @@ def _add_run_options(p) -> None:
     p.add_argument("--params", help="YAML file of node parameters: {node: {param: value}}")
     p.add_argument("--set", action="append", metavar="NODE.PARAM=VALUE", help="override one node parameter")
     p.add_argument("--timeout", type=float, default=3600.0, help="give up after this many seconds")
+    p.add_argument("--cmc-source", choices=("auto", "keypoints", "images"), default="auto",
+                   help="CMC agent keypoints: recorded /cmc/<n>/agent_keypoints, the built-in image detector, "
+                        "or auto (keypoints when recorded, else images)")
 
 
 def cmd_eval(args) -> int:

@@ -2,6 +2,7 @@
 (for the benchmark and scripting). The graph runs the same functions inside nodes."""
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass
 
@@ -11,21 +12,53 @@ from yowo_common.ros.bag import read_messages
 from yowo_common.rosconv import camera_info_to_model
 
 from .contract import discover_inputs
-from .run import cmc_info_topic, cmc_keypoints_topic
+from .run import cmc_info_topic, cmc_source
+
+log = logging.getLogger(__name__)
 
 
-def read_cmc_tracks(bag) -> list[CameraTracks]:
-    """Every CMC's validated agent keypoint tracks (cameras sorted by name, as the graph does)."""
-    names = discover_inputs(bag).cmc_names
-    acc = {n: TrackAccumulator(n) for n in names}
-    by_topic = {cmc_info_topic(n): n for n in names} | {cmc_keypoints_topic(n): n for n in names}
-    for topic, _, msg in read_messages(bag, by_topic):
-        a = acc[by_topic[topic]]
-        if topic.endswith("/camera_info"):
-            if a.camera is None:
-                a.camera = camera_info_to_model(msg)
+def read_cmc_tracks(bag, source: str = "auto") -> list[CameraTracks]:
+    """Every CMC's validated agent keypoint tracks (cameras sorted by name, as the graph
+    does), from recorded keypoints or the built-in image detector (see run.cmc_source)."""
+    from yowo_cmc.keypoint_input import ImageKeypointSource
+    from yowo_common.rosconv import decode_color, stamp_to_ns
+
+    inputs = discover_inputs(bag)
+    present = {t.name for t in inputs.topics if t.count > 0}
+    acc, detectors, by_topic, unusable = {}, {}, {}, set()
+    for n in inputs.cmc_names:
+        kind, keypoints, image = cmc_source(n, present, source)
+        if not kind:
+            continue
+        acc[n] = TrackAccumulator(n)
+        by_topic[cmc_info_topic(n)] = n
+        if kind == "images":
+            detectors[n] = ImageKeypointSource(n)
+            by_topic[image] = n
         else:
-            a.add(frame_from_msg(msg))
+            by_topic[keypoints] = n
+    for topic, _, msg in read_messages(bag, by_topic):
+        n = by_topic[topic]
+        a, detector = acc[n], detectors.get(n)
+        if topic.endswith("/camera_info"):
+            if a.camera is not None or n in unusable:
+                continue
+            try:
+                a.camera = camera_info_to_model(msg)
+            except ValueError as exc:      # the camera is left out, as the graph does
+                unusable.add(n)
+                log.warning("%s: %s; camera '%s' left out", topic, exc, n)
+                continue
+            frames = detector.set_camera(a.camera) if detector else []
+        elif detector:
+            frames = detector.push(stamp_to_ns(msg.header.stamp), decode_color(msg))
+        else:
+            frames = [frame_from_msg(msg)]
+        for f in frames:
+            a.add(f)
+    for n, detector in detectors.items():
+        for f in detector.flush():
+            acc[n].add(f)
     return [a.tracks() for a in acc.values() if a.camera is not None and a.frames]
 
 

@@ -51,8 +51,22 @@ def _first_present(candidates, present: set[str]) -> str:
     return next((t for t in candidates if t in present), "")
 
 
-def plan_run(bag, out_dir, mode: str = FULL, rate: float = 0.0, overrides: dict | None = None) -> RunPlan:
-    """Nodes for a recording. `overrides`: {node: {param: value}} from a YAML file or the CLI."""
+def cmc_source(name: str, present: set[str], preference: str = "auto") -> tuple[str, str, str]:
+    """(source, keypoint topic, image topic) of a CMC. `auto` prefers an external
+    detector's keypoints when recorded, else the built-in image detector."""
+    keypoints = cmc_keypoints_topic(name) if cmc_keypoints_topic(name) in present else ""
+    image = _first_present(cmc_image_topics(name), present)
+    if preference not in ("auto", "keypoints", "images"):
+        raise ValueError(f"unknown CMC keypoint source '{preference}' (auto, keypoints or images)")
+    if preference == "images" or (preference == "auto" and not keypoints):
+        return ("images", "", image) if image else ("", "", "")
+    return ("keypoints", keypoints, image) if keypoints else ("", "", "")
+
+
+def plan_run(bag, out_dir, mode: str = FULL, rate: float = 0.0, overrides: dict | None = None,
+             source: str = "auto") -> RunPlan:
+    """Nodes for a recording. `overrides`: {node: {param: value}} from a YAML file or the CLI;
+    `source`: where CMC agent keypoints come from (auto, keypoints or images)."""
     inputs = discover_inputs(bag)
     present = {t.name for t in inputs.topics if t.count > 0}
     problems = list(inputs.problems)
@@ -63,18 +77,20 @@ def plan_run(bag, out_dir, mode: str = FULL, rate: float = 0.0, overrides: dict 
                          "use 'yowo calibrate-cmc' for the CMC-only relative calibration")
     nodes, played, cameras = [], [], []
     for c in inputs.cmc_names:
-        keypoints = cmc_keypoints_topic(c) if cmc_keypoints_topic(c) in present else ""
-        image = _first_present(cmc_image_topics(c), present)
-        if not keypoints:
-            problems.append(f"CMC '{c}': no {cmc_keypoints_topic(c)}; the image-based detector is not "
-                            "available yet, so the camera is skipped")
+        kind, keypoints, image = cmc_source(c, present, source)
+        if not kind:
+            wanted = {"keypoints": cmc_keypoints_topic(c), "images": " or ".join(cmc_image_topics(c))}
+            problems.append(f"CMC '{c}': no {wanted.get(source, wanted['keypoints'] + ' or images')}; "
+                            "the camera is skipped")
             continue
+        # External keypoints use images only for the background (scene keypoints: full runs).
+        image = image if kind == "images" or mode == FULL else ""
         cameras.append(c)
         nodes.append(NodeSpec(f"keypoint_tracker_{c}", STAGE_MODULES["keypoint_tracker"],
-                              {"camera": c, "source": "keypoints", "image_topic": image if mode == FULL else ""}))
-        played += [cmc_info_topic(c), keypoints] + ([image] if image and mode == FULL else [])
+                              {"camera": c, "source": kind, "image_topic": image}))
+        played += [cmc_info_topic(c)] + [t for t in (keypoints, image) if t]
     if len(cameras) < 2:
-        raise ValueError(f"{bag}: {len(cameras)} usable CMC(s) with agent keypoints; needs at least 2")
+        raise ValueError(f"{bag}: {len(cameras)} usable CMC(s) with agent keypoints or images; needs at least 2")
     nodes.append(NodeSpec("group_sfm", STAGE_MODULES["group_sfm"], {"cameras": cameras}))
     final = "group_sfm"
     if mode == FULL:

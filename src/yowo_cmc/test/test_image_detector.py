@@ -9,6 +9,7 @@ import shapely
 from scipy.spatial.transform import Rotation
 
 from yowo_cmc.image_detector import AgentDetector, DetectorParams
+from yowo_cmc.keypoint_input import ImageKeypointSource
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import se3
 from yowo_sim.body import GROUND, HEAD_TOP, agent_keypoints_3d, agent_mesh
@@ -208,3 +209,33 @@ def test_bad_input_is_rejected(run):
         detector.push(0, np.zeros((240, 320, 3), np.uint8))
     with pytest.raises(ValueError, match="not estimated"):
         detector.up_direction([[10.0, 10.0]])
+
+
+def test_image_source_holds_frames_until_camera_info_and_drops_disorder(run):
+    """The tracker node's wrapper: images that arrive before the CameraInfo are detected
+    once it comes; a repeated stamp is dropped and counted; output = the detector's."""
+    seq, _, out = run
+    source = ImageKeypointSource("cam")
+    frames = []
+    for k, (stamp, rgb) in enumerate(zip(seq.stamps, seq.frames)):
+        if k == 3:
+            frames += source.set_camera(seq.cmc.camera)
+        frames += source.push(int(stamp), rgb)
+        if k == 10:
+            frames += source.push(int(stamp), rgb)       # duplicate stamp
+    frames += source.flush()
+    assert [f.stamp_ns for f in frames] == seq.stamps.tolist()
+    for f, d in zip(frames, out):
+        np.testing.assert_array_equal(f.ids, d.ids)
+        np.testing.assert_allclose(f.uv, d.uv)
+    assert source.background is not None
+    assert "1 image stamp not after the previous image" in source.summary()
+
+
+def test_image_source_reports_an_unusable_camera(run):
+    seq, _, _ = run
+    source = ImageKeypointSource("cam")
+    source.push(0, seq.frames[0])
+    assert source.set_camera(CameraModel(640, 480, np.zeros((3, 3)))) == []
+    assert source.flush() == [] and source.background is None
+    assert "camera 'cam': no image detection: camera model unusable" in source.summary()

@@ -390,6 +390,8 @@ def reconstruct_group(obs: GridObservations, members: list[int], pairs: list[Pai
 
 def calibrate_groups(cams: list[CameraTracks], params: SfmParams = SfmParams()) -> GroupingResult:
     """All CMCs -> groups with relative poses + local agent tracks, and the rest with reasons."""
+    if not cams:
+        return GroupingResult([], {}, [])
     obs = sample_on_grid(cams, params.tracks)
     pairs = [pair_geometry(obs, a, b, params) for a in range(len(cams)) for b in range(a + 1, len(cams))]
     groups, reasons = group_cameras(obs, pairs, params)

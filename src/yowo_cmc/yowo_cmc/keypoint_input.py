@@ -1,5 +1,6 @@
-"""Validation of agent keypoints from an external detector (any human-pose or robot
-detector publishing yowo_msgs/AgentKeypoints) and their accumulation into tracks."""
+"""The two sources of a CMC's agent keypoints -- an external detector's messages
+(any human-pose or robot detector publishing yowo_msgs/AgentKeypoints) or the
+built-in image detector -- their validation and accumulation into tracks."""
 from __future__ import annotations
 
 from collections import Counter
@@ -9,6 +10,7 @@ import numpy as np
 
 from yowo_common.camera import CameraModel
 
+from .image_detector import AgentDetection, AgentDetector, DetectorParams
 from .tracks import CameraTracks, KeypointTrack
 
 
@@ -85,3 +87,69 @@ def frame_from_msg(msg) -> KeypointFrame:
                          np.array([k.id for k in kps], dtype=int),
                          np.array([[k.x, k.y] for k in kps], dtype=float).reshape(-1, 2),
                          np.array([k.confidence for k in kps], dtype=float))
+
+
+class ImageKeypointSource:
+    """The built-in detector on one camera's image stream: (stamp, RGB) in, keypoint
+    frames out in stamp order (delayed: the detector waits for its background and
+    vertical). Frames that arrive before the CameraInfo wait for it (at most
+    `max_pending`); out-of-order frames are dropped and counted."""
+
+    def __init__(self, name: str, params: DetectorParams = DetectorParams(), max_pending: int = 300):
+        self.name, self.params, self.max_pending = name, params, max_pending
+        self.detector: AgentDetector | None = None
+        self.problem = ""
+        self.rejected: Counter = Counter()
+        self._pending: list[tuple[int, np.ndarray]] = []
+        self._last_stamp = -1
+
+    def set_camera(self, camera: CameraModel) -> list[KeypointFrame]:
+        if self.detector is not None or self.problem:
+            return []
+        try:
+            self.detector = AgentDetector(camera, self.params)
+        except ValueError as exc:
+            self.problem = f"camera '{self.name}': no image detection: {exc}"
+            return []
+        pending, self._pending = self._pending, []
+        return [f for stamp, rgb in pending for f in self._detect(stamp, rgb)]
+
+    def push(self, stamp_ns: int, rgb: np.ndarray) -> list[KeypointFrame]:
+        if stamp_ns <= self._last_stamp:
+            self.rejected["image stamp not after the previous image"] += 1
+            return []
+        self._last_stamp = stamp_ns
+        if self.detector is None:
+            if len(self._pending) < self.max_pending:
+                self._pending.append((stamp_ns, rgb))
+            else:
+                self.rejected["images before any usable CameraInfo"] += 1
+            return []
+        return self._detect(stamp_ns, rgb)
+
+    def flush(self) -> list[KeypointFrame]:
+        return [] if self.detector is None else [_frame(d) for d in self.detector.flush()]
+
+    @property
+    def background(self) -> np.ndarray | None:
+        return None if self.detector is None else self.detector.background
+
+    def summary(self) -> str:
+        parts = [self.problem] if self.problem else []
+        if self.detector is not None:
+            parts.append("detector: " + self.detector.summary())
+        elif not self.problem:
+            parts.append(f"detector never started: {len(self._pending)} images and no usable CameraInfo")
+        parts += [f"{n} {why}" for why, n in self.rejected.items()]
+        return "; ".join(parts)
+
+    def _detect(self, stamp_ns: int, rgb: np.ndarray) -> list[KeypointFrame]:
+        try:
+            return [_frame(d) for d in self.detector.push(stamp_ns, rgb)]
+        except ValueError as exc:     # e.g. an image whose size disagrees with the CameraInfo
+            self.rejected[str(exc)] += 1
+            return []
+
+
+def _frame(d: AgentDetection) -> KeypointFrame:
+    return KeypointFrame(d.stamp_ns, d.ids, d.uv, d.confidence)

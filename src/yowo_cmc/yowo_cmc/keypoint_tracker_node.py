@@ -1,13 +1,18 @@
 """keypoint_tracker_node: one per CMC (parameter `camera`, node renamed to
-keypoint_tracker_<camera>). Validates the agent keypoints of an external detector
-on /cmc/<name>/agent_keypoints and passes them on to /yowo/cmc/<name>/agent_keypoints
-for the group SfM (our outputs live under /yowo so they never loop back into inputs).
-Smoothing and undistortion happen in the group SfM, which sees whole tracks."""
+keypoint_tracker_<camera>). Publishes the camera's agent keypoints on
+/yowo/cmc/<name>/agent_keypoints for the group SfM (our outputs live under /yowo so
+they never loop back into inputs), from one of two sources (parameter `source`):
+
+- `keypoints`: an external detector's /cmc/<name>/agent_keypoints, validated;
+- `images`: the built-in model-free detector on `image_topic`.
+
+It also publishes the camera's agent-free background once (latched) when images
+arrive. Smoothing and undistortion happen in the group SfM, which sees whole tracks."""
 from __future__ import annotations
 
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Header
-from yowo_msgs.msg import AgentKeypoints
+from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
 from yowo_common import topics
 from yowo_common.ros.context import spin_node
@@ -15,7 +20,9 @@ from yowo_common.ros.stage import LATCHED, StageNode
 from yowo_common.rosconv import camera_info_to_model, decode_color, encode_raw, ns_to_time, stamp_to_ns
 
 from .background import BackgroundSampler
-from .keypoint_input import TrackAccumulator, frame_from_msg
+from .keypoint_input import ImageKeypointSource, KeypointFrame, TrackAccumulator, frame_from_msg
+
+SOURCES = ("keypoints", "images")
 
 
 class KeypointTrackerNode(StageNode):
@@ -26,17 +33,21 @@ class KeypointTrackerNode(StageNode):
             raise ValueError("keypoint_tracker_node needs the parameter camera:=<name>")
         self.camera = camera
         self.source = self.declare_parameter("source", "keypoints").value
-        if self.source != "keypoints":
-            raise ValueError(f"camera '{camera}': source '{self.source}' is not available; "
-                             "the image-based detector is not implemented yet (use source:=keypoints)")
+        image_topic = self.declare_parameter("image_topic", "").value
+        if self.source not in SOURCES:
+            raise ValueError(f"camera '{camera}': unknown source '{self.source}' (choose from {', '.join(SOURCES)})")
+        if self.source == "images" and not image_topic:
+            raise ValueError(f"camera '{camera}': source:=images needs image_topic:=<topic>")
         self.acc = TrackAccumulator(camera)
         self.info_problem = ""
+        self.frame_id = f"{camera}_optical_frame"    # the images' frame, once one arrived
         self.pub = self.output(AgentKeypoints, topics.tracker_keypoints(camera))
         self.pub_background = self.output(Image, topics.tracker_background(camera), LATCHED)
         self.stream_input(CameraInfo, f"/cmc/{camera}/camera_info", self.on_info)
-        self.stream_input(AgentKeypoints, f"/cmc/{camera}/agent_keypoints", self.on_keypoints)
-        # The agent-free background (for scene keypoints in fusion), when images were recorded.
-        image_topic = self.declare_parameter("image_topic", "").value
+        self.detector = ImageKeypointSource(camera) if self.source == "images" else None
+        if self.detector is None:
+            self.stream_input(AgentKeypoints, f"/cmc/{camera}/agent_keypoints", self.on_keypoints)
+        # With external keypoints, images (when recorded) only give the background for scene keypoints.
         self.background = BackgroundSampler(self.declare_parameter("background_period_s", 1.0).value)
         if image_topic:
             msg_type = CompressedImage if image_topic.endswith("/compressed") else Image
@@ -44,17 +55,22 @@ class KeypointTrackerNode(StageNode):
 
     def on_image(self, msg) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
-        if self.background.wants(stamp):
+        if self.detector is not None:
+            self.frame_id = msg.header.frame_id or self.frame_id
+            self.publish_frames(self.detector.push(stamp, decode_color(msg)))
+        elif self.background.wants(stamp):
             self.background.add(stamp, decode_color(msg))
 
     def on_info(self, msg: CameraInfo) -> None:
-        if self.acc.camera is None:
+        if self.acc.camera is None and not self.info_problem:
             try:
                 self.acc.camera = camera_info_to_model(msg)
             except ValueError as exc:
-                if not self.info_problem:
-                    self.info_problem = f"/cmc/{self.camera}/camera_info: {exc}"
-                    self.get_logger().error(self.info_problem)
+                self.info_problem = f"/cmc/{self.camera}/camera_info: {exc}"
+                self.get_logger().error(self.info_problem)
+                return
+            if self.detector is not None:
+                self.publish_frames(self.detector.set_camera(self.acc.camera))
 
     def on_keypoints(self, msg: AgentKeypoints) -> None:
         kept = self.acc.add(frame_from_msg(msg))
@@ -64,14 +80,28 @@ class KeypointTrackerNode(StageNode):
                              keypoints=[k for k in msg.keypoints if k.id in set(kept.ids.tolist())])
         self.pub.publish(out)
 
+    def publish_frames(self, frames: list[KeypointFrame]) -> None:
+        for f in frames:
+            kept = self.acc.add(f)
+            if kept is not None:
+                self.pub.publish(AgentKeypoints(
+                    header=Header(stamp=ns_to_time(kept.stamp_ns), frame_id=self.frame_id), camera_name=self.camera,
+                    keypoints=[Keypoint2D(id=int(i), x=float(u), y=float(v), confidence=float(c))
+                               for i, (u, v), c in zip(kept.ids, kept.uv, kept.confidence)]))
+
     def finalize(self) -> str:
-        text = self.acc.summary() + (f"; {self.info_problem}" if self.info_problem else "")
-        background = self.background.image()
+        background, parts = self.background.image(), [self.acc.summary()]
+        if self.detector is not None:
+            self.publish_frames(self.detector.flush())
+            background, parts = self.detector.background, [self.acc.summary(), self.detector.summary()]
+        if self.info_problem:
+            parts.append(self.info_problem)
         if background is not None:
             self.pub_background.publish(encode_raw(background, "rgb8", Header(
-                stamp=ns_to_time(self.background.last_stamp), frame_id=f"{self.camera}_optical_frame")))
-            text += f"; background from {self.background.count} frames"
-        return text
+                stamp=ns_to_time(self.acc.frames[-1].stamp_ns if self.acc.frames else 0),
+                frame_id=self.frame_id)))
+            parts.append("background published")
+        return "; ".join(p for p in parts if p)
 
 
 def main(args=None):

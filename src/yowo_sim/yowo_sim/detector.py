@@ -29,19 +29,26 @@ class Detection:
     uv_true: np.ndarray      # (K, 2) noise-free projections, for tests and statistics
 
 
-def detect(camera: CameraModel, T_world_cam: np.ndarray, keypoints_world: dict[int, np.ndarray],
-           static_depth: np.ndarray, spec: DetectorSpec, rng: np.random.Generator) -> Detection:
-    """Keypoints in view and not hidden by the static scene (depth test against the
-    camera's agent-free depth image), with noise, misses and outliers."""
-    ids = np.array(sorted(keypoints_world), dtype=int)
-    P_cam = transform_points(inv_se3(T_world_cam), np.array([keypoints_world[i] for i in ids]))
+def visible_points(camera: CameraModel, T_world_cam: np.ndarray, points_world: np.ndarray, static_depth: np.ndarray,
+                   margin_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(raw pixels, mask of points in the image and not hidden behind the static scene)."""
+    P_cam = transform_points(inv_se3(T_world_cam), points_world)
     uv, in_front = camera.project(P_cam)
     visible = in_front & camera.in_image(uv) & np.isfinite(uv).all(axis=1)
     safe = np.where(visible[:, None], uv, 0.0)  # points behind the camera project to NaN
     cols = np.clip(np.round(safe[:, 0]).astype(int), 0, camera.width - 1)
     rows = np.clip(np.round(safe[:, 1]).astype(int), 0, camera.height - 1)
     scene_z = static_depth[rows, cols]
-    visible &= ~(np.isfinite(scene_z) & (scene_z < P_cam[:, 2] - spec.occlusion_margin_m))
+    return uv, visible & ~(np.isfinite(scene_z) & (scene_z < P_cam[:, 2] - margin_m))
+
+
+def detect(camera: CameraModel, T_world_cam: np.ndarray, keypoints_world: dict[int, np.ndarray],
+           static_depth: np.ndarray, spec: DetectorSpec, rng: np.random.Generator) -> Detection:
+    """Keypoints in view and not hidden by the static scene (depth test against the
+    camera's agent-free depth image), with noise, misses and outliers."""
+    ids = np.array(sorted(keypoints_world), dtype=int)
+    uv, visible = visible_points(camera, T_world_cam, np.array([keypoints_world[i] for i in ids]), static_depth,
+                                 spec.occlusion_margin_m)
     visible &= rng.random(len(ids)) >= spec.miss_rate
     ids, uv = ids[visible], uv[visible]
     sigma = np.array([spec.sigma_px.get(int(i), spec.sigma_body_px) for i in ids])
