@@ -1,9 +1,15 @@
+import itertools
 from dataclasses import replace
+
+import networkx as nx
+import numpy as np
+from scipy.spatial.transform import Rotation
 
 from yowo_bringup.evaluation import relative_pose_errors
 from yowo_cmc.group_sfm import SfmParams
-from yowo_cmc.omecc_style import OmeccParams, calibrate_groups_omecc
+from yowo_cmc.omecc_style import OmeccParams, calibrate_groups_omecc, consistent_poses
 from yowo_cmc.tracks import TrackParams
+from yowo_common.geometry import inv_se3
 
 from cmc_synthetic import HEIGHT, ceiling_camera, loop_walk, observe
 from test_group_sfm import three_camera_rig
@@ -59,3 +65,29 @@ def test_isolated_camera_reported():
     result = calibrate_groups_omecc(observe(cams, loop_walk((3.0, 2.5), (2.0, 1.5)), 20.0, sigma_px=0.5))
     assert sorted(result.groups[0].names) == ["a", "b", "c"]
     assert result.ungrouped["blind"].startswith("seen in 0 frames")
+
+
+def test_inconsistent_pairs_are_dropped_from_the_initialisation():
+    """Four cameras, every pair's relative pose exact (baselines of arbitrary length)
+    except a weak pair with a 40 deg rotation error and one with a 70 deg wrong baseline
+    direction: both are dropped and the rest gives the rig exactly up to scale."""
+    rig = three_camera_rig()
+    rig["d"] = ceiling_camera(5.5, 4.6, (2.5, 2.0), z=3.1)
+    T = [rig[n][1] for n in sorted(rig)]
+    G, relative = nx.Graph(), {}
+    rng = np.random.default_rng(0)
+    for a, b in itertools.combinations(range(4), 2):
+        rel = inv_se3(T[a]) @ T[b]
+        rel[:3, 3] *= rng.uniform(0.2, 5.0)
+        G.add_edge(a, b, weight=100)
+        relative[(a, b)] = rel
+    relative[(0, 3)][:3, :3] = relative[(0, 3)][:3, :3] @ Rotation.from_rotvec([0.0, np.radians(40), 0.0]).as_matrix()
+    relative[(1, 2)][:3, 3] = Rotation.from_rotvec([np.radians(70), 0.0, 0.0]).as_matrix() @ relative[(1, 2)][:3, 3]
+    G[0][3]["weight"] = G[1][2]["weight"] = 10
+    for (a, b), rel in list(relative.items()):
+        relative[(b, a)] = inv_se3(rel)
+    root, poses = consistent_poses(G, relative, OmeccParams())
+    assert sorted(poses) == [0, 1, 2, 3]
+    est = {str(c): T for c, T in poses.items()}
+    errs, _ = relative_pose_errors(est, {str(c): T[c] for c in poses}, {"g": list(est)})
+    assert max(e.eps_pos_m for e in errs) < 1e-9 and max(e.eps_rot_deg for e in errs) < 1e-7

@@ -86,7 +86,7 @@ def initial_poses(obs: GridObservations, members: list[int], pairs: list[PairGeo
     with a usable essential matrix: rotations chained along the maximum spanning tree of
     the pairs (weight = inliers), centres by linear translation averaging of every pair's
     baseline direction (each pair's E has its own unknown scale, so the directions are
-    averaged, not chained)."""
+    averaged, not chained); members left out with a reason."""
     G = nx.Graph()
     G.add_nodes_from(members)
     relative = {}
@@ -96,25 +96,33 @@ def initial_poses(obs: GridObservations, members: list[int], pairs: list[PairGeo
             if T is not None:
                 relative[(p.a, p.b)], relative[(p.b, p.a)] = T, inv_se3(T)
                 G.add_edge(p.a, p.b, weight=p.num_inliers)
-    # The agent's points lie near two planes, where some pairs' E is far off: drop the pairs
-    # that disagree with the rest (rotation against the tree's, direction against the
-    # averaged centres), worst first, until every remaining pair agrees.
-    while True:
-        root, R, centre, bad = _average(G, members, relative, params)
-        if root is None or bad is None:
-            break
-        G.remove_edge(*bad)
+    root, poses = consistent_poses(G, relative, params)
     failed = {c: "no usable, consistent essential matrices to two cameras of its group" for c in members
-              if root is None or c not in centre}
-    if root is None:
-        return None, {}, failed
-    return root, {c: se3(R[c], centre[c]) for c in centre}, failed
+              if c not in poses}
+    return root, poses, failed
 
 
-def _average(G: nx.Graph, members: list[int], relative: dict, params: OmeccParams):
+def consistent_poses(G: nx.Graph, relative: dict[tuple[int, int], np.ndarray], params: OmeccParams
+                     ) -> tuple[int | None, dict[int, np.ndarray]]:
+    """Root and T_root_cam (arbitrary scale) from the pairs of G (edge weight: inliers;
+    ``relative[(a, b)]`` = T_a_b with any baseline length). The agent's points lie near
+    two planes, where some pairs' E is far off: the pairs that disagree with the rest
+    (rotation against the spanning tree's, direction against the averaged centres) are
+    dropped, worst first, until every remaining pair agrees."""
+    G = G.copy()
+    while True:
+        root, R, centre, bad = _average(G, relative, params)
+        if root is None:
+            return None, {}
+        if bad is None:
+            return root, {c: se3(R[c], centre[c]) for c in centre}
+        G.remove_edge(*bad)
+
+
+def _average(G: nx.Graph, relative: dict, params: OmeccParams):
     """(root, rotations, centres, worst inconsistent pair or None) of the largest part of
     G where every camera has two pairs (one pair leaves its distance along the baseline free)."""
-    core = nx.k_core(G, 2) if len(members) > 2 else G
+    core = nx.k_core(G, 2) if len(G) > 2 else G
     comps = [c for c in nx.connected_components(core) if len(c) >= 2]
     if not comps:
         return None, {}, {}, None
