@@ -98,6 +98,8 @@ def read_keyframe_images(bag, ego, tolerance_ns: int = 5_000_000) -> dict[int, K
 
     topics = find_ego_topics(bag)
     index = {int(s): i for i, s in enumerate(ego.keyframe_stamps_ns)}
+    if not index:
+        return {}
     wanted = np.array(sorted(index), dtype=np.int64)
     colors, depths = {}, {}
     for topic, _, msg in read_messages(bag, [topics.color, topics.depth]):
@@ -108,9 +110,9 @@ def read_keyframe_images(bag, ego, tolerance_ns: int = 5_000_000) -> dict[int, K
             continue
         j = np.searchsorted(wanted, stamp)
         near = wanted[max(j - 1, 0):j + 1]
-        kf = int(near[np.argmin(np.abs(near - stamp))]) if len(near) else stamp + tolerance_ns + 1
+        kf = int(near[np.argmin(np.abs(near - stamp))])
         gap = abs(kf - stamp)
-        if gap <= tolerance_ns and gap < depths.get(index[kf], (tolerance_ns + 1, None))[0]:
+        if gap <= tolerance_ns and gap < depths.get(index[kf], (gap + 1,))[0]:
             depths[index[kf]] = (gap, decode_depth(msg))
     return {i: KeyframeImage(colors[i], depths[i][1]) for i in sorted(colors) if i in depths}
 
