@@ -15,6 +15,7 @@ registration [Choi et al. 2015]), as an Open3D pose graph:
   loop edges, which prunes the ones inconsistent with the rest)."""
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -224,26 +225,31 @@ def optimize(keyframes: list[Keyframe], edges: list[OdometryEdge],
 
 def multiway_registration(keyframes: list[Keyframe], features: list[KeyframeFeatures],
                           odometry_edges: list[OdometryEdge], odometry: RgbdOdometry,
-                          params: LoopParams = LoopParams()) -> MultiwayResult:
+                          params: LoopParams = LoopParams(), workers: int = 2) -> MultiwayResult:
+    """Pairs are matched on ``workers`` threads (BLAS and OpenCV release the GIL;
+    each pair's result does not depend on the thread)."""
     K = odometry.K_full
-    pairs, edges, checked, corrected = [], [], [], 0
-    for e in odometry_edges:
-        a, b = e.target, e.source
-        pair = match_pair(features[a], features[b], a, b, K, params.features)
-        pairs.append(pair)
-        e, replaced = verify_edge(e, pair, features, keyframes, odometry, params)
-        edges.append(e)
-        checked.append(pair.pnp is not None)
-        corrected += replaced
-    corrected += _verify_across(edges, checked, pairs, features, keyframes, odometry, params)
-    # Re-initialise the nodes along the verified chain (tracking built on the old edges).
-    T_init = chain_poses(len(keyframes), edges)
-    nodes = [Keyframe(k.index, k.frame_index, k.stamp_ns, T, k.color, k.depth_mm, k.segment)
-             for k, T in zip(keyframes, T_init)]
-    candidates = loop_candidates(nodes, params)
+    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="ego_match") as pool:
+        def match_all(ab: list[tuple[int, int]]) -> list[PairMatches]:
+            return list(pool.map(lambda p: match_pair(features[p[0]], features[p[1]], p[0], p[1], K,
+                                                      params.features), ab))
+
+        pairs, edges, checked, corrected = [], [], [], 0
+        for e, pair in zip(odometry_edges, match_all([(e.target, e.source) for e in odometry_edges])):
+            pairs.append(pair)
+            e, replaced = verify_edge(e, pair, features, keyframes, odometry, params)
+            edges.append(e)
+            checked.append(pair.pnp is not None)
+            corrected += replaced
+        corrected += _verify_across(edges, checked, pairs, features, keyframes, odometry, params)
+        # Re-initialise the nodes along the verified chain (tracking built on the old edges).
+        T_init = chain_poses(len(keyframes), edges)
+        nodes = [Keyframe(k.index, k.frame_index, k.stamp_ns, T, k.color, k.depth_mm, k.segment)
+                 for k, T in zip(keyframes, T_init)]
+        candidates = loop_candidates(nodes, params)
+        loop_pairs = match_all(candidates)
     loop_edges = []
-    for a, b in candidates:
-        pair = match_pair(features[a], features[b], a, b, K, params.features)
+    for (a, b), pair in zip(candidates, loop_pairs):
         if pair.pnp is None:
             continue
         # Loop edges keep the PnP estimate (mm-accurate with SIFT; a dense

@@ -30,7 +30,7 @@ class BundleParams:
     huber_k: float = 1.345
     depth_sigma_a_m: float = 0.0012      # sigma(z) = a + b (z - 0.4)^2 (Kinect-like structured light)
     depth_sigma_b: float = 0.0019
-    max_iterations: int = 15             # per round; LM starts close (multiway registration)
+    max_iterations: int = 8              # per round; LM starts close (multiway registration): 15 changed no ATE by 0.1 mm
     rounds: int = 2
     outlier_k: float = 5.0               # observations beyond k sigma are dropped between rounds
     min_track_length: int = 2
