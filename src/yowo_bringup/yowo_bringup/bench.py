@@ -38,7 +38,7 @@ RELATIVE_METHODS = {
     "YOWO": SfmParams(),
     # Labelled reimplementation of the idea, not the authors' code: E-matrix pair with the
     # most inliers, PnP in order of matches, one BA with one sigma, no overlap scores.
-    "ECCMP-style": SfmParams(overlap_ordering=False, per_id_sigma=False),
+    "ECCMP-style": SfmParams(overlap_ordering=False, per_id_sigma=False, min_edge_overlap=0.0),
 }
 
 

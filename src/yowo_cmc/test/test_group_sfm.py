@@ -97,3 +97,30 @@ def test_overlap_score_prefers_spread():
     spread = np.random.default_rng(0).uniform([0, 0], [640, 480], (30, 2))
     assert overlap_score(clustered, cam, params) == 0.0
     assert overlap_score(spread, cam, params) > 10.0
+
+
+def test_camera_seeing_through_a_doorway_does_not_merge_two_rooms():
+    """b1 sees room a only through a 1 m doorway: many matches with a1-a3, all in one
+    strip of its image. Such edges must not join the rooms (without the overlap gate the
+    merged group cannot even register room a's cameras)."""
+    cams = {"a1": ceiling_camera(0.3, 0.3, (2.5, 2.5)), "a2": ceiling_camera(4.7, 0.3, (2.5, 2.5)),
+            "a3": ceiling_camera(2.5, 4.7, (2.5, 2.3)), "b1": ceiling_camera(9.7, 2.5, (6.5, 2.5)),
+            "b2": ceiling_camera(5.3, 4.7, (7.5, 2.5)), "b3": ceiling_camera(7.5, 0.3, (7.5, 2.5))}
+
+    def walk(t):  # 20 s in room a (x < 5, passing the doorway), then 20 s in room b
+        return loop_walk((2.7, 2.5), (2.2, 1.5), 10.0)(t) if t < 20 else loop_walk((7.5, 2.5), (1.5, 1.5), 10.0)(t)
+
+    def visible(name, xy):
+        if name[0] == "b" and xy[0] < 5:
+            return name == "b1" and 2.0 <= xy[1] <= 3.0
+        return (xy[0] < 5) == (name[0] == "a")
+
+    tracks = observe(cams, walk, 40.0, sigma_px=0.5, visible=visible, seed=2)
+    result = calibrate_groups(tracks)
+    door = [p for p in result.pairs if p.b == 3 and p.a < 3]
+    assert all(p.num_inliers >= 50 and min(p.overlap) < 1.0 for p in door)   # strong in count, weak in cover
+    assert sorted(sorted(g.names) for g in result.groups) == [["a1", "a2", "a3"], ["b1", "b2", "b3"]]
+    for g in result.groups:
+        check_relative(g, cams, 0.03, 0.3)
+    merged = calibrate_groups(tracks, SfmParams(min_edge_overlap=0.0))
+    assert sum(len(g.names) for g in merged.groups) < 6

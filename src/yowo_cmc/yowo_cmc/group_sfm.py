@@ -40,6 +40,12 @@ class SfmParams:
     min_init_fraction: float = 0.5      # of the initial pair's inliers that must triangulate
     overlap_ordering: bool = True
     per_id_sigma: bool = True
+    # Our addition to the paper's edge rule: an edge's inliers must also cover both
+    # images (eq. overlap of each side >= this). A camera that sees the agent only
+    # through a doorway shares many matches with the next room's cameras, all in one
+    # strip of its image: a weak edge that pulls a whole group off by centimetres.
+    # (The ECCMP-style baseline sets 0: no overlap scores.)
+    min_edge_overlap: float = 1.0
 
 
 @dataclass
@@ -66,6 +72,7 @@ class PairGeometry:
     F: np.ndarray | None                   # x_b^T F x_a = 0 (ideal pixels)
     keys: np.ndarray                       # co-visible keys
     inliers: np.ndarray                    # bool mask over keys
+    overlap: tuple[float, float] = (0.0, 0.0)   # eq. overlap of the inliers in image a, image b
 
     @property
     def num_inliers(self) -> int:
@@ -153,7 +160,9 @@ def pair_geometry(obs: GridObservations, a: int, b: int, params: SfmParams) -> P
             F = None
     if F is None or F.shape != (3, 3):
         return PairGeometry(a, b, None, keys, np.zeros(len(keys), bool))
-    return PairGeometry(a, b, F, keys, sampson_px(F, pa, pb) <= params.ransac_px)
+    inliers = sampson_px(F, pa, pb) <= params.ransac_px
+    return PairGeometry(a, b, F, keys, inliers, (overlap_score(pa[inliers], obs.cameras[a], params),
+                                                 overlap_score(pb[inliers], obs.cameras[b], params)))
 
 
 def overlap_score(uv: np.ndarray, camera: CameraModel, params: SfmParams) -> float:
@@ -169,21 +178,23 @@ def overlap_score(uv: np.ndarray, camera: CameraModel, params: SfmParams) -> flo
     return float(spread * G.sum())
 
 
-def match_score(obs: GridObservations, pair: PairGeometry, params: SfmParams) -> float:
+def match_score(pair: PairGeometry) -> float:
     """Eq. match: overlap(c_i) * overlap(c_j) over the pair's inliers."""
-    keys = pair.keys[pair.inliers]
-    return (overlap_score(np.array([obs.per_camera[pair.a][k] for k in keys]).reshape(-1, 2), obs.cameras[pair.a], params)
-            * overlap_score(np.array([obs.per_camera[pair.b][k] for k in keys]).reshape(-1, 2), obs.cameras[pair.b], params))
+    return pair.overlap[0] * pair.overlap[1]
+
+
+def strong_edge(pair: PairGeometry, params: SfmParams) -> bool:
+    return pair.num_inliers >= params.min_matches and min(pair.overlap) >= params.min_edge_overlap
 
 
 def group_cameras(obs: GridObservations, pairs: list[PairGeometry], params: SfmParams
                   ) -> tuple[list[list[int]], dict[int, str]]:
-    """Scene-graph clustering: edges with >= min_matches inliers; members of a group
-    of three or more must be joined by two edge-disjoint paths."""
+    """Scene-graph clustering: edges with >= min_matches inliers covering both images;
+    members of a group of three or more must be joined by two edge-disjoint paths."""
     G = nx.Graph()
     G.add_nodes_from(range(len(obs.names)))
     for p in pairs:
-        if p.num_inliers >= params.min_matches:
+        if strong_edge(p, params):
             G.add_edge(p.a, p.b, weight=p.num_inliers)
     groups: list[list[int]] = []
     for comp in nx.connected_components(G):
@@ -205,6 +216,10 @@ def group_cameras(obs: GridObservations, pairs: list[PairGeometry], params: SfmP
             other = obs.names[best.b if best.a == c else best.a]
             reasons[c] = (f"seen in {frames} frames; only {best.num_inliers} inlier matches with '{other}' "
                           f"(needs {params.min_matches})")
+        elif not any(strong_edge(p, params) for p in pairs if c in (p.a, p.b)):
+            other = obs.names[best.b if best.a == c else best.a]
+            reasons[c] = (f"its {best.num_inliers} matches with '{other}' cover too little of the images "
+                          f"(overlap {min(best.overlap):.1f}, needs {params.min_edge_overlap:.1f})")
         else:
             reasons[c] = "joined to a group by a single camera pair (needs two paths to its members)"
     return groups, reasons
@@ -343,11 +358,10 @@ class IncrementalSfm:
 
 def reconstruct_group(obs: GridObservations, members: list[int], pairs: list[PairGeometry], group_id: str,
                       params: SfmParams) -> tuple[CameraGroupResult | None, dict[int, str]]:
-    inside = [p for p in pairs if p.a in members and p.b in members and p.F is not None
-              and p.num_inliers >= params.min_matches]
+    inside = [p for p in pairs if p.a in members and p.b in members and p.F is not None and strong_edge(p, params)]
     if not inside:
         return None, {c: "no camera pair of its group has enough matches" for c in members}
-    ranked = sorted(inside, key=lambda p: match_score(obs, p, params) if params.overlap_ordering else p.num_inliers,
+    ranked = sorted(inside, key=lambda p: match_score(p) if params.overlap_ordering else p.num_inliers,
                     reverse=True)
     for init in ranked:
         sfm = IncrementalSfm(obs, members, params)
