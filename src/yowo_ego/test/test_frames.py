@@ -1,13 +1,23 @@
-"""Bad ego input gives clear errors that name the topic; colour/depth pairing."""
+"""Bad ego input gives clear errors that name the topic and the frame's stamp;
+colour/depth pairing."""
 import numpy as np
 import pytest
+from builtin_interfaces.msg import Time
+from scipy.spatial.transform import Rotation
+from sensor_msgs.msg import CameraInfo
+from std_msgs.msg import Header
 
 from yowo_common.camera import CameraModel
+from yowo_common.geometry import inv_se3, look_at, se3
+from yowo_common.ros.bag import BagWriter
+from yowo_common.rosconv import encode_color_jpeg, encode_depth_png
 from yowo_ego.frames import FrameError, StampPairer, Undistorter, make_frame
+from yowo_ego.odometry import TRACKED
 from yowo_ego.pipeline import EgoMapper
+from yowo_ego.recording import EgoRecording, find_ego_topics, read_ego_frames
 
 CAM = CameraModel(64, 48, [[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]])
-RGB = np.full((48, 64, 3), 100, np.uint8)
+RGB = np.random.default_rng(0).integers(0, 256, (48, 64, 3)).astype(np.uint8)   # textured
 DEPTH = np.full((48, 64), 2.0, np.float32)
 
 
@@ -22,10 +32,12 @@ def test_zero_K_is_rejected_naming_the_topic():
     (RGB, np.full((24, 32), 2.0, np.float32), "/d", "registered"),
     (np.full((24, 32, 3), 1, np.uint8), np.full((24, 32), 2.0, np.float32), "/c", "CameraInfo"),
     (RGB[..., 0], DEPTH, "/c", "H x W x 3"),
+    (np.full((48, 64, 3), 100, np.uint8), DEPTH, "/c", "without texture"),
+    (np.tile(np.linspace(100, 140, 64).astype(np.uint8)[None, :, None], (48, 1, 3)), DEPTH, "/c", "without texture"),
 ])
-def test_unusable_frames_name_topic_and_problem(color, depth, topic, what):
-    with pytest.raises(FrameError, match=rf"^{topic}: .*{what}"):
-        make_frame(0, color, depth, CAM, color_topic="/c", depth_topic="/d")
+def test_unusable_frames_name_topic_stamp_and_problem(color, depth, topic, what):
+    with pytest.raises(FrameError, match=rf"^{topic} @ 123 ns: .*{what}"):
+        make_frame(123, color, depth, CAM, color_topic="/c", depth_topic="/d")
 
 
 def test_mapper_counts_rejected_frames_and_keeps_going():
@@ -36,6 +48,7 @@ def test_mapper_counts_rejected_frames_and_keeps_going():
     with pytest.raises(FrameError, match="not after"):
         mapper.add(2, RGB, DEPTH)
     assert sum(mapper.rejected.values()) == 2 and mapper.frames == 1
+    assert mapper.first_rejection["/d: too few valid depth pixels (need 5 %)"].startswith("/d @ 1 ns: ")
     with pytest.raises(ValueError, match="1 usable RGB-D frame"):
         mapper.finish()
 
@@ -58,3 +71,53 @@ def test_undistortion_moves_depth_without_blending():
     values = np.unique(out[np.isfinite(out)])
     assert set(values.tolist()) <= {1.0, 3.0}        # nearest-neighbour: no mixed depths at the edge
     assert np.isnan(out[0, 0])                       # pulled in from outside the image
+
+
+def test_textureless_frame_is_skipped_and_tracking_continues(renderer, ego_camera):
+    """A uniform frame in the middle of a walk (covered lens): rejected with its
+    stamp; the frames after it are tracked against the last good keyframe, and
+    their motion stays right."""
+    T0 = look_at((0.8, 0.9, 1.6), (3.5, 3.2, 0.7))
+    step = se3(Rotation.from_euler("xyz", [0.0, 1.0, 0.0], degrees=True).as_matrix(), [0.02, 0.0, 0.04])
+    mapper = EgoMapper(ego_camera)
+    truth, results = [], []
+    for i in range(8):
+        T = T0 @ np.linalg.matrix_power(step, i)
+        f = renderer.render(ego_camera, T)
+        stamp = i * 66_666_667
+        if i == 4:
+            with pytest.raises(FrameError, match=rf"^/c @ {stamp} ns: image without texture"):
+                mapper.add(stamp, np.full_like(f.rgb, 128), f.depth, "/c", "/d")
+            continue
+        results.append(mapper.add(stamp, f.rgb, f.depth, "/c", "/d"))
+        truth.append(inv_se3(T0) @ T)
+    assert all(r.status == TRACKED for r in results) and mapper.tracker.breaks == 0
+    assert len(mapper.tracker.keyframes) == 1
+    for r, T in zip(results, truth):
+        assert np.linalg.norm(r.T_odom_cam[:3, 3] - T[:3, 3]) < 0.003
+
+
+def _write_bag(path, depth_missing_at=(), with_depth_topic=True):
+    with BagWriter(path) as w:
+        for i in range(5):
+            h = Header(stamp=Time(sec=1, nanosec=i * 66_666_667), frame_id="ego")
+            w.write("/ego/color/camera_info", CameraInfo(header=h, width=64, height=48, k=CAM.K.ravel().tolist()), i)
+            w.write("/ego/color/image_raw/compressed", encode_color_jpeg(RGB, h), i)
+            if with_depth_topic and i not in depth_missing_at:
+                w.write("/ego/depth/image_raw/compressedDepth", encode_depth_png(DEPTH, h), i)
+
+
+def test_colour_frame_without_depth_is_dropped_and_named(tmp_path):
+    _write_bag(tmp_path / "bag", depth_missing_at=(2,))
+    recording = EgoRecording(find_ego_topics(tmp_path / "bag"))
+    stamps = [s for s, _, _ in read_ego_frames(tmp_path / "bag", recording)]
+    assert stamps == [1_000_000_000 + i * 66_666_667 for i in (0, 1, 3, 4)]
+    assert recording.problems == [f"1 /ego/color/image_raw/compressed / /ego/depth/image_raw/compressedDepth "
+                                  f"image(s) without a partner within 5 ms dropped, the first: "
+                                  f"/ego/color/image_raw/compressed @ {1_000_000_000 + 2 * 66_666_667} ns"]
+
+
+def test_recording_without_depth_names_the_missing_topic(tmp_path):
+    _write_bag(tmp_path / "bag", with_depth_topic=False)
+    with pytest.raises(ValueError, match=r"no ego camera: missing depth /ego/depth/image_raw"):
+        find_ego_topics(tmp_path / "bag")

@@ -3,9 +3,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from yowo_common.camera import CameraModel
 from yowo_common.geometry import look_at, rotation_angle_deg, se3
-from yowo_ego.frames import make_frame
+from yowo_ego.frames import RgbdFrame, make_frame
 from yowo_ego.odometry import (LOST, Keyframe, KeyframeTracker, OdometryEdge, TrackResult, downsample,
                                orthonormalize)
 from yowo_ego.pipeline import frames_between_keyframes
@@ -67,9 +66,7 @@ def test_downsampled_depth_ignores_dropouts_and_edges():
     depth = np.full((4, 4), 2.0, np.float32)
     depth[0, 0] = np.nan                 # an isolated dropout: the block keeps its depth
     depth[2:, 2] = 1.0                   # a depth edge inside the bottom-right block
-    frame = make_frame(0, np.zeros((4, 4, 3), np.uint8), np.where(np.isfinite(depth), depth, 0.0),
-                       CameraModel(4, 4, np.array([[2.0, 0, 1.5], [0, 2.0, 1.5], [0, 0, 1]])))
-    _, mm = downsample(frame, 2)
+    _, mm = downsample(RgbdFrame(0, np.zeros((4, 4, 3), np.uint8), depth), 2)
     assert mm[0, 0] == 2000 and mm[0, 1] == 2000 and mm[1, 0] == 2000
     assert mm[1, 1] == 0
 

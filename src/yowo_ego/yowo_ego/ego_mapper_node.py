@@ -63,8 +63,8 @@ class EgoMapperNode(StageNode):
             return
         for stamp, color_msg, depth_msg in pairs:
             try:
-                color = self._decode(self.color_topic, color_msg, decode_color)
-                depth = self._decode(self.depth_topic, depth_msg, decode_depth)
+                color = self._decode(self.color_topic, color_msg, decode_color, stamp)
+                depth = self._decode(self.depth_topic, depth_msg, decode_depth, stamp)
                 result = self.mapper.add(stamp, color, depth, self.color_topic, self.depth_topic)
             except FrameError as exc:
                 # Counted (reported in the final status); logged the first time it happens.
@@ -73,12 +73,12 @@ class EgoMapperNode(StageNode):
                 continue
             self.pub_odom.publish(self._odometry(result))
 
-    def _decode(self, topic: str, msg, decode):
+    def _decode(self, topic: str, msg, decode, stamp_ns: int):
         try:
             return decode(msg)
         except ValueError as exc:
-            error = FrameError(topic, "cannot decode the image", f": {exc}")
-            self.mapper.rejected[error.key] = self.mapper.rejected.get(error.key, 0) + 1
+            error = FrameError(topic, "cannot decode the image", f": {exc}", stamp_ns)
+            self.mapper.reject(error)
             raise error from exc
 
     def _odometry(self, result) -> Odometry:

@@ -91,7 +91,8 @@ class EgoMapper:
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ego_features")
         self._features: list[Future] = []
         self.tracker = KeyframeTracker(camera.K, params.odometry, on_keyframe=self._on_keyframe)
-        self.rejected: dict[str, int] = {}
+        self.rejected: dict[str, int] = {}      # problem (topic: what) -> frames
+        self.first_rejection: dict[str, str] = {}   # problem -> the first such frame's message
         self._last_stamp = -1
         self._t_track = self._cpu_track = self._cpu_features = 0.0
 
@@ -108,6 +109,11 @@ class EgoMapper:
     def frames(self) -> int:
         return len(self.tracker.results)
 
+    def reject(self, error: FrameError) -> None:
+        """Count an unusable frame (also one the caller could not even decode)."""
+        self.rejected[error.key] = self.rejected.get(error.key, 0) + 1
+        self.first_rejection.setdefault(error.key, str(error))
+
     def add(self, stamp_ns: int, color: np.ndarray, depth: np.ndarray, color_topic: str = "colour",
             depth_topic: str = "depth") -> TrackResult:
         """Track one decoded frame (RGB uint8, depth in metres with NaN/0 invalid).
@@ -115,10 +121,10 @@ class EgoMapper:
         try:
             if stamp_ns <= self._last_stamp:
                 raise FrameError(color_topic, "stamp not after the previous frame's",
-                                 f" ({stamp_ns} <= {self._last_stamp} ns)")
+                                 f" ({self._last_stamp} ns)", stamp_ns)
             frame = make_frame(stamp_ns, color, depth, self.camera, self._undistort, color_topic, depth_topic)
         except FrameError as exc:
-            self.rejected[exc.key] = self.rejected.get(exc.key, 0) + 1
+            self.reject(exc)
             raise
         t0, c0 = time.perf_counter(), time.thread_time()
         result = self.tracker.track(frame)
@@ -134,7 +140,8 @@ class EgoMapper:
         stats: dict[str, float] = {"frames": self.frames, "tracking_s": self._t_track,
                                    "tracking_cpu_s": self._cpu_track}
         c_finish = time.thread_time()
-        warnings = [f"{n} frame(s) rejected: {why}" for why, n in self.rejected.items()]
+        warnings = [f"{n} frame(s) rejected, the first: {self.first_rejection.get(why, why)}"
+                    for why, n in self.rejected.items()]
         t0 = time.perf_counter()
         features: list[KeyframeFeatures] = [f.result() for f in self._features]
         self._pool.shutdown()
@@ -275,14 +282,15 @@ def frames_between_keyframes(results: list[TrackResult], edges: list[OdometryEdg
 
 
 def map_recording(frames: Iterable[tuple[int, np.ndarray, np.ndarray]], camera: CameraModel,
-                  params: EgoParams = EgoParams()) -> EgoMapResult:
+                  params: EgoParams = EgoParams(), color_topic: str = "colour",
+                  depth_topic: str = "depth") -> EgoMapResult:
     """Offline entry: (stamp_ns, RGB uint8, depth metres) in time order. Unusable
     frames are skipped and reported in the result's warnings."""
     mapper = EgoMapper(camera, params)
     t0 = time.perf_counter()
     for stamp_ns, color, depth in frames:
         try:
-            mapper.add(stamp_ns, color, depth)
+            mapper.add(stamp_ns, color, depth, color_topic, depth_topic)
         except FrameError:
             pass
     result = mapper.finish()

@@ -86,7 +86,9 @@ def read_ego_frames(bag, recording: EgoRecording) -> Iterator[tuple[int, np.ndar
         return
     yield from pending
     if pairer.dropped:
-        recording.problems.append(f"{pairer.dropped} colour/depth image(s) without a partner within 5 ms dropped")
+        stream, stamp = pairer.first_dropped
+        recording.problems.append(f"{pairer.dropped} {t.color} / {t.depth} image(s) without a partner within 5 ms "
+                                  f"dropped, the first: {t.color if stream == 'colour' else t.depth} @ {stamp} ns")
 
 
 def prefetch(items: Iterator, depth: int = 8) -> Iterator:
@@ -131,6 +133,7 @@ def map_bag(bag, params: EgoParams = EgoParams()) -> tuple[EgoMapResult, EgoReco
     first = next(frames, None)
     if first is None:
         raise ValueError(f"{bag}: no usable ego frames: " + ("; ".join(recording.problems) or "none recorded"))
-    result = map_recording(itertools.chain([first], frames), recording.camera, params)
+    result = map_recording(itertools.chain([first], frames), recording.camera, params, recording.topics.color,
+                           recording.topics.depth)
     result.warnings.extend(recording.problems)
     return result, recording
