@@ -20,6 +20,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
+import open3d as o3d
 from scipy.spatial.transform import Rotation
 
 from yowo_common.camera import CameraModel
@@ -49,6 +50,12 @@ class EgoParams:
     cloud: CloudParams = CloudParams()
     layout: LayoutParams = LayoutParams()
     bundle_adjustment: bool = True       # False: stop after multiway registration (ablation)
+    # Open3D's parallel reductions (dense odometry, information matrices) sum in a
+    # varying order: runs differ by micrometres per frame, which keyframe and loop
+    # decisions turn into millimetres. One thread makes a recording map the same
+    # every time; on 2 cores it costs nothing measurable, since frames are decoded
+    # and features extracted on other threads. 0: Open3D's default (all cores).
+    open3d_threads: int = 1
 
 
 @dataclass
@@ -85,6 +92,9 @@ class EgoMapper:
             raise ValueError(f"{topic}: unusable ego intrinsics: {'; '.join(problems)}")
         self.camera = camera
         self.params = params
+        # Process-wide in Open3D: restored when the map is finished.
+        self._open3d_threads = o3d.utility.get_max_threads()
+        o3d.utility.set_max_threads(params.open3d_threads)
         self.ideal = pinhole(camera)
         self._undistort = Undistorter(camera)
         self._extractor = FeatureExtractor(params.features)
@@ -134,6 +144,12 @@ class EgoMapper:
         return result
 
     def finish(self) -> EgoMapResult:
+        try:
+            return self._finish()
+        finally:
+            o3d.utility.set_max_threads(self._open3d_threads)
+
+    def _finish(self) -> EgoMapResult:
         if len(self.tracker.results) < 2:
             raise ValueError(f"ego camera: {len(self.tracker.results)} usable RGB-D frame(s); mapping needs at "
                              "least 2" + (f" (rejected: {self.rejected})" if self.rejected else ""))
