@@ -176,7 +176,8 @@ class EgoMapper:
         mw = multiway_registration(keyframes, features, tr.edges, tr.odometry, p.loops)
         stats.update(multiway_s=time.perf_counter() - t0, edges_corrected=mw.edges_corrected,
                      loops_tried=mw.loops_tried,
-                     loops_verified=mw.loops_verified, loops_kept=mw.loops_kept)
+                     loops_verified=mw.loops_verified, loops_refined=mw.loops_refined,
+                     loops_kept=mw.loops_kept)
         T_kf = mw.T_odom_kf
 
         T_bundle, scene_map = T_kf, _SceneMap.empty()

@@ -9,8 +9,8 @@ registration [Choi et al. 2015]), as an Open3D pose graph:
   common features are checked across a neighbour (PnP over two edges);
 - loop-closure edges between non-consecutive keyframes that the (corrected)
   odometry places close together and looking the same way, verified by SIFT +
-  PnP RANSAC (the PnP estimate is the edge; Choi et al. refine every loop
-  densely, which costs more than it adds here);
+  PnP RANSAC and refined densely from the PnP estimate (as Choi et al. refine
+  every loop: PnP is off by centimetres on wide-baseline loops);
 - Open3D's global optimisation (Levenberg-Marquardt with a line process on the
   loop edges, which prunes the ones inconsistent with the rest)."""
 from __future__ import annotations
@@ -42,6 +42,11 @@ class LoopParams:
     # 0.1 deg here, while wrong dense minima are off by 0.3-4 deg.
     agree_m: float = 0.01
     agree_deg: float = 0.25
+    # Loop edges are refined densely from PnP (which is off by 1-8 cm / up to
+    # 2.5 deg on wide-baseline loops, the dense result by a few mm); a dense
+    # result further than this from PnP fell into another minimum.
+    loop_refine_max_m: float = 0.1
+    loop_refine_max_deg: float = 3.0
     # When they disagree, the tracking edge stays if the SIFT matches support it
     # almost as well as the PnP estimate (PnP may be the ambiguous one).
     keep_support_ratio: float = 0.7
@@ -69,7 +74,8 @@ class MultiwayResult:
     T_odom_kf: list[np.ndarray]    # optimised keyframe poses
     edges_corrected: int           # tracking edges replaced after the PnP check
     loops_tried: int
-    loops_verified: int
+    loops_verified: int            # by SIFT + PnP
+    loops_refined: int             # of those, refined densely
     loops_kept: int                # after the line process pruned the inconsistent ones
     pairs: list[PairMatches]       # every matched keyframe pair (consecutive and loops)
 
@@ -106,15 +112,18 @@ def match_pair(fa: KeyframeFeatures, fb: KeyframeFeatures, a: int, b: int, K: np
     return PairMatches(a, b, m, relative_pose(fa, fb, m, K, params))
 
 
-def _agree(T1: np.ndarray, T2: np.ndarray, params: LoopParams) -> bool:
-    return (np.linalg.norm(T1[:3, 3] - T2[:3, 3]) <= params.agree_m
-            and rotation_angle_deg(T1[:3, :3], T2[:3, :3]) <= params.agree_deg)
+def _agree(T1: np.ndarray, T2: np.ndarray, params: LoopParams, loose: bool = False) -> bool:
+    max_m, max_deg = ((params.loop_refine_max_m, params.loop_refine_max_deg) if loose
+                      else (params.agree_m, params.agree_deg))
+    return (np.linalg.norm(T1[:3, 3] - T2[:3, 3]) <= max_m
+            and rotation_angle_deg(T1[:3, :3], T2[:3, :3]) <= max_deg)
 
 
-def dense_edge(pair: PairMatches, kf_a: Keyframe, kf_b: Keyframe, odometry: RgbdOdometry, params: LoopParams
-               ) -> OdometryEdge | None:
+def dense_edge(pair: PairMatches, kf_a: Keyframe, kf_b: Keyframe, odometry: RgbdOdometry, params: LoopParams,
+               kind: str = "odometry") -> OdometryEdge | None:
     """Edge b -> a from a PnP-verified pair: dense refinement from the PnP
-    estimate when both agree (the dense result is the more accurate), else None."""
+    estimate when it passes the odometry checks and agrees with PnP (closely
+    for a tracking edge, loosely for a loop), else None."""
     if pair.pnp is None:
         return None
     T_a_b = inv_se3(pair.pnp.T_b_a)
@@ -122,9 +131,9 @@ def dense_edge(pair: PairMatches, kf_a: Keyframe, kf_b: Keyframe, odometry: Rgbd
     for cascade in odometry.params.cascades:
         T, fit, rmse = odometry.register(src, tgt, T_a_b, cascade)
         if (fit >= odometry.params.min_fitness and rmse <= odometry.params.max_inlier_rmse
-                and _agree(T, T_a_b, params)):
+                and _agree(T, T_a_b, params, loose=kind == "loop")):
             return OdometryEdge(kf_b.index, kf_a.index, T, odometry.information(kf_b.depth_mm, kf_a.depth_mm, T),
-                                "odometry")
+                                kind)
     return None
 
 
@@ -226,8 +235,8 @@ def optimize(keyframes: list[Keyframe], edges: list[OdometryEdge],
 def multiway_registration(keyframes: list[Keyframe], features: list[KeyframeFeatures],
                           odometry_edges: list[OdometryEdge], odometry: RgbdOdometry,
                           params: LoopParams = LoopParams(), workers: int = 2) -> MultiwayResult:
-    """Pairs are matched on ``workers`` threads (BLAS and OpenCV release the GIL;
-    each pair's result does not depend on the thread)."""
+    """Pairs are matched and loops refined on ``workers`` threads (BLAS, OpenCV and
+    Open3D release the GIL; each pair's result does not depend on the thread)."""
     K = odometry.K_full
     with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="ego_match") as pool:
         def match_all(ab: list[tuple[int, int]]) -> list[PairMatches]:
@@ -247,17 +256,13 @@ def multiway_registration(keyframes: list[Keyframe], features: list[KeyframeFeat
         nodes = [Keyframe(k.index, k.frame_index, k.stamp_ns, T, k.color, k.depth_mm, k.segment)
                  for k, T in zip(keyframes, T_init)]
         candidates = loop_candidates(nodes, params)
-        loop_pairs = match_all(candidates)
-    loop_edges = []
-    for (a, b), pair in zip(candidates, loop_pairs):
-        if pair.pnp is None:
-            continue
-        # Loop edges keep the PnP estimate (mm-accurate with SIFT; a dense
-        # refinement per loop costs more than it adds); the line process of the
-        # global optimisation prunes the ones that disagree with the rest.
-        T_a_b = inv_se3(pair.pnp.T_b_a)
-        info = odometry.information(keyframes[b].depth_mm, keyframes[a].depth_mm, T_a_b)
-        loop_edges.append(OdometryEdge(b, a, T_a_b, info, "loop"))
-        pairs.append(pair)
+        loop_pairs = [p for p in match_all(candidates) if p.pnp is not None]
+        # Choi et al. refine every loop densely: PnP alone is too coarse for the
+        # information matrix a dense edge carries. Loops that fail it give no
+        # edge; their matches still serve the bundle adjustment.
+        refined = list(pool.map(lambda p: dense_edge(p, keyframes[p.a], keyframes[p.b], odometry, params, "loop"),
+                                loop_pairs))
+    loop_edges = [e for e in refined if e is not None]
+    pairs += loop_pairs
     T, kept = optimize(nodes, edges + loop_edges, params)
-    return MultiwayResult(T, corrected, len(candidates), len(loop_edges), kept, pairs)
+    return MultiwayResult(T, corrected, len(candidates), len(loop_pairs), len(loop_edges), kept, pairs)
