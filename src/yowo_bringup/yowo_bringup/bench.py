@@ -1,19 +1,20 @@
 """`yowo bench`: YOWO and the baselines on the same generated recordings, written
-to BENCHMARKS.md (tables + the exact command + versions + machine) and JSON."""
+to BENCHMARKS.md (tables + the exact command + versions + machine, see
+bench_report) and results.json. Each case runs in a fresh process so its peak
+memory is its own."""
 from __future__ import annotations
 
-import json
-import os
-import platform
-import shlex
-import sys
+import multiprocessing
+import resource
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
 
 from yowo_cmc.group_sfm import SfmParams, calibrate_groups
+from yowo_cmc.omecc_style import calibrate_groups_omecc
 from yowo_sim.capture import generate
 from yowo_sim.detector import DetectorSpec
 from yowo_sim.presets import get_preset
@@ -33,12 +34,19 @@ SCENARIOS = {
     **{f"kp_noise_{s}px": {"kp_sigma_px": s} for s in (0.5, 1.0, 2.0, 5.0)},
 }
 
-# Relative calibration methods compared in Table "relative_pose_eval".
+# Relative calibration methods compared in Table "relative_pose_eval": label ->
+# (keypoint source, calibration). The baselines are labelled reimplementations of the
+# ideas, not the authors' code.
 RELATIVE_METHODS = {
-    "YOWO": SfmParams(),
-    # Labelled reimplementation of the idea, not the authors' code: E-matrix pair with the
-    # most inliers, PnP in order of matches, one BA with one sigma, no overlap scores.
-    "ECCMP-style": SfmParams(overlap_ordering=False, per_id_sigma=False, min_edge_overlap=0.0),
+    "YOWO": ("keypoints", calibrate_groups),
+    "YOWO, image detector": ("images", calibrate_groups),
+    # E-matrix pair with the most inliers, PnP in order of matches, one BA with one
+    # sigma; no overlap scores (neither for ordering nor for the edge rule).
+    "ECCMP-style": ("keypoints", lambda tracks: calibrate_groups(
+        tracks, SfmParams(overlap_ordering=False, per_id_sigma=False, min_edge_overlap=0.0))),
+    # Factor graph over the person keypoints from a pairwise initialisation with a
+    # person-height scale prior (yowo_cmc.omecc_style); YOWO's grouping.
+    "OMECC-style": ("keypoints", calibrate_groups_omecc),
 }
 
 
@@ -70,18 +78,30 @@ def bag_for(preset: str, scenario: str, seed: int, bags_dir: Path, log=print) ->
     return path
 
 
-def relative_pose_case(bag: Path) -> dict:
+KEYPOINT_NAMES = {0: "head_top", 1: "ground"}
+
+
+def has_cmc_images(bag: Path) -> bool:
+    from .contract import discover_inputs
+    return any("/image_raw" in t.name and t.count for t in discover_inputs(bag).topics)
+
+
+def relative_pose_case(bag: Path, images: bool) -> dict:
     gt = read_ground_truth(bag).cameras
-    tracks = read_cmc_tracks(bag)
+    tracks = {"keypoints": read_cmc_tracks(bag, source="keypoints")}
+    if images:
+        tracks["images"] = read_cmc_tracks(bag, source="images")
     out = {}
-    for method, params in RELATIVE_METHODS.items():
+    for method, (source, calibrate) in RELATIVE_METHODS.items():
+        if source not in tracks:
+            continue
         t0 = time.perf_counter()
-        result = calibrate_groups(tracks, params)
+        result = calibrate(tracks[source])
         seconds = time.perf_counter() - t0
         est = {n: T for g in result.groups for n, T in g.T_local_cam.items()}
         groups = {g.group_id: g.names for g in result.groups}
         errs, _ = relative_pose_errors(est, gt, groups)
-        out[method] = {"summary": asdict(ErrorSummary.of(errs)), "calibrated": len(est), "cameras": len(tracks),
+        out[method] = {"summary": asdict(ErrorSummary.of(errs)), "calibrated": len(est), "cameras": len(gt),
                        "seconds": seconds, "errors": {e.name: e.eps_pos_m for e in errs}, "groups": groups}
     return out
 
@@ -128,8 +148,9 @@ def detector_case(bag: Path, preset, seed: int) -> dict:
     both = errors[0] + errors[1]
     return {"frames_full_view": full, "detected": detected, "detection_rate": detected / max(full, 1),
             "median_px": float(np.median(both)) if both else float("nan"),
-            "median_px_by_id": {k: float(np.median(v)) if v else float("nan") for k, v in errors.items()},
-            "p90_px_by_id": {k: float(np.percentile(v, 90)) if v else float("nan") for k, v in errors.items()},
+            "median_px_by_id": {KEYPOINT_NAMES[k]: float(np.median(v)) if v else float("nan") for k, v in errors.items()},
+            "p90_px_by_id": {KEYPOINT_NAMES[k]: float(np.percentile(v, 90)) if v else float("nan")
+                             for k, v in errors.items()},
             "seconds": seconds, "frames": sum(len(v) for v in frames.values())}
 
 
@@ -202,13 +223,17 @@ def relative_pose_bound(bag: Path, groups: dict[str, list[str]], preset) -> dict
     return bounds
 
 
-def full_case(bag: Path) -> dict:
-    """The whole method (offline API) with and without joint optimisation; ego ATE per
-    stage of the ego pipeline; layout IoU; time per stage and the real-time factor."""
+def full_case(bag: Path, images: bool) -> dict:
+    """The whole method (offline API) with and without joint optimisation, the
+    Hloc/Kapture-style localisation of each CMC's background against the ego map
+    without and with YOWO's poses as prior (Table register_pose_eval_2, when the
+    recording has CMC images); ego ATE per stage of the ego pipeline; layout IoU;
+    time per stage and the real-time factor."""
+    from yowo_fusion.hloc_style import build_database, localize, read_keyframe_images
     from yowo_fusion.pipeline import CmcInput, FusionParams, fuse
 
     from .evaluation import Trajectory, ate, layout_iou, registration_errors
-    from .offline import ego_map_data, process, read_backgrounds, read_cmc_tracks
+    from .offline import ego_map_data, process, read_backgrounds
 
     gt = read_ground_truth(bag)
     r = process(bag)
@@ -217,17 +242,31 @@ def full_case(bag: Path) -> dict:
     no_jo = fuse(ego_map_data(r.ego), r.grouping.groups, r.grouping.ungrouped,
                  {t.name: CmcInput(t, backgrounds.get(t.name)) for t in tracks}, FusionParams(joint_optimisation=False))
 
-    def registration(result):
-        est = {c.name: c.T_world_cam for c in result.cameras if c.T_world_cam is not None}
+    def registration(est: dict) -> dict:
         return asdict(ErrorSummary.of(registration_errors(est, gt.cameras))) | {"registered": len(est),
                                                                                  "cameras": len(gt.cameras)}
+
+    def registered(result) -> dict:
+        return {c.name: c.T_world_cam for c in result.cameras if c.T_world_cam is not None}
+
+    reg = {"YOWO without joint optimisation": registration(registered(no_jo)),
+           "YOWO": registration(registered(r.fusion))}
+    if images and backgrounds:
+        db = build_database(r.ego.camera, r.ego.T_world_kf, read_keyframe_images(bag, r.ego))
+        priors = registered(r.fusion)
+        cams = {t.name: t.camera for t in tracks}
+        for label, use_prior in (("Hloc-style", False), ("Hloc-style with YOWO prior", True)):
+            t0 = time.perf_counter()
+            found = {n: localize(db, n, bg, cams[n], priors.get(n) if use_prior else None) for n, bg in backgrounds.items()}
+            reg[label] = registration({n: f.T_world_cam for n, f in found.items() if f.T_world_cam is not None}) \
+                | {"seconds": time.perf_counter() - t0}
     ate_by_stage = {stage: ate(Trajectory(r.ego.stamps_ns, T), gt.ego).rmse_m
                     for stage, T in r.ego.trajectories.items()}
     ate_by_stage["joint"] = ate(Trajectory(r.ego.stamps_ns, r.fusion.T_world_ego), gt.ego).rmse_m
     duration = (gt.ego.stamps_ns.max() - gt.ego.stamps_ns.min()) / 1e9
-    return {"registration": registration(r.fusion), "registration_no_jo": registration(no_jo),
-            "ate": ate_by_stage, "layout_iou": layout_iou(r.ego.layout.floor_polygons, gt.floor),
-            "seconds": r.seconds, "recording_s": duration, "realtime_factor": sum(r.seconds.values()) / duration}
+    return {"registration": reg, "ate": ate_by_stage, "layout_iou": layout_iou(r.ego.layout.floor_polygons, gt.floor),
+            "seconds": r.seconds, "recording_s": duration, "realtime_factor": sum(r.seconds.values()) / duration,
+            "cmcs": len(gt.cameras)}
 
 
 def _mean(values):
@@ -235,117 +274,42 @@ def _mean(values):
     return float(np.mean(values)) if values else float("nan")
 
 
-def run_bench(preset: str, seeds: list[int], scenarios: list[str], out_dir: Path, log=print, full: bool = True) -> dict:
+def run_case(preset: str, scenario: str, seed: int, bag: Path, full: bool) -> dict:
+    """One recording: every table's numbers, and this process's peak memory."""
+    images = has_cmc_images(bag)
+    case = {"preset": preset, "scenario": scenario, "seed": seed, "bag": bag.name,
+            "relative": relative_pose_case(bag, images)}
+    yowo = case["relative"]["YOWO"]
+    bound = relative_pose_bound(bag, yowo["groups"], scenario_preset(preset, scenario))
+    ratios = [yowo["errors"][n] / b for n, b in bound.items() if n in yowo["errors"] and b > 0]
+    case["bound"] = {"position_m": bound, "mean_bound_m": _mean(bound.values()), "mean_ratio": _mean(ratios)}
+    if images:
+        case["detector"] = detector_case(bag, scenario_preset(preset, scenario), seed)
+    if full:
+        case["full"] = full_case(bag, images)
+    case["peak_memory_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return case
+
+
+def run_bench(presets: list[str], seeds: list[int], scenarios: list[str], out_dir: Path, log=print,
+              full: bool = True) -> dict:
     out_dir.mkdir(parents=True, exist_ok=True)
     cases = []
-    for scenario in scenarios:
-        for seed in seeds:
-            bag = bag_for(preset, scenario, seed, out_dir / "bags", log)
-            case = {"scenario": scenario, "seed": seed, "bag": bag.name, "relative": relative_pose_case(bag)}
-            yowo = case["relative"]["YOWO"]
-            bound = relative_pose_bound(bag, yowo["groups"], scenario_preset(preset, scenario))
-            ratios = [yowo["errors"][n] / b for n, b in bound.items() if n in yowo["errors"] and b > 0]
-            case["bound"] = {"position_m": bound, "mean_bound_m": _mean(bound.values()),
-                             "mean_ratio": _mean(ratios)}
-            if full:
-                case["full"] = full_case(bag)
-                f = case["full"]
-                log(f"  full: registration {f['registration']['pos_avg']:.3f} m / {f['registration']['rot_avg']:.3f} deg, "
-                    f"ATE {f['ate'].get('joint', float('nan')):.3f} m, IoU {f['layout_iou']:.3f}, "
-                    f"real-time factor {f['realtime_factor']:.2f}")
-            cases.append(case)
-            log(f"{scenario} seed {seed}: " + ", ".join(
-                f"{m} {r['summary']['pos_avg']:.4f} m / {r['summary']['rot_avg']:.3f} deg"
-                for m, r in case["relative"].items()))
-    return {"preset": preset, "seeds": seeds, "scenarios": scenarios, "cases": cases}
-
-
-def environment() -> dict:
-    import cv2
-    import gtsam  # noqa: F401
-    import open3d
-
-    cpu = ""
-    try:
-        cpu = next(line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    from importlib.metadata import version
-    return {"python": platform.python_version(), "numpy": np.__version__, "opencv": cv2.__version__,
-            "open3d": open3d.__version__, "gtsam": version("gtsam"), "cpu": cpu, "cores": os.cpu_count(),
-            "date": time.strftime("%Y-%m-%d")}
-
-
-def markdown(results: dict, command: str, env: dict) -> str:
-    lines = ["# BENCHMARKS", "", "Produced by:", "", "```", command, "```", "",
-             f"Machine: {env['cpu']} ({env['cores']} cores); Python {env['python']}, numpy {env['numpy']}, "
-             f"OpenCV {env['opencv']}, Open3D {env['open3d']}, GTSAM {env['gtsam']}; {env['date']}.", "",
-             f"Preset `{results['preset']}`, seeds {results['seeds']}. Errors are averaged over seeds; "
-             "each seed's value is the avg (or max) over cameras.", "",
-             "## CMC relative pose (KU-aligned per group), paper Table relative_pose_eval", "",
-             "| scenario | method | avg eps_pos [m] | max eps_pos [m] | avg eps_rot [deg] | max eps_rot [deg] "
-             "| calibrated / cameras | time [s] |", "|---|---|---|---|---|---|---|---|"]
-    by_scenario: dict[str, list] = {}
-    for case in results["cases"]:
-        by_scenario.setdefault(case["scenario"], []).append(case)
-    for scenario, cases in by_scenario.items():
-        for method in RELATIVE_METHODS:
-            rs = [c["relative"][method] for c in cases]
-            lines.append(
-                f"| {scenario} | {method} | {_mean(r['summary']['pos_avg'] for r in rs):.4f} | "
-                f"{_mean(r['summary']['pos_max'] for r in rs):.4f} | {_mean(r['summary']['rot_avg'] for r in rs):.3f} | "
-                f"{_mean(r['summary']['rot_max'] for r in rs):.3f} | "
-                f"{sum(r['calibrated'] for r in rs)} / {sum(r['cameras'] for r in rs)} | "
-                f"{_mean(r['seconds'] for r in rs):.1f} |")
-    full = [c for c in results["cases"] if "full" in c]
-    if full:
-        lines += ["", "## CMC registration in the map frame (no alignment), paper Tables register_pose_eval / ablation",
-                  "", "The map frame is YOWO's (defined by the first ego pose); ground truth is expressed in it.", "",
-                  "| scenario | method | avg eps_pos [m] | max eps_pos [m] | avg eps_rot [deg] | max eps_rot [deg] "
-                  "| registered / cameras |", "|---|---|---|---|---|---|---|"]
-        for scenario in by_scenario:
-            cs = [c["full"] for c in full if c["scenario"] == scenario]
-            for key, label in (("registration_no_jo", "YOWO without joint optimisation"), ("registration", "YOWO")):
-                rs = [c[key] for c in cs]
-                lines.append(f"| {scenario} | {label} | {_mean(r['pos_avg'] for r in rs):.4f} | "
-                             f"{_mean(r['pos_max'] for r in rs):.4f} | {_mean(r['rot_avg'] for r in rs):.3f} | "
-                             f"{_mean(r['rot_max'] for r in rs):.3f} | {sum(r['registered'] for r in rs)} / "
-                             f"{sum(r['cameras'] for r in rs)} |")
-        stages = list(full[0]["full"]["ate"])
-        lines += ["", "## Scene mapping, paper Table scene_map", "",
-                  "| scenario | " + " | ".join(f"ego ATE RMSE: {s} [m]" for s in stages) + " | layout IoU |",
-                  "|---|" + "---|" * (len(stages) + 1)]
-        for scenario in by_scenario:
-            cs = [c["full"] for c in full if c["scenario"] == scenario]
-            lines.append(f"| {scenario} | " + " | ".join(f"{_mean(c['ate'][s] for c in cs):.4f}" for s in stages)
-                         + f" | {_mean(c['layout_iou'] for c in cs):.3f} |")
-        lines += ["", "## Speed (2 cores)", "", "| scenario | ego [s] | CMC [s] | fusion [s] | recording [s] "
-                  "| processing / recording time |", "|---|---|---|---|---|---|"]
-        for scenario in by_scenario:
-            cs = [c["full"] for c in full if c["scenario"] == scenario]
-            lines.append(f"| {scenario} | {_mean(c['seconds']['ego'] for c in cs):.1f} | "
-                         f"{_mean(c['seconds']['cmc'] for c in cs):.1f} | {_mean(c['seconds']['fusion'] for c in cs):.1f} | "
-                         f"{_mean(c['recording_s'] for c in cs):.1f} | {_mean(c['realtime_factor'] for c in cs):.2f} |")
-    lines += ["", "## Achieved error / Cramer-Rao bound (CMC position in its group)", "",
-              "Bound: GTSAM marginals of the group BA at ground truth with the simulated detector noise "
-              "(gauge: first camera fixed, first baseline's length). Ratio: YOWO's KU-aligned eps_pos / bound, "
-              "averaged over cameras (target <= 1.5). Caveat: the bound treats every grid sample as an independent "
-              "measurement, while the estimator also exploits the walk's temporal smoothness (Savitzky-Golay "
-              "smoothing of each track), so ratios below 1 are possible; a bound with the motion prior is to do.", "",
-              "| scenario | mean bound [m] | mean ratio |", "|---|---|---|"]
-    for scenario, cases in by_scenario.items():
-        lines.append(f"| {scenario} | {_mean(c['bound']['mean_bound_m'] for c in cases):.4f} | "
-                     f"{_mean(c['bound']['mean_ratio'] for c in cases):.2f} |")
-    return "\n".join(lines) + "\n"
-
-
-def write_outputs(results: dict, out_dir: Path, markdown_path: Path | None) -> None:
-    env = environment()
-    command = "yowo " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[0].endswith("yowo") \
-        else " ".join(shlex.quote(a) for a in sys.argv)
-    results = {**results, "environment": env, "command": command}
-    (out_dir / "results.json").write_text(json.dumps(results, indent=1))
-    text = markdown(results, command, env)
-    (out_dir / "BENCHMARKS.md").write_text(text)
-    if markdown_path is not None:
-        markdown_path.write_text(text)
+    spawn = multiprocessing.get_context("spawn")
+    for preset in presets:
+        for scenario in scenarios:
+            for seed in seeds:
+                bag = bag_for(preset, scenario, seed, out_dir / "bags", log)
+                with ProcessPoolExecutor(1, mp_context=spawn) as pool:
+                    case = pool.submit(run_case, preset, scenario, seed, bag, full).result()
+                cases.append(case)
+                log(f"{preset} {scenario} seed {seed}: " + ", ".join(
+                    f"{m} {r['summary']['pos_avg']:.4f} m / {r['summary']['rot_avg']:.3f} deg"
+                    for m, r in case["relative"].items()))
+                if full:
+                    f = case["full"]
+                    log(f"  full: registration {f['registration']['YOWO']['pos_avg']:.3f} m / "
+                        f"{f['registration']['YOWO']['rot_avg']:.3f} deg, ATE {f['ate'].get('joint', float('nan')):.3f} m, "
+                        f"IoU {f['layout_iou']:.3f}, real-time factor {f['realtime_factor']:.2f}, "
+                        f"peak memory {case['peak_memory_mb']:.0f} MB")
+    return {"presets": presets, "seeds": seeds, "scenarios": scenarios, "cases": cases}

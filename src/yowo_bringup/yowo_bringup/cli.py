@@ -192,7 +192,8 @@ def cmd_demo(args) -> int:
 
 def cmd_bench(args) -> int:
     """YOWO and the baselines on generated recordings -> BENCHMARKS.md + results.json."""
-    from .bench import SCENARIOS, run_bench, write_outputs
+    from .bench import SCENARIOS, run_bench
+    from .bench_report import write_outputs
 
     unknown = [s for s in args.scenarios if s not in SCENARIOS]
     if unknown:
@@ -242,7 +243,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_demo)
 
     p = verbs.add_parser("bench", help="YOWO and baselines on generated recordings -> BENCHMARKS.md")
-    p.add_argument("--preset", default="small", help="tiny | small | standard | large")
+    p.add_argument("--preset", nargs="+", default=["small"],
+                   help="one or more of tiny, small, standard, large (several: the scale table)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--scenarios", nargs="+", default=["normal"], help="normal, texture_poor, symmetric, "
                    "dim_light, stationary, kp_noise_{0.5,1.0,2.0,5.0}px")

@@ -23,6 +23,7 @@ class AlignParams:
     temporal_threshold_s: float = 1.0    # |f_i - f_j| <= temporalThreshold (seconds; rates differ)
     max_time_gap_s: float = 0.15         # ego poses further than this from a track stamp are not matched
     rebalance: bool = True               # False: the original (unweighted) KU, for ablation
+    use_ground_points: bool = True       # ground points matched to the floor as well (see align_group)
 
 
 @dataclass
@@ -75,16 +76,30 @@ def interpolate_positions(stamps_ns: np.ndarray, positions: np.ndarray, query_ns
 
 
 def align_group(track_stamps_ns: np.ndarray, track_local: np.ndarray, ego_stamps_ns: np.ndarray,
-                ego_positions: np.ndarray, params: AlignParams = AlignParams()) -> Alignment:
+                ego_positions: np.ndarray, params: AlignParams = AlignParams(),
+                ground_stamps_ns: np.ndarray | None = None, ground_local: np.ndarray | None = None) -> Alignment:
     """Sim(3) taking the group's local frame to the world, from the head-top track
-    (local, pseudo-scale) and the ego camera positions (world, metric)."""
-    world, ok = interpolate_positions(ego_stamps_ns, ego_positions, track_stamps_ns,
-                                      int(params.max_time_gap_s * 1e9))
+    (local, pseudo-scale) and the ego camera positions (world, metric).
+
+    Optionally also the agent's ground points, matched to the floor (z = 0) under the
+    ego position: head tops alone are nearly coplanar, and along a straight walk they
+    leave the roll about the walking line free (the paper's KU uses the head track only;
+    this is our addition)."""
+    gap = int(params.max_time_gap_s * 1e9)
+    world, ok = interpolate_positions(ego_stamps_ns, ego_positions, track_stamps_ns, gap)
     if ok.sum() < 3:
         raise ValueError(f"only {int(ok.sum())} head-top points of the group fall within the ego recording; "
                          "needs at least 3 to align")
     world, local, stamps = world[ok], track_local[ok], track_stamps_ns[ok]
     labels = spatiotemporal_clusters(world, stamps, params)
+    if ground_local is not None and len(ground_local):
+        floor, ok = interpolate_positions(ego_stamps_ns, ego_positions, ground_stamps_ns, gap)
+        floor[:, 2] = 0.0
+        if ok.any():
+            # The floor points cluster on their own, so heads and feet weigh about the same.
+            floor_labels = spatiotemporal_clusters(floor[ok], ground_stamps_ns[ok], params) + labels.max() + 1
+            world, local = np.vstack([world, floor[ok]]), np.vstack([local, ground_local[ok]])
+            labels = np.concatenate([labels, floor_labels])
     weights = rebalanced_weights(labels) if params.rebalance else np.full(len(world), 1.0 / len(world))
     S = umeyama(local, world, weights=weights)
     return Alignment(S, len(world), int(labels.max()) + 1, weights, np.linalg.norm(S.apply(local) - world, axis=1))

@@ -9,7 +9,8 @@
   jointly. The factor is linearised at the initial estimate (LinearContainerFactor
   around a JacobianFactor) because Python custom factors are too slow at this size;
 - kin (eq. f_kin): constant-velocity second difference of the head-top track and
-  constant top-to-bottom vector between successive frames, both linear (exact).
+  constant top-to-bottom vector between successive frames, both linear (exact); our
+  addition: that vector is vertical (the ground point is under the head top).
 Gauge: the ego map fixes the world: a tight prior on the first ego pose, priors on
 every ego pose (the ego map's own estimate) and depth-derived priors on the landmarks
 (scale). The agent's ground points get a prior on the floor plane z = 0 (the ego
@@ -40,6 +41,7 @@ class JointParams:
     a2e_sigma_m: float = 0.05                # head-top vs predicted head top (offset model residual)
     kin_accel_sigma_m: float = 0.05          # per grid step, second difference of the head top
     kin_body_sigma_m: float = 0.05           # change of the top-to-bottom vector per grid step
+    upright_sigma_m: float = 0.05            # horizontal offset of the ground point from under the head top
     max_a2e_gap_s: float = 0.2               # ego poses further apart than this are not interpolated
     estimate_head_offset: bool = True        # False: the paper's model, head top = ego camera centre
     iterations: int = 50
@@ -188,6 +190,10 @@ def _add_chain_kinematics(graph, values, p: JointProblem, params: JointParams, m
             d = p.agent_points[t] - p.agent_points[b]
             values.insert(D(n), gtsam.Point3(*d))
             graph.add(_linear([(D(n), I3), (A(t), -I3), (A(b), I3)], np.zeros(3), FIXED_SIGMA * 1e3, values))
+            # Upright: the ground point is under the head top (horizontal part of D ~ 0, up to
+            # the gait's sway). Without it, along a straight walk the whole group can roll
+            # about the head-top line, the ground points sliding sideways on the floor.
+            graph.add(_linear([(D(n), I3[:2])], -d[:2], params.upright_sigma_m, values))
             body_keys[int(s)] = (n, d)
     body_noise = gtsam.noiseModel.Isotropic.Sigma(3, params.kin_body_sigma_m)
     for s in stamps:

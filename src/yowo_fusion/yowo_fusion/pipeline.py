@@ -103,12 +103,13 @@ def _on_floor(S: Sim3, group: CameraGroupResult) -> Sim3:
 def align_to_world(group: CameraGroupResult, ego: EgoMapData, params: AlignParams) -> tuple[Sim3, np.ndarray]:
     """Rebalanced Umeyama of the head-top track, put on the floor, then once more against
     the head top predicted from the ego poses with the estimated rigid offset."""
-    top = group.point_ids == 0
+    top, bottom = group.point_ids == 0, group.point_ids == 1
     stamps, local = group.point_stamps_ns[top], group.points[top]
-    S = align_group(stamps, local, ego.stamps_ns, ego.T_world_ego[:, :3, 3], params).sim3_world_local
+    ground = (group.point_stamps_ns[bottom], group.points[bottom]) if params.use_ground_points else (None, None)
+    S = align_group(stamps, local, ego.stamps_ns, ego.T_world_ego[:, :3, 3], params, *ground).sim3_world_local
     o = _head_offset(_on_floor(S, group), stamps, local, ego, int(params.max_time_gap_s * 1e9))
     heads = np.einsum("nij,j->ni", ego.T_world_ego[:, :3, :3], o) + ego.T_world_ego[:, :3, 3]
-    return align_group(stamps, local, ego.stamps_ns, heads, params).sim3_world_local, o
+    return align_group(stamps, local, ego.stamps_ns, heads, params, *ground).sim3_world_local, o
 
 
 def _verdict(rmse: float, cov: np.ndarray | None, params: FusionParams) -> tuple[str, str]:
