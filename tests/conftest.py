@@ -1,3 +1,4 @@
+import fcntl
 import os
 import random
 import subprocess
@@ -11,11 +12,24 @@ GRAPH = Path(__file__).parent / "graph"
 
 @pytest.fixture
 def ros_env():
-    """An environment with a DDS domain of its own, so concurrent test runs do not cross-talk."""
-    env = dict(os.environ)
-    env["ROS_DOMAIN_ID"] = str(random.Random().randint(1, 100))
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    return env
+    """An environment with a DDS domain of its own, so concurrent test runs (other
+    checkouts, CI next to development) never cross-talk: the domain is claimed with
+    an exclusive lock on /tmp/yowo-ros-domain-<id>.lock, held for the test and
+    released by the kernel even if the test process dies."""
+    domains = list(range(1, 101))
+    random.Random().shuffle(domains)
+    for domain in domains:
+        lock = open(f"/tmp/yowo-ros-domain-{domain}.lock", "w")
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            lock.close()
+            continue
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+        yield env
+        lock.close()
+        return
+    pytest.fail("every ROS domain 1-100 is locked by other test runs")
 
 
 @pytest.fixture

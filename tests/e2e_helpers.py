@@ -44,5 +44,10 @@ def three_camera_recording(path, seed=0, duration_s=20.0, tamper=None):
 
 
 def yowo(*args, env, timeout=300):
-    return subprocess.run([sys.executable, "-m", "yowo_bringup.cli", *map(str, args)], env=env,
+    """The yowo CLI in its own process. Graph verbs get their own --timeout inside ours,
+    so a hung graph is stopped (and its nodes reaped) by the supervisor, not orphaned."""
+    args = [str(a) for a in args]
+    if args[0] in ("run", "calibrate-cmc") and "--timeout" not in args:
+        args += ["--timeout", str(max(timeout - 60, timeout // 2))]
+    return subprocess.run([sys.executable, "-m", "yowo_bringup.cli", *args], env=env,
                           capture_output=True, text=True, timeout=timeout)
