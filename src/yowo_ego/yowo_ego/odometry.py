@@ -232,7 +232,8 @@ class KeyframeTracker:
     the odometry edges between consecutive keyframes."""
 
     def __init__(self, K: np.ndarray, params: OdometryParams = OdometryParams(), on_keyframe=None):
-        """``on_keyframe(keyframe, gray, depth)`` sees every new keyframe with its
+        """``on_keyframe(keyframe, edge, gray, depth)`` sees every new keyframe with
+        the edge from the previous keyframe (None for the first) and its
         full-resolution grey image and depth (for feature extraction)."""
         self.params = params
         self.odometry = RgbdOdometry(K, params)
@@ -344,14 +345,16 @@ class KeyframeTracker:
         kf = Keyframe(len(self.keyframes), level.frame_index, level.stamp_ns, T_odom_cam, level.color,
                       level.depth_mm, segment)
         self.keyframes.append(kf)
-        if self.on_keyframe is not None:
-            self.on_keyframe(kf, level.full_gray, level.full_depth)
+        edge = None
         if previous is not None:
             if T_prev_cur is not None:
                 info = self.odometry.information(level.depth_mm, previous.depth_mm, T_prev_cur)
-                self.edges.append(OdometryEdge(kf.index, previous.index, T_prev_cur, info, "odometry"))
+                edge = OdometryEdge(kf.index, previous.index, T_prev_cur, info, "odometry")
             else:
                 # Unknown motion: a weak edge keeps the graph connected (1 m, ~30 deg sigma).
                 T = inv_se3(previous.T_odom_cam) @ T_odom_cam
-                self.edges.append(OdometryEdge(kf.index, previous.index, T, np.diag([1.0] * 3 + [1.0] * 3), "break"))
+                edge = OdometryEdge(kf.index, previous.index, T, np.diag([1.0] * 3 + [1.0] * 3), "break")
+            self.edges.append(edge)
+        if self.on_keyframe is not None:
+            self.on_keyframe(kf, edge, level.full_gray, level.full_depth)
         self._kf = level

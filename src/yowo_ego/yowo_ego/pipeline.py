@@ -8,8 +8,9 @@
            --> layout (walls, floor polygon, ceiling)
 
 ``EgoMapper`` is streaming: ``add()`` tracks each frame as it arrives (the node
-publishes that odometry online) and extracts keyframe features on a worker
-thread; ``finish()`` runs everything that needs the whole recording.
+publishes that odometry online); each keyframe's features, edge check and loop
+closures run on a worker thread meanwhile; ``finish()`` runs what needs the
+whole recording (pose-graph optimisation, bundle adjustment, cloud, layout).
 ``map_recording()`` is the offline entry for an iterable of decoded frames.
 """
 from __future__ import annotations
@@ -30,7 +31,7 @@ from .features import FeatureExtractor, FeatureParams, KeyframeFeatures, backpro
 from .frames import FrameError, Undistorter, make_frame, pinhole
 from .layout import KIND_WALL, Layout, LayoutParams, build_layout
 from .odometry import Keyframe, KeyframeTracker, OdometryEdge, OdometryParams, TrackResult
-from .posegraph import LoopParams, multiway_registration
+from .posegraph import LoopParams, MultiwayRegistration
 from .refine import BundleParams, bundle_adjust
 from .scene import (CloudParams, Rectification, find_floor, fuse_cloud, planar_patches, rectify,
                     up_from_cameras)
@@ -101,18 +102,24 @@ class EgoMapper:
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ego_features")
         self._features: list[Future] = []
         self.tracker = KeyframeTracker(camera.K, params.odometry, on_keyframe=self._on_keyframe)
+        self._multiway = MultiwayRegistration(self.tracker.odometry, params.loops)
         self.rejected: dict[str, int] = {}      # problem (topic: what) -> frames
         self.first_rejection: dict[str, str] = {}   # problem -> the first such frame's message
         self._last_stamp = -1
-        self._t_track = self._cpu_track = self._cpu_features = 0.0
+        self._t_track = self._cpu_track = self._cpu_features = self._cpu_loops = 0.0
 
-    def _on_keyframe(self, kf, gray, depth) -> None:
-        self._features.append(self._pool.submit(self._extract, gray, depth))
+    def _on_keyframe(self, kf, edge, gray, depth) -> None:
+        self._features.append(self._pool.submit(self._keyframe_job, kf, edge, gray, depth))
 
-    def _extract(self, gray, depth) -> KeyframeFeatures:
+    def _keyframe_job(self, kf, edge, gray, depth) -> KeyframeFeatures:
+        """On the worker thread, in keyframe order: features, then the keyframe's
+        edge check and loop closures (multiway registration while frames arrive)."""
         t0 = time.thread_time()
         features = self._extractor(gray, depth)
-        self._cpu_features += time.thread_time() - t0
+        t1 = time.thread_time()
+        self._multiway.add(kf, features, edge)
+        self._cpu_features += t1 - t0
+        self._cpu_loops += time.thread_time() - t1
         return features
 
     @property
@@ -161,7 +168,8 @@ class EgoMapper:
         t0 = time.perf_counter()
         features: list[KeyframeFeatures] = [f.result() for f in self._features]
         self._pool.shutdown()
-        stats.update(feature_wait_s=time.perf_counter() - t0, features_cpu_s=self._cpu_features)
+        stats.update(feature_wait_s=time.perf_counter() - t0, features_cpu_s=self._cpu_features,
+                     loops_online_cpu_s=self._cpu_loops)
         tr, p = self.tracker, self.params
         keyframes = tr.keyframes
         K = self.ideal.K
@@ -173,7 +181,7 @@ class EgoMapper:
         T_odometry = [k.T_odom_cam for k in keyframes]
 
         t0 = time.perf_counter()
-        mw = multiway_registration(keyframes, features, tr.edges, tr.odometry, p.loops)
+        mw = self._multiway.finish()
         stats.update(multiway_s=time.perf_counter() - t0, edges_corrected=mw.edges_corrected,
                      loops_tried=mw.loops_tried,
                      loops_verified=mw.loops_verified, loops_refined=mw.loops_refined,

@@ -12,10 +12,12 @@ registration [Choi et al. 2015]), as an Open3D pose graph:
   PnP RANSAC and refined densely from the PnP estimate (as Choi et al. refine
   every loop: PnP is off by centimetres on wide-baseline loops);
 - Open3D's global optimisation (Levenberg-Marquardt with a line process on the
-  loop edges, which prunes the ones inconsistent with the rest)."""
+  loop edges, which prunes the ones inconsistent with the rest).
+
+Edge checks and loop closures run per keyframe as the recording goes on
+(``MultiwayRegistration.add``); only the optimisation waits for its end."""
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -80,29 +82,27 @@ class MultiwayResult:
     pairs: list[PairMatches]       # every matched keyframe pair (consecutive and loops)
 
 
-def loop_candidates(keyframes: list[Keyframe], params: LoopParams = LoopParams()) -> list[tuple[int, int]]:
-    """Non-consecutive keyframe pairs (a < b) likely to see the same surfaces:
-    close and looking the same way by odometry, plus every pair around a
-    tracking break (where odometry poses cannot be trusted)."""
-    n = len(keyframes)
-    if n < 2:
+def loop_candidates_of(b: int, T_odom_kf: list[np.ndarray], params: LoopParams = LoopParams()) -> list[int]:
+    """Earlier keyframes a (at least ``min_separation`` before b) likely to see
+    the same surfaces as b: close and looking the same way by the given poses;
+    the ``max_per_keyframe`` nearest."""
+    if b < params.min_separation:
         return []
-    C = np.array([k.T_odom_cam[:3, 3] for k in keyframes])
-    Z = np.array([k.T_odom_cam[:3, 2] for k in keyframes])
-    dist = np.linalg.norm(C[:, None] - C[None], axis=2)
-    cos = np.clip(Z @ Z.T, -1.0, 1.0)
-    idx = np.arange(n)
-    ok = ((idx[None] - idx[:, None]) >= params.min_separation) & (dist <= params.max_distance_m) \
-        & (cos >= np.cos(np.radians(params.max_angle_deg)))
-    pairs = set()
-    for b in range(n):
-        a_ok = np.flatnonzero(ok[:, b])
-        for a in a_ok[np.argsort(dist[a_ok, b])][:params.max_per_keyframe]:
-            pairs.add((int(a), b))
-    segments = np.array([k.segment for k in keyframes])
+    C = np.array([T[:3, 3] for T in T_odom_kf[:b - params.min_separation + 1]])
+    Z = np.array([T[:3, 2] for T in T_odom_kf[:b - params.min_separation + 1]])
+    dist = np.linalg.norm(C - T_odom_kf[b][:3, 3], axis=1)
+    ok = np.flatnonzero((dist <= params.max_distance_m)
+                        & (Z @ T_odom_kf[b][:3, 2] >= np.cos(np.radians(params.max_angle_deg))))
+    return [int(a) for a in ok[np.argsort(dist[ok], kind="stable")][:params.max_per_keyframe]]
+
+
+def break_pairs(segments: list[int], params: LoopParams = LoopParams()) -> list[tuple[int, int]]:
+    """Every keyframe pair (a < c) within ``break_window`` either side of a
+    tracking break (where odometry poses cannot be trusted)."""
+    n, pairs = len(segments), set()
     for b in np.flatnonzero(np.diff(segments) > 0) + 1:
         lo, hi = max(0, b - params.break_window), min(n, b + params.break_window)
-        pairs.update((a, c) for a in range(lo, b) for c in range(b, hi) if c - a >= 1)
+        pairs.update((a, c) for a in range(lo, b) for c in range(b, hi))
     return sorted(pairs)
 
 
@@ -232,37 +232,86 @@ def optimize(keyframes: list[Keyframe], edges: list[OdometryEdge],
     return [orthonormalize(np.asarray(n.pose)) for n in graph.nodes], kept
 
 
+class MultiwayRegistration:
+    """Streaming multiway registration. ``add`` takes each keyframe with its
+    features and the tracking edge from the previous keyframe as soon as they
+    exist (the ego stage calls it on its feature thread while the recording
+    goes on): the edge is checked against PnP, and the keyframe's loop
+    candidates among the earlier ones (by the poses chained along the checked
+    edges) are verified and refined. ``finish`` checks the edges that need a
+    neighbour, tries the pairs around tracking breaks and optimises the graph."""
+
+    def __init__(self, odometry: RgbdOdometry, params: LoopParams = LoopParams()):
+        self.odometry, self.params = odometry, params
+        self.keyframes: list[Keyframe] = []
+        self.features: list[KeyframeFeatures] = []
+        self.edges: list[OdometryEdge] = []          # checked tracking edges, b -> b - 1
+        self._checked: list[bool] = []
+        self._chain: list[np.ndarray] = []           # keyframe poses along the checked edges
+        self._pairs: list[PairMatches] = []
+        self._loops: list[OdometryEdge] = []
+        self._tried: set[tuple[int, int]] = set()
+        self._corrected = self._verified = 0
+
+    def add(self, keyframe: Keyframe, features: KeyframeFeatures, edge: OdometryEdge | None) -> None:
+        """``edge``: the tracking edge to the previous keyframe (None for the first)."""
+        b = keyframe.index
+        if b != len(self.keyframes) or (edge is None) != (b == 0):
+            raise ValueError(f"keyframe {b} added out of order (have {len(self.keyframes)})")
+        self.keyframes.append(keyframe)
+        self.features.append(features)
+        if edge is None:
+            self._chain.append(np.eye(4))
+            return
+        a = edge.target
+        pair = match_pair(self.features[a], features, a, b, self.odometry.K_full, self.params.features)
+        self._pairs.append(pair)
+        edge, replaced = verify_edge(edge, pair, self.features, self.keyframes, self.odometry, self.params)
+        self.edges.append(edge)
+        self._checked.append(pair.pnp is not None)
+        self._corrected += replaced
+        self._chain.append(orthonormalize(self._chain[a] @ edge.T_target_source))
+        for a in loop_candidates_of(b, self._chain, self.params):
+            self._try_loop(a, b)
+
+    def _try_loop(self, a: int, b: int) -> None:
+        """Verify a loop candidate by SIFT + PnP and refine it densely (Choi et
+        al. refine every loop: PnP is off by centimetres on wide-baseline loops
+        and too coarse for the information matrix a dense edge carries). A loop
+        that fails the refinement gives no edge; its matches still serve the
+        bundle adjustment."""
+        self._tried.add((a, b))
+        pair = match_pair(self.features[a], self.features[b], a, b, self.odometry.K_full, self.params.features)
+        if pair.pnp is None:
+            return
+        self._verified += 1
+        self._pairs.append(pair)
+        edge = dense_edge(pair, self.keyframes[a], self.keyframes[b], self.odometry, self.params, "loop")
+        if edge is not None:
+            self._loops.append(edge)
+
+    def finish(self) -> MultiwayResult:
+        p = self.params
+        self._corrected += _verify_across(self.edges, self._checked, self._pairs, self.features, self.keyframes,
+                                          self.odometry, p)
+        for a, c in break_pairs([k.segment for k in self.keyframes], p):
+            if (a, c) not in self._tried:
+                self._try_loop(a, c)
+        # Re-initialise the nodes along the checked chain (tracking built on the old edges).
+        T_init = chain_poses(len(self.keyframes), self.edges)
+        nodes = [Keyframe(k.index, k.frame_index, k.stamp_ns, T, k.color, k.depth_mm, k.segment)
+                 for k, T in zip(self.keyframes, T_init)]
+        T, kept = optimize(nodes, self.edges + self._loops, p)
+        return MultiwayResult(T, self._corrected, len(self._tried), self._verified, len(self._loops), kept,
+                              self._pairs)
+
+
 def multiway_registration(keyframes: list[Keyframe], features: list[KeyframeFeatures],
                           odometry_edges: list[OdometryEdge], odometry: RgbdOdometry,
-                          params: LoopParams = LoopParams(), workers: int = 2) -> MultiwayResult:
-    """Pairs are matched and loops refined on ``workers`` threads (BLAS, OpenCV and
-    Open3D release the GIL; each pair's result does not depend on the thread)."""
-    K = odometry.K_full
-    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="ego_match") as pool:
-        def match_all(ab: list[tuple[int, int]]) -> list[PairMatches]:
-            return list(pool.map(lambda p: match_pair(features[p[0]], features[p[1]], p[0], p[1], K,
-                                                      params.features), ab))
-
-        pairs, edges, checked, corrected = [], [], [], 0
-        for e, pair in zip(odometry_edges, match_all([(e.target, e.source) for e in odometry_edges])):
-            pairs.append(pair)
-            e, replaced = verify_edge(e, pair, features, keyframes, odometry, params)
-            edges.append(e)
-            checked.append(pair.pnp is not None)
-            corrected += replaced
-        corrected += _verify_across(edges, checked, pairs, features, keyframes, odometry, params)
-        # Re-initialise the nodes along the verified chain (tracking built on the old edges).
-        T_init = chain_poses(len(keyframes), edges)
-        nodes = [Keyframe(k.index, k.frame_index, k.stamp_ns, T, k.color, k.depth_mm, k.segment)
-                 for k, T in zip(keyframes, T_init)]
-        candidates = loop_candidates(nodes, params)
-        loop_pairs = [p for p in match_all(candidates) if p.pnp is not None]
-        # Choi et al. refine every loop densely: PnP alone is too coarse for the
-        # information matrix a dense edge carries. Loops that fail it give no
-        # edge; their matches still serve the bundle adjustment.
-        refined = list(pool.map(lambda p: dense_edge(p, keyframes[p.a], keyframes[p.b], odometry, params, "loop"),
-                                loop_pairs))
-    loop_edges = [e for e in refined if e is not None]
-    pairs += loop_pairs
-    T, kept = optimize(nodes, edges + loop_edges, params)
-    return MultiwayResult(T, corrected, len(candidates), len(loop_pairs), len(loop_edges), kept, pairs)
+                          params: LoopParams = LoopParams()) -> MultiwayResult:
+    """The whole recording at once (``odometry_edges``: b -> b - 1 for b >= 1)."""
+    mw = MultiwayRegistration(odometry, params)
+    step = {e.source: e for e in odometry_edges}
+    for kf, f in zip(keyframes, features):
+        mw.add(kf, f, step.get(kf.index))
+    return mw.finish()
