@@ -69,14 +69,20 @@ def cmd_simulate(args) -> int:
 
 def _execute(args, mode: str):
     """Plan and run the graph; returns the outcome or None (message printed) on failure."""
-    from .run import plan_run
+    from .run import plan_live, plan_run
     from .run_node import RunFailed, execute
 
-    plan = plan_run(args.bag, args.output, mode=mode, rate=args.rate, overrides=_load_overrides(args),
-                    source=args.cmc_source)
+    if args.verb == "live":
+        plan = plan_live(args.cameras, args.output, mode=mode, source=args.cmc_source, image_topic=args.image_topic,
+                         ego_topics=(args.ego_color, args.ego_depth, args.ego_info), overrides=_load_overrides(args))
+        what = "live run (end the walk with 'yowo end-walk')"
+    else:
+        plan = plan_run(args.bag, args.output, mode=mode, rate=args.rate, overrides=_load_overrides(args),
+                        source=args.cmc_source)
+        what = f"{mode} run of {args.bag}"
     for w in plan.warnings:
         print(f"warning: {w}", file=sys.stderr)
-    print(f"{mode} run of {args.bag}: {len(plan.cameras)} CMCs ({', '.join(plan.cameras)}), "
+    print(f"{what}: {len(plan.cameras)} CMCs ({', '.join(plan.cameras)}), "
           f"{len(plan.nodes)} node processes; logs in {Path(args.output) / 'logs'}")
     try:
         return execute(plan, timeout_s=args.timeout)
@@ -108,6 +114,17 @@ def cmd_run(args) -> int:
         print_tables(json.loads(metrics.read_text()), Console())
     print(f"results: {args.output}/ (report.html, cameras.yaml, ego_trajectory.tum, map.ply, layout.json, result.mcap)")
     return 0 if any(c.T_world_cam is not None for c in out.cameras) else 1
+
+
+def cmd_live(args) -> int:
+    """The graph on live camera topics: full registration, or relative calibration (--cmc-only)."""
+    from .run import CMC, FULL
+
+    out = _execute(args, CMC if args.cmc_only else FULL)
+    if out is None:
+        return 1
+    print(f"results: {args.output}/ ({len(out.cameras)} of the cameras calibrated; see cameras.yaml)")
+    return 0
 
 
 def cmd_calibrate_cmc(args) -> int:
@@ -232,6 +249,21 @@ def build_parser() -> argparse.ArgumentParser:
     p = verbs.add_parser("calibrate-cmc", help="relative calibration of each CMC group from agent keypoints only")
     _add_run_options(p)
     p.set_defaults(func=cmd_calibrate_cmc)
+    p = verbs.add_parser("live", help="run the graph on live camera topics (no recording) until 'yowo end-walk'")
+    p.add_argument("--cameras", nargs="+", required=True, help="CMC names (topics /cmc/<name>/...)")
+    p.add_argument("-o", "--output", required=True, help="results directory")
+    p.add_argument("--cmc-only", action="store_true", help="relative calibration of the CMC groups only")
+    p.add_argument("--cmc-source", choices=("keypoints", "images"), default="keypoints",
+                   help="agent keypoints from /cmc/<n>/agent_keypoints or the built-in image detector")
+    p.add_argument("--image-topic", default="image_raw/compressed", help="CMC image topic under /cmc/<name>/")
+    p.add_argument("--ego-color", default="/ego/color/image_raw/compressed")
+    p.add_argument("--ego-depth", default="/ego/depth/image_raw")
+    p.add_argument("--ego-info", default="/ego/color/camera_info")
+    p.add_argument("--params", help="YAML file of node parameters: {node: {param: value}}")
+    p.add_argument("--set", action="append", metavar="NODE.PARAM=VALUE", help="override one node parameter")
+    p.add_argument("--timeout", type=float, default=24 * 3600.0, help="give up after this many seconds")
+    p.set_defaults(func=cmd_live)
+
     p = verbs.add_parser("end-walk", help="live operation: the walk is over, let every stage finalise")
     p.add_argument("--linger", type=float, default=5.0, help="seconds to keep the announcement up")
     p.set_defaults(func=cmd_end_walk)

@@ -28,7 +28,7 @@ CMC, FULL = "cmc", "full"
 
 @dataclass
 class RunPlan:
-    bag: Path
+    bag: Path | None                       # None: live operation on camera topics
     out_dir: Path
     mode: str                              # "cmc": relative calibration only; "full": registered in the map
     cameras: list[str]
@@ -75,7 +75,7 @@ def plan_run(bag, out_dir, mode: str = FULL, rate: float = 0.0, overrides: dict 
     if mode == FULL and not inputs.has_ego:
         raise ValueError(f"{bag}: no complete ego camera ({'; '.join(p for p in problems if 'ego' in p)}); "
                          "use 'yowo calibrate-cmc' for the CMC-only relative calibration")
-    nodes, played, cameras = [], [], []
+    trackers, played, cameras = [], [], []
     for c in inputs.cmc_names:
         kind, keypoints, image = cmc_source(c, present, source)
         if not kind:
@@ -86,31 +86,58 @@ def plan_run(bag, out_dir, mode: str = FULL, rate: float = 0.0, overrides: dict 
         # External keypoints use images only for the background (scene keypoints: full runs).
         image = image if kind == "images" or mode == FULL else ""
         cameras.append(c)
-        nodes.append(NodeSpec(f"keypoint_tracker_{c}", STAGE_MODULES["keypoint_tracker"],
-                              {"camera": c, "source": kind, "image_topic": image}))
+        trackers.append((c, kind, image))
         played += [cmc_info_topic(c)] + [t for t in (keypoints, image) if t]
     if len(cameras) < 2:
         raise ValueError(f"{bag}: {len(cameras)} usable CMC(s) with agent keypoints or images; needs at least 2")
+    ego = (_first_present(EGO_COLOR, present), _first_present(EGO_DEPTH, present), EGO_INFO)
+    if mode == FULL:
+        played += list(ego)
+    nodes, final, outputs = _stage_nodes(mode, trackers, ego, overrides)
+    replay = NodeSpec("replay", STAGE_MODULES["replay"], {
+        "bag": str(bag), "rate": float(rate), "topics": played, "wait_for_topics": played, "linger_s": 1.0})
+    replay.parameters.update((overrides or {}).get("replay", {}))
+    nodes.append(replay)  # last: it waits for the stages' subscriptions
+    return RunPlan(Path(bag), Path(out_dir), mode, cameras, nodes, final, outputs, problems)
+
+
+def plan_live(cameras: list[str], out_dir, mode: str = FULL, source: str = "keypoints",
+              image_topic: str = "image_raw/compressed", ego_topics: tuple[str, str, str] = (
+                  EGO_COLOR[1], EGO_DEPTH[0], EGO_INFO), overrides: dict | None = None) -> RunPlan:
+    """Nodes for live operation on camera topics (no recording): the same graph without
+    the replay; the stages finalise when `yowo end-walk` announces the end of the walk."""
+    if len(cameras) < 2:
+        raise ValueError(f"live run: {len(cameras)} CMC(s) given; needs at least 2")
+    if source not in ("keypoints", "images"):
+        raise ValueError(f"live run: CMC keypoint source '{source}' (keypoints or images)")
+    trackers = [(c, source, f"/cmc/{c}/{image_topic}" if source == "images" or mode == FULL else "")
+                for c in cameras]
+    nodes, final, outputs = _stage_nodes(mode, trackers, ego_topics, overrides)
+    return RunPlan(None, Path(out_dir), mode, list(cameras), nodes, final, outputs)
+
+
+def _stage_nodes(mode: str, trackers: list[tuple[str, str, str]], ego: tuple[str, str, str],
+                 overrides: dict | None) -> tuple[list[NodeSpec], str, dict[str, str]]:
+    """The stage processes (trackers: (camera, source, image topic)), the final stage and
+    the latched outputs the runner collects."""
+    cameras = [c for c, _, _ in trackers]
+    nodes = [NodeSpec(f"keypoint_tracker_{c}", STAGE_MODULES["keypoint_tracker"],
+                      {"camera": c, "source": kind, "image_topic": image}) for c, kind, image in trackers]
     nodes.append(NodeSpec("group_sfm", STAGE_MODULES["group_sfm"], {"cameras": cameras}))
     final = "group_sfm"
-    if mode == FULL:
-        color, depth = _first_present(EGO_COLOR, present), _first_present(EGO_DEPTH, present)
-        nodes.append(NodeSpec("ego_mapper", STAGE_MODULES["ego_mapper"],
-                              {"color_topic": color, "depth_topic": depth, "info_topic": EGO_INFO}))
-        nodes.append(NodeSpec("fusion", STAGE_MODULES["fusion"], {"cameras": cameras}))
-        played += [color, depth, EGO_INFO]
-        final = "fusion"
-    nodes.append(NodeSpec("replay", STAGE_MODULES["replay"], {
-        "bag": str(bag), "rate": float(rate), "topics": played, "wait_for_topics": played, "linger_s": 1.0}))
-    for spec in nodes:
-        spec.parameters.update((overrides or {}).get(spec.name, {}))
     outputs = {topics.GROUPS: "yowo_msgs/msg/CameraGroupArray"}
     if mode == FULL:
+        nodes.append(NodeSpec("ego_mapper", STAGE_MODULES["ego_mapper"],
+                              {"color_topic": ego[0], "depth_topic": ego[1], "info_topic": ego[2]}))
+        nodes.append(NodeSpec("fusion", STAGE_MODULES["fusion"], {"cameras": cameras}))
+        final = "fusion"
         outputs.update({topics.CMC_POSES: "yowo_msgs/msg/RegisteredCameraArray", topics.TF_STATIC: "tf2_msgs/msg/TFMessage",
                         topics.LAYOUT_MARKERS: "visualization_msgs/msg/MarkerArray", topics.EGO_MAP: "yowo_msgs/msg/EgoMap",
                         topics.LAYOUT: "yowo_msgs/msg/SceneLayout", topics.MAP_POINTS: "sensor_msgs/msg/PointCloud2",
                         topics.EGO_PATH: "nav_msgs/msg/Path"})
-    return RunPlan(Path(bag), Path(out_dir), mode, cameras, nodes, final, outputs, problems)
+    for spec in nodes:
+        spec.parameters.update((overrides or {}).get(spec.name, {}))
+    return nodes, final, outputs
 
 
 def read_intrinsics(bag, cameras: list[str]) -> dict[str, np.ndarray]:
@@ -136,7 +163,8 @@ def write_group_calibration(path: Path, groups: list[CameraGroupResult], ungroup
             cams.append({"name": n, "group": g.group_id, "method": "group_sfm", "status": "ok", "reason": "",
                          "frame": f"{g.group_id} (reference camera {g.reference}, arbitrary scale)",
                          "T_group_camera": pose_entry(g.T_local_cam[n]),
-                         "K": np.asarray(intrinsics.get(n, np.zeros((3, 3)))).round(6).tolist(),
+                         # K from the recording; a live run leaves it to the camera's CameraInfo
+                         **({"K": np.asarray(intrinsics[n]).round(6).tolist()} if n in intrinsics else {}),
                          "reprojection_rmse_px": round(float(g.rmse_px[n]), 4),
                          "num_agent_observations": int(g.num_observations[n])})
     for n, why in ungrouped.items():
@@ -152,7 +180,8 @@ def write_run_results(plan: RunPlan, outputs: dict, status: dict, replay, second
     groups, ungrouped = groups_from_msg(outputs[topics.GROUPS]) if topics.GROUPS in outputs else ([], {})
     cameras: list = groups
     if plan.mode == CMC and topics.GROUPS in outputs:
-        write_group_calibration(out / "cameras.yaml", groups, ungrouped, read_intrinsics(plan.bag, plan.cameras))
+        write_group_calibration(out / "cameras.yaml", groups, ungrouped,
+                                read_intrinsics(plan.bag, plan.cameras) if plan.bag else {})
         files.append(out / "cameras.yaml")
     if plan.mode == FULL:
         cameras = _write_full_results(plan, outputs, files)
@@ -162,7 +191,7 @@ def write_run_results(plan: RunPlan, outputs: dict, status: dict, replay, second
         for t, n in zip(msg.input_topics, msg.received_counts):
             received.setdefault(t, {})[stage] = int(n)
     (out / "run_log.yaml").write_text(yaml.safe_dump({
-        "bag": str(plan.bag), "mode": plan.mode, "seconds": round(seconds, 2), "failure": failure,
+        "bag": str(plan.bag or "live"), "mode": plan.mode, "seconds": round(seconds, 2), "failure": failure,
         "warnings": plan.warnings, "stages": {s: m.message for s, m in status.items()},
         "replay_published": published, "received": received,
         "replay_error": replay.error if replay is not None else "no replay status"}, sort_keys=False))
@@ -218,13 +247,15 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     files.append(result_bag)
     metrics, gt_cams = None, None
     try:
+        if plan.bag is None:
+            raise ValueError("live run: no ground truth")
         from .eval import evaluate
         from .results import read_ground_truth
         metrics = evaluate(out, plan.bag)
         gt_cams = read_ground_truth(plan.bag).cameras
     except ValueError:
         pass  # no ground truth in the recording: the report shows the results only
-    write_report(out / "report.html", str(plan.bag), cameras, ego_xy, floors, metrics, gt_cams, plan.warnings)
+    write_report(out / "report.html", str(plan.bag or "live"), cameras, ego_xy, floors, metrics, gt_cams, plan.warnings)
     files.append(out / "report.html")
     if metrics:
         from .eval import write_metrics
