@@ -292,12 +292,16 @@ def run_case(preset: str, scenario: str, seed: int, bag: Path, full: bool) -> di
 
 
 def run_bench(presets: list[str], seeds: list[int], scenarios: list[str], out_dir: Path, log=print,
-              full: bool = True) -> dict:
+              full: bool = True, sweep_preset: str | None = None) -> dict:
+    """Every preset x scenario x seed; with `sweep_preset`, scenarios other than
+    "normal" run on that preset only (the larger presets take the normal scenario)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     cases = []
     spawn = multiprocessing.get_context("spawn")
     for preset in presets:
         for scenario in scenarios:
+            if sweep_preset and scenario != "normal" and preset != sweep_preset:
+                continue
             for seed in seeds:
                 bag = bag_for(preset, scenario, seed, out_dir / "bags", log)
                 with ProcessPoolExecutor(1, mp_context=spawn) as pool:
