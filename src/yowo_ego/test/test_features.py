@@ -23,3 +23,15 @@ def test_match_recovers_a_permutation_and_rejects_ambiguous_and_one_sided_pairs(
     matched_a = set(m[:, 0])
     assert perm[0] not in matched_a and perm[1] not in matched_a and 200 not in matched_a
     assert len(m) == 198          # every unambiguous point
+
+
+def test_keypoint_depth_is_interpolated_and_rejected_on_edges():
+    from yowo_ego.features import sample_depth
+    v, u = np.mgrid[0:20, 0:30]
+    depth = (2.0 + 0.01 * u + 0.005 * v).astype(np.float32)        # a slanted plane: 1 cm per pixel
+    depth[:, 20:] = 4.0                                              # a depth edge at u = 19.5
+    uv = np.array([[7.3, 5.6], [12.5, 10.5], [19.6, 5.0], [0.2, 0.2]])
+    z = sample_depth(depth, uv, 0.03)
+    assert np.allclose(z[:2], 2.0 + 0.01 * uv[:2, 0] + 0.005 * uv[:2, 1], atol=1e-5)
+    assert np.isnan(z[2])                                            # on the edge
+    assert np.isfinite(z[3])                                         # at the border: clamped, no crash

@@ -35,15 +35,23 @@ class KeyframeFeatures:
 
 
 def sample_depth(depth: np.ndarray, uv: np.ndarray, edge_ratio: float) -> np.ndarray:
-    """Depth at the nearest pixel; NaN when the 3x3 neighbourhood spans a depth
-    edge (the keypoint may belong to either side) or holds invalid pixels."""
+    """Depth at the (sub-pixel) keypoint, interpolated bilinearly: on a floor
+    seen at a grazing angle, the nearest pixel's depth is centimetres off. NaN
+    when the 3x3 neighbourhood of the nearest pixel spans a depth edge (the
+    keypoint may belong to either side) or holds invalid pixels."""
     h, w = depth.shape
     u = np.clip(np.round(uv[:, 0]).astype(int), 1, w - 2)
     v = np.clip(np.round(uv[:, 1]).astype(int), 1, h - 2)
     patch = np.stack([depth[v + dv, u + du] for dv in (-1, 0, 1) for du in (-1, 0, 1)], axis=1)
+    # The 2x2 cell holding the keypoint lies inside that 3x3 neighbourhood.
+    x = np.clip(uv[:, 0], u - 0.5, u + 0.5)
+    y = np.clip(uv[:, 1], v - 0.5, v + 0.5)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = x - x0, y - y0
+    z = ((1 - fy) * ((1 - fx) * depth[y0, x0] + fx * depth[y0, x0 + 1])
+         + fy * ((1 - fx) * depth[y0 + 1, x0] + fx * depth[y0 + 1, x0 + 1])).astype(float)
     with np.errstate(invalid="ignore"):
         spread = np.ptp(patch, axis=1)
-        z = depth[v, u].astype(float)
         bad = ~np.isfinite(spread) | (spread > edge_ratio * z) | ~(z > 0)
     z[bad] = np.nan
     return z
