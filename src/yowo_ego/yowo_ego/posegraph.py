@@ -305,13 +305,3 @@ class MultiwayRegistration:
         return MultiwayResult(T, self._corrected, len(self._tried), self._verified, len(self._loops), kept,
                               self._pairs)
 
-
-def multiway_registration(keyframes: list[Keyframe], features: list[KeyframeFeatures],
-                          odometry_edges: list[OdometryEdge], odometry: RgbdOdometry,
-                          params: LoopParams = LoopParams()) -> MultiwayResult:
-    """The whole recording at once (``odometry_edges``: b -> b - 1 for b >= 1)."""
-    mw = MultiwayRegistration(odometry, params)
-    step = {e.source: e for e in odometry_edges}
-    for kf, f in zip(keyframes, features):
-        mw.add(kf, f, step.get(kf.index))
-    return mw.finish()
