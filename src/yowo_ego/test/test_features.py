@@ -35,3 +35,17 @@ def test_keypoint_depth_is_interpolated_and_rejected_on_edges():
     assert np.allclose(z[:2], 2.0 + 0.01 * uv[:2, 0] + 0.005 * uv[:2, 1], atol=1e-5)
     assert np.isnan(z[2])                                            # on the edge
     assert np.isfinite(z[3])                                         # at the border: clamped, no crash
+
+
+def test_keypoints_are_unbiased():
+    """SIFT keypoints of Gaussian blobs sit at the blob centres (pixel centres at
+    integer coordinates), within a few hundredths of a pixel."""
+    from yowo_ego.features import FeatureExtractor
+    v, u = np.mgrid[0:240, 0:320].astype(float)
+    centres = np.array([(60.3, 50.7), (150.0, 120.0), (250.5, 180.25), (200.2, 60.6)])
+    img = np.full(u.shape, 60.0)
+    for cx, cy in centres:
+        img += 150 * np.exp(-((u - cx) ** 2 + (v - cy) ** 2) / (2 * 3.0 ** 2))
+    f = FeatureExtractor()(img.astype(np.uint8), np.full(u.shape, 2.0, np.float32))
+    nearest = np.array([f.uv[np.argmin(np.linalg.norm(f.uv - c, axis=1))] for c in centres])
+    assert np.abs(nearest - centres).max() < 0.05

@@ -60,7 +60,10 @@ def sample_depth(depth: np.ndarray, uv: np.ndarray, edge_ratio: float) -> np.nda
 class FeatureExtractor:
     def __init__(self, params: FeatureParams = FeatureParams()):
         self.params = params
-        self._sift = cv2.SIFT_create(params.max_features)
+        # Precise upscaling: OpenCV's default shifts keypoints of the upsampled
+        # first octave by +0.25 px in x and y, a bias the bundle adjustment
+        # would take for a pose error.
+        self._sift = cv2.SIFT_create(params.max_features, enable_precise_upscale=True)
 
     def __call__(self, gray: np.ndarray, depth: np.ndarray) -> KeyframeFeatures:
         kps, desc = self._sift.detectAndCompute(gray, None)
