@@ -45,7 +45,7 @@ class SfmParams:
     # through a doorway shares many matches with the next room's cameras, all in one
     # strip of its image: a weak edge that pulls a whole group off by centimetres.
     # (The ECCMP-style baseline sets 0: no overlap scores.)
-    min_edge_overlap: float = 1.0
+    min_edge_overlap: float = 0.5
 
 
 @dataclass
@@ -198,10 +198,13 @@ def group_cameras(obs: GridObservations, pairs: list[PairGeometry], params: SfmP
             G.add_edge(p.a, p.b, weight=p.num_inliers)
     groups: list[list[int]] = []
     for comp in nx.connected_components(G):
-        if len(comp) == 2:
-            groups.append(sorted(comp))
-        elif len(comp) > 2:
+        if len(comp) > 2:
             groups += [sorted(c) for c in nx.k_edge_components(G.subgraph(comp), k=2) if len(c) >= 2]
+    # Cameras left over (a pair alone, or joined to the rest by single edges) form pairs
+    # along their strongest edges: a pair needs no second path.
+    grouped = {c for g in groups for c in g}
+    rest = G.subgraph(set(G.nodes) - grouped)
+    groups += sorted(sorted(pair) for pair in nx.max_weight_matching(rest))
     grouped = {c for g in groups for c in g}
     reasons = {}
     for c in range(len(obs.names)):
