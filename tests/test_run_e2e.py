@@ -2,9 +2,13 @@
 multi-process graph (replay, ego mapper, one tracker per CMC, group SfM, fusion),
 then `yowo eval`, checked against the simulator's ground truth."""
 import json
+import subprocess
+import sys
+import time
 
 import yaml
 
+from conftest import GRAPH
 from e2e_helpers import yowo
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
@@ -24,11 +28,32 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
     # Only a working pipeline lands every camera within 15 cm / 2 deg in the map frame.
     assert reg["count"] == 3 and reg["pos_max"] < 0.15 and reg["rot_max"] < 2.0, metrics
     assert metrics["ego"]["ate_rmse_m"] < 0.10
-    # The same recording run again gives the same cameras.yaml, byte for byte.
+    # The same recording run again gives the same cameras.yaml, byte for byte; this run
+    # lingers, and a subscriber started after the results are written gets every camera
+    # on /tf_static (transient local).
     again = tmp_path / "again"
-    r = yowo("run", bag, "-o", again, env=ros_env, timeout=700)
-    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    run = subprocess.Popen([sys.executable, "-m", "yowo_bringup.cli", "run", str(bag), "-o", str(again),
+                            "--linger", "30", "--timeout", "600"], env=ros_env, stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 600
+        while not (again / "report.html").exists() and run.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.5)
+        late = subprocess.run([sys.executable, str(GRAPH / "tf_static_late.py"), "sub", "15"], env=ros_env,
+                              capture_output=True, text=True, timeout=60)
+        stdout, stderr = run.communicate(timeout=120)
+    finally:
+        if run.poll() is None:
+            run.terminate()
+            run.wait(timeout=30)
+    assert run.returncode == 0, stdout[-3000:] + stderr[-3000:]
     assert (again / "cameras.yaml").read_text() == (out / "cameras.yaml").read_text()
+    cams = yaml.safe_load((out / "cameras.yaml").read_text())["cameras"]
+    assert late.returncode == 0, late.stderr
+    got = {line.split()[0]: float(line.split()[1]) for line in late.stdout.splitlines()}
+    assert got.keys() == {f"{c['name']}_optical_frame" for c in cams}, late.stdout
+    for c in cams:
+        assert abs(got[f"{c['name']}_optical_frame"] - c["T_world_camera"]["position"][0]) < 1e-5
     log = yaml.safe_load((out / "run_log.yaml").read_text())
     for topic, n in log["replay_published"].items():  # lossless: every message reached every stage
         assert log["received"][topic] and all(v == n for v in log["received"][topic].values()), topic

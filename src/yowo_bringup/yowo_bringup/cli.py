@@ -85,7 +85,7 @@ def _execute(args, mode: str):
     print(f"{what}: {len(plan.cameras)} CMCs ({', '.join(plan.cameras)}), "
           f"{len(plan.nodes)} node processes; logs in {Path(args.output) / 'logs'}")
     try:
-        return execute(plan, timeout_s=args.timeout)
+        return execute(plan, timeout_s=args.timeout, linger_s=getattr(args, "linger", 0.0))
     except RunFailed as exc:
         print(f"yowo {args.verb}: {exc}\n(partial results, if any, are in {args.output})", file=sys.stderr)
         return None
@@ -163,6 +163,9 @@ def _add_run_options(p) -> None:
     p.add_argument("--params", help="YAML file of node parameters: {node: {param: value}}")
     p.add_argument("--set", action="append", metavar="NODE.PARAM=VALUE", help="override one node parameter")
     p.add_argument("--timeout", type=float, default=3600.0, help="give up after this many seconds")
+    p.add_argument("--linger", type=float, default=0.0,
+                   help="keep the graph up this many seconds after the results are written (late /tf_static "
+                        "subscribers)")
     p.add_argument("--cmc-source", choices=("auto", "keypoints", "images"), default="auto",
                    help="CMC agent keypoints: recorded /cmc/<n>/agent_keypoints, the built-in image detector, "
                         "or auto (keypoints when recorded, else images)")

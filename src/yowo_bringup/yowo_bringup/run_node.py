@@ -47,16 +47,18 @@ class RunMonitor(Node):
         return f"replayed {played} messages; stages done {len(done)}/{len(stages)}"
 
 
-def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, env: dict | None = None) -> RunOutcome:
+def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, env: dict | None = None,
+            linger_s: float = 0.0) -> RunOutcome:
     """Run the graph and write the results directory. Raises RunFailed with the reason
-    (after writing whatever partial results exist)."""
+    (after writing whatever partial results exist). `linger_s`: after a successful run,
+    keep the graph up this long with the results written (late /tf_static subscribers)."""
     plan.out_dir.mkdir(parents=True, exist_ok=True)
     params_file = plan.out_dir / "params.yaml"
     write_params_file(plan.nodes, params_file)
     sup = Supervisor(plan.out_dir / "logs", env)
     stages = [n.name for n in plan.nodes if n.name != "replay"]
     t0 = time.monotonic()
-    failure = ""
+    failure, outcome = "", None
     with ros_context([]):
         monitor = RunMonitor(stages, plan.outputs)
         try:
@@ -86,11 +88,19 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, env: dict | Non
                 if time.monotonic() - last_report > 5.0:
                     last_report = time.monotonic()
                     log(f"[{time.monotonic() - t0:6.1f} s] {monitor.progress(stages)}")
+            if linger_s > 0 and not failure:
+                outcome = write_run_results(plan, dict(monitor.outputs), dict(monitor.status), monitor.replay,
+                                            time.monotonic() - t0, failure)
+                log(f"results written to {plan.out_dir}; the graph stays up {linger_s:.0f} s (latched /tf_static)")
+                end = time.monotonic() + linger_s
+                while time.monotonic() < end and not sup.dead():
+                    rclpy.spin_once(monitor, timeout_sec=0.1)
         finally:
             outputs, status, replay = dict(monitor.outputs), dict(monitor.status), monitor.replay
             monitor.destroy_node()
             sup.stop()
-    outcome = write_run_results(plan, outputs, status, replay, time.monotonic() - t0, failure)
+    if outcome is None:
+        outcome = write_run_results(plan, outputs, status, replay, time.monotonic() - t0, failure)
     if failure:
         raise RunFailed(failure)
     return outcome
