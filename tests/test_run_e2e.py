@@ -1,10 +1,12 @@
 """The full product path on a generated recording: `yowo run` through the real
 multi-process graph (replay, ego mapper, one tracker per CMC, group SfM, fusion),
 then `yowo eval`, checked against the simulator's ground truth."""
+import base64
 import json
 import subprocess
 import sys
 import time
+from html.parser import HTMLParser
 
 import yaml
 
@@ -23,6 +25,7 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
     for name in ("cameras.yaml", "ego_trajectory.tum", "map.ply", "layout.json", "report.html", "metrics.json"):
         assert (out / name).exists(), name
     assert (out / "result.mcap").is_dir()
+    check_report(out / "report.html", ["cam00", "cam01", "cam02"])
     metrics = json.loads((out / "metrics.json").read_text())
     reg = metrics["registration"]["summary"]
     # Only a working pipeline lands every camera within 15 cm / 2 deg in the map frame.
@@ -57,3 +60,33 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
     log = yaml.safe_load((out / "run_log.yaml").read_text())
     for topic, n in log["replay_published"].items():  # lossless: every message reached every stage
         assert log["received"][topic] and all(v == n for v in log["received"][topic].values()), topic
+
+
+def check_report(path, cameras):
+    """report.html parses, embeds a real PNG top view and has a table row per camera."""
+    class Report(HTMLParser):
+        def __init__(self):
+            super().__init__()
+            self.images, self.cells, self._cell = [], [], None
+
+        def handle_starttag(self, tag, attrs):
+            if tag == "img":
+                self.images.append(dict(attrs)["src"])
+            elif tag == "td":
+                self._cell = ""
+
+        def handle_data(self, data):
+            if self._cell is not None:
+                self._cell += data
+
+        def handle_endtag(self, tag):
+            if tag == "td" and self._cell is not None:
+                self.cells.append(self._cell.strip())
+                self._cell = None
+
+    report = Report()
+    report.feed(path.read_text())
+    (src,) = report.images
+    png = base64.b64decode(src.split("base64,", 1)[1])
+    assert png.startswith(b"\x89PNG") and len(png) > 20_000          # a drawn figure, not a blank one
+    assert all(name in report.cells for name in cameras), report.cells
