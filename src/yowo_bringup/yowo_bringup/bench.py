@@ -243,8 +243,9 @@ def full_case(bag: Path, images: bool) -> dict:
                  {t.name: CmcInput(t, backgrounds.get(t.name)) for t in tracks}, FusionParams(joint_optimisation=False))
 
     def registration(est: dict) -> dict:
-        return asdict(ErrorSummary.of(registration_errors(est, gt.cameras))) | {"registered": len(est),
-                                                                                 "cameras": len(gt.cameras)}
+        errors = registration_errors(est, gt.cameras)
+        return asdict(ErrorSummary.of(errors)) | {"registered": len(est), "cameras": len(gt.cameras),
+                                                  "errors": {e.name: [e.eps_pos_m, e.eps_rot_deg] for e in errors}}
 
     def registered(result) -> dict:
         return {c.name: c.T_world_cam for c in result.cameras if c.T_world_cam is not None}
