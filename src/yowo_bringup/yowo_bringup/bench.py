@@ -4,6 +4,7 @@ bench_report) and results.json. Each case runs in a fresh process so its peak
 memory is its own."""
 from __future__ import annotations
 
+import json
 import multiprocessing
 import resource
 import time
@@ -203,14 +204,13 @@ def relative_pose_bound(bag: Path, groups: dict[str, list[str]], preset) -> dict
         graph.add(gtsam.PriorFactorPose3(X(0), pose3(gt[names[0]]), gtsam.noiseModel.Isotropic.Sigma(6, 1e-5)))
         base = float(np.linalg.norm(gt[names[1]][:3, 3] - gt[names[0]][:3, 3]))
         graph.add(gtsam.RangeFactorPose3(X(0), X(1), base, gtsam.noiseModel.Isotropic.Sigma(1, 1e-5)))
-        try:
-            marginals = gtsam.Marginals(graph, values)
-        except RuntimeError:
-            continue  # a point seen once is unconstrained: no bound for this group
         # The metric is KU-aligned, so push the bound through the same alignment: sample
         # the joint marginal, perturb the ground truth, align, measure (Monte Carlo).
         keys = gtsam.KeyVector([X(i) for i in range(1, len(names))])
-        cov = marginals.jointMarginalCovariance(keys).fullMatrix()
+        try:
+            cov = gtsam.Marginals(graph, values).jointMarginalCovariance(keys).fullMatrix()
+        except RuntimeError:
+            continue  # singular (e.g. a pair whose views barely overlap): no bound for this group
         rng = np.random.default_rng(0)
         errors = {n: [] for n in names}
         for delta in rng.multivariate_normal(np.zeros(len(cov)), cov, size=200):
@@ -293,20 +293,41 @@ def run_case(preset: str, scenario: str, seed: int, bag: Path, full: bool) -> di
 
 
 def run_bench(presets: list[str], seeds: list[int], scenarios: list[str], out_dir: Path, log=print,
-              full: bool = True, sweep_preset: str | None = None) -> dict:
+              full: bool = True, sweep_preset: str | None = None, resume: bool = False) -> dict:
     """Every preset x scenario x seed; with `sweep_preset`, scenarios other than
-    "normal" run on that preset only (the larger presets take the normal scenario)."""
+    "normal" run on that preset only (the larger presets take the normal scenario).
+    Each finished case is saved at once to cases.jsonl; `resume` reuses those. A case
+    that fails is logged with its error and left out of the tables."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    cases = []
+    saved = out_dir / "cases.jsonl"
+    done = {}
+    if resume and saved.exists():
+        for line in saved.read_text().splitlines():
+            c = json.loads(line)
+            done[(c["preset"], c["scenario"], c["seed"], "full" in c)] = c
+    elif saved.exists():
+        saved.unlink()
+    cases, failures = [], []
     spawn = multiprocessing.get_context("spawn")
     for preset in presets:
         for scenario in scenarios:
             if sweep_preset and scenario != "normal" and preset != sweep_preset:
                 continue
             for seed in seeds:
+                if (preset, scenario, seed, full) in done:
+                    cases.append(done[(preset, scenario, seed, full)])
+                    log(f"{preset} {scenario} seed {seed}: reused from {saved}")
+                    continue
                 bag = bag_for(preset, scenario, seed, out_dir / "bags", log)
-                with ProcessPoolExecutor(1, mp_context=spawn) as pool:
-                    case = pool.submit(run_case, preset, scenario, seed, bag, full).result()
+                try:
+                    with ProcessPoolExecutor(1, mp_context=spawn) as pool:
+                        case = pool.submit(run_case, preset, scenario, seed, bag, full).result()
+                except Exception as exc:  # one broken case must not lose the others
+                    failures.append({"preset": preset, "scenario": scenario, "seed": seed, "error": str(exc)})
+                    log(f"{preset} {scenario} seed {seed}: FAILED: {exc}")
+                    continue
+                with saved.open("a") as f:
+                    f.write(json.dumps(case) + "\n")
                 cases.append(case)
                 log(f"{preset} {scenario} seed {seed}: " + ", ".join(
                     f"{m} {r['summary']['pos_avg']:.4f} m / {r['summary']['rot_avg']:.3f} deg"
@@ -317,4 +338,4 @@ def run_bench(presets: list[str], seeds: list[int], scenarios: list[str], out_di
                         f"{f['registration']['YOWO']['rot_avg']:.3f} deg, ATE {f['ate'].get('joint', float('nan')):.3f} m, "
                         f"IoU {f['layout_iou']:.3f}, real-time factor {f['realtime_factor']:.2f}, "
                         f"peak memory {case['peak_memory_mb']:.0f} MB")
-    return {"presets": presets, "seeds": seeds, "scenarios": scenarios, "cases": cases}
+    return {"presets": presets, "seeds": seeds, "scenarios": scenarios, "cases": cases, "failures": failures}

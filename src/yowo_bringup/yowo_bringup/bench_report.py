@@ -139,6 +139,9 @@ def markdown(results: dict, command: str, env: dict) -> str:
                     [[p, s, str(sum(len(c["bound"]["position_m"]) for c in cs)),
                       f"{_mean(c['bound']['mean_bound_m'] for c in cs):.4f}",
                       f"{_mean(c['bound']['mean_ratio'] for c in cs):.2f}"] for (p, s), cs in settings.items()])
+    if results.get("failures"):
+        lines += ["", "## Cases that failed", ""] + [f"- {f['preset']} {f['scenario']} seed {f['seed']}: {f['error']}"
+                                                     for f in results["failures"]]
     return "\n".join(lines) + "\n"
 
 

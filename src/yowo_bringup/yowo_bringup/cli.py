@@ -220,7 +220,7 @@ def cmd_bench(args) -> int:
         raise ValueError(f"unknown scenario(s) {', '.join(unknown)} (choose from {', '.join(SCENARIOS)})")
     out = Path(args.output)
     results = run_bench(args.preset, args.seeds, args.scenarios, out, full=not args.cmc_only,
-                        sweep_preset=args.sweep_preset)
+                        sweep_preset=args.sweep_preset, resume=args.resume)
     write_outputs(results, out, Path(args.markdown) if args.markdown else None)
     print(f"wrote {out / 'BENCHMARKS.md'} and {out / 'results.json'}" + (f" and {args.markdown}" if args.markdown else ""))
     return 0
@@ -288,6 +288,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--markdown", help="also write the tables here (e.g. BENCHMARKS.md at the repo root)")
     p.add_argument("--cmc-only", action="store_true", help="only the CMC relative calibration tables (fast)")
     p.add_argument("--sweep-preset", help="run the scenarios other than 'normal' on this preset only")
+    p.add_argument("--resume", action="store_true", help="reuse the cases already finished in OUTPUT/cases.jsonl")
     p.set_defaults(func=cmd_bench)
 
     p = verbs.add_parser("eval", help="metric tables of a results directory against a bag's ground truth")
