@@ -77,11 +77,14 @@ def match(a: KeyframeFeatures, b: KeyframeFeatures, ratio: float = 0.8) -> np.nd
     """(M, 2) index pairs (i in a, j in b): Lowe's ratio test in both directions
     and mutual nearest neighbours, from one distance matrix (a BLAS product).
     Second-nearest distances: the row (column) minimum once the nearest entry is
-    masked, which is several times cheaper than a partial sort."""
+    masked, which is several times cheaper than a partial sort. The product is
+    OpenCV's: NumPy's multi-threaded OpenBLAS spins its idle threads after
+    every call, which cost more CPU than the whole product on 2 busy cores."""
     if len(a) < 2 or len(b) < 2:
         return np.zeros((0, 2), int)
     da, db = a.descriptors, b.descriptors
-    d2 = (da * da).sum(1)[:, None] + (db * db).sum(1)[None, :] - 2.0 * da @ db.T
+    d2 = (da * da).sum(1)[:, None] + (db * db).sum(1)[None, :] - cv2.gemm(da, db, 2.0, None, 0.0,
+                                                                            flags=cv2.GEMM_2_T)
     np.maximum(d2, 0.0, out=d2)
     i, j = np.arange(len(da)), np.arange(len(db))
     nn_ab, nn_ba = d2.argmin(axis=1), d2.argmin(axis=0)
