@@ -24,7 +24,7 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     for name in ("cameras.yaml", "ego_trajectory.tum", "map.ply", "layout.json", "report.html", "metrics.json"):
         assert (out / name).exists(), name
-    assert (out / "result.mcap").is_dir()
+    check_result_bag(out / "result.mcap")
     check_report(out / "report.html", ["cam00", "cam01", "cam02"])
     metrics = json.loads((out / "metrics.json").read_text())
     reg = metrics["registration"]["summary"]
@@ -90,3 +90,20 @@ def check_report(path, cameras):
     png = base64.b64decode(src.split("base64,", 1)[1])
     assert png.startswith(b"\x89PNG") and len(png) > 20_000          # a drawn figure, not a blank one
     assert all(name in report.cells for name in cameras), report.cells
+
+
+def check_result_bag(path):
+    """result.mcap opens with rosbags and with the mcap library and holds every output topic."""
+    from mcap.reader import make_reader
+
+    from yowo_common import topics
+    from yowo_common.ros.bag import list_topics
+
+    wanted = {topics.TF_STATIC, topics.CMC_POSES, topics.LAYOUT_MARKERS, topics.EGO_MAP, topics.LAYOUT,
+              topics.MAP_POINTS, topics.EGO_PATH, topics.GROUPS}
+    assert {t.name for t in list_topics(path) if t.count == 1} >= wanted          # rosbags
+    (file,) = path.glob("*.mcap")
+    with open(file, "rb") as f:
+        reader = make_reader(f)
+        seen = {channel.topic for _, channel, _ in reader.iter_messages()}
+    assert seen >= wanted                                                         # mcap
