@@ -45,11 +45,15 @@ def _by_setting(cases: list[dict]) -> dict[tuple[str, str], list[dict]]:
     return out
 
 
+ERROR_COLUMNS = ["avg eps_pos [m]", "min eps_pos [m]", "max eps_pos [m]", "avg eps_rot [deg]", "min eps_rot [deg]",
+                 "max eps_rot [deg]"]
+
+
 def _error_row(summaries: list[dict], count_key: str) -> list[str]:
-    """avg/max eps_pos and eps_rot (mean over seeds) and the count summed over seeds."""
-    return [f"{_mean(s['pos_avg'] for s in summaries):.4f}", f"{_mean(s['pos_max'] for s in summaries):.4f}",
-            f"{_mean(s['rot_avg'] for s in summaries):.3f}", f"{_mean(s['rot_max'] for s in summaries):.3f}",
-            f"{sum(s[count_key] for s in summaries)} / {sum(s['cameras'] for s in summaries)}"]
+    """avg/min/max eps_pos and eps_rot (mean over seeds) and the count summed over seeds."""
+    return ([f"{_mean(s[f'pos_{k}'] for s in summaries):.4f}" for k in ("avg", "min", "max")]
+            + [f"{_mean(s[f'rot_{k}'] for s in summaries):.3f}" for k in ("avg", "min", "max")]
+            + [f"{sum(s[count_key] for s in summaries)} / {sum(s['cameras'] for s in summaries)}"])
 
 
 def _methods(cases: list[dict], key) -> list[str]:
@@ -76,8 +80,7 @@ def markdown(results: dict, command: str, env: dict) -> str:
             rows.append([preset, scenario, m] + _error_row(
                 [r["summary"] | {"calibrated": r["calibrated"], "cameras": r["cameras"]} for r in rs], "calibrated")
                 + [f"{_mean(r['seconds'] for r in rs):.1f}"])
-    lines += _table(["preset", "scenario", "method", "avg eps_pos [m]", "max eps_pos [m]", "avg eps_rot [deg]",
-                     "max eps_rot [deg]", "calibrated / cameras", "time [s]"], rows)
+    lines += _table(["preset", "scenario", "method", *ERROR_COLUMNS, "calibrated / cameras", "time [s]"], rows)
 
     detected = [(k, [c["detector"] for c in cs if "detector" in c]) for k, cs in settings.items()]
     if any(ds for _, ds in detected):
@@ -107,8 +110,7 @@ def markdown(results: dict, command: str, env: dict) -> str:
             for m in _methods(fs, lambda f: f["registration"]):
                 rs = [f["registration"][m] for f in fs if m in f["registration"]]
                 rows.append([preset, scenario, m] + _error_row(rs, "registered"))
-        lines += _table(["preset", "scenario", "method", "avg eps_pos [m]", "max eps_pos [m]", "avg eps_rot [deg]",
-                         "max eps_rot [deg]", "registered / cameras"], rows)
+        lines += _table(["preset", "scenario", "method", *ERROR_COLUMNS, "registered / cameras"], rows)
         stages = _methods([f for fs in full.values() for f in fs], lambda f: f["ate"])
         lines += ["", "## Scene mapping, paper Table scene_map", "",
                   "ATE after each stage: ego-only odometry, + multiway registration, + bundle adjustment (the "
@@ -146,10 +148,13 @@ def markdown(results: dict, command: str, env: dict) -> str:
 
 
 def write_outputs(results: dict, out_dir: Path, markdown_path: Path | None) -> None:
-    env = environment()
-    command = "yowo " + " ".join(shlex.quote(a) for a in sys.argv[1:])   # `yowo` or `python -m yowo_bringup.cli`
-    results = {**results, "environment": env, "command": command}
-    (out_dir / "results.json").write_text(json.dumps(results, indent=1))
+    if "command" in results:     # re-rendered from an earlier run's results.json: keep its provenance
+        env, command = results["environment"], results["command"]
+    else:
+        env = environment()
+        command = "yowo " + " ".join(shlex.quote(a) for a in sys.argv[1:])   # `yowo` or `python -m yowo_bringup.cli`
+        results = {**results, "environment": env, "command": command}
+        (out_dir / "results.json").write_text(json.dumps(results, indent=1))
     text = markdown(results, command, env)
     (out_dir / "BENCHMARKS.md").write_text(text)
     if markdown_path is not None:

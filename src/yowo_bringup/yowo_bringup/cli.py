@@ -219,6 +219,10 @@ def cmd_bench(args) -> int:
     if unknown:
         raise ValueError(f"unknown scenario(s) {', '.join(unknown)} (choose from {', '.join(SCENARIOS)})")
     out = Path(args.output)
+    if args.from_results:
+        write_outputs(json.loads((out / "results.json").read_text()), out, Path(args.markdown) if args.markdown else None)
+        print(f"re-rendered {out / 'BENCHMARKS.md'} from {out / 'results.json'}")
+        return 0
     results = run_bench(args.preset, args.seeds, args.scenarios, out, full=not args.cmc_only,
                         sweep_preset=args.sweep_preset, resume=args.resume)
     write_outputs(results, out, Path(args.markdown) if args.markdown else None)
@@ -289,6 +293,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cmc-only", action="store_true", help="only the CMC relative calibration tables (fast)")
     p.add_argument("--sweep-preset", help="run the scenarios other than 'normal' on this preset only")
     p.add_argument("--resume", action="store_true", help="reuse the cases already finished in OUTPUT/cases.jsonl")
+    p.add_argument("--from-results", action="store_true",
+                   help="run nothing: render the tables again from OUTPUT/results.json (e.g. after a report change)")
     p.set_defaults(func=cmd_bench)
 
     p = verbs.add_parser("eval", help="metric tables of a results directory against a bag's ground truth")
