@@ -100,16 +100,39 @@ def _on_floor(S: Sim3, group: CameraGroupResult) -> Sim3:
     return Sim3(S.s, S.R, S.t - [0.0, 0.0, dz])
 
 
-def align_to_world(group: CameraGroupResult, ego: EgoMapData, params: AlignParams) -> tuple[Sim3, np.ndarray]:
-    """Rebalanced Umeyama of the head-top track, put on the floor, then once more against
-    the head top predicted from the ego poses with the estimated rigid offset."""
+def _group_tracks(group: CameraGroupResult, params: AlignParams):
     top, bottom = group.point_ids == 0, group.point_ids == 1
-    stamps, local = group.point_stamps_ns[top], group.points[top]
     ground = (group.point_stamps_ns[bottom], group.points[bottom]) if params.use_ground_points else (None, None)
-    S = align_group(stamps, local, ego.stamps_ns, ego.T_world_ego[:, :3, 3], params, *ground).sim3_world_local
-    o = _head_offset(_on_floor(S, group), stamps, local, ego, int(params.max_time_gap_s * 1e9))
-    heads = np.einsum("nij,j->ni", ego.T_world_ego[:, :3, :3], o) + ego.T_world_ego[:, :3, 3]
-    return align_group(stamps, local, ego.stamps_ns, heads, params, *ground).sim3_world_local, o
+    return group.point_stamps_ns[top], group.points[top], ground
+
+
+def head_offset_estimate(group: CameraGroupResult, ego: EgoMapData, params: AlignParams) -> tuple[np.ndarray, int]:
+    """First pass: rebalanced Umeyama of the head-top track against the ego camera
+    positions, put on the floor; the head offset it implies and its weight (the number
+    of spatiotemporal clusters: how much of the walk the group saw)."""
+    stamps, local, ground = _group_tracks(group, params)
+    al = align_group(stamps, local, ego.stamps_ns, ego.T_world_ego[:, :3, 3], params, *ground)
+    return _head_offset(_on_floor(al.sim3_world_local, group), stamps, local, ego,
+                        int(params.max_time_gap_s * 1e9)), al.num_clusters
+
+
+def align_to_world(group: CameraGroupResult, ego: EgoMapData, params: AlignParams, head_offset: np.ndarray) -> Sim3:
+    """Rebalanced Umeyama against the head top predicted from the ego poses with the
+    rig's head offset (one for all groups: a group that saw a short stretch of the walk
+    estimates it badly on its own)."""
+    stamps, local, ground = _group_tracks(group, params)
+    heads = np.einsum("nij,j->ni", ego.T_world_ego[:, :3, :3], head_offset) + ego.T_world_ego[:, :3, 3]
+    return align_group(stamps, local, ego.stamps_ns, heads, params, *ground).sim3_world_local
+
+
+def weighted_median(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Per column: the value where the cumulative weight reaches half (robust to a group's outlier)."""
+    out = []
+    for column in np.atleast_2d(values).T:
+        order = np.argsort(column)
+        cum = np.cumsum(weights[order])
+        out.append(column[order][np.searchsorted(cum, 0.5 * cum[-1])])
+    return np.array(out)
 
 
 def _verdict(rmse: float, cov: np.ndarray | None, params: FusionParams) -> tuple[str, str]:
@@ -136,16 +159,20 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
     names, cams, T_init, group_of = [], [], [], {}
     agent_pts, agent_ns, agent_ids, agent_chain = [], [], [], []
     c_idx, p_idx, uv_obs, sig_obs = [], [], [], []
-    offsets, alignments = [], {}
+    alignments = {}
     failed: dict[str, str] = dict(ungrouped)
-    for gi, g in enumerate(groups):
+    estimates = {}
+    for g in groups:
         try:
-            S, o = align_to_world(g, ego, params.align)
+            estimates[g.group_id] = head_offset_estimate(g, ego, params.align)
         except ValueError as exc:
             failed.update({n: f"group {g.group_id} could not be aligned to the ego trajectory: {exc}" for n in g.names})
+    head_offset = weighted_median(np.array([o for o, _ in estimates.values()]),
+                                  np.array([w for _, w in estimates.values()], float)) if estimates else np.zeros(3)
+    for gi, g in enumerate(groups):
+        if g.group_id not in estimates:
             continue
-        alignments[g.group_id] = S
-        offsets.append(o)
+        S = alignments[g.group_id] = align_to_world(g, ego, params.align, head_offset)
         base = sum(len(p) for p in agent_pts)
         agent_pts.append(S.apply(g.points))
         agent_ns.append(g.point_stamps_ns)
@@ -177,7 +204,6 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
     agent_obs = Observations(np.array(c_idx, int), np.array(p_idx, int), np.array(uv_obs).reshape(-1, 2),
                              np.array(sig_obs))
     scene_obs, scene_count = _scene_observations(names, cams, T_init, cmcs, ego, params)
-    head_offset = np.median(offsets, axis=0) if offsets else np.zeros(3)
     registered: list[RegisteredCmc] = []
     T_ego, landmarks = ego.T_world_ego, ego.landmarks
     if names:
