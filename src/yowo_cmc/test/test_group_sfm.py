@@ -128,14 +128,15 @@ def test_camera_seeing_through_a_doorway_does_not_merge_two_rooms():
 
 def test_cameras_chained_by_single_edges_still_pair_up():
     """c1 and c3 see different halves of the room, c2 all of it: a chain c1 - c2 - c3 has
-    no two paths between members, yet its strongest edge makes a two-camera group (the
-    third camera is left for the isolated registration, with the reason)."""
+    no two paths between members; with pair_leftovers its strongest edge makes a
+    two-camera group (the third camera is left for the isolated registration, with the reason)."""
     cams = {"c1": ceiling_camera(0.3, 0.3, (2.5, 2.5)), "c2": ceiling_camera(4.7, 0.3, (2.5, 2.5)),
             "c3": ceiling_camera(2.5, 4.7, (2.5, 2.3))}
     halves = {"c1": lambda xy: xy[0] < 2.3, "c2": lambda xy: True, "c3": lambda xy: xy[0] > 2.7}
     tracks = observe(cams, loop_walk((2.5, 2.5), (1.5, 1.2), 10.0), 30.0, sigma_px=0.5,
                      visible=lambda n, xy: halves[n](xy), seed=5)
-    result = calibrate_groups(tracks)
+    assert calibrate_groups(tracks).groups == []          # the paper's rule (default)
+    result = calibrate_groups(tracks, SfmParams(pair_leftovers=True))
     (group,) = result.groups
     assert "c2" in group.names and len(group.names) == 2
     (left,) = set(cams) - set(group.names)
