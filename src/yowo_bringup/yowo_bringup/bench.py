@@ -293,11 +293,12 @@ def run_case(preset: str, scenario: str, seed: int, bag: Path, full: bool) -> di
 
 
 def run_bench(presets: list[str], seeds: list[int], scenarios: list[str], out_dir: Path, log=print,
-              full: bool = True, sweep_preset: str | None = None, resume: bool = False) -> dict:
+              full: bool = True, sweep_preset: str | None = None, resume: bool = False, on_case=None) -> dict:
     """Every preset x scenario x seed; with `sweep_preset`, scenarios other than
     "normal" run on that preset only (the larger presets take the normal scenario).
-    Each finished case is saved at once to cases.jsonl; `resume` reuses those. A case
-    that fails is logged with its error and left out of the tables."""
+    Each finished case is saved at once to cases.jsonl; `resume` reuses those; `on_case`
+    gets the results so far after each case. A case that fails is logged with its
+    error and left out of the tables."""
     out_dir.mkdir(parents=True, exist_ok=True)
     saved = out_dir / "cases.jsonl"
     done = {}
@@ -329,6 +330,9 @@ def run_bench(presets: list[str], seeds: list[int], scenarios: list[str], out_di
                 with saved.open("a") as f:
                     f.write(json.dumps(case) + "\n")
                 cases.append(case)
+                if on_case:
+                    on_case({"presets": presets, "seeds": seeds, "scenarios": scenarios, "cases": cases,
+                             "failures": failures, "partial": True})
                 log(f"{preset} {scenario} seed {seed}: " + ", ".join(
                     f"{m} {r['summary']['pos_avg']:.4f} m / {r['summary']['rot_avg']:.3f} deg"
                     for m, r in case["relative"].items()))

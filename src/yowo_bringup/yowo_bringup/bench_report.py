@@ -72,6 +72,8 @@ def markdown(results: dict, command: str, env: dict) -> str:
              f"Presets {', '.join(results['presets'])}; seeds {results['seeds']}. Errors are averaged over seeds "
              "(each seed's value is the avg or max over cameras); counts are summed over seeds. Baselines marked "
              "-style are labelled reimplementations of the ideas, not the authors' code.", "",
+             *(["**Partial: the run was still going (or stopped) after the cases below.**", ""]
+               if results.get("partial") else []),
              "## CMC relative pose (KU-aligned per group), paper Table relative_pose_eval", ""]
     rows = []
     for (preset, scenario), cs in settings.items():

@@ -223,8 +223,10 @@ def cmd_bench(args) -> int:
         write_outputs(json.loads((out / "results.json").read_text()), out, Path(args.markdown) if args.markdown else None)
         print(f"re-rendered {out / 'BENCHMARKS.md'} from {out / 'results.json'}")
         return 0
+    markdown = Path(args.markdown) if args.markdown else None
     results = run_bench(args.preset, args.seeds, args.scenarios, out, full=not args.cmc_only,
-                        sweep_preset=args.sweep_preset, resume=args.resume)
+                        sweep_preset=args.sweep_preset, resume=args.resume,
+                        on_case=lambda partial: write_outputs(partial, out, markdown))   # tables so far
     write_outputs(results, out, Path(args.markdown) if args.markdown else None)
     print(f"wrote {out / 'BENCHMARKS.md'} and {out / 'results.json'}" + (f" and {args.markdown}" if args.markdown else ""))
     return 0
