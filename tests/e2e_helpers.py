@@ -1,5 +1,6 @@
 """Helpers shared by the end-to-end tests: recordings built from synthetic tracks,
 and running the yowo CLI in its own process."""
+import contextlib
 import subprocess
 import sys
 
@@ -51,3 +52,17 @@ def yowo(*args, env, timeout=300):
         args += ["--timeout", str(max(timeout - 60, timeout // 2))]
     return subprocess.run([sys.executable, "-m", "yowo_bringup.cli", *args], env=env,
                           capture_output=True, text=True, timeout=timeout)
+
+
+@contextlib.contextmanager
+def yowo_background(*args, env):
+    """The yowo CLI started in its own process (output captured); stopped at exit if it
+    still runs, so a failing test leaves no graph behind."""
+    proc = subprocess.Popen([sys.executable, "-m", "yowo_bringup.cli", *map(str, args)], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.terminate()
+            proc.wait(timeout=30)

@@ -8,7 +8,7 @@ import sys
 import yaml
 
 from cmc_synthetic import ceiling_camera, loop_walk, observe
-from e2e_helpers import write_keypoint_bag, yowo
+from e2e_helpers import write_keypoint_bag, yowo, yowo_background
 from conftest import GRAPH
 from yowo_common.ros.bag import list_topics
 
@@ -19,10 +19,8 @@ def test_live_cmc_calibration_ends_on_end_walk(tmp_path, ros_env):
     tracks = observe(cams, loop_walk((2.5, 2.5), (1.5, 1.2), 10.0), 20.0, sigma_px=0.5, seed=3)
     write_keypoint_bag(tmp_path / "rec", cams, tracks)
     out = tmp_path / "live"
-    live = subprocess.Popen([sys.executable, "-m", "yowo_bringup.cli", "live", "--cameras", "a1", "a2", "a3",
-                             "--cmc-only", "-o", str(out), "--timeout", "240"], env=ros_env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
+    with yowo_background("live", "--cameras", "a1", "a2", "a3", "--cmc-only", "-o", out, "--timeout", "240",
+                         env=ros_env) as live:
         source = subprocess.run([sys.executable, str(GRAPH / "live_source.py"), str(tmp_path / "rec")], env=ros_env,
                                 capture_output=True, text=True, timeout=180)
         assert source.returncode == 0, source.stderr
@@ -30,10 +28,6 @@ def test_live_cmc_calibration_ends_on_end_walk(tmp_path, ros_env):
         r = yowo("end-walk", "--linger", "3", env=ros_env, timeout=60)
         assert r.returncode == 0, r.stderr
         stdout, stderr = live.communicate(timeout=240)
-    finally:
-        if live.poll() is None:
-            live.terminate()
-            live.wait(timeout=30)
     assert live.returncode == 0, stdout[-3000:] + stderr[-3000:]
     doc = yaml.safe_load((out / "cameras.yaml").read_text())["cameras"]
     assert sorted(c["name"] for c in doc if c["status"] == "ok") == ["a1", "a2", "a3"]

@@ -11,7 +11,7 @@ from html.parser import HTMLParser
 import yaml
 
 from conftest import GRAPH
-from e2e_helpers import yowo
+from e2e_helpers import yowo, yowo_background
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
 
@@ -35,20 +35,13 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
     # lingers, and a subscriber started after the results are written gets every camera
     # on /tf_static (transient local).
     again = tmp_path / "again"
-    run = subprocess.Popen([sys.executable, "-m", "yowo_bringup.cli", "run", str(bag), "-o", str(again),
-                            "--linger", "30", "--timeout", "600"], env=ros_env, stdout=subprocess.PIPE,
-                           stderr=subprocess.PIPE, text=True)
-    try:
+    with yowo_background("run", bag, "-o", again, "--linger", "30", "--timeout", "600", env=ros_env) as run:
         deadline = time.monotonic() + 600
         while not (again / "report.html").exists() and run.poll() is None and time.monotonic() < deadline:
             time.sleep(0.5)
         late = subprocess.run([sys.executable, str(GRAPH / "tf_static_late.py"), "sub", "15"], env=ros_env,
                               capture_output=True, text=True, timeout=60)
         stdout, stderr = run.communicate(timeout=120)
-    finally:
-        if run.poll() is None:
-            run.terminate()
-            run.wait(timeout=30)
     assert run.returncode == 0, stdout[-3000:] + stderr[-3000:]
     assert (again / "cameras.yaml").read_text() == (out / "cameras.yaml").read_text()
     cams = yaml.safe_load((out / "cameras.yaml").read_text())["cameras"]

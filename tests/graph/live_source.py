@@ -1,6 +1,6 @@
 """A live camera source: publishes every message of a recording on its topic (as
-drivers would: reliable, no end-of-stream announcement) once each topic has a
-subscriber, then waits until all of them are acknowledged."""
+drivers would: reliable, no end-of-stream announcement) once every subscriber of a
+CMC-only graph has matched, then waits until all of them are acknowledged."""
 import sys
 import time
 
@@ -18,11 +18,16 @@ def main():
         qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
         pubs = {t.name: node.create_publisher(message_class(t.msgtype), t.name, qos)
                 for t in list_topics(bag) if t.name.startswith("/cmc/")}
+        # A CMC-only graph: the tracker takes everything, the group SfM also the CameraInfo.
+        wanted = {t: 2 if t.endswith("/camera_info") else 1 for t in pubs}
+
+        def unmatched():
+            return [t for t, p in pubs.items() if p.get_subscription_count() < wanted[t]]
         deadline = time.monotonic() + 60.0
-        while any(p.get_subscription_count() == 0 for p in pubs.values()) and time.monotonic() < deadline:
+        while unmatched() and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.05)
-        if any(p.get_subscription_count() == 0 for p in pubs.values()):
-            sys.exit("live_source: not every topic has a subscriber after 60 s")
+        if unmatched():
+            sys.exit(f"live_source: not every subscriber matched after 60 s: {unmatched()}")
         for topic, _, msg in read_messages(bag, list(pubs)):
             pubs[topic].publish(msg)
         for p in pubs.values():

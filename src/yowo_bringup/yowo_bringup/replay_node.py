@@ -18,7 +18,7 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header
-from yowo_msgs.msg import ReplayStatus
+from yowo_msgs.msg import ReplayStatus, StageStatus
 
 from yowo_common import topics
 from yowo_common.ros.bag import BagError, list_topics, message_class, read_raw
@@ -42,6 +42,9 @@ class ReplayNode(Node):
         self.include = list(self.declare_parameter("topics", [""]).value or [])
         self.exclude = list(self.declare_parameter("exclude_prefixes", ["/gt/"]).value or [])
         self.wait_for = list(self.declare_parameter("wait_for_topics", [""]).value or [])
+        # Stages whose subscriptions must all be matched before playing: their status
+        # lists their inputs, so each topic waits for exactly its subscribers.
+        self.stages = [s for s in self.declare_parameter("stages", [""]).value or [] if s]
         self.wait_timeout_s = self.declare_parameter("wait_timeout_s", 30.0).value
         self.ack_timeout_s = self.declare_parameter("ack_timeout_s", 60.0).value
         self.ack_window = max(1, self.declare_parameter("ack_window", 16).value)
@@ -67,15 +70,37 @@ class ReplayNode(Node):
             bag_start=ns_to_time(start_ns), bag_end=ns_to_time(end_ns),
             topics=list(self.counts), published_counts=list(self.counts.values()), error=error))
 
+    def _expected_subscribers(self, deadline: float) -> dict[str, int]:
+        """topic -> number of stages that subscribe to it (from their latched status)."""
+        status: dict[str, StageStatus] = {}
+        subs = [self.create_subscription(StageStatus, topics.status(s), lambda m, s=s: status.__setitem__(s, m),
+                                         LATCHED) for s in self.stages]
+        while len(status) < len(self.stages) and time.monotonic() < deadline:
+            rclpy.spin_once(self, timeout_sec=0.05)
+        for sub in subs:
+            self.destroy_subscription(sub)
+        missing = sorted(set(self.stages) - set(status))
+        if missing:
+            self.get_logger().warning(f"no status from stage(s) {', '.join(missing)}")
+        expected: dict[str, int] = {}
+        for msg in status.values():
+            for t in msg.input_topics:
+                expected[t] = expected.get(t, 0) + 1
+        return expected
+
     def _wait_for_subscribers(self) -> None:
+        """Publishers exist before the first message and every subscriber is matched to
+        them: a message published before a subscription matched would be lost to it."""
         deadline = time.monotonic() + self.wait_timeout_s
-        missing = list(self.wait_for)
+        expected = self._expected_subscribers(deadline) if self.stages else {t: 1 for t in self.wait_for}
+        missing = [t for t in expected if t in self.pubs]
         while missing and time.monotonic() < deadline:
-            missing = [t for t in missing if self.count_subscribers(t) == 0]
+            missing = [t for t in missing if self.pubs[t].get_subscription_count() < expected[t]]
             time.sleep(0.05)
         if missing:
-            self.get_logger().warning(f"no subscriber after {self.wait_timeout_s:.0f} s on: {', '.join(missing)}; "
-                                      "playing anyway")
+            self.get_logger().warning(f"after {self.wait_timeout_s:.0f} s, not every subscriber is matched on: "
+                                      + ", ".join(f"{t} ({self.pubs[t].get_subscription_count()}/{expected[t]})"
+                                                  for t in missing) + "; playing anyway")
 
     def _wait_acked(self, topic: str) -> None:
         pub = self.pubs[topic]
@@ -92,8 +117,10 @@ class ReplayNode(Node):
             self._status(ReplayStatus.STATE_FINISHED, 0, 0, 0, str(exc))
             return 2
         played = select_topics([t.name for t in topics], self.include, self.exclude)
-        types = {t.name: t.msgtype for t in topics}
         self.counts = {t: 0 for t in played}
+        for t in topics:
+            if t.name in played:
+                self.pubs[t.name] = self.create_publisher(message_class(t.msgtype), t.name, self._qos(t.latched))
         self._wait_for_subscribers()
         pacer = Pacer(self.rate)
         start_ns = end_ns = 0
@@ -104,10 +131,7 @@ class ReplayNode(Node):
                                f"{' (lossless)' if self.lossless else ''}")
         try:
             for raw in read_raw(self.bag, played):
-                pub = self.pubs.get(raw.topic)
-                if pub is None:
-                    pub = self.create_publisher(message_class(types[raw.topic]), raw.topic, self._qos(raw.latched))
-                    self.pubs[raw.topic] = pub
+                pub = self.pubs[raw.topic]
                 time.sleep(pacer.delay_s(raw.log_time_ns))
                 start_ns = start_ns or raw.log_time_ns
                 end_ns = raw.log_time_ns

@@ -95,7 +95,8 @@ def plan_run(bag, out_dir, mode: str = FULL, rate: float = 0.0, overrides: dict 
         played += list(ego)
     nodes, final, outputs = _stage_nodes(mode, trackers, ego, overrides)
     replay = NodeSpec("replay", STAGE_MODULES["replay"], {
-        "bag": str(bag), "rate": float(rate), "topics": played, "wait_for_topics": played, "linger_s": 1.0})
+        "bag": str(bag), "rate": float(rate), "topics": played, "wait_for_topics": played,
+        "stages": [n.name for n in nodes], "linger_s": 1.0})
     replay.parameters.update((overrides or {}).get("replay", {}))
     nodes.append(replay)  # last: it waits for the stages' subscriptions
     return RunPlan(Path(bag), Path(out_dir), mode, cameras, nodes, final, outputs, problems)

@@ -74,6 +74,7 @@ class BagTopic:
     name: str
     msgtype: str
     count: int
+    latched: bool = False        # recorded with transient-local durability
 
 
 class BagWriter:
@@ -119,7 +120,7 @@ def open_reader(path) -> Reader:
 def list_topics(path) -> list[BagTopic]:
     reader = open_reader(path)
     try:
-        return [BagTopic(c.topic, c.msgtype, c.msgcount) for c in reader.connections]
+        return [BagTopic(c.topic, c.msgtype, c.msgcount, qos_is_latched(c)) for c in reader.connections]
     finally:
         reader.close()
 
