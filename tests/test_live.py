@@ -25,7 +25,7 @@ def test_live_cmc_calibration_ends_on_end_walk(tmp_path, ros_env):
                                 capture_output=True, text=True, timeout=180)
         assert source.returncode == 0, source.stderr
         assert live.poll() is None             # nothing finalises before the walk is declared over
-        r = yowo("end-walk", "--linger", "3", env=ros_env, timeout=60)
+        r = yowo("end-walk", "--linger", "10", env=ros_env, timeout=120)
         assert r.returncode == 0, r.stderr
         stdout, stderr = live.communicate(timeout=240)
     assert live.returncode == 0, stdout[-3000:] + stderr[-3000:]

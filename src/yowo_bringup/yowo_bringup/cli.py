@@ -275,7 +275,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_live)
 
     p = verbs.add_parser("end-walk", help="live operation: the walk is over, let every stage finalise")
-    p.add_argument("--linger", type=float, default=5.0, help="seconds to keep the announcement up")
+    p.add_argument("--linger", type=float, default=10.0,
+                   help="seconds to keep the announcement up once a stage has matched")
     p.set_defaults(func=cmd_end_walk)
 
     p = verbs.add_parser("demo", help="generate a sample recording, run the full graph, print the metrics")

@@ -32,10 +32,21 @@ class RunMonitor(Node):
         for s in stages:
             self.create_subscription(StageStatus, topics.status(s), lambda m, s=s: self.status.__setitem__(s, m),
                                      LATCHED)
-        self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, lambda m: setattr(self, "replay", m), LATCHED)
+        self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay, LATCHED)
+        self._relay = None
         for topic, msgtype in outputs.items():
             self.create_subscription(message_class(msgtype), topic,
                                      lambda m, t=topic: self.outputs.__setitem__(t, m), LATCHED)
+
+    def _on_replay(self, msg: ReplayStatus) -> None:
+        self.replay = msg
+
+    def relay_end_of_walk(self) -> None:
+        """Live runs: keep `yowo end-walk`'s announcement latched for the rest of the run,
+        so a stage whose subscription matches after the announcer left still gets it."""
+        if self._relay is None and self.replay is not None and self.replay.state == ReplayStatus.STATE_FINISHED:
+            self._relay = self.create_publisher(ReplayStatus, topics.REPLAY_STATUS, LATCHED)
+            self._relay.publish(self.replay)
 
     def finished(self, stage: str) -> StageStatus | None:
         msg = self.status.get(stage)
@@ -67,6 +78,8 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, env: dict | Non
             last_report, finished_at = 0.0, None
             while True:
                 rclpy.spin_once(monitor, timeout_sec=0.1)
+                if plan.bag is None:
+                    monitor.relay_end_of_walk()
                 dead = sup.dead()
                 if dead:
                     p = dead[0]
@@ -115,7 +128,12 @@ def end_walk(linger_s: float = 5.0) -> None:
         node = Node("yowo_end_walk")
         pub = node.create_publisher(ReplayStatus, topics.REPLAY_STATUS, LATCHED)
         pub.publish(ReplayStatus(state=ReplayStatus.STATE_FINISHED, bag=f"live ({REPLAY} not used)"))
-        end = time.monotonic() + linger_s  # latched: stages that match late still get it
+        # Latched: stages that match while we linger still get it. Discovery on a busy
+        # machine takes seconds, so the linger starts once a first stage has matched.
+        deadline = time.monotonic() + 60.0
+        while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        end = time.monotonic() + linger_s
         while time.monotonic() < end:
             rclpy.spin_once(node, timeout_sec=0.1)
         node.destroy_node()
