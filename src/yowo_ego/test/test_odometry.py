@@ -18,6 +18,15 @@ def _motion(euler_deg, t):
     return se3(Rotation.from_euler("xyz", euler_deg, degrees=True).as_matrix(), t)
 
 
+def _track_step(renderer, ego_camera, motion):
+    """Track one rendered frame after another taken `motion` later."""
+    a = renderer.render(ego_camera, T_START)
+    b = renderer.render(ego_camera, T_START @ motion)
+    tracker = KeyframeTracker(ego_camera.K)
+    tracker.track(make_frame(0, a.rgb, a.depth, ego_camera))
+    return tracker.track(make_frame(FRAME_NS, b.rgb, b.depth, ego_camera))
+
+
 @pytest.mark.parametrize("motion", [
     _motion([0.0, 1.5, 0.0], [0.04, 0.0, 0.0]),        # side step while turning
     _motion([1.0, 0.0, 0.0], [0.0, 0.01, 0.067]),      # a walking step (1 m/s at 15 Hz) with a nod
@@ -25,11 +34,7 @@ def _motion(euler_deg, t):
     _motion([-2.0, 3.0, 1.0], [0.03, -0.02, 0.05]),
 ], ids=["sidestep", "walk", "turn", "mixed"])
 def test_noise_free_frame_to_frame_motion(renderer, ego_camera, motion):
-    a = renderer.render(ego_camera, T_START)
-    b = renderer.render(ego_camera, T_START @ motion)
-    tracker = KeyframeTracker(ego_camera.K)
-    tracker.track(make_frame(0, a.rgb, a.depth, ego_camera))
-    result = tracker.track(make_frame(FRAME_NS, b.rgb, b.depth, ego_camera))
+    result = _track_step(renderer, ego_camera, motion)
     assert result.status != LOST
     T = result.T_odom_cam
     assert np.linalg.norm(T[:3, 3] - motion[:3, 3]) < 0.002
@@ -40,11 +45,7 @@ def test_fast_turn_is_recovered_by_features(renderer, ego_camera):
     """35 deg between frames is outside the dense odometry's basin; the SIFT + PnP
     fall-back finds it and the dense refinement still lands on the true motion."""
     motion = _motion([0.0, 35.0, 0.0], [0.02, 0.0, 0.03])
-    a = renderer.render(ego_camera, T_START)
-    b = renderer.render(ego_camera, T_START @ motion)
-    tracker = KeyframeTracker(ego_camera.K)
-    tracker.track(make_frame(0, a.rgb, a.depth, ego_camera))
-    result = tracker.track(make_frame(FRAME_NS, b.rgb, b.depth, ego_camera))
+    result = _track_step(renderer, ego_camera, motion)
     assert result.status != LOST
     assert np.linalg.norm(result.T_odom_cam[:3, 3] - motion[:3, 3]) < 0.01
     assert rotation_angle_deg(result.T_odom_cam[:3, :3], motion[:3, :3]) < 0.3
