@@ -233,12 +233,11 @@ def full_case(bag: Path, images: bool) -> dict:
     from yowo_fusion.pipeline import CmcInput, FusionParams, fuse
 
     from .evaluation import Trajectory, ate, layout_iou, registration_errors
-    from .offline import ego_map_data, process, read_backgrounds
+    from .offline import ego_map_data, process
 
     gt = read_ground_truth(bag)
     r = process(bag)
-    tracks = read_cmc_tracks(bag)
-    backgrounds = read_backgrounds(bag, [t.name for t in tracks])
+    tracks, backgrounds = r.tracks, r.backgrounds
     no_jo = fuse(ego_map_data(r.ego), r.grouping.groups, r.grouping.ungrouped,
                  {t.name: CmcInput(t, backgrounds.get(t.name)) for t in tracks}, FusionParams(joint_optimisation=False))
 

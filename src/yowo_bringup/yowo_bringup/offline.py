@@ -94,6 +94,8 @@ class OfflineResult:
     grouping: object                # yowo_cmc GroupingResult
     fusion: object                  # yowo_fusion FusionResult
     seconds: dict[str, float]
+    tracks: list[CameraTracks]      # the CMC keypoint tracks it used
+    backgrounds: dict               # camera -> agent-free background (RGB), when images were recorded
 
 
 def process(bag, fusion_params=None, ego_params=None) -> OfflineResult:
@@ -116,4 +118,4 @@ def process(bag, fusion_params=None, ego_params=None) -> OfflineResult:
     fusion = fuse(ego_map_data(ego), grouping.groups, grouping.ungrouped,
                   {t.name: CmcInput(t, backgrounds.get(t.name)) for t in tracks}, fusion_params or FusionParams())
     seconds["fusion"] = time.perf_counter() - t0
-    return OfflineResult(ego, grouping, fusion, seconds)
+    return OfflineResult(ego, grouping, fusion, seconds, tracks, backgrounds)
