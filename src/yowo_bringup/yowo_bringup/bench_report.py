@@ -29,9 +29,25 @@ def environment() -> dict:
             "date": time.strftime("%Y-%m-%d")}
 
 
+def _finite(values) -> list[float]:
+    return [v for v in values if v is not None and np.isfinite(v)]
+
+
 def _mean(values) -> float:
-    values = [v for v in values if v is not None and np.isfinite(v)]
+    values = _finite(values)
     return float(np.mean(values)) if values else float("nan")
+
+
+def _count(values) -> list[tuple[str, int]]:
+    counts: dict[str, int] = {}
+    for v in values:
+        counts[v] = counts.get(v, 0) + 1
+    return sorted(counts.items())
+
+
+def _median(values) -> float:
+    values = _finite(values)
+    return float(np.median(values)) if values else float("nan")
 
 
 def _table(header: list[str], rows: list[list[str]]) -> list[str]:
@@ -72,6 +88,8 @@ def markdown(results: dict, command: str, env: dict) -> str:
              f"Presets {', '.join(results['presets'])}; seeds {results['seeds']}. Errors are averaged over seeds "
              "(each seed's value is the avg or max over cameras); counts are summed over seeds. Baselines marked "
              "-style are labelled reimplementations of the ideas, not the authors' code.", "",
+             "Code (git commit of the tree each case ran on, with `+changes` for uncommitted edits): "
+             + ", ".join(f"{v} ({n} cases)" for v, n in _count(c.get("code", "unknown") for c in cases)) + ".", "",
              *(["**Partial: the run was still going (or stopped) after the cases below.**", ""]
                if results.get("partial") else []),
              "## CMC relative pose (KU-aligned per group), paper Table relative_pose_eval", ""]
@@ -132,17 +150,23 @@ def markdown(results: dict, command: str, env: dict) -> str:
         lines += _table(["preset", "scenario", "CMCs", "recording [s]", "ego [s]", "CMC [s]", "fusion [s]",
                          "processing / recording time", "peak memory [MB]"], rows)
 
-    lines += ["", "## Achieved error / Cramer-Rao bound (CMC position in its group)", "",
-              "Bound: GTSAM marginals of the group BA at ground truth with the simulated detector noise "
-              "(gauge: first camera fixed, first baseline's length), pushed through the evaluation's KU alignment "
-              "by Monte Carlo. Ratio: YOWO's KU-aligned eps_pos / bound, averaged over cameras. Caveat: the bound "
-              "treats every grid sample as an independent measurement, while the estimator also exploits the "
-              "walk's temporal smoothness (Savitzky-Golay smoothing of each track), so ratios below 1 are "
-              "possible. Groups whose marginals are singular get no bound.", ""]
-    lines += _table(["preset", "scenario", "cameras with a bound", "mean bound [m]", "mean ratio"],
-                    [[p, s, str(sum(len(c["bound"]["position_m"]) for c in cs)),
-                      f"{_mean(c['bound']['mean_bound_m'] for c in cs):.4f}",
-                      f"{_mean(c['bound']['mean_ratio'] for c in cs):.2f}"] for (p, s), cs in settings.items()])
+    lines += ["", "## Achieved error / Cramer-Rao bound (CMC pose in its group)", "",
+              "Bound: the group bundle adjustment's information at ground truth with the simulated detector noise "
+              "(scene points eliminated by Schur complement; gauge: first camera fixed, first baseline's length), "
+              "pushed through the evaluation's KU alignment by Monte Carlo. Ratio: YOWO's KU-aligned error / bound "
+              "per camera. Medians over the cameras of all seeds: a group with little parallax has a bound of "
+              "metres and degrees, which would swamp a mean. Caveat: the bound treats every grid sample as an "
+              "independent measurement, while the estimator also exploits the walk's temporal smoothness "
+              "(Savitzky-Golay smoothing of each track), so ratios below 1 are possible.", ""]
+    rows = []
+    for (p, s), cs in settings.items():
+        row = [p, s, f"{sum(c['bound']['cameras'] for c in cs)} / {sum(c['relative']['YOWO']['calibrated'] for c in cs)}"]
+        for k, what, unit in ((0, "position_m", ".4f"), (1, "rotation_deg", ".3f")):
+            bounds = [(c["relative"]["YOWO"]["errors"][n][k], b) for c in cs for n, b in c["bound"][what].items()]
+            row += [f"{_median(b for _, b in bounds):{unit}}", f"{_median(e / b for e, b in bounds if b > 0):.2f}"]
+        rows.append(row)
+    lines += _table(["preset", "scenario", "cameras with a bound / calibrated", "median bound eps_pos [m]",
+                     "median ratio eps_pos", "median bound eps_rot [deg]", "median ratio eps_rot"], rows)
     if results.get("failures"):
         lines += ["", "## Cases that failed", ""] + [f"- {f['preset']} {f['scenario']} seed {f['seed']}: {f['error']}"
                                                      for f in results["failures"]]

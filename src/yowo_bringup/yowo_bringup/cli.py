@@ -287,14 +287,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = verbs.add_parser("bench", help="YOWO and baselines on generated recordings -> BENCHMARKS.md")
     p.add_argument("--preset", nargs="+", default=["small"],
-                   help="one or more of tiny, small, standard, large (several: the scale table)")
+                   help="one or more of tiny, small, standard, large (several: the scale table; large "
+                   "runs the first seed only, keypoints only)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--scenarios", nargs="+", default=["normal"], help="normal, texture_poor, symmetric, "
-                   "dim_light, stationary, kp_noise_{0.5,1.0,2.0,5.0}px")
+                   "dim_light, stationary, kp_noise_{0.5,1.0,2.0,5.0}px, kp_outliers_5pct")
     p.add_argument("-o", "--output", default="bench", help="directory for bags, results.json, BENCHMARKS.md")
     p.add_argument("--markdown", help="also write the tables here (e.g. BENCHMARKS.md at the repo root)")
     p.add_argument("--cmc-only", action="store_true", help="only the CMC relative calibration tables (fast)")
-    p.add_argument("--sweep-preset", help="run the scenarios other than 'normal' on this preset only")
+    p.add_argument("--sweep-preset", help="run the scenarios other than 'normal' (and kp_outliers_5pct) on this preset only")
     p.add_argument("--resume", action="store_true", help="reuse the cases already finished in OUTPUT/cases.jsonl")
     p.add_argument("--from-results", action="store_true",
                    help="run nothing: render the tables again from OUTPUT/results.json (e.g. after a report change)")
