@@ -336,7 +336,7 @@ def code_version() -> str:
     head = git("rev-parse", "--short", "HEAD")
     if not head:
         return "unknown (not a git checkout)"
-    return head + ("+changes" if git("status", "--porcelain", "--", str(here.parents[2])) else "")
+    return head + ("+changes" if git("status", "--porcelain", "--", str(here.parents[1])) else "")
 
 
 def run_case(preset: str, scenario: str, seed: int, bag: Path, full: bool) -> dict:
