@@ -98,8 +98,10 @@ KEYPOINT_NAMES = {0: "head_top", 1: "ground"}
 
 
 def has_cmc_images(bag: Path) -> bool:
-    from .contract import discover_inputs
-    return any("/image_raw" in t.name and t.count for t in discover_inputs(bag).topics)
+    from .contract import cmc_image_topics, discover_inputs
+    inputs = discover_inputs(bag)
+    counts = {t.name: t.count for t in inputs.topics}
+    return any(counts.get(t, 0) for name in inputs.cmc_names for t in cmc_image_topics(name))
 
 
 def relative_pose_case(bag: Path, images: bool) -> dict:
