@@ -64,11 +64,13 @@ def read_cmc_tracks(bag, source: str = "auto") -> list[CameraTracks]:
 
 def ego_map_data(ego) -> "EgoMapData":
     """yowo_ego's EgoMapResult -> the fusion's input: every frame's pose (the a2e factor
-    needs the dense trajectory), observations re-indexed from keyframes to frames."""
+    needs the dense trajectory), observations re-indexed from keyframes to frames, and the
+    cloud and layout (refined after joint optimisation)."""
     from yowo_fusion.pipeline import EgoMapData
 
     return EgoMapData(ego.camera, ego.stamps_ns, ego.T_world_cam, ego.landmarks, "SIFT", ego.descriptors,
-                      ego.keyframe_frames[ego.obs_keyframe], ego.obs_landmark, ego.obs_uv)
+                      ego.keyframe_frames[ego.obs_keyframe], ego.obs_landmark, ego.obs_uv, ego.cloud_points,
+                      ego.cloud_colors, ego.layout)
 
 
 def read_backgrounds(bag, names: list[str], period_s: float = 1.0) -> dict:

@@ -1,5 +1,6 @@
 """The results directory of a run: writers and readers of cameras.yaml,
-ego_trajectory.tum (evaluation.write_tum), map.ply and layout.json, and the ground
+ego_trajectory.tum (evaluation.write_tum), map.ply and layout.json (map_ego.ply and
+layout_ego.json: the ego stage's, before joint optimisation), and the ground
 truth of a recording for evaluation (the pipeline itself never reads /gt)."""
 from __future__ import annotations
 

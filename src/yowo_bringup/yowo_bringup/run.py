@@ -135,7 +135,8 @@ def _stage_nodes(mode: str, trackers: list[tuple[str, str, str]], ego: tuple[str
         outputs.update({topics.CMC_POSES: "yowo_msgs/msg/RegisteredCameraArray", topics.TF_STATIC: "tf2_msgs/msg/TFMessage",
                         topics.LAYOUT_MARKERS: "visualization_msgs/msg/MarkerArray", topics.EGO_MAP: "yowo_msgs/msg/EgoMap",
                         topics.LAYOUT: "yowo_msgs/msg/SceneLayout", topics.MAP_POINTS: "sensor_msgs/msg/PointCloud2",
-                        topics.EGO_PATH: "nav_msgs/msg/Path"})
+                        topics.REFINED_LAYOUT: "yowo_msgs/msg/SceneLayout",
+                        topics.REFINED_MAP_POINTS: "sensor_msgs/msg/PointCloud2", topics.EGO_PATH: "nav_msgs/msg/Path"})
     for spec in nodes:
         spec.parameters.update((overrides or {}).get(spec.name, {}))
     return nodes, final, outputs
@@ -226,21 +227,29 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
         write_tum(out / "ego_trajectory.tum", traj)
         files.append(out / "ego_trajectory.tum")
         ego_xy = traj.positions[:, :2]
-    if topics.MAP_POINTS in outputs:
-        xyz, rgb = pointcloud2_to_xyz_rgb(outputs[topics.MAP_POINTS])
-        write_ply(out / "map.ply", xyz, rgb)
-        files.append(out / "map.ply")
-    floors = []
-    if topics.LAYOUT in outputs:
-        write_layout_json(out / "layout.json", outputs[topics.LAYOUT])
-        files.append(out / "layout.json")
-        floors = [points_to_array(p.points)[:, :2] for p in outputs[topics.LAYOUT].floor_polygons]
+    def final_and_ego(refined: str, ego_only: str, stem: str, ext: str) -> list[tuple[Path, str]]:
+        """The fusion's output (at the jointly optimised ego poses) as stem.ext and the ego
+        stage's as stem_ego.ext; the ego stage's as stem.ext when the fusion published none."""
+        if refined in outputs:
+            return [(out / f"{stem}.{ext}", refined), (out / f"{stem}_ego.{ext}", ego_only)]
+        return [(out / f"{stem}.{ext}", ego_only)]
+
+    for path, topic in final_and_ego(topics.REFINED_MAP_POINTS, topics.MAP_POINTS, "map", "ply"):
+        if topic in outputs:
+            write_ply(path, *pointcloud2_to_xyz_rgb(outputs[topic]))
+            files.append(path)
+    for path, topic in final_and_ego(topics.REFINED_LAYOUT, topics.LAYOUT, "layout", "json"):
+        if topic in outputs:
+            write_layout_json(path, outputs[topic])
+            files.append(path)
+    final_layout = outputs.get(topics.REFINED_LAYOUT, outputs.get(topics.LAYOUT))
+    floors = [points_to_array(p.points)[:, :2] for p in final_layout.floor_polygons] if final_layout else []
     result_bag = out / "result.mcap"
     if result_bag.exists():
         import shutil
         shutil.rmtree(result_bag)
     latched = {topics.TF_STATIC, topics.CMC_POSES, topics.LAYOUT_MARKERS, topics.EGO_MAP, topics.LAYOUT,
-               topics.MAP_POINTS, topics.EGO_PATH}
+               topics.MAP_POINTS, topics.EGO_PATH, topics.REFINED_LAYOUT, topics.REFINED_MAP_POINTS}
     stamp = max((stamp_to_ns(m.header.stamp) for m in outputs.values() if hasattr(m, "header")), default=0)
     with BagWriter(result_bag) as bag:
         for topic, msg in outputs.items():

@@ -38,6 +38,9 @@ LAYOUT = "/yowo/layout"                     # yowo_msgs/SceneLayout, latched
 CMC_POSES = "/yowo/cmc_poses"               # yowo_msgs/RegisteredCameraArray, latched
 TF_STATIC = "/tf_static"                    # tf2_msgs/TFMessage, latched
 LAYOUT_MARKERS = "/yowo/layout/markers"     # visualization_msgs/MarkerArray, latched
+# The ego map's cloud and layout at the jointly optimised ego poses (the fusion's).
+REFINED_MAP_POINTS = "/yowo/fusion/map/points"   # sensor_msgs/PointCloud2, latched
+REFINED_LAYOUT = "/yowo/fusion/layout"           # yowo_msgs/SceneLayout, latched
 
 EGO_STAGE, GROUP_SFM_STAGE, FUSION_STAGE = "ego_mapper", "group_sfm", "fusion"
 

@@ -10,6 +10,7 @@ from yowo_msgs.msg import EgoMap, Plane, SceneLayout
 from yowo_common.rosconv import (array_to_points, matrix_to_pose, model_to_camera_info, ns_to_time,
                                  xyz_rgb_to_pointcloud2)
 
+from .layout import Layout
 from .pipeline import EgoMapResult
 
 WORLD_FRAME = "map"
@@ -40,14 +41,22 @@ def path_msg(stamps_ns: np.ndarray, T_world_cam: np.ndarray) -> Path:
 
 
 def cloud_msg(r: EgoMapResult):
-    rgb = np.clip(np.asarray(r.cloud_colors) * 255.0, 0, 255).astype(np.uint8) if len(r.cloud_colors) else None
-    return xyz_rgb_to_pointcloud2(r.cloud_points, rgb, _header(r.stamps_ns[-1]))
+    return points_msg(r.cloud_points, r.cloud_colors, r.stamps_ns[-1])
+
+
+def points_msg(xyz: np.ndarray, colors: np.ndarray, stamp_ns: int):
+    """A world-frame cloud with colours in [0, 1] -> PointCloud2."""
+    rgb = np.clip(np.asarray(colors) * 255.0, 0, 255).astype(np.uint8) if len(colors) else None
+    return xyz_rgb_to_pointcloud2(xyz, rgb, _header(stamp_ns))
 
 
 def layout_msg(r: EgoMapResult) -> SceneLayout:
-    lay = r.layout
+    return scene_layout_msg(r.layout, r.stamps_ns[-1])
+
+
+def scene_layout_msg(lay: Layout, stamp_ns: int) -> SceneLayout:
     return SceneLayout(
-        header=_header(r.stamps_ns[-1]),
+        header=_header(stamp_ns),
         planes=[Plane(kind=int(p.kind), coefficients=[float(v) for v in p.coefficients],
                       boundary=array_to_points(p.boundary), num_points=int(p.num_points)) for p in lay.planes],
         floor_polygons=[Polygon(points=[Point32(x=float(x), y=float(y), z=float(lay.floor_height)) for x, y in poly])

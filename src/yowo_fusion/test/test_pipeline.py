@@ -9,9 +9,12 @@ from yowo_bringup.evaluation import registration_errors
 from yowo_cmc.group_sfm import calibrate_groups
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import se3
+from yowo_ego.layout import Layout
 from yowo_fusion.pipeline import GROUP_SFM, ISOLATED_PNP, OK, CmcInput, EgoMapData, FusionParams, fuse
 
 OFFSET = np.array([0.0, -0.10, -0.08])
+ROOM_A = np.array([[0.0, 0.0], [6.0, 0.0], [6.0, 5.0], [0.0, 5.0]])
+ROOM_B = ROOM_A + [10.0, 0.0]
 R_BODY_OPT = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)
 
 
@@ -43,8 +46,10 @@ def world(seed=0):
                      offsets_s=[0.0, 0.02, 0.05, 0.03], start_ns=10**18)
     stamps, T_ego = ego_trajectory(rng, 0.005)
     ego_cam = CameraModel.from_fov(640, 480, 70)
+    cloud = np.column_stack([rng.uniform(0, 16, 2000), rng.uniform(0, 5, 2000), rng.uniform(0, 2.5, 2000)])
     ego = EgoMapData(ego_cam, stamps, T_ego, np.zeros((0, 3)), "SIFT", np.zeros((0, 128), np.uint8),
-                     np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)))
+                     np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)), cloud, np.full((2000, 3), 0.5),
+                     Layout([ROOM_A, ROOM_B], 0.0, float("nan")))
     return cams, tracks, ego
 
 
@@ -63,6 +68,11 @@ def test_fuse_registers_group_and_isolated_camera(joint):
     for n in ("a1", "a2", "a3"):
         assert errs[n].eps_pos_m < 0.03 and errs[n].eps_rot_deg < 0.5, errs[n]
     assert errs["b1"].eps_pos_m < 0.08 and errs["b1"].eps_rot_deg < 1.0, errs["b1"]
+    # The cloud moves with the ego poses' corrections (millimetres here); the layout is
+    # rebuilt from it with JO and is the ego stage's without.
+    shift = np.linalg.norm(result.point_cloud - ego.cloud_points, axis=1)
+    assert shift.max() < 0.05 and (shift.max() > 0) == joint
+    assert (result.layout is ego.layout) != joint
     if joint:
         np.testing.assert_allclose(result.head_offset, OFFSET, atol=0.02)
         sig = np.sqrt(np.diag(by_name["a1"].covariance)[:3])

@@ -1,10 +1,12 @@
 """fusion_node: registers every CMC in the ego map's world frame once the ego map,
 the CMC groups and every camera's keypoints are complete; publishes
 /yowo/cmc_poses (RegisteredCameraArray), /tf_static (one TFMessage, map -> every
-camera) and /yowo/layout/markers, all latched for late joiners."""
+camera), the ego map's cloud and layout at the jointly optimised ego poses
+(/yowo/fusion/map/points, /yowo/fusion/layout) and /yowo/layout/markers (that layout's
+floor), all latched for late joiners."""
 from __future__ import annotations
 
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 from yowo_msgs.msg import AgentKeypoints, CameraGroupArray, EgoMap, RegisteredCameraArray, SceneLayout
@@ -14,7 +16,8 @@ from yowo_cmc.messages import groups_from_msg
 from yowo_common import topics
 from yowo_common.ros.context import spin_node
 from yowo_common.ros.stage import LATCHED, StageNode
-from yowo_common.rosconv import camera_info_to_model, decode_color, points_to_array
+from yowo_common.rosconv import camera_info_to_model, decode_color
+from yowo_ego.ego_messages import points_msg, scene_layout_msg
 
 from .messages import ego_map_from_msg, layout_markers, registered_to_msg, tf_static
 from .pipeline import CmcInput, FusionParams, fuse
@@ -30,12 +33,15 @@ class FusionNode(StageNode):
             joint_optimisation=self.declare_parameter("joint_optimisation", True).value)
         self.acc = {c: TrackAccumulator(c) for c in cameras}
         self.backgrounds = {}
-        self.ego_map = self.groups = self.layout = None
+        self.ego_map = self.groups = self.layout = self.cloud = None
         self.pub_poses = self.output(RegisteredCameraArray, topics.CMC_POSES, LATCHED)
         self.pub_tf = self.output(TFMessage, topics.TF_STATIC, LATCHED)
         self.pub_markers = self.output(MarkerArray, topics.LAYOUT_MARKERS, LATCHED)
+        self.pub_cloud = self.output(PointCloud2, topics.REFINED_MAP_POINTS, LATCHED)
+        self.pub_layout = self.output(SceneLayout, topics.REFINED_LAYOUT, LATCHED)
         self.stream_input(EgoMap, topics.EGO_MAP, lambda m: setattr(self, "ego_map", m), upstream=topics.EGO_STAGE)
         self.stream_input(SceneLayout, topics.LAYOUT, lambda m: setattr(self, "layout", m), upstream=topics.EGO_STAGE)
+        self.stream_input(PointCloud2, topics.MAP_POINTS, lambda m: setattr(self, "cloud", m), upstream=topics.EGO_STAGE)
         self.stream_input(CameraGroupArray, topics.GROUPS, lambda m: setattr(self, "groups", m),
                           upstream=topics.GROUP_SFM_STAGE)
         for cam in cameras:
@@ -61,11 +67,15 @@ class FusionNode(StageNode):
         cmcs = {n: CmcInput(a.tracks(), decode_color(self.backgrounds[n]) if n in self.backgrounds else None)
                 for n, a in self.acc.items() if a.camera is not None}
         ungrouped.update({n: "no usable CameraInfo" for n, a in self.acc.items() if a.camera is None})
-        result = fuse(ego_map_from_msg(self.ego_map), groups, ungrouped, cmcs, self.params)
+        result = fuse(ego_map_from_msg(self.ego_map, self.cloud, self.layout), groups, ungrouped, cmcs, self.params)
         stamp = max((f.stamp_ns for a in self.acc.values() for f in a.frames), default=0)
-        floors = [points_to_array(p.points)[:, :2] for p in self.layout.floor_polygons] if self.layout else []
         self.pub_poses.publish(registered_to_msg(result.cameras, stamp))
         self.pub_tf.publish(tf_static(result.cameras, stamp))
+        if self.cloud is not None:
+            self.pub_cloud.publish(points_msg(result.point_cloud, result.point_colors, stamp))
+        if result.layout is not None:
+            self.pub_layout.publish(scene_layout_msg(result.layout, stamp))
+        floors = result.layout.floor_polygons if result.layout is not None else []
         self.pub_markers.publish(layout_markers(result.cameras, floors, stamp))
         return "; ".join(f"{c.name}: {c.method} {c.status}" + (f" ({c.reason})" if c.reason else "")
                          for c in result.cameras)

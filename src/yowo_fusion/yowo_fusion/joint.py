@@ -11,8 +11,16 @@
 - kin (eq. f_kin): constant-velocity second difference of the head-top track and
   constant top-to-bottom vector between successive frames, both linear (exact); our
   addition: that vector is vertical (the ground point is under the head top).
+Ego poses: only anchor frames are variables: the keyframes (they carry the ego
+observations) and a frame at least every max_anchor_gap_s, chained by the ego map's
+relative poses (millimetres between keyframes). Every other frame is the ego map's
+tracked motion from its nearest anchor: the a2e factor predicts its head top through
+that fixed relative pose, and after the solve it takes the anchors' corrections
+(T_new T_old^-1) interpolated in time. Free per-frame poses would follow each a2e
+residual (head-top triangulation noise and the head's bob, centimetres) and lose the
+ego map's millimetre frame-to-frame accuracy.
 Gauge: the ego map fixes the world: a tight prior on the first ego pose, priors on
-every ego pose (the ego map's own estimate) and depth-derived priors on the landmarks
+every anchor pose (the ego map's own estimate) and depth-derived priors on the landmarks
 (scale). The agent's ground points get a prior on the floor plane z = 0 (the ego
 map's floor), which also observes the vertical part of the head offset."""
 from __future__ import annotations
@@ -26,7 +34,7 @@ from gtsam.symbol_shorthand import A, C, D, L, O, X
 from yowo_common.bundle import (FIXED_SIGMA, Observations, add_projection_factors, optimize, pose3,
                                 reprojection_residuals)
 from yowo_common.camera import CameraModel
-from yowo_common.geometry import skew
+from yowo_common.geometry import inv_se3, skew
 
 TOP, BOTTOM = 0, 1
 
@@ -37,12 +45,14 @@ class JointParams:
     ego_sigma_px: float = 1.0
     landmark_prior_sigma_m: float = 0.05     # depth-derived position of each ego landmark
     ego_prior_sigma: tuple[float, float] = (0.02, 0.05)  # (rad, m) the ego map's own pose estimate
+    ego_between_sigma: tuple[float, float] = (0.001, 0.002)  # (rad, m) its motion between consecutive anchors
     floor_sigma_m: float = 0.03              # the agent's ground point lies on the floor z = 0
     a2e_sigma_m: float = 0.05                # head-top vs predicted head top (offset model residual)
     kin_accel_sigma_m: float = 0.05          # per grid step, second difference of the head top
     kin_body_sigma_m: float = 0.05           # change of the top-to-bottom vector per grid step
     upright_sigma_m: float = 0.05            # horizontal offset of the ground point from under the head top
     max_a2e_gap_s: float = 0.2               # ego poses further apart than this are not interpolated
+    max_anchor_gap_s: float = 0.5            # frames without ego observations: an anchor at least this often
     estimate_head_offset: bool = True        # False: the paper's model, head top = ego camera centre
     iterations: int = 50
 
@@ -77,6 +87,7 @@ class JointResult:
     cmc_scene_residuals: np.ndarray
     initial_error: float
     final_error: float
+    anchors: np.ndarray                      # frame indices optimised (the rest followed them)
 
 
 def interpolation_pairs(ego_ns: np.ndarray, query_ns: np.ndarray, max_gap_ns: int):
@@ -97,6 +108,42 @@ def ros_covariance(cov_gtsam: np.ndarray, R_world_cam: np.ndarray) -> np.ndarray
     return J @ cov_gtsam @ J.T
 
 
+def anchor_frames(stamps_ns: np.ndarray, observed: np.ndarray, max_gap_s: float) -> np.ndarray:
+    """The frames with observations, the first and last frame, and enough frames between
+    them that no two consecutive anchors are more than max_gap_s apart."""
+    anchors = set(np.unique(observed).tolist()) | {0, len(stamps_ns) - 1}
+    last = 0
+    for f in range(len(stamps_ns)):
+        if f in anchors or stamps_ns[f] - stamps_ns[last] > max_gap_s * 1e9:
+            anchors.add(f)
+            last = f
+    return np.array(sorted(anchors), int)
+
+
+def nearest_anchor(stamps_ns: np.ndarray, anchors: np.ndarray) -> np.ndarray:
+    """For every frame, the anchor nearest in time."""
+    anchor_ns = stamps_ns[anchors]
+    after = np.clip(np.searchsorted(anchor_ns, stamps_ns), 0, len(anchors) - 1)
+    before = np.maximum(after - 1, 0)
+    closer_before = np.abs(stamps_ns - anchor_ns[before]) <= np.abs(anchor_ns[after] - stamps_ns)
+    return anchors[np.where(closer_before, before, after)]
+
+
+def propagate_corrections(T_old: np.ndarray, stamps_ns: np.ndarray, anchors: np.ndarray,
+                          T_anchor_new: list[np.ndarray]) -> np.ndarray:
+    """Every frame moved by its anchors' corrections T_new T_old^-1, interpolated in time
+    between the two anchors around it (anchors keep their own pose exactly)."""
+    C = [gtsam.Pose3(Tn @ inv_se3(T_old[a])) for a, Tn in zip(anchors, T_anchor_new)]
+    after = np.clip(np.searchsorted(stamps_ns[anchors], stamps_ns), 0, len(anchors) - 1)
+    before = np.maximum(after - 1, 0)
+    out = np.empty_like(T_old)
+    for f, (i, j) in enumerate(zip(before, after)):
+        span = stamps_ns[anchors[j]] - stamps_ns[anchors[i]]
+        w = float(np.clip((stamps_ns[f] - stamps_ns[anchors[i]]) / span, 0.0, 1.0)) if span > 0 else 1.0
+        out[f] = C[i].slerp(w, C[j]).matrix() @ T_old[f]
+    return out
+
+
 def _linear(keys_and_blocks, b, sigma, values) -> gtsam.LinearContainerFactor:
     dim = len(b)
     jf = gtsam.JacobianFactor(*[x for kb in keys_and_blocks for x in kb], np.asarray(b, float),
@@ -107,11 +154,17 @@ def _linear(keys_and_blocks, b, sigma, values) -> gtsam.LinearContainerFactor:
 def solve_joint(p: JointProblem, params: JointParams = JointParams()) -> JointResult:
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
+    anchors = anchor_frames(p.ego_stamps_ns, p.ego_obs.camera, params.max_anchor_gap_s)
     ego_prior = gtsam.noiseModel.Diagonal.Sigmas(np.repeat(params.ego_prior_sigma, 3))
-    for f, T in enumerate(p.T_world_ego):
-        values.insert(X(f), pose3(T))
-        graph.add(gtsam.PriorFactorPose3(X(f), pose3(T), ego_prior))
-    graph.add(gtsam.PriorFactorPose3(X(0), pose3(p.T_world_ego[0]), gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)))
+    ego_between = gtsam.noiseModel.Diagonal.Sigmas(np.repeat(params.ego_between_sigma, 3))
+    T_ego0 = np.asarray(p.T_world_ego)
+    for f in anchors:
+        values.insert(X(f), pose3(T_ego0[f]))
+        graph.add(gtsam.PriorFactorPose3(X(f), pose3(T_ego0[f]), ego_prior))
+    for f0, f1 in zip(anchors[:-1], anchors[1:]):
+        graph.add(gtsam.BetweenFactorPose3(X(f0), X(f1), pose3(inv_se3(T_ego0[f0]) @ T_ego0[f1]), ego_between))
+    graph.add(gtsam.PriorFactorPose3(X(int(anchors[0])), pose3(p.T_world_ego[anchors[0]]),
+                                     gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)))
     lm_used = np.union1d(p.ego_obs.point, p.cmc_scene_obs.point).astype(int)
     prior = gtsam.noiseModel.Isotropic.Sigma(3, params.landmark_prior_sigma_m)
     for j in lm_used:
@@ -128,7 +181,7 @@ def solve_joint(p: JointProblem, params: JointParams = JointParams()) -> JointRe
     add_projection_factors(graph, p.ego_obs, [p.ego_camera] * len(p.T_world_ego), X, L, params.huber_k)
     add_projection_factors(graph, p.cmc_scene_obs, p.cmc_cameras, C, L, params.huber_k)
     add_projection_factors(graph, p.cmc_agent_obs, p.cmc_cameras, C, A, params.huber_k)
-    _add_a2e(graph, values, p, params)
+    _add_a2e(graph, values, p, params, anchors)
     for k in np.flatnonzero(p.agent_ids == BOTTOM):
         # z of the ground point is 0 (the ego map's floor): linear in the point, exact.
         graph.add(_linear([(A(int(k)), np.array([[0.0, 0.0, 1.0]]))], [-p.agent_points[k][2]],
@@ -136,7 +189,8 @@ def solve_joint(p: JointProblem, params: JointParams = JointParams()) -> JointRe
     _add_kinematics(graph, values, p, params)
 
     result, initial_error, final_error, _ = optimize(graph, values, params.iterations)
-    T_ego = [result.atPose3(X(f)).matrix() for f in range(len(p.T_world_ego))]
+    T_ego = list(propagate_corrections(T_ego0, p.ego_stamps_ns, anchors,
+                                       [result.atPose3(X(int(f))).matrix() for f in anchors]))
     landmarks = p.landmarks.copy()
     for j in lm_used:
         landmarks[j] = result.atPoint3(L(j))
@@ -147,23 +201,30 @@ def solve_joint(p: JointProblem, params: JointParams = JointParams()) -> JointRe
     return JointResult(T_ego, landmarks, T_cmc, agent, np.asarray(result.atPoint3(O(0))), covs,
                        reprojection_residuals(p.cmc_cameras, T_cmc, agent, p.cmc_agent_obs),
                        reprojection_residuals(p.cmc_cameras, T_cmc, landmarks, p.cmc_scene_obs),
-                       initial_error, final_error)
+                       initial_error, final_error, anchors)
 
 
-def _add_a2e(graph, values, p: JointProblem, params: JointParams) -> None:
-    """Head top A_k = T_f(o) + (interpolated - nearest ego position), f the ego pose nearest
-    to the agent point's stamp (a JacobianFactor takes three keys: pose, offset, point),
+def _add_a2e(graph, values, p: JointProblem, params: JointParams, anchors: np.ndarray) -> None:
+    """Head top A_k = T_a (T_a^-1 T_f o + (interpolated - frame f's position)), f the frame
+    nearest to the agent point's stamp and a the anchor nearest to f, both relative poses
+    from the ego map (a JacobianFactor takes three keys: anchor pose, offset, point),
     linearised at the initial values."""
     top = np.flatnonzero(p.agent_ids == TOP)
     left, right, a, ok = interpolation_pairs(p.ego_stamps_ns, p.agent_stamps_ns[top], int(params.max_a2e_gap_s * 1e9))
     o = p.head_offset
+    T = np.asarray(p.T_world_ego)
+    nearest = nearest_anchor(p.ego_stamps_ns, anchors)
     for k, f0, f1, w in zip(top[ok], left[ok], right[ok], a[ok]):
         f = int(f1 if w >= 0.5 else f0)
-        R, t = p.T_world_ego[f][:3, :3], p.T_world_ego[f][:3, 3]
-        between = (1 - w) * p.T_world_ego[f0][:3, 3] + w * p.T_world_ego[f1][:3, 3] - t
-        predicted = R @ o + t + between
-        # d(R o + t) / d[w, v] for a right perturbation T Exp([w, v]): [-R [o]x, R]
-        blocks = [(X(f), np.hstack([-R @ skew(o), R])), (O(0), R), (A(int(k)), -np.eye(3))]
+        g = int(nearest[f])
+        Ra, ta = T[g][:3, :3], T[g][:3, 3]
+        between = (1 - w) * T[f0][:3, 3] + w * T[f1][:3, 3] - T[f][:3, 3]
+        # The head top in the anchor's frame, and the offset's direction there.
+        R_rel = Ra.T @ T[f][:3, :3]
+        q = R_rel @ o + Ra.T @ (T[f][:3, 3] + between - ta)
+        predicted = Ra @ q + ta
+        # d(R q + t) / d[w, v] for a right perturbation T Exp([w, v]): [-R [q]x, R]
+        blocks = [(X(g), np.hstack([-Ra @ skew(q), Ra])), (O(0), Ra @ R_rel), (A(int(k)), -np.eye(3))]
         # error(delta) = predicted + J delta - A0 (A's own delta is in J): b = A0 - predicted.
         graph.add(_linear(blocks, p.agent_points[k] - predicted, params.a2e_sigma_m, values))
 

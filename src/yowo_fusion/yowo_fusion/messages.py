@@ -1,5 +1,5 @@
 """Fusion results <-> messages: RegisteredCameraArray, /tf_static, layout markers,
-and EgoMap -> EgoMapData (message classes only, no rclpy)."""
+and EgoMap (+ its cloud and layout) -> EgoMapData (message classes only, no rclpy)."""
 from __future__ import annotations
 
 import numpy as np
@@ -8,11 +8,12 @@ from geometry_msgs.msg import Point, PoseWithCovariance, TransformStamped
 from std_msgs.msg import ColorRGBA, Header
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
-from yowo_msgs.msg import EgoMap, RegisteredCamera, RegisteredCameraArray
+from yowo_msgs.msg import EgoMap, RegisteredCamera, RegisteredCameraArray, SceneLayout
 
 from yowo_common.camera import CameraModel
 from yowo_common.rosconv import (camera_info_to_model, matrix_to_pose, matrix_to_transform, ns_to_time,
-                                 points_to_array, pose_to_matrix, stamp_to_ns)
+                                 pointcloud2_to_xyz_rgb, points_to_array, pose_to_matrix, stamp_to_ns)
+from yowo_ego.layout import Layout, LayoutPlane
 
 from .pipeline import FAILED, OK, WEAK, EgoMapData, RegisteredCmc
 
@@ -24,16 +25,26 @@ def optical_frame(name: str) -> str:
     return f"{name}_optical_frame"
 
 
-def ego_map_from_msg(msg: EgoMap) -> EgoMapData:
+def layout_from_msg(msg: SceneLayout) -> Layout:
+    return Layout([points_to_array(p.points)[:, :2] for p in msg.floor_polygons], msg.floor_height,
+                  msg.ceiling_height, [LayoutPlane(p.kind, np.asarray(p.coefficients, float), points_to_array(p.boundary),
+                                                   p.num_points) for p in msg.planes])
+
+
+def ego_map_from_msg(msg: EgoMap, cloud=None, layout: SceneLayout | None = None) -> EgoMapData:
+    """The EgoMap message, with the ego stage's cloud (PointCloud2) and layout when given."""
     size = max(int(msg.descriptor_size), 1)
     desc = np.frombuffer(bytes(msg.descriptors), dtype=np.uint8).reshape(-1, size)
+    xyz, rgb = pointcloud2_to_xyz_rgb(cloud) if cloud is not None else (np.zeros((0, 3)), None)
+    colors = rgb / 255.0 if rgb is not None else np.full((len(xyz), 3), 0.5)
     return EgoMapData(
         camera_info_to_model(msg.camera_info),
         np.array([stamp_to_ns(s) for s in msg.stamps], dtype=np.int64),
         np.array([pose_to_matrix(p) for p in msg.poses]).reshape(-1, 4, 4),
         points_to_array(msg.landmarks), msg.descriptor_type, desc,
         np.asarray(msg.obs_pose_index, dtype=int), np.asarray(msg.obs_landmark_index, dtype=int),
-        np.column_stack([np.asarray(msg.obs_x, float), np.asarray(msg.obs_y, float)]).reshape(-1, 2))
+        np.column_stack([np.asarray(msg.obs_x, float), np.asarray(msg.obs_y, float)]).reshape(-1, 2),
+        xyz, colors, layout_from_msg(layout) if layout is not None else None)
 
 
 def registered_to_msg(cameras: list[RegisteredCmc], stamp_ns: int) -> RegisteredCameraArray:

@@ -1,7 +1,8 @@
 """Collaborative processing end to end (paper "Collaborative Processing" and
 "Register 6-DoF Poses for Isolated CMCs"): groups -> world by rebalanced Umeyama,
 scene keypoints with pose priors, joint optimisation, isolated CMCs, covariances
-and a verdict per camera."""
+and a verdict per camera; the ego map's cloud and layout refined with the jointly
+optimised ego poses."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -13,10 +14,13 @@ from yowo_cmc.tracks import CameraTracks, TrackParams, resample
 from yowo_common.bundle import Observations, pose_covariance, reprojection_residuals
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import Sim3
+from yowo_ego.layout import Layout, LayoutParams
+from yowo_ego.scene import CloudParams
 
 from .alignment import AlignParams, align_group
 from .isolated import AgentTrack, IsolatedParams, refine_pose, register_by_agent
 from .joint import JointParams, JointProblem, ros_covariance, solve_joint
+from .refined_map import move_cloud, rebuild_layout
 from .scene_matching import SceneMatchParams, match_scene
 
 GROUP_SFM, ISOLATED_PNP, NONE = "group_sfm", "isolated_pnp", "none"
@@ -34,6 +38,9 @@ class EgoMapData:
     obs_pose: np.ndarray             # (M,)
     obs_landmark: np.ndarray         # (M,)
     obs_uv: np.ndarray               # (M, 2) raw pixels
+    cloud_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))   # (N, 3) world
+    cloud_colors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))   # (N, 3) in [0, 1]
+    layout: Layout | None = None     # the ego stage's layout of that cloud
 
 
 @dataclass
@@ -66,6 +73,8 @@ class FusionParams:
     tracks: TrackParams = TrackParams()
     use_scene_keypoints: bool = True
     joint_optimisation: bool = True           # False: ablation "without joint optimisation"
+    cloud: CloudParams = CloudParams()        # the ego stage's, for the refined cloud and layout
+    layout: LayoutParams = LayoutParams()
     ok_rmse_px: float = 3.0
     ok_position_sigma_m: float = 0.10
 
@@ -77,6 +86,9 @@ class FusionResult:
     landmarks: np.ndarray
     agent: AgentTrack
     head_offset: np.ndarray
+    point_cloud: np.ndarray                   # (N, 3) the ego map's cloud at the refined ego poses
+    point_colors: np.ndarray                  # (N, 3) in [0, 1]
+    layout: Layout | None                     # rebuilt from point_cloud (the ego stage's without JO)
     alignments: dict[str, Sim3] = field(default_factory=dict)
 
 
@@ -206,6 +218,7 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
     scene_obs, scene_count = _scene_observations(names, cams, T_init, cmcs, ego, params)
     registered: list[RegisteredCmc] = []
     T_ego, landmarks = ego.T_world_ego, ego.landmarks
+    cloud, layout = ego.cloud_points, ego.layout
     if names:
         problem = JointProblem(ideal_ego, ego.stamps_ns, list(ego.T_world_ego), ego.landmarks, ego_obs, cams, T_init,
                                scene_obs, agent.points, agent.stamps_ns, agent.ids, agent_obs, head_offset,
@@ -216,6 +229,10 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
             agent = AgentTrack(agent.stamps_ns, agent.ids, res.agent_points)
             head_offset, covs = res.head_offset, res.cmc_covariances
             agent_res = res.cmc_agent_residuals
+            if len(cloud):
+                views = res.anchors
+                cloud = move_cloud(cloud, ideal_ego, ego.T_world_ego[views], T_ego[views], params.cloud.depth_max_m)
+                layout = rebuild_layout(cloud, T_ego[views, :3, 3], params.cloud, params.layout)
         else:
             T_final = T_init
             covs = [ros_covariance(pose_covariance(cams[i], T_init[i], agent.points[agent_obs.point[agent_obs.camera == i]],
@@ -233,7 +250,8 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
     track = merge_tracks(agent, ego_agent_track(T_ego, ego.stamps_ns, head_offset), params.isolated.max_gap_s)
     for n, why in sorted(failed.items()):
         registered.append(_register_isolated(n, why, cmcs.get(n), track, ego, landmarks, params))
-    return FusionResult(sorted(registered, key=lambda r: r.name), T_ego, landmarks, agent, head_offset, alignments)
+    return FusionResult(sorted(registered, key=lambda r: r.name), T_ego, landmarks, agent, head_offset, cloud,
+                        ego.cloud_colors, layout, alignments)
 
 
 def ego_agent_track(T_world_ego: np.ndarray, stamps_ns: np.ndarray, head_offset: np.ndarray) -> AgentTrack:
