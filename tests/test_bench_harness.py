@@ -18,14 +18,17 @@ def test_bench_on_tiny_writes_every_table(tmp_path, ros_env):
     assert yowo_rel["calibrated"] == 3 and yowo_rel["summary"]["pos_max"] < 0.10, yowo_rel   # a 7 s walk: ~4 cm
     assert case["detector"]["frames_full_view"] > 0 and 0 < case["detector"]["detection_rate"] <= 1
     reg = case["full"]["registration"]
-    assert {"YOWO", "YOWO without joint optimisation", "Hloc-style", "Hloc-style with YOWO prior"} <= set(reg)
+    assert {"YOWO", "YOWO without joint optimisation", "Hloc-style", "Hloc-style with YOWO prior",
+            "YOWO, cameras outside groups"} <= set(reg)
+    assert reg["YOWO, cameras outside groups"]["cameras"] == 0      # tiny: one group of three
+    assert 0.5 < case["full"]["layout_iou_joint"] <= 1.0
     # Seed 0 walks a straight line (a degenerate geometry for the alignment): ~0.3 m.
     assert reg["YOWO"]["registered"] == 3 and reg["YOWO"]["pos_max"] < 0.5, reg
     assert case["full"]["ate"]["joint"] < 0.10 and case["peak_memory_mb"] > 50
     assert case["bound"]["cameras"] == 3, case["bound"]   # one well-conditioned group of three
     text = (tmp_path / "B.md").read_text()
     assert text == (out / "BENCHMARKS.md").read_text()
-    for title in ("relative_pose_eval", "Image detector", "register_pose_eval", "scene_map", "Speed and scale",
-                  "Cramer-Rao"):
+    for title in ("relative_pose_eval", "Image detector", "register_pose_eval", "scene_map", "Table ablation",
+                  "Speed and scale", "Cramer-Rao"):
         assert title in text, title
     assert "yowo bench --preset tiny --seeds 0" in text
