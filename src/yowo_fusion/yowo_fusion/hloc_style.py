@@ -120,7 +120,8 @@ def read_keyframe_images(bag, ego, tolerance_ns: int = 5_000_000) -> dict[int, K
 def extract(rgb: np.ndarray, max_features: int) -> Features:
     """SIFT keypoints with RootSIFT descriptors (L1-normalised, square-rooted)."""
     gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-    kps, desc = cv2.SIFT_create(max_features).detectAndCompute(gray, None)
+    # Precise upscaling: the default shifts first-octave keypoints by +0.25 px.
+    kps, desc = cv2.SIFT_create(max_features, enable_precise_upscale=True).detectAndCompute(gray, None)
     if desc is None or not kps:
         return Features(np.zeros((0, 2)), np.zeros((0, 128), np.float32))
     desc = np.sqrt(desc / np.maximum(desc.sum(axis=1, keepdims=True), 1e-12)).astype(np.float32)
