@@ -16,7 +16,10 @@ from yowo_common.ros.stage import LATCHED
 from .run import RunOutcome, RunPlan, write_run_results
 from .supervisor import Supervisor, write_params_file
 
-GRACE_S = 2.0  # after the final stage finished, time for the other latched outputs to arrive
+# After the final stage finished, time for the latched outputs to arrive: a stage that
+# succeeded published them all (a loaded machine took > 2 s to deliver the map clouds);
+# after a failure some never come.
+GRACE_S = {"done": 30.0, "failed": 2.0}
 
 
 class RunFailed(RuntimeError):
@@ -89,8 +92,9 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, env: dict | Non
                 final = monitor.finished(plan.final_stage)
                 if final is not None and finished_at is None:
                     finished_at = time.monotonic()
+                grace = GRACE_S["failed" if final is not None and final.state == StageStatus.STATE_FAILED else "done"]
                 if finished_at is not None and (all(t in monitor.outputs for t in plan.outputs)
-                                                or time.monotonic() - finished_at > GRACE_S):
+                                                or time.monotonic() - finished_at > grace):
                     if final.state == StageStatus.STATE_FAILED:
                         failure = f"stage '{plan.final_stage}' failed: {final.message}"
                     break
