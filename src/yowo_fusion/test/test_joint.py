@@ -125,3 +125,40 @@ def test_joint_optimisation_corrects_a_drifting_ego_map_between_keyframes():
         before = rms_pos_err([problem.T_world_ego[f] for f in frames], [truth["T_ego"][f] for f in frames])
         after = rms_pos_err([res.T_world_ego[f] for f in frames], [truth["T_ego"][f] for f in frames])
         assert after < 0.4 * before and after < 0.02, (before, after)
+
+
+def test_unconstrained_agent_point_gives_poses_without_covariance():
+    """An agent point seen by one CMC only, at a stamp outside the ego recording: the
+    optimiser damps it, the marginals cannot be computed. The result still comes back,
+    with the reason and unknown (NaN) covariances."""
+    problem, truth = make_problem(seed=3)
+    k = len(problem.agent_points)
+    P = problem.T_world_cmc[0][:3, :3] @ [0.0, 0.0, 3.0] + problem.T_world_cmc[0][:3, 3]
+    uv, _ = problem.cmc_cameras[0].project_world(problem.T_world_cmc[0], P[None])
+    problem.agent_points = np.vstack([problem.agent_points, P])
+    problem.agent_stamps_ns = np.append(problem.agent_stamps_ns, problem.ego_stamps_ns[-1] + 10**11)
+    problem.agent_ids = np.append(problem.agent_ids, 0)
+    obs = problem.cmc_agent_obs
+    problem.cmc_agent_obs = Observations(np.append(obs.camera, 0), np.append(obs.point, k), np.vstack([obs.uv, uv]),
+                                         np.append(obs.sigma_px, 1.0))
+    res = solve_joint(problem)
+    assert all(np.isnan(c).all() for c in res.cmc_covariances)
+    assert "covariance unavailable" in res.covariance_failure and f"a{k}" in res.covariance_failure
+    assert max_pos_err(res.T_world_cmc, truth["T_cmc"]) < 0.02
+
+
+def test_ground_points_hold_a_group_that_lost_the_head_top():
+    """Noisy keypoints: the group triangulated the head top at 3 stamps, the ground point at
+    every stamp. The ground points, under the predicted head top, still hold the group
+    horizontally (the floor alone leaves it to the 3 head tops: 7 cm here)."""
+    problem, truth = make_problem(seed=5)
+    stamps = np.unique(problem.agent_stamps_ns)
+    keep = (problem.agent_ids == 1) | np.isin(problem.agent_stamps_ns, stamps[::100])
+    index = np.cumsum(keep) - 1
+    problem.agent_points, problem.agent_stamps_ns = problem.agent_points[keep], problem.agent_stamps_ns[keep]
+    problem.agent_ids = problem.agent_ids[keep]
+    obs = problem.cmc_agent_obs.subset(keep[problem.cmc_agent_obs.point])
+    problem.cmc_agent_obs = Observations(obs.camera, index[obs.point], obs.uv, obs.sigma_px)
+    problem.cmc_scene_obs = problem.cmc_scene_obs.subset(np.zeros(len(problem.cmc_scene_obs), bool))  # no images
+    res = solve_joint(problem)
+    assert max_pos_err(res.T_world_cmc, truth["T_cmc"]) < 0.04

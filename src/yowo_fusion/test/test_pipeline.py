@@ -10,7 +10,7 @@ from yowo_cmc.group_sfm import calibrate_groups
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import se3
 from yowo_ego.layout import Layout
-from yowo_fusion.pipeline import GROUP_SFM, ISOLATED_PNP, OK, CmcInput, EgoMapData, FusionParams, fuse
+from yowo_fusion.pipeline import GROUP_SFM, ISOLATED_PNP, OK, WEAK, CmcInput, EgoMapData, FusionParams, fuse
 
 OFFSET = np.array([0.0, -0.10, -0.08])
 ROOM_A = np.array([[0.0, 0.0], [6.0, 0.0], [6.0, 5.0], [0.0, 5.0]])
@@ -77,3 +77,53 @@ def test_fuse_registers_group_and_isolated_camera(joint):
         np.testing.assert_allclose(result.head_offset, OFFSET, atol=0.02)
         sig = np.sqrt(np.diag(by_name["a1"].covariance)[:3])
         assert np.all(sig > 1e-4) and np.all(sig < 0.05)
+
+
+def test_degenerate_group_is_registered_camera_by_camera():
+    """A group whose reconstruction collapsed (points shrunk towards one camera, as noisy
+    keypoints can leave it) cannot fit the ego trajectory: its cameras are registered one by
+    one from the ego-implied agent track instead of failing in the joint optimisation."""
+    cams, tracks, ego = world()
+    grouping = calibrate_groups(tracks)
+    g = grouping.groups[0]
+    centre = g.T_local_cam[g.names[0]][:3, 3]
+    g.points = centre + 0.01 * (g.points - centre) + np.random.default_rng(0).normal(size=g.points.shape) * 0.05
+    result = fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks})
+    by_name = {c.name: c for c in result.cameras}
+    for n in ("a1", "a2", "a3"):
+        assert by_name[n].method == ISOLATED_PNP and "does not fit the ego trajectory" in by_name[n].reason
+    errs = registration_errors({n: c.T_world_cam for n, c in by_name.items()}, {n: T for n, (_, T) in cams.items()})
+    # No group left to estimate the head offset: the track puts the head top at the ego camera.
+    assert all(e.eps_pos_m < 0.5 for e in errs), [(e.name, e.eps_pos_m) for e in errs]
+
+
+def test_failed_joint_optimisation_keeps_the_aligned_poses(monkeypatch):
+    """GTSAM giving up on the joint system is a per-camera verdict, not a crash."""
+    import yowo_fusion.pipeline as pipeline
+
+    def indeterminate(*_):
+        raise RuntimeError("\nIndeterminate linear system detected while working near variable\n1 (Symbol: a58).")
+    monkeypatch.setattr(pipeline, "solve_joint", indeterminate)
+    cams, tracks, ego = world()
+    grouping = calibrate_groups(tracks)
+    result = fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks})
+    by_name = {c.name: c for c in result.cameras}
+    for n in ("a1", "a2", "a3"):
+        assert by_name[n].status == WEAK and "joint optimisation failed (indeterminate system near variable a58)" \
+            in by_name[n].reason
+        assert by_name[n].T_world_cam is not None and by_name[n].covariance is not None
+
+
+def test_unknown_covariance_is_a_weak_verdict_with_the_reason(monkeypatch):
+    import yowo_fusion.pipeline as pipeline
+
+    def indeterminate(*_):
+        raise RuntimeError("\nIndeterminate linear system detected while working near variable\n1 (Symbol: x0).")
+    monkeypatch.setattr(pipeline, "pose_covariance", indeterminate)
+    cams, tracks, ego = world()
+    grouping = calibrate_groups(tracks)
+    result = fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks},
+                  FusionParams(joint_optimisation=False))
+    for c in result.cameras:   # the group's cameras and the isolated one
+        assert c.status == WEAK and "covariance unavailable (indeterminate system near variable x0)" in c.reason
+        assert c.T_world_cam is not None and np.isnan(c.covariance).all()

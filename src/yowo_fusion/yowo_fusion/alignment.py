@@ -24,6 +24,9 @@ class AlignParams:
     max_time_gap_s: float = 0.15         # ego poses further than this from a track stamp are not matched
     rebalance: bool = True               # False: the original (unweighted) KU, for ablation
     use_ground_points: bool = True       # ground points matched to the floor as well (see align_group)
+    # A group whose track misses the ego trajectory by more than this (weighted RMS, before the
+    # head offset is known: ~0.1 m when it fits) has a broken reconstruction, not a bad fit.
+    max_rms_m: float = 0.5
 
 
 @dataclass
@@ -33,6 +36,11 @@ class Alignment:
     num_clusters: int
     weights: np.ndarray                   # alpha_f per matched pair (sums to one)
     residuals_m: np.ndarray               # ||X_world - S(X_local)|| per pair
+
+    @property
+    def rms_m(self) -> float:
+        """Weighted RMS of the residuals (the weights sum to one)."""
+        return float(np.sqrt(np.sum(self.weights * self.residuals_m**2)))
 
 
 def spatiotemporal_clusters(positions: np.ndarray, stamps_ns: np.ndarray, params: AlignParams) -> np.ndarray:

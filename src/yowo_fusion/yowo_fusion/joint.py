@@ -25,6 +25,7 @@ every anchor pose (the ego map's own estimate) and depth-derived priors on the l
 map's floor), which also observes the vertical part of the head offset."""
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 
 import gtsam
@@ -37,6 +38,8 @@ from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3, skew
 
 TOP, BOTTOM = 0, 1
+UNKNOWN_COVARIANCE = np.full((6, 6), np.nan)   # a pose whose covariance could not be computed
+UNKNOWN_COVARIANCE.setflags(write=False)
 
 
 @dataclass(frozen=True)
@@ -88,6 +91,7 @@ class JointResult:
     initial_error: float
     final_error: float
     anchors: np.ndarray                      # frame indices optimised (the rest followed them)
+    covariance_failure: str = ""             # why cmc_covariances are NaN (unknown): an indeterminate system
 
 
 def interpolation_pairs(ego_ns: np.ndarray, query_ns: np.ndarray, max_gap_ns: int):
@@ -196,25 +200,62 @@ def solve_joint(p: JointProblem, params: JointParams = JointParams()) -> JointRe
         landmarks[j] = result.atPoint3(L(j))
     T_cmc = [result.atPose3(C(i)).matrix() for i in range(len(p.T_world_cmc))]
     agent = np.array([result.atPoint3(A(k)) for k in range(len(p.agent_points))]).reshape(-1, 3)
-    marginals = gtsam.Marginals(graph, result)
-    covs = [ros_covariance(marginals.marginalCovariance(C(i)), T[:3, :3]) for i, T in enumerate(T_cmc)]
+    covs, failure = [UNKNOWN_COVARIANCE] * len(T_cmc), ""
+    try:
+        marginals = gtsam.Marginals(graph, result)
+        covs = [ros_covariance(marginals.marginalCovariance(C(i)), T[:3, :3]) for i, T in enumerate(T_cmc)]
+    except RuntimeError as exc:
+        # The optimiser damps a (nearly) indeterminate system, the marginals cannot: the poses
+        # stand, their covariance is unknown.
+        failure = covariance_unavailable(exc)
     return JointResult(T_ego, landmarks, T_cmc, agent, np.asarray(result.atPoint3(O(0))), covs,
                        reprojection_residuals(p.cmc_cameras, T_cmc, agent, p.cmc_agent_obs),
                        reprojection_residuals(p.cmc_cameras, T_cmc, landmarks, p.cmc_scene_obs),
-                       initial_error, final_error, anchors)
+                       initial_error, final_error, anchors, failure)
+
+
+def solver_failure(exc: RuntimeError) -> str:
+    """A short reason from GTSAM's exception (IndeterminateLinearSystemException names the variable)."""
+    near = re.search(r"Symbol: (\w+)", str(exc))
+    return f"indeterminate system near variable {near.group(1)}" if near else str(exc).strip().splitlines()[0]
+
+
+def covariance_unavailable(exc: RuntimeError) -> str:
+    return f"covariance unavailable ({solver_failure(exc)})"
+
+
+def _chains(p: JointProblem) -> np.ndarray:
+    return np.zeros(len(p.agent_ids), int) if p.agent_chain is None else np.asarray(p.agent_chain)
 
 
 def _add_a2e(graph, values, p: JointProblem, params: JointParams, anchors: np.ndarray) -> None:
     """Head top A_k = T_a (T_a^-1 T_f o + (interpolated - frame f's position)), f the frame
     nearest to the agent point's stamp and a the anchor nearest to f, both relative poses
     from the ego map (a JacobianFactor takes three keys: anchor pose, offset, point),
-    linearised at the initial values."""
-    top = np.flatnonzero(p.agent_ids == TOP)
-    left, right, a, ok = interpolation_pairs(p.ego_stamps_ns, p.agent_stamps_ns[top], int(params.max_a2e_gap_s * 1e9))
+    linearised at the initial values.
+    A ground point whose group lost the head top at that stamp is tied horizontally to the
+    predicted head top (it stands under it, up to the gait's sway): without it a group that
+    tracked mostly the feet (noisy keypoints) keeps only the floor's z and slides and turns
+    freely on the floor."""
+    chain = _chains(p)
+    tops = set(zip(chain[p.agent_ids == TOP].tolist(), p.agent_stamps_ns[p.agent_ids == TOP].tolist()))
+    bottom = np.flatnonzero(p.agent_ids == BOTTOM)
+    lone = bottom[[(int(chain[k]), int(p.agent_stamps_ns[k])) not in tops for k in bottom]].astype(int)
+    I3 = np.eye(3)
+    for members, rows, sigma in ((np.flatnonzero(p.agent_ids == TOP), I3, params.a2e_sigma_m),
+                                 (lone, I3[:2], float(np.hypot(params.a2e_sigma_m, params.upright_sigma_m)))):
+        _add_head_top_factors(graph, values, p, params, anchors, members, rows, sigma)
+
+
+def _add_head_top_factors(graph, values, p: JointProblem, params: JointParams, anchors: np.ndarray,
+                          members: np.ndarray, rows: np.ndarray, sigma: float) -> None:
+    """rows @ (A_k - predicted head top) ~ N(0, sigma) for the agent points in members."""
+    left, right, a, ok = interpolation_pairs(p.ego_stamps_ns, p.agent_stamps_ns[members],
+                                             int(params.max_a2e_gap_s * 1e9))
     o = p.head_offset
     T = np.asarray(p.T_world_ego)
     nearest = nearest_anchor(p.ego_stamps_ns, anchors)
-    for k, f0, f1, w in zip(top[ok], left[ok], right[ok], a[ok]):
+    for k, f0, f1, w in zip(members[ok], left[ok], right[ok], a[ok]):
         f = int(f1 if w >= 0.5 else f0)
         g = int(nearest[f])
         Ra, ta = T[g][:3, :3], T[g][:3, 3]
@@ -224,16 +265,16 @@ def _add_a2e(graph, values, p: JointProblem, params: JointParams, anchors: np.nd
         q = R_rel @ o + Ra.T @ (T[f][:3, 3] + between - ta)
         predicted = Ra @ q + ta
         # d(R q + t) / d[w, v] for a right perturbation T Exp([w, v]): [-R [q]x, R]
-        blocks = [(X(g), np.hstack([-Ra @ skew(q), Ra])), (O(0), Ra @ R_rel), (A(int(k)), -np.eye(3))]
+        blocks = [(X(g), rows @ np.hstack([-Ra @ skew(q), Ra])), (O(0), rows @ Ra @ R_rel), (A(int(k)), -rows)]
         # error(delta) = predicted + J delta - A0 (A's own delta is in J): b = A0 - predicted.
-        graph.add(_linear(blocks, p.agent_points[k] - predicted, params.a2e_sigma_m, values))
+        graph.add(_linear(blocks, rows @ (p.agent_points[k] - predicted), sigma, values))
 
 
 def _add_kinematics(graph, values, p: JointProblem, params: JointParams) -> None:
     """eq. f_kin on consecutive grid samples: second difference of the head top, and the
     change of the top-to-bottom vector D_k (an auxiliary variable D_k = top_k - bottom_k,
     because a JacobianFactor takes at most three keys)."""
-    chain = np.zeros(len(p.agent_ids), int) if p.agent_chain is None else np.asarray(p.agent_chain)
+    chain = _chains(p)
     for c in np.unique(chain):
         _add_chain_kinematics(graph, values, p, params, np.flatnonzero(chain == c), int(c))
 

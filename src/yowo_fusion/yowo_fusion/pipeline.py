@@ -19,7 +19,8 @@ from yowo_ego.scene import CloudParams
 
 from .alignment import AlignParams, align_group
 from .isolated import AgentTrack, IsolatedParams, refine_pose, register_by_agent
-from .joint import JointParams, JointProblem, ros_covariance, solve_joint
+from .joint import (UNKNOWN_COVARIANCE, JointParams, JointProblem, covariance_unavailable, ros_covariance,
+                    solve_joint, solver_failure)
 from .refined_map import move_cloud, rebuild_layout
 from .scene_matching import SceneMatchParams, match_scene
 
@@ -57,7 +58,7 @@ class RegisteredCmc:
     status: str
     reason: str
     T_world_cam: np.ndarray | None
-    covariance: np.ndarray | None    # 6x6 ROS order (x, y, z, rx, ry, rz), world frame
+    covariance: np.ndarray | None    # 6x6 ROS order (x, y, z, rx, ry, rz), world frame; NaN: unknown
     K: np.ndarray
     rmse_px: float
     num_agent: int
@@ -121,9 +122,13 @@ def _group_tracks(group: CameraGroupResult, params: AlignParams):
 def head_offset_estimate(group: CameraGroupResult, ego: EgoMapData, params: AlignParams) -> tuple[np.ndarray, int]:
     """First pass: rebalanced Umeyama of the head-top track against the ego camera
     positions, put on the floor; the head offset it implies and its weight (the number
-    of spatiotemporal clusters: how much of the walk the group saw)."""
+    of spatiotemporal clusters: how much of the walk the group saw). ValueError when the
+    group does not fit the ego trajectory (its cameras are then registered one by one)."""
     stamps, local, ground = _group_tracks(group, params)
     al = align_group(stamps, local, ego.stamps_ns, ego.T_world_ego[:, :3, 3], params, *ground)
+    if al.rms_m > params.max_rms_m:
+        raise ValueError(f"its agent track does not fit the ego trajectory (RMS {al.rms_m:.2f} m > "
+                         f"{params.max_rms_m:g} m): the group's reconstruction is degenerate")
     return _head_offset(_on_floor(al.sim3_world_local, group), stamps, local, ego,
                         int(params.max_time_gap_s * 1e9)), al.num_clusters
 
@@ -147,15 +152,24 @@ def weighted_median(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return np.array(out)
 
 
-def _verdict(rmse: float, cov: np.ndarray | None, params: FusionParams) -> tuple[str, str]:
-    reasons = []
+def _verdict(rmse: float, cov: np.ndarray, params: FusionParams, cov_failure: str = "") -> tuple[str, str]:
+    reasons = [cov_failure] if cov_failure else []
     if not np.isfinite(rmse) or rmse > params.ok_rmse_px:
         reasons.append(f"reprojection RMSE {rmse:.2f} px > {params.ok_rmse_px:g} px")
-    if cov is not None:
+    if not cov_failure:
         sigma = float(np.sqrt(np.linalg.eigvalsh(cov[:3, :3]).max()))
         if sigma > params.ok_position_sigma_m:
             reasons.append(f"position sigma {sigma:.3f} m > {params.ok_position_sigma_m:g} m")
     return (WEAK, "; ".join(reasons)) if reasons else (OK, "")
+
+
+def _covariance(camera: CameraModel, T: np.ndarray, points: np.ndarray, uv: np.ndarray, sigma_px: float
+                ) -> tuple[np.ndarray, str]:
+    """One camera's pose covariance through fixed points, or unknown and why (degenerate geometry)."""
+    try:
+        return ros_covariance(pose_covariance(camera, T, points, uv, sigma_px), T[:3, :3]), ""
+    except RuntimeError as exc:
+        return UNKNOWN_COVARIANCE, covariance_unavailable(exc)
 
 
 def _rmse(res: np.ndarray) -> float:
@@ -223,11 +237,17 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
         problem = JointProblem(ideal_ego, ego.stamps_ns, list(ego.T_world_ego), ego.landmarks, ego_obs, cams, T_init,
                                scene_obs, agent.points, agent.stamps_ns, agent.ids, agent_obs, head_offset,
                                np.concatenate(agent_chain))
+        res, jo_failure = None, ""
         if params.joint_optimisation:
-            res = solve_joint(problem, params.joint)
+            try:
+                res = solve_joint(problem, params.joint)
+            except RuntimeError as exc:  # GTSAM gave up on the system: keep the aligned poses
+                jo_failure = f"joint optimisation failed ({solver_failure(exc)}): pose without JO"
+        if res is not None:
             T_ego, landmarks, T_final = np.array(res.T_world_ego), res.landmarks, res.T_world_cmc
             agent = AgentTrack(agent.stamps_ns, agent.ids, res.agent_points)
             head_offset, covs = res.head_offset, res.cmc_covariances
+            cov_failures = [res.covariance_failure] * len(names)
             agent_res = res.cmc_agent_residuals
             if len(cloud):
                 views = res.anchors
@@ -235,13 +255,15 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
                 layout = rebuild_layout(cloud, T_ego[views, :3, 3], params.cloud, params.layout)
         else:
             T_final = T_init
-            covs = [ros_covariance(pose_covariance(cams[i], T_init[i], agent.points[agent_obs.point[agent_obs.camera == i]],
-                                                   agent_obs.uv[agent_obs.camera == i], 2.0), T_init[i][:3, :3])
-                    for i in range(len(names))]
+            own = [agent_obs.camera == i for i in range(len(names))]
+            covs, cov_failures = zip(*[_covariance(cams[i], T_init[i], agent.points[agent_obs.point[sel]],
+                                                   agent_obs.uv[sel], 2.0) for i, sel in enumerate(own)])
             agent_res = reprojection_residuals(cams, T_final, agent.points, agent_obs)
         for i, n in enumerate(names):
             rmse = _rmse(agent_res[agent_obs.camera == i])
-            status, reason = _verdict(rmse, covs[i], params)
+            status, reason = _verdict(rmse, covs[i], params, cov_failures[i])
+            if jo_failure:
+                status, reason = WEAK, "; ".join(r for r in (jo_failure, reason) if r)
             registered.append(RegisteredCmc(n, group_of[n], GROUP_SFM, status, reason, T_final[i], covs[i],
                                             cams[i].K, rmse, int((agent_obs.camera == i).sum()), scene_count.get(n, 0)))
     # Isolated CMCs: the optimised agent track where a group saw the agent, and elsewhere the
@@ -316,7 +338,7 @@ def _register_isolated(name: str, why: str, cmc: CmcInput | None, agent: AgentTr
             T = refine_pose(pnp.camera, T, P, uv)
     proj, _ = pnp.camera.project_world(T, P)
     rmse = _rmse(uv - proj)
-    cov = ros_covariance(pose_covariance(pnp.camera, T, P, uv, max(rmse, 0.5)), T[:3, :3])
-    status, reason = _verdict(rmse, cov, params)
+    cov, cov_failure = _covariance(pnp.camera, T, P, uv, max(rmse, 0.5))
+    status, reason = _verdict(rmse, cov, params, cov_failure)
     return RegisteredCmc(name, "", ISOLATED_PNP, status, "; ".join(r for r in (f"isolated: {why}", reason) if r),
                          T, cov, pnp.camera.K, rmse, n_agent, n_scene)
