@@ -16,7 +16,7 @@ from yowo_common.bundle import BundleProblem, Observations, robust_sigma, solve
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3, se3
 
-from .tracks import CameraTracks, TrackParams, resample
+from .tracks import CameraTracks, TrackParams, noise_scale, resample
 
 MAX_IDS = 1000  # keypoint ids per grid time: key = grid index * MAX_IDS + id
 RANSAC_SEED = 0  # OpenCV's RANSAC draws from a global RNG: seed it so a bag always gives the same result
@@ -63,6 +63,7 @@ class GridObservations:
     cameras: list[CameraModel]             # ideal pinhole (undistorted) intrinsics
     names: list[str]
     per_camera: list[dict[int, np.ndarray]]  # camera -> {key: uv (2,)}
+    noise_scale: list[float]               # camera -> factor on its pixel thresholds (tracks.noise_scale)
 
     def keys(self, c: int) -> np.ndarray:
         return np.fromiter(self.per_camera[c].keys(), dtype=np.int64)
@@ -112,7 +113,8 @@ def sample_on_grid(cams: list[CameraTracks], params: TrackParams) -> GridObserva
     period = min(c.frame_period_ns for c in cams)
     all_stamps = np.concatenate([t.stamps_ns for c in cams for t in c.tracks.values()] or [np.zeros(0, np.int64)])
     if len(all_stamps) == 0:
-        return GridObservations(np.zeros(0, np.int64), [], [c.name for c in cams], [{} for _ in cams])
+        return GridObservations(np.zeros(0, np.int64), [], [c.name for c in cams], [{} for _ in cams],
+                                [1.0 for _ in cams])
     t0 = all_stamps.min() - all_stamps.min() % period
     grid = np.arange(t0, all_stamps.max() + period, period, dtype=np.int64)
     per_camera, models = [], []
@@ -124,7 +126,8 @@ def sample_on_grid(cams: list[CameraTracks], params: TrackParams) -> GridObserva
             if kp_id < MAX_IDS:
                 obs.update((int(k) * MAX_IDS + kp_id, uv[k]) for k in np.flatnonzero(ok))
         per_camera.append(obs)
-    return GridObservations(grid, models, [c.name for c in cams], per_camera)
+    return GridObservations(grid, models, [c.name for c in cams], per_camera,
+                            [noise_scale(c, params) for c in cams])
 
 
 def spread_subset(uv: np.ndarray, camera: CameraModel, params: SfmParams) -> np.ndarray:
@@ -157,16 +160,17 @@ def pair_geometry(obs: GridObservations, a: int, b: int, params: SfmParams) -> P
     pa = np.array([obs.per_camera[a][k] for k in keys])
     pb = np.array([obs.per_camera[b][k] for k in keys])
     sub = spread_subset(pa, obs.cameras[a], params)
+    ransac_px = params.ransac_px * max(obs.noise_scale[a], obs.noise_scale[b])
     F = None
     if len(sub) >= params.min_matches:
         cv2.setRNGSeed(RANSAC_SEED)
         try:
-            F, _ = cv2.findFundamentalMat(pa[sub], pb[sub], cv2.USAC_MAGSAC, params.ransac_px, 0.9999, 10000)
+            F, _ = cv2.findFundamentalMat(pa[sub], pb[sub], cv2.USAC_MAGSAC, ransac_px, 0.9999, 10000)
         except cv2.error:  # degenerate configurations (e.g. all points in one spot) make USAC assert
             F = None
     if F is None or F.shape != (3, 3):
         return PairGeometry(a, b, None, keys, np.zeros(len(keys), bool))
-    inliers = sampson_px(F, pa, pb) <= params.ransac_px
+    inliers = sampson_px(F, pa, pb) <= ransac_px
     return PairGeometry(a, b, F, keys, inliers, (overlap_score(pa[inliers], obs.cameras[a], params),
                                                  overlap_score(pb[inliers], obs.cameras[b], params)))
 
@@ -246,6 +250,16 @@ def triangulate(cameras: list[CameraModel], poses: list[np.ndarray], uvs: list[n
     return X[:3] / X[3] if abs(X[3]) > 1e-12 else np.full(3, np.nan)
 
 
+def _translation_given_rotation(R_cam_world: np.ndarray, X: np.ndarray, xn: np.ndarray) -> np.ndarray:
+    """Least-squares t of x ~ R X + t from normalised image points: linear once R is known."""
+    RX = X @ R_cam_world.T
+    A = np.zeros((2 * len(X), 3))
+    A[0::2, 0] = A[1::2, 1] = 1.0
+    A[0::2, 2], A[1::2, 2] = -xn[:, 0], -xn[:, 1]
+    rhs = np.column_stack([xn[:, 0] * RX[:, 2] - RX[:, 0], xn[:, 1] * RX[:, 2] - RX[:, 1]]).ravel()
+    return np.linalg.lstsq(A, rhs, rcond=None)[0].reshape(3, 1)
+
+
 class IncrementalSfm:
     """Incremental reconstruction of one group in its local frame (reference camera = identity)."""
 
@@ -256,8 +270,14 @@ class IncrementalSfm:
         self.failed: dict[int, str] = {}
 
     def initialise(self, pair: PairGeometry) -> None:
-        a, b = pair.a, pair.b
-        keys = pair.keys[pair.inliers]
+        self.poses[pair.a] = np.eye(4)
+        candidates = self._relative_candidates(pair.a, pair.b, pair.keys[pair.inliers], pair.F)
+        self.poses[pair.b] = max(candidates, key=lambda T: self._verify(pair.b, T))
+        self.triangulate_new()
+
+    def _relative_candidates(self, a: int, b: int, keys: np.ndarray, F: np.ndarray | None = None
+                             ) -> list[np.ndarray]:
+        """Candidate poses T_a_b (unit baseline) from the 2D-2D matches `keys`."""
         pa = np.array([self.obs.per_camera[a][k] for k in keys])
         pb = np.array([self.obs.per_camera[b][k] for k in keys])
         Ka, Kb = self.obs.cameras[a].K, self.obs.cameras[b].K
@@ -267,15 +287,56 @@ class IncrementalSfm:
         # horizontal planes (head and floor), where the 7-DoF F is nearly degenerate and its E
         # can be far off; the calibrated 5-point solver on the F inliers is well conditioned.
         cv2.setRNGSeed(RANSAC_SEED)
-        thresh = self.params.ransac_px / np.sqrt(Ka[0, 0] * Kb[0, 0])
+        thresh = (self.params.ransac_px * max(self.obs.noise_scale[a], self.obs.noise_scale[b])
+                  / np.sqrt(Ka[0, 0] * Kb[0, 0]))
         sub = spread_subset(pa, self.obs.cameras[a], self.params)
-        E, _ = cv2.findEssentialMat(na[sub], nb[sub], np.eye(3), cv2.USAC_MAGSAC, 0.9999, thresh)
-        if E is None or E.shape != (3, 3):
-            E = Kb.T @ pair.F @ Ka
-        _, R, t, _ = cv2.recoverPose(E, na, nb, np.eye(3))  # SVD + cheirality check
-        self.poses[a] = np.eye(4)
-        self.poses[b] = inv_se3(se3(R, t.ravel()))         # T_l_b: R_lb = R^T, X_b = -R^T t
-        self.triangulate_new()
+        E = None
+        if len(sub) >= 5:
+            E, _ = cv2.findEssentialMat(na[sub], nb[sub], np.eye(3), cv2.USAC_MAGSAC, 0.9999, thresh)
+        if (E is None or E.shape != (3, 3)) and F is not None:
+            E = Kb.T @ F @ Ka
+        candidates = []
+        if E is not None and E.shape == (3, 3):
+            _, R, t, _ = cv2.recoverPose(E, na, nb, np.eye(3))  # SVD + cheirality check
+            candidates.append(inv_se3(se3(R, t.ravel())))     # T_a_b: R_ab = R^T, X_b = -R^T t
+        # Our addition to the paper's geometric verification: each keypoint id of a walking
+        # agent stays near one horizontal plane (head top, floor point), so its matches also
+        # fit a homography. At high noise the 5-point E of the two nearly planar layers can
+        # fall into a wrong solution (5 px: 34 deg off) where a per-id homography's
+        # decomposition is close (4.5 deg); _verify picks among them.
+        ids = keys % MAX_IDS
+        for i in np.unique(ids):
+            if np.sum(ids == i) < self.params.min_matches:
+                continue
+            cv2.setRNGSeed(RANSAC_SEED)
+            H, _ = cv2.findHomography(na[ids == i], nb[ids == i], cv2.USAC_MAGSAC, thresh)
+            if H is not None:
+                _, Rs, ts, _ = cv2.decomposeHomographyMat(H, np.eye(3))
+                candidates += [inv_se3(se3(R, t.ravel() / np.linalg.norm(t)))
+                               for R, t in zip(Rs, ts) if np.linalg.norm(t) > 1e-9]
+        return candidates
+
+    def _verify(self, c: int, T: np.ndarray) -> tuple[int, float]:
+        """Geometric verification of a candidate pose T of camera c: how many of c's points
+        seen by a posed camera triangulate acceptably with it, then minus their mean
+        reprojection error (px). Scored on a spread subset (a long stop is one spot)."""
+        poses = {**self.poses, c: T}
+        keys = list(self.obs.per_camera[c])
+        uv = np.array([self.obs.per_camera[c][k] for k in keys]).reshape(-1, 2)
+        count, errs = 0, []
+        for i in spread_subset(uv, self.obs.cameras[c], self.params):
+            views = [v for v in poses if keys[i] in self.obs.per_camera[v]]
+            if len(views) < 2:
+                continue
+            cams = [self.obs.cameras[v] for v in views]
+            uvs = [self.obs.per_camera[v][keys[i]] for v in views]
+            X = triangulate(cams, [poses[v] for v in views], uvs)
+            if np.isfinite(X).all() and self._acceptable(X, cams, [poses[v] for v in views], uvs,
+                                                         [self.obs.noise_scale[v] for v in views]):
+                count += 1
+                errs += [np.linalg.norm(cam.project_world(poses[v], X[None])[0][0] - p)
+                         for cam, v, p in zip(cams, views, uvs)]
+        return count, -float(np.mean(errs)) if errs else 0.0
 
     def _views(self, key: int) -> list[int]:
         return [c for c in self.poses if key in self.obs.per_camera[c]]
@@ -290,14 +351,15 @@ class IncrementalSfm:
             poses = [self.poses[c] for c in views]
             uvs = [self.obs.per_camera[c][key] for c in views]
             X = triangulate(cams, poses, uvs)
-            if np.isfinite(X).all() and self._acceptable(X, cams, poses, uvs):
+            scales = [self.obs.noise_scale[c] for c in views]
+            if np.isfinite(X).all() and self._acceptable(X, cams, poses, uvs, scales):
                 self.points[key] = X
 
-    def _acceptable(self, X, cams, poses, uvs) -> bool:
+    def _acceptable(self, X, cams, poses, uvs, scales) -> bool:
         rays = []
-        for cam, T, uv in zip(cams, poses, uvs):
+        for cam, T, uv, scale in zip(cams, poses, uvs, scales):
             proj, front = cam.project_world(T, X[None])
-            if not front[0] or np.linalg.norm(proj[0] - uv) > self.params.max_reproj_px:
+            if not front[0] or np.linalg.norm(proj[0] - uv) > self.params.max_reproj_px * scale:
                 return False
             rays.append((X - T[:3, 3]) / np.linalg.norm(X - T[:3, 3]))
         cos = max(abs(float(r1 @ r2)) for i, r1 in enumerate(rays) for r2 in rays[i + 1:])
@@ -325,14 +387,33 @@ class IncrementalSfm:
         cv2.setRNGSeed(RANSAC_SEED)
         ok, rvec, tvec, inliers = cv2.solvePnPRansac(
             obj, img, self.obs.cameras[c].K, None, iterationsCount=2000,
-            reprojectionError=self.params.pnp_px, confidence=0.999, flags=cv2.SOLVEPNP_SQPNP)
+            reprojectionError=self.params.pnp_px * self.obs.noise_scale[c], confidence=0.999, flags=cv2.SOLVEPNP_SQPNP)
         if not ok or inliers is None or len(inliers) < self.params.min_pnp:
             self.failed[c] = (f"PnP found {0 if inliers is None else len(inliers)} consistent agent points "
                               f"(needs {self.params.min_pnp})")
             return False
+        K = self.obs.cameras[c].K
         idx = inliers.ravel()
-        rvec, tvec = cv2.solvePnPRefineLM(obj[idx], img[idx], self.obs.cameras[c].K, None, rvec, tvec)
-        self.poses[c] = inv_se3(se3(cv2.Rodrigues(rvec)[0], tvec.ravel()))
+        rvec, tvec = cv2.solvePnPRefineLM(obj[idx], img[idx], K, None, rvec, tvec)
+        candidates = [inv_se3(se3(cv2.Rodrigues(rvec)[0], tvec.ravel()))]
+        # Our addition: the group's points this camera sees may all be one id (one plane),
+        # where PnP at high noise flips (5 px: 106 deg off). Rotations from the 2D-2D
+        # geometry with each posed camera (as for the initial pair), with the translation
+        # fitted to the 2D-3D matches, compete with it in the same verification.
+        norm = cv2.undistortPoints(img[:, None], K, None).reshape(-1, 2)
+        for r in list(self.poses):
+            shared = np.array([k for k in self.obs.per_camera[c] if k in self.obs.per_camera[r]], dtype=np.int64)
+            if len(shared) < self.params.min_matches:
+                continue
+            for T_rc in self._relative_candidates(r, c, shared):
+                R_cl = (self.poses[r][:3, :3] @ T_rc[:3, :3]).T
+                t = _translation_given_rotation(R_cl, obj, norm)
+                err = np.linalg.norm(cv2.projectPoints(obj, cv2.Rodrigues(R_cl)[0], t, K, None)[0][:, 0] - img, axis=1)
+                inl = err <= self.params.pnp_px * self.obs.noise_scale[c]
+                if inl.sum() >= self.params.min_pnp:
+                    rv, tv = cv2.solvePnPRefineLM(obj[inl], img[inl], K, None, cv2.Rodrigues(R_cl)[0], t)
+                    candidates.append(inv_se3(se3(cv2.Rodrigues(rv)[0], tv.ravel())))
+        self.poses[c] = max(candidates, key=lambda T: self._verify(c, T))
         self.triangulate_new()
         return True
 
@@ -348,7 +429,7 @@ class IncrementalSfm:
                     cam_i.append(index[c])
                     pt_i.append(kidx[k])
                     uv.append(p)
-                    sig.append(sigma_by_id.get(k % MAX_IDS, self.params.initial_sigma_px))
+                    sig.append(sigma_by_id.get(k % MAX_IDS, self.params.initial_sigma_px * self.obs.noise_scale[c]))
         obs = Observations(np.array(cam_i, dtype=int), np.array(pt_i, dtype=int), np.array(uv).reshape(-1, 2),
                            np.array(sig, dtype=float))
         baseline = np.linalg.norm(self.poses[second][:3, 3])

@@ -5,8 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import savgol_filter
+from scipy.signal import savgol_coeffs, savgol_filter
 
+from yowo_common.bundle import robust_sigma
 from yowo_common.camera import CameraModel
 
 
@@ -46,6 +47,11 @@ class TrackParams:
     gap_factor: float = 2.5         # a gap longer than this many frame periods splits a segment
     gate_px: float = 8.0            # residual to the smoothed track above which a sample is dropped
     min_confidence: float = 0.1
+    # The pixel thresholds here and in SfmParams were tuned on detections whose best
+    # keypoint id has ~1 px noise (estimated 0.9-1.9 px by noise_px). A camera whose best id
+    # is noisier than this has them scaled by the ratio (noise_scale); never below 1.
+    nominal_noise_px: float = 1.5
+    min_noise_samples: int = 20     # residuals needed for a track's noise estimate
 
 
 def segments(stamps_ns: np.ndarray, max_gap_ns: int) -> list[slice]:
@@ -65,18 +71,55 @@ def _savgol(uv: np.ndarray, window: int, polyorder: int) -> np.ndarray:
     return savgol_filter(uv, w, polyorder, axis=0, mode="interp")
 
 
-def clean_track(track: KeypointTrack, period_ns: int, params: TrackParams) -> KeypointTrack:
-    """Drop low-confidence samples and outliers (far from the smoothed track),
-    then smooth what remains, segment by segment."""
+def _window(period_ns: int, params: TrackParams) -> int:
+    return max(3, int(round(params.window_s * 1e9 / period_ns)) | 1)
+
+
+def noise_px(track: KeypointTrack, period_ns: int, params: TrackParams) -> float:
+    """Per-axis pixel noise of a raw track: robust sigma (MAD) of the residuals to the
+    Savitzky-Golay fit over full windows, divided by sqrt(1 - c0), c0 being the fit's
+    centre weight (the fit follows each sample's own noise by c0). Outliers are dropped
+    first against the median pre-filtered fit: in the plain fit one outlier shifts a
+    whole window of residuals. nan if too few samples."""
     track = track.subset(track.confidence >= params.min_confidence)
-    window = max(3, int(round(params.window_s * 1e9 / period_ns)) | 1)
+    window = _window(period_ns, params)
+    max_gap = int(params.gap_factor * period_ns)
+    if window <= params.polyorder + 1 or len(track) < params.min_noise_samples:  # an exact fit: no residual
+        return float("nan")
+    r0 = np.concatenate([track.uv[seg] - _savgol(_running_median(track.uv[seg], 5), window, params.polyorder)
+                         for seg in segments(track.stamps_ns, max_gap)])
+    track = track.subset(np.linalg.norm(r0, axis=1) <= 4.0 * robust_sigma(r0))
+    half = window // 2
+    res = [(track.uv[seg] - savgol_filter(track.uv[seg], window, params.polyorder, axis=0))[half:-half]
+           for seg in segments(track.stamps_ns, max_gap) if seg.stop - seg.start > window]
+    r = np.concatenate(res) if res else np.zeros((0, 2))
+    if len(r) < params.min_noise_samples:
+        return float("nan")
+    c0 = savgol_coeffs(window, params.polyorder)[half]
+    return robust_sigma(r) / np.sqrt(1.0 - c0)
+
+
+def noise_scale(cam: CameraTracks, params: TrackParams) -> float:
+    """How much noisier than nominal a camera's best keypoint id is (>= 1): the factor on
+    its pixel thresholds. The best id, as the geometry leans on it and other ids (body
+    points) are noisier by nature, not by detector trouble."""
+    sigmas = [noise_px(t, cam.frame_period_ns, params) for t in cam.tracks.values()]
+    sigmas = [s for s in sigmas if np.isfinite(s)]
+    return max(1.0, min(sigmas) / params.nominal_noise_px) if sigmas else 1.0
+
+
+def clean_track(track: KeypointTrack, period_ns: int, params: TrackParams, scale: float = 1.0) -> KeypointTrack:
+    """Drop low-confidence samples and outliers (far from the smoothed track; the gate
+    times the camera's noise scale), then smooth what remains, segment by segment."""
+    track = track.subset(track.confidence >= params.min_confidence)
+    window = _window(period_ns, params)
     max_gap = int(params.gap_factor * period_ns)
     keep = np.ones(len(track), bool)
     for seg in segments(track.stamps_ns, max_gap):
         # Median pre-filter so a single outlier does not drag the polynomial fit.
         uv = track.uv[seg]
         ref = _savgol(_running_median(uv, 5), window, params.polyorder)
-        keep[seg] = np.linalg.norm(uv - ref, axis=1) <= params.gate_px
+        keep[seg] = np.linalg.norm(uv - ref, axis=1) <= params.gate_px * scale
     track = track.subset(keep)
     smooth = track.uv.copy()
     for seg in segments(track.stamps_ns, max_gap):
@@ -123,8 +166,9 @@ def resample(cam: CameraTracks, stamps_ns: np.ndarray, params: TrackParams
              ) -> tuple[CameraModel, dict[int, tuple[np.ndarray, np.ndarray]]]:
     """Clean and undistort every keypoint track of a camera and interpolate it at the
     given stamps: (ideal pinhole model, {id: (uv (K, 2), valid (K,))})."""
+    scale = noise_scale(cam, params)
     cleaned = CameraTracks(cam.name, cam.camera,
-                           {i: clean_track(t, cam.frame_period_ns, params) for i, t in cam.tracks.items()},
+                           {i: clean_track(t, cam.frame_period_ns, params, scale) for i, t in cam.tracks.items()},
                            cam.frame_period_ns)
     ideal = undistort_tracks(cleaned)
     max_gap = int(params.gap_factor * cam.frame_period_ns)
