@@ -22,7 +22,8 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
     out = tmp_path / "results"
     r = yowo("run", bag, "-o", out, env=ros_env, timeout=700)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
-    for name in ("cameras.yaml", "ego_trajectory.tum", "map.ply", "layout.json", "report.html", "metrics.json"):
+    for name in ("cameras.yaml", "ego_trajectory.tum", "map.ply", "layout.json", "report.html", "metrics.json",
+                 "ego_trajectory_ego.tum", "map_ego.ply", "layout_ego.json"):
         assert (out / name).exists(), name
     check_result_bag(out / "result.mcap")
     check_report(out / "report.html", ["cam00", "cam01", "cam02"])
@@ -93,7 +94,8 @@ def check_result_bag(path):
     from yowo_common.ros.bag import list_topics
 
     wanted = {topics.TF_STATIC, topics.CMC_POSES, topics.LAYOUT_MARKERS, topics.EGO_MAP, topics.LAYOUT,
-              topics.MAP_POINTS, topics.EGO_PATH, topics.GROUPS}
+              topics.MAP_POINTS, topics.EGO_PATH, topics.GROUPS, topics.REFINED_MAP_POINTS, topics.REFINED_LAYOUT,
+              topics.REFINED_EGO_PATH}
     assert {t.name for t in list_topics(path) if t.count == 1} >= wanted          # rosbags
     (file,) = path.glob("*.mcap")
     with open(file, "rb") as f:

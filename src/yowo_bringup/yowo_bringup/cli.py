@@ -112,7 +112,8 @@ def cmd_run(args) -> int:
     if metrics.exists():
         from .eval import print_tables
         print_tables(json.loads(metrics.read_text()), Console())
-    print(f"results: {args.output}/ (report.html, cameras.yaml, ego_trajectory.tum, map.ply, layout.json, result.mcap)")
+    print(f"results: {args.output}/ (report.html, cameras.yaml, ego_trajectory.tum, map.ply, layout.json after the "
+          "joint optimisation; ego_trajectory_ego.tum, map_ego.ply, layout_ego.json the ego stage's; result.mcap)")
     return 0 if any(c.T_world_cam is not None for c in out.cameras) else 1
 
 

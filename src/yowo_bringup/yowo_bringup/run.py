@@ -136,7 +136,8 @@ def _stage_nodes(mode: str, trackers: list[tuple[str, str, str]], ego: tuple[str
                         topics.LAYOUT_MARKERS: "visualization_msgs/msg/MarkerArray", topics.EGO_MAP: "yowo_msgs/msg/EgoMap",
                         topics.LAYOUT: "yowo_msgs/msg/SceneLayout", topics.MAP_POINTS: "sensor_msgs/msg/PointCloud2",
                         topics.REFINED_LAYOUT: "yowo_msgs/msg/SceneLayout",
-                        topics.REFINED_MAP_POINTS: "sensor_msgs/msg/PointCloud2", topics.EGO_PATH: "nav_msgs/msg/Path"})
+                        topics.REFINED_MAP_POINTS: "sensor_msgs/msg/PointCloud2", topics.EGO_PATH: "nav_msgs/msg/Path",
+                        topics.REFINED_EGO_PATH: "nav_msgs/msg/Path"})
     for spec in nodes:
         spec.parameters.update((overrides or {}).get(spec.name, {}))
     return nodes, final, outputs
@@ -215,18 +216,7 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     if cameras:
         write_cameras_yaml(out / "cameras.yaml", cameras)
         files.append(out / "cameras.yaml")
-    ego_xy = None
-    if topics.EGO_PATH in outputs or topics.EGO_MAP in outputs:
-        if topics.EGO_PATH in outputs:
-            path = outputs[topics.EGO_PATH]
-            traj = Trajectory(np.array([stamp_to_ns(p.header.stamp) for p in path.poses], dtype=np.int64),
-                              np.array([pose_to_matrix(p.pose) for p in path.poses]).reshape(-1, 4, 4))
-        else:
-            ego = ego_map_from_msg(outputs[topics.EGO_MAP])
-            traj = Trajectory(ego.stamps_ns, ego.T_world_ego)
-        write_tum(out / "ego_trajectory.tum", traj)
-        files.append(out / "ego_trajectory.tum")
-        ego_xy = traj.positions[:, :2]
+
     def final_and_ego(refined: str, ego_only: str, stem: str, ext: str) -> list[tuple[Path, str]]:
         """The fusion's output (at the jointly optimised ego poses) as stem.ext and the ego
         stage's as stem_ego.ext; the ego stage's as stem.ext when the fusion published none."""
@@ -234,6 +224,21 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
             return [(out / f"{stem}.{ext}", refined), (out / f"{stem}_ego.{ext}", ego_only)]
         return [(out / f"{stem}.{ext}", ego_only)]
 
+    ego_xy = None
+    for path, topic in final_and_ego(topics.REFINED_EGO_PATH, topics.EGO_PATH, "ego_trajectory", "tum"):
+        if topic in outputs:
+            poses = outputs[topic].poses
+            traj = Trajectory(np.array([stamp_to_ns(p.header.stamp) for p in poses], dtype=np.int64),
+                              np.array([pose_to_matrix(p.pose) for p in poses]).reshape(-1, 4, 4))
+        elif path.stem == "ego_trajectory" and topics.EGO_MAP in outputs:
+            ego = ego_map_from_msg(outputs[topics.EGO_MAP])
+            traj = Trajectory(ego.stamps_ns, ego.T_world_ego)
+        else:
+            continue
+        write_tum(path, traj)
+        files.append(path)
+        if ego_xy is None:
+            ego_xy = traj.positions[:, :2]
     for path, topic in final_and_ego(topics.REFINED_MAP_POINTS, topics.MAP_POINTS, "map", "ply"):
         if topic in outputs:
             write_ply(path, *pointcloud2_to_xyz_rgb(outputs[topic]))
@@ -249,7 +254,8 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
         import shutil
         shutil.rmtree(result_bag)
     latched = {topics.TF_STATIC, topics.CMC_POSES, topics.LAYOUT_MARKERS, topics.EGO_MAP, topics.LAYOUT,
-               topics.MAP_POINTS, topics.EGO_PATH, topics.REFINED_LAYOUT, topics.REFINED_MAP_POINTS}
+               topics.MAP_POINTS, topics.EGO_PATH, topics.REFINED_LAYOUT, topics.REFINED_MAP_POINTS,
+               topics.REFINED_EGO_PATH}
     stamp = max((stamp_to_ns(m.header.stamp) for m in outputs.values() if hasattr(m, "header")), default=0)
     with BagWriter(result_bag) as bag:
         for topic, msg in outputs.items():

@@ -41,6 +41,7 @@ LAYOUT_MARKERS = "/yowo/layout/markers"     # visualization_msgs/MarkerArray, la
 # The ego map's cloud and layout at the jointly optimised ego poses (the fusion's).
 REFINED_MAP_POINTS = "/yowo/fusion/map/points"   # sensor_msgs/PointCloud2, latched
 REFINED_LAYOUT = "/yowo/fusion/layout"           # yowo_msgs/SceneLayout, latched
+REFINED_EGO_PATH = "/yowo/fusion/path"           # nav_msgs/Path, latched: the ego trajectory after JO
 
 EGO_STAGE, GROUP_SFM_STAGE, FUSION_STAGE = "ego_mapper", "group_sfm", "fusion"
 

@@ -2,10 +2,12 @@
 the CMC groups and every camera's keypoints are complete; publishes
 /yowo/cmc_poses (RegisteredCameraArray), /tf_static (one TFMessage, map -> every
 camera), the ego map's cloud and layout at the jointly optimised ego poses
-(/yowo/fusion/map/points, /yowo/fusion/layout) and /yowo/layout/markers (that layout's
-floor), all latched for late joiners."""
+(/yowo/fusion/map/points, /yowo/fusion/layout), the trajectory at those poses
+(/yowo/fusion/path) and /yowo/layout/markers (that layout's floor), all latched for
+late joiners."""
 from __future__ import annotations
 
+from nav_msgs.msg import Path
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
@@ -17,7 +19,7 @@ from yowo_common import topics
 from yowo_common.ros.context import spin_node
 from yowo_common.ros.stage import LATCHED, StageNode
 from yowo_common.rosconv import camera_info_to_model, decode_color
-from yowo_ego.ego_messages import points_msg, scene_layout_msg
+from yowo_ego.ego_messages import path_msg, points_msg, scene_layout_msg
 
 from .messages import ego_map_from_msg, layout_markers, registered_to_msg, tf_static
 from .pipeline import CmcInput, FusionParams, fuse
@@ -39,6 +41,7 @@ class FusionNode(StageNode):
         self.pub_markers = self.output(MarkerArray, topics.LAYOUT_MARKERS, LATCHED)
         self.pub_cloud = self.output(PointCloud2, topics.REFINED_MAP_POINTS, LATCHED)
         self.pub_layout = self.output(SceneLayout, topics.REFINED_LAYOUT, LATCHED)
+        self.pub_path = self.output(Path, topics.REFINED_EGO_PATH, LATCHED)
         self.stream_input(EgoMap, topics.EGO_MAP, lambda m: setattr(self, "ego_map", m), upstream=topics.EGO_STAGE)
         self.stream_input(SceneLayout, topics.LAYOUT, lambda m: setattr(self, "layout", m), upstream=topics.EGO_STAGE)
         self.stream_input(PointCloud2, topics.MAP_POINTS, lambda m: setattr(self, "cloud", m), upstream=topics.EGO_STAGE)
@@ -67,10 +70,13 @@ class FusionNode(StageNode):
         cmcs = {n: CmcInput(a.tracks(), decode_color(self.backgrounds[n]) if n in self.backgrounds else None)
                 for n, a in self.acc.items() if a.camera is not None}
         ungrouped.update({n: "no usable CameraInfo" for n, a in self.acc.items() if a.camera is None})
-        result = fuse(ego_map_from_msg(self.ego_map, self.cloud, self.layout), groups, ungrouped, cmcs, self.params)
+        ego = ego_map_from_msg(self.ego_map, self.cloud, self.layout)
+        result = fuse(ego, groups, ungrouped, cmcs, self.params)
         stamp = max((f.stamp_ns for a in self.acc.values() for f in a.frames), default=0)
         self.pub_poses.publish(registered_to_msg(result.cameras, stamp))
         self.pub_tf.publish(tf_static(result.cameras, stamp))
+        if len(ego.stamps_ns):
+            self.pub_path.publish(path_msg(ego.stamps_ns, result.T_world_ego))
         if self.cloud is not None:
             self.pub_cloud.publish(points_msg(result.point_cloud, result.point_colors, stamp))
         if result.layout is not None:
