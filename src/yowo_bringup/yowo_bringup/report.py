@@ -16,6 +16,8 @@ import numpy as np  # noqa: E402
 
 from yowo_fusion.pipeline import RegisteredCmc  # noqa: E402
 
+from .results import pose_sigma  # noqa: E402
+
 _COLOURS = {"ok": "tab:green", "weak": "tab:orange", "failed": "tab:red"}
 
 
@@ -57,8 +59,9 @@ def _camera_rows(cameras: list[RegisteredCmc]) -> str:
     for c in cameras:
         if c.T_world_cam is not None:
             pos = ", ".join(f"{v:.3f}" for v in c.T_world_cam[:3, 3])
-            sig = np.sqrt(np.clip(np.diag(c.covariance), 0, None))
-            unc = f"{np.linalg.norm(sig[:3]) * 100:.1f} cm / {np.degrees(np.linalg.norm(sig[3:])):.2f}&deg;"
+            sig = pose_sigma(c.covariance)
+            unc = "unknown" if sig is None else \
+                f"{np.linalg.norm(sig[:3]) * 100:.1f} cm / {np.degrees(np.linalg.norm(sig[3:])):.2f}&deg;"
         else:
             pos = unc = "-"
         cells = [c.name, c.group or "-", c.method, f'<b style="color:{_COLOURS.get(c.status, "k")}">{c.status}</b>',

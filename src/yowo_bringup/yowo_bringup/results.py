@@ -27,6 +27,14 @@ def pose_from_entry(entry: dict) -> np.ndarray:
     return se3(rotation_from_quat_xyzw(entry["orientation_xyzw"]), entry["position"])
 
 
+def pose_sigma(covariance) -> np.ndarray | None:
+    """Standard deviations (x, y, z, rx, ry, rz) of a 6x6 covariance; None when the fusion
+    could not compute it (missing or NaN: the camera's reason says why)."""
+    if covariance is None or not np.isfinite(covariance).all():
+        return None
+    return np.sqrt(np.clip(np.diag(covariance), 0, None))
+
+
 def write_cameras_yaml(path: Path, cameras: list[RegisteredCmc]) -> None:
     """Per CMC: how it was registered, T_world_camera (map -> <name>_optical_frame),
     the 6x6 covariance (x, y, z, rx, ry, rz; m^2, rad^2), intrinsics, RMSE, counts."""
@@ -35,9 +43,10 @@ def write_cameras_yaml(path: Path, cameras: list[RegisteredCmc]) -> None:
         entry = {"name": c.name, "group": c.group, "method": c.method, "status": c.status, "reason": c.reason}
         if c.T_world_cam is not None:
             entry["T_world_camera"] = pose_entry(c.T_world_cam)
-            entry["covariance"] = np.asarray(c.covariance).round(12).tolist()
-            sig = np.sqrt(np.clip(np.diag(c.covariance), 0, None))
-            entry["sigma"] = {"position_m": sig[:3].round(5).tolist(), "rotation_deg": np.degrees(sig[3:]).round(4).tolist()}
+            sig = pose_sigma(c.covariance)
+            entry["covariance"] = np.asarray(c.covariance).round(12).tolist() if sig is not None else None
+            entry["sigma"] = "unknown (see reason)" if sig is None else {
+                "position_m": sig[:3].round(5).tolist(), "rotation_deg": np.degrees(sig[3:]).round(4).tolist()}
         entry.update({"K": np.asarray(c.K).round(6).tolist(), "reprojection_rmse_px": round(float(c.rmse_px), 4),
                       "num_agent_observations": int(c.num_agent), "num_scene_observations": int(c.num_scene)})
         out.append(entry)
