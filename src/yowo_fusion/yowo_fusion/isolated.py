@@ -71,12 +71,31 @@ def register_by_agent(cam: CameraTracks, track: AgentTrack, params: IsolatedPara
     ok, rvec, tvec, inliers = cv2.solvePnPRansac(P, uv, ideal.K, None, iterationsCount=2000,
                                                  reprojectionError=params.pnp_px, confidence=0.999,
                                                  flags=cv2.SOLVEPNP_SQPNP)
-    if not ok or inliers is None or len(inliers) < params.min_matches:
+    candidates = []
+    if ok and inliers is not None and len(inliers) >= params.min_matches:
+        candidates.append((rvec, tvec))
+    # Head tops and ground points along a straight walk are nearly coplanar: RANSAC's minimal
+    # samples then admit a mirrored pose (standard s1: a camera 3.9 m / 86 deg off, under the
+    # agent's head). SQPnP on every correspondence is the second candidate.
+    _, rvecs, tvecs, _ = cv2.solvePnPGeneric(P, uv, ideal.K, None, flags=cv2.SOLVEPNP_SQPNP)
+    candidates += list(zip(rvecs, tvecs))
+    best = max((_score(P, uv, ideal, rv, tv, params) for rv, tv in candidates), key=lambda c: c[0], default=None)
+    if best is None or best[0][1] < params.min_matches:
         return None, f"PnP on {len(P)} agent correspondences found no consistent pose"
-    idx = inliers.ravel()
-    rvec, tvec = cv2.solvePnPRefineLM(P[idx], uv[idx], ideal.K, None, rvec, tvec)
-    T = inv_se3(se3(cv2.Rodrigues(rvec)[0], tvec.ravel()))
+    _, T, idx = best
     return PnpResult(T, P[idx], uv[idx], ideal), ""
+
+
+def _score(P, uv, camera: CameraModel, rvec, tvec, params: IsolatedParams):
+    """((above the agent, inliers), refined T_world_cam, inlier indices). A ceiling camera
+    is above the agent's head: a pose below the highest agent point it sees is a mirror
+    image of the right one."""
+    proj = cv2.projectPoints(P, rvec, tvec, camera.K, None)[0].reshape(-1, 2)
+    idx = np.flatnonzero(np.linalg.norm(proj - uv, axis=1) <= params.pnp_px)
+    if len(idx) >= 6:
+        rvec, tvec = cv2.solvePnPRefineLM(P[idx], uv[idx], camera.K, None, rvec.copy(), tvec.copy())
+    T = inv_se3(se3(cv2.Rodrigues(rvec)[0], np.asarray(tvec).ravel()))
+    return (bool(T[2, 3] > P[:, 2].max()), len(idx)), T, idx
 
 
 def refine_pose(camera: CameraModel, T_world_cam: np.ndarray, points: np.ndarray, uv: np.ndarray) -> np.ndarray:
