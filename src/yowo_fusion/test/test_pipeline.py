@@ -97,16 +97,21 @@ def test_degenerate_group_is_registered_camera_by_camera():
     assert all(e.eps_pos_m < 0.5 for e in errs), [(e.name, e.eps_pos_m) for e in errs]
 
 
-def test_failed_joint_optimisation_keeps_the_aligned_poses(monkeypatch):
-    """GTSAM giving up on the joint system is a per-camera verdict, not a crash."""
+def _fuse_with_gtsam_failure(monkeypatch, function: str, symbol: str, params=FusionParams()):
+    """fuse() on the test world with `function` of the pipeline raising GTSAM's error."""
     import yowo_fusion.pipeline as pipeline
 
     def indeterminate(*_):
-        raise RuntimeError("\nIndeterminate linear system detected while working near variable\n1 (Symbol: a58).")
-    monkeypatch.setattr(pipeline, "solve_joint", indeterminate)
-    cams, tracks, ego = world()
+        raise RuntimeError(f"\nIndeterminate linear system detected while working near variable\n1 (Symbol: {symbol}).")
+    monkeypatch.setattr(pipeline, function, indeterminate)
+    _, tracks, ego = world()
     grouping = calibrate_groups(tracks)
-    result = fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks})
+    return fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks}, params)
+
+
+def test_failed_joint_optimisation_keeps_the_aligned_poses(monkeypatch):
+    """GTSAM giving up on the joint system is a per-camera verdict, not a crash."""
+    result = _fuse_with_gtsam_failure(monkeypatch, "solve_joint", "a58")
     by_name = {c.name: c for c in result.cameras}
     for n in ("a1", "a2", "a3"):
         assert by_name[n].status == WEAK and "joint optimisation failed (indeterminate system near variable a58)" \
@@ -115,15 +120,7 @@ def test_failed_joint_optimisation_keeps_the_aligned_poses(monkeypatch):
 
 
 def test_unknown_covariance_is_a_weak_verdict_with_the_reason(monkeypatch):
-    import yowo_fusion.pipeline as pipeline
-
-    def indeterminate(*_):
-        raise RuntimeError("\nIndeterminate linear system detected while working near variable\n1 (Symbol: x0).")
-    monkeypatch.setattr(pipeline, "pose_covariance", indeterminate)
-    cams, tracks, ego = world()
-    grouping = calibrate_groups(tracks)
-    result = fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks},
-                  FusionParams(joint_optimisation=False))
+    result = _fuse_with_gtsam_failure(monkeypatch, "pose_covariance", "x0", FusionParams(joint_optimisation=False))
     for c in result.cameras:   # the group's cameras and the isolated one
         assert c.status == WEAK and "covariance unavailable (indeterminate system near variable x0)" in c.reason
         assert c.T_world_cam is not None and np.isnan(c.covariance).all()
