@@ -380,39 +380,41 @@ def run_bench(presets: list[str], seeds: list[int], scenarios: list[str], out_di
             done[(c["preset"], c["scenario"], c["seed"], "full" in c)] = c
     elif saved.exists():
         saved.unlink()
-    cases, failures = [], []
+    plan = [(preset, scenario, seed) for preset in presets for scenario in scenarios
+            if not (sweep_preset and scenario != "normal" and preset != sweep_preset
+                    and not SCENARIOS[scenario].get("every_preset"))
+            for seed in (seeds[:1] if preset in SCALE_ONLY_PRESETS else seeds)]
+    # Reused cases first, so the tables written after each new case hold every finished one.
+    cases = [done[(p, s, seed, full)] for p, s, seed in plan if (p, s, seed, full) in done]
+    for p, s, seed in plan:
+        if (p, s, seed, full) in done:
+            log(f"{p} {s} seed {seed}: reused from {saved}")
+    failures = []
     spawn = multiprocessing.get_context("spawn")
-    for preset in presets:
-        for scenario in scenarios:
-            if sweep_preset and scenario != "normal" and preset != sweep_preset \
-                    and not SCENARIOS[scenario].get("every_preset"):
-                continue
-            for seed in seeds[:1] if preset in SCALE_ONLY_PRESETS else seeds:
-                if (preset, scenario, seed, full) in done:
-                    cases.append(done[(preset, scenario, seed, full)])
-                    log(f"{preset} {scenario} seed {seed}: reused from {saved}")
-                    continue
-                bag = bag_for(preset, scenario, seed, out_dir / "bags", log)
-                try:
-                    with ProcessPoolExecutor(1, mp_context=spawn) as pool:
-                        case = pool.submit(run_case, preset, scenario, seed, bag, full).result()
-                except Exception as exc:  # one broken case must not lose the others
-                    failures.append({"preset": preset, "scenario": scenario, "seed": seed, "error": str(exc)})
-                    log(f"{preset} {scenario} seed {seed}: FAILED: {exc}")
-                    continue
-                with saved.open("a") as f:
-                    f.write(json.dumps(case) + "\n")
-                cases.append(case)
-                if on_case:
-                    on_case({"presets": presets, "seeds": seeds, "scenarios": scenarios, "cases": cases,
-                             "failures": failures, "partial": True})
-                log(f"{preset} {scenario} seed {seed}: " + ", ".join(
-                    f"{m} {r['summary']['pos_avg']:.4f} m / {r['summary']['rot_avg']:.3f} deg"
-                    for m, r in case["relative"].items()))
-                if full:
-                    f = case["full"]
-                    log(f"  full: registration {f['registration']['YOWO']['pos_avg']:.3f} m / "
-                        f"{f['registration']['YOWO']['rot_avg']:.3f} deg, ATE {f['ate'].get('joint', float('nan')):.3f} m, "
-                        f"IoU {f['layout_iou']:.3f}, real-time factor {f['realtime_factor']:.2f}, "
-                        f"peak memory {case['peak_memory_mb']:.0f} MB")
+    for preset, scenario, seed in plan:
+        if (preset, scenario, seed, full) in done:
+            continue
+        bag = bag_for(preset, scenario, seed, out_dir / "bags", log)
+        try:
+            with ProcessPoolExecutor(1, mp_context=spawn) as pool:
+                case = pool.submit(run_case, preset, scenario, seed, bag, full).result()
+        except Exception as exc:  # one broken case must not lose the others
+            failures.append({"preset": preset, "scenario": scenario, "seed": seed, "error": str(exc)})
+            log(f"{preset} {scenario} seed {seed}: FAILED: {exc}")
+            continue
+        with saved.open("a") as f:
+            f.write(json.dumps(case) + "\n")
+        cases.append(case)
+        if on_case:
+            on_case({"presets": presets, "seeds": seeds, "scenarios": scenarios, "cases": cases,
+                     "failures": failures, "partial": True})
+        log(f"{preset} {scenario} seed {seed}: " + ", ".join(
+            f"{m} {r['summary']['pos_avg']:.4f} m / {r['summary']['rot_avg']:.3f} deg"
+            for m, r in case["relative"].items()))
+        if full:
+            f = case["full"]
+            log(f"  full: registration {f['registration']['YOWO']['pos_avg']:.3f} m / "
+                f"{f['registration']['YOWO']['rot_avg']:.3f} deg, ATE {f['ate'].get('joint', float('nan')):.3f} m, "
+                f"IoU {f['layout_iou']:.3f}, real-time factor {f['realtime_factor']:.2f}, "
+                f"peak memory {case['peak_memory_mb']:.0f} MB")
     return {"presets": presets, "seeds": seeds, "scenarios": scenarios, "cases": cases, "failures": failures}
