@@ -268,9 +268,7 @@ def _camera_covariance(graph, values, num_cameras: int) -> np.ndarray | None:
             for a in cams:
                 entry[1][col[a]] = entry[1].get(col[a], 0) + blocks[a].T @ blocks[p]
     for H_ll, H_cl in point_blocks.values():
-        if np.linalg.cond(H_ll) > 1e12:
-            continue  # a point without parallax carries no information on the cameras
-        H_ll_inv = np.linalg.inv(H_ll)
+        H_ll_inv = np.linalg.pinv(H_ll, hermitian=True)  # a point seen without parallax is singular along its ray
         for a, Ba in H_cl.items():
             for b, Bb in H_cl.items():
                 H_cc[a:a + 6, b:b + 6] -= Ba @ H_ll_inv @ Bb.T
