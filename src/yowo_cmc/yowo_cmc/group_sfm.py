@@ -118,16 +118,16 @@ def sample_on_grid(cams: list[CameraTracks], params: TrackParams) -> GridObserva
     t0 = all_stamps.min() - all_stamps.min() % period
     grid = np.arange(t0, all_stamps.max() + period, period, dtype=np.int64)
     per_camera, models = [], []
-    for cam in cams:
-        model, samples = resample(cam, grid, params)
+    scales = [noise_scale(c, params) for c in cams]
+    for cam, scale in zip(cams, scales):
+        model, samples = resample(cam, grid, params, scale)
         models.append(model)
         obs = {}
         for kp_id, (uv, ok) in samples.items():
             if kp_id < MAX_IDS:
                 obs.update((int(k) * MAX_IDS + kp_id, uv[k]) for k in np.flatnonzero(ok))
         per_camera.append(obs)
-    return GridObservations(grid, models, [c.name for c in cams], per_camera,
-                            [noise_scale(c, params) for c in cams])
+    return GridObservations(grid, models, [c.name for c in cams], per_camera, scales)
 
 
 def spread_subset(uv: np.ndarray, camera: CameraModel, params: SfmParams) -> np.ndarray:

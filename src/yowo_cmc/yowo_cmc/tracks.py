@@ -162,11 +162,12 @@ def interpolate(track: KeypointTrack, stamps_ns: np.ndarray, max_gap_ns: int) ->
     return uv, ok | exact
 
 
-def resample(cam: CameraTracks, stamps_ns: np.ndarray, params: TrackParams
+def resample(cam: CameraTracks, stamps_ns: np.ndarray, params: TrackParams, scale: float | None = None
              ) -> tuple[CameraModel, dict[int, tuple[np.ndarray, np.ndarray]]]:
     """Clean and undistort every keypoint track of a camera and interpolate it at the
-    given stamps: (ideal pinhole model, {id: (uv (K, 2), valid (K,))})."""
-    scale = noise_scale(cam, params)
+    given stamps: (ideal pinhole model, {id: (uv (K, 2), valid (K,))}). `scale`: the
+    camera's noise_scale when the caller has it already."""
+    scale = noise_scale(cam, params) if scale is None else scale
     cleaned = CameraTracks(cam.name, cam.camera,
                            {i: clean_track(t, cam.frame_period_ns, params, scale) for i, t in cam.tracks.items()},
                            cam.frame_period_ns)

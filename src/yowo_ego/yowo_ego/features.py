@@ -57,13 +57,17 @@ def sample_depth(depth: np.ndarray, uv: np.ndarray, edge_ratio: float) -> np.nda
     return z
 
 
+def create_sift(max_features: int):
+    """SIFT with precise upscaling: OpenCV's default shifts keypoints of the upsampled
+    first octave by +0.25 px in x and y, a bias the bundle adjustment would take for a
+    pose error (and a mismatch against the ego landmarks' unbiased pixels)."""
+    return cv2.SIFT_create(max_features, enable_precise_upscale=True)
+
+
 class FeatureExtractor:
     def __init__(self, params: FeatureParams = FeatureParams()):
         self.params = params
-        # Precise upscaling: OpenCV's default shifts keypoints of the upsampled
-        # first octave by +0.25 px in x and y, a bias the bundle adjustment
-        # would take for a pose error.
-        self._sift = cv2.SIFT_create(params.max_features, enable_precise_upscale=True)
+        self._sift = create_sift(params.max_features)
 
     def __call__(self, gray: np.ndarray, depth: np.ndarray) -> KeyframeFeatures:
         kps, desc = self._sift.detectAndCompute(gray, None)

@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3, se3, transform_points
-from yowo_ego.features import sample_depth
+from yowo_ego.features import create_sift, sample_depth
 
 RANSAC_SEED = 0  # OpenCV's RANSAC and k-means draw from a global RNG: seeded for repeatable results
 
@@ -120,8 +120,7 @@ def read_keyframe_images(bag, ego, tolerance_ns: int = 5_000_000) -> dict[int, K
 def extract(rgb: np.ndarray, max_features: int) -> Features:
     """SIFT keypoints with RootSIFT descriptors (L1-normalised, square-rooted)."""
     gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-    # Precise upscaling: the default shifts first-octave keypoints by +0.25 px.
-    kps, desc = cv2.SIFT_create(max_features, enable_precise_upscale=True).detectAndCompute(gray, None)
+    kps, desc = create_sift(max_features).detectAndCompute(gray, None)
     if desc is None or not kps:
         return Features(np.zeros((0, 2)), np.zeros((0, 128), np.float32))
     desc = np.sqrt(desc / np.maximum(desc.sum(axis=1, keepdims=True), 1e-12)).astype(np.float32)

@@ -12,6 +12,7 @@ from scipy.spatial import cKDTree
 
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3, se3
+from yowo_ego.features import create_sift
 
 
 @dataclass(frozen=True)
@@ -33,10 +34,7 @@ class SceneMatches:
 
 def detect_features(rgb: np.ndarray, kind: str, max_features: int):
     gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-    # Precise upscaling, as the ego stage's SIFT: the default shifts first-octave keypoints
-    # by +0.25 px, a bias against the ego landmarks' unbiased pixels.
-    detector = (cv2.SIFT_create(nfeatures=max_features, enable_precise_upscale=True) if kind == "SIFT"
-                else cv2.ORB_create(nfeatures=max_features))
+    detector = create_sift(max_features) if kind == "SIFT" else cv2.ORB_create(nfeatures=max_features)
     kps, desc = detector.detectAndCompute(gray, None)
     uv = np.array([k.pt for k in kps], dtype=float).reshape(-1, 2)
     return uv, desc
