@@ -32,3 +32,12 @@ def test_bench_on_tiny_writes_every_table(tmp_path, ros_env):
                   "Speed and scale", "Cramer-Rao"):
         assert title in text, title
     assert "yowo bench --preset tiny --seeds 0" in text
+
+    # A resumed run reuses the case and recomputes only a bound stored by an older bound version.
+    stale = dict(case, bound={"cameras": 0, "position_m": {}, "rotation_deg": {}})
+    (out / "cases.jsonl").write_text(json.dumps(stale) + "\n")
+    r = yowo("bench", "--preset", "tiny", "--seeds", "0", "-o", out, "--resume", env=ros_env, timeout=300)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert "reused" in r.stdout + r.stderr and "recomputing the stored bound" in r.stdout + r.stderr
+    (resumed,) = json.loads((out / "results.json").read_text())["cases"]
+    assert resumed["bound"] == case["bound"] and resumed["relative"] == case["relative"]

@@ -177,19 +177,22 @@ def relative_pose_bound(bag: Path, groups: dict[str, list[str]], preset) -> dict
     """Cramer-Rao bound of each CMC's position in its group: the marginal covariance of
     the group bundle adjustment evaluated at the ground truth (GTSAM Marginals) with the
     simulated detector's noise, gauge fixed by the first camera and the scale of the
-    first baseline. Observations are the recorded detections, snapped to the 10 Hz grid
-    the estimator uses. Returns camera -> (RMS KU-aligned position error [m], rotation
+    first baseline. Observations are the recorded detections, each snapped to the
+    nearest frame of the group's first camera (the estimator interpolates the tracks to
+    a common grid; the bound takes the cameras as synchronised). Returns camera -> (RMS KU-aligned position error [m], rotation
     error [deg]) that an efficient estimator would reach (the bound pushed through the
     evaluation's alignment)."""
     import gtsam
     from gtsam.symbol_shorthand import L, X
 
     from yowo_common.bundle import cal3, pose3
+    from yowo_common.geometry import transform_points
     from yowo_common.ros.bag import read_messages
     from yowo_common.rosconv import camera_info_to_model, points_to_array, stamp_to_ns
     from yowo_sim.capture import GT_AGENT_KEYPOINTS
 
-    gt = read_ground_truth(bag).cameras
+    truth = read_ground_truth(bag)
+    gt = truth.cameras
     spec = preset.detector
     period = int(1e9 / preset.cmc_hz)
     agent: dict[int, np.ndarray] = {}
@@ -197,7 +200,9 @@ def relative_pose_bound(bag: Path, groups: dict[str, list[str]], preset) -> dict
     cams = {}
     for topic, _, msg in read_messages(bag):
         if topic == GT_AGENT_KEYPOINTS:
-            agent[stamp_to_ns(msg.header.stamp)] = points_to_array([p.position for p in msg.poses])
+            # The cameras' ground truth is in YOWO's map frame, the agent's in the simulator's.
+            agent[stamp_to_ns(msg.header.stamp)] = transform_points(
+                truth.T_map_sim, points_to_array([p.position for p in msg.poses]))
         elif topic.endswith("/agent_keypoints"):
             dets.setdefault(msg.camera_name, []).extend((stamp_to_ns(msg.header.stamp), k.id) for k in msg.keypoints)
         elif topic.startswith("/cmc/") and topic.endswith("/camera_info") and topic.split("/")[2] not in cams:
@@ -205,10 +210,13 @@ def relative_pose_bound(bag: Path, groups: dict[str, list[str]], preset) -> dict
     bounds = {}
     for names in groups.values():
         obs: dict[tuple[int, int], list] = {}
+        # Snapping to an absolute grid would split two cameras whose frames lie 0.4 and
+        # 0.8 periods past it into different slots: they would share no point.
+        phase = min((stamp for stamp, _ in dets.get(names[0], [])), default=0)
         for i, n in enumerate(names):
             for stamp, kp in dets.get(n, []):
                 if stamp in agent and kp < len(agent[stamp]):
-                    obs.setdefault((round(stamp / period), kp), []).append((i, n, agent[stamp][kp], kp))
+                    obs.setdefault((round((stamp - phase) / period), kp), []).append((i, n, agent[stamp][kp], kp))
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         for i, n in enumerate(names):
             values.insert(X(i), pose3(gt[n]))
@@ -242,36 +250,42 @@ def relative_pose_bound(bag: Path, groups: dict[str, list[str]], preset) -> dict
 
 def _camera_covariance(graph, values, num_cameras: int) -> np.ndarray | None:
     """Joint covariance of cameras 1..N-1 (6 each, tangent space) of a bundle graph over
-    poses X(i) and points L(j): the Schur complement of the points, accumulated factor by
-    factor (GTSAM's Marginals runs a Cholesky that gives up on the ill-conditioned but
-    regular two-camera groups). None when the cameras' information is singular."""
+    poses X(i) and points L(j): the points are eliminated (Schur complement) point by
+    point as A_c^T (I - Q Q^T) A_c, Q an orthonormal basis of the point's Jacobian
+    columns. The textbook H_cc - H_cl H_ll^-1 H_lc loses to rounding on nearly
+    parallax-free points (information eigenvalues of -1e15 on small s0); the projection
+    is positive semi-definite by construction. (GTSAM's Marginals runs a Cholesky that
+    gives up on the ill-conditioned but regular two-camera groups.) None when the
+    cameras' information is singular."""
     from gtsam.symbol_shorthand import X
-    import gtsam
 
     n = 6 * num_cameras
     col = {X(i): 6 * i for i in range(num_cameras)}
     H_cc = np.zeros((n, n))
-    point_blocks: dict[int, list] = {}   # point key -> [H_ll, {camera offset: H_cl}]
+    rows: dict[int, tuple[list, list]] = {}   # point key -> (camera rows, point rows)
     linear = graph.linearize(values)
     for k in range(linear.size()):
         f = linear.at(k)
         A, keys = f.jacobian()[0], list(f.keys())
         dims = [6 if key in col else 3 for key in keys]
         blocks = dict(zip(keys, np.split(A, np.cumsum(dims)[:-1], axis=1)))
-        cams = [key for key in keys if key in col]
-        for a in cams:
-            for b in cams:
-                H_cc[col[a]:col[a] + 6, col[b]:col[b] + 6] += blocks[a].T @ blocks[b]
-        for p in (key for key in keys if key not in col):
-            entry = point_blocks.setdefault(p, [np.zeros((3, 3)), {}])
-            entry[0] += blocks[p].T @ blocks[p]
-            for a in cams:
-                entry[1][col[a]] = entry[1].get(col[a], 0) + blocks[a].T @ blocks[p]
-    for H_ll, H_cl in point_blocks.values():
-        H_ll_inv = np.linalg.pinv(H_ll, hermitian=True)  # a point seen without parallax is singular along its ray
-        for a, Ba in H_cl.items():
-            for b, Bb in H_cl.items():
-                H_cc[a:a + 6, b:b + 6] -= Ba @ H_ll_inv @ Bb.T
+        A_c = np.zeros((len(A), n))
+        for key in keys:
+            if key in col:
+                A_c[:, col[key]:col[key] + 6] = blocks[key]
+        point = [key for key in keys if key not in col]
+        if point:
+            entry = rows.setdefault(point[0], ([], []))
+            entry[0].append(A_c)
+            entry[1].append(blocks[point[0]])
+        else:
+            H_cc += A_c.T @ A_c
+    for cam_rows, point_rows in rows.values():
+        A_c, A_l = np.vstack(cam_rows), np.vstack(point_rows)
+        U, sv, _ = np.linalg.svd(A_l, full_matrices=False)
+        Q = U[:, sv > 1e-10 * sv[0]]   # a point seen without parallax is free along its ray
+        R = A_c - Q @ (Q.T @ A_c)
+        H_cc += R.T @ R
     info = H_cc[6:, 6:] - H_cc[6:, :6] @ np.linalg.solve(H_cc[:6, :6], H_cc[:6, 6:])
     eig = np.linalg.eigvalsh(info)
     if eig[0] <= 1e-12 * eig[-1]:
@@ -344,16 +358,26 @@ def code_version() -> str:
     return head + ("+changes" if git("status", "--porcelain", "--", str(here.parents[1])) else "")
 
 
+# Bumped when the bound's computation changes: a resumed run recomputes the stored
+# cases' bounds (a property of the recording and YOWO's groups, seconds per case).
+BOUND_VERSION = 2
+
+
+def bound_case(case: dict, bag: Path) -> dict:
+    bound = relative_pose_bound(bag, case["relative"]["YOWO"]["groups"],
+                                scenario_preset(case["preset"], case["scenario"]))
+    out = {"version": BOUND_VERSION, "cameras": len(bound)}
+    for k, what in enumerate(("position_m", "rotation_deg")):
+        out[what] = {n: b[k] for n, b in bound.items()}
+    return out
+
+
 def run_case(preset: str, scenario: str, seed: int, bag: Path, full: bool) -> dict:
     """One recording: every table's numbers, and this process's peak memory."""
     images = has_cmc_images(bag)
     case = {"preset": preset, "scenario": scenario, "seed": seed, "bag": bag.name, "code": code_version(),
             "relative": relative_pose_case(bag, images)}
-    yowo = case["relative"]["YOWO"]
-    bound = relative_pose_bound(bag, yowo["groups"], scenario_preset(preset, scenario))
-    case["bound"] = {"cameras": len(bound)}
-    for k, what in enumerate(("position_m", "rotation_deg")):
-        case["bound"][what] = {n: b[k] for n, b in bound.items()}
+    case["bound"] = bound_case(case, bag)
     if images:
         case["detector"] = detector_case(bag, scenario_preset(preset, scenario), seed)
     if full:
@@ -373,9 +397,13 @@ def run_bench(presets: list[str], seeds: list[int], scenarios: list[str], out_di
     saved = out_dir / "cases.jsonl"
     done = {}
     if resume and saved.exists():
-        for line in saved.read_text().splitlines():
-            c = json.loads(line)
+        stored = [json.loads(line) for line in saved.read_text().splitlines()]
+        for c in stored:
+            if c["bound"].get("version") != BOUND_VERSION:
+                log(f"{c['preset']} {c['scenario']} seed {c['seed']}: recomputing the stored bound")
+                c["bound"] = bound_case(c, out_dir / "bags" / c["bag"])
             done[(c["preset"], c["scenario"], c["seed"], "full" in c)] = c
+        saved.write_text("".join(json.dumps(c) + "\n" for c in stored))
     elif saved.exists():
         saved.unlink()
     plan = [(preset, scenario, seed) for preset in presets for scenario in scenarios

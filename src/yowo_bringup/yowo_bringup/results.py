@@ -5,7 +5,7 @@ truth of a recording for evaluation (the pipeline itself never reads /gt)."""
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -98,6 +98,8 @@ class GroundTruth:
     cameras: dict[str, np.ndarray]
     ego: Trajectory | None
     floor: list[np.ndarray]
+    # The simulator's frame -> YOWO's map frame; other /gt/ data (agent keypoints) need it.
+    T_map_sim: np.ndarray = field(default_factory=lambda: np.eye(4))
 
 
 def read_ground_truth(bag) -> GroundTruth:
@@ -115,9 +117,10 @@ def read_ground_truth(bag) -> GroundTruth:
         elif topic == GT_FLOOR:
             floor.append(points_to_array(msg.polygon.points)[:, :2])
     ego = Trajectory(np.array(ego_ns, dtype=np.int64), np.array(ego_T)) if ego_ns else None
+    T = np.eye(4)
     if ego is not None:  # into YOWO's map convention (defined by the first ego pose)
         T = map_frame_from_first_pose(ego.T_world_cam[np.argmin(ego.stamps_ns)])
         cams = {n: T @ P for n, P in cams.items()}
         ego = Trajectory(ego.stamps_ns, np.einsum("ij,njk->nik", T, ego.T_world_cam))
         floor = [p @ T[:2, :2].T + T[:2, 3] for p in floor]
-    return GroundTruth(cams, ego, floor)
+    return GroundTruth(cams, ego, floor, T)
