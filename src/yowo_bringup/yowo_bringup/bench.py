@@ -19,6 +19,7 @@ from yowo_cmc.omecc_style import calibrate_groups_omecc
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
 
+from .bench_bound import BOUND_VERSION, bound_case
 from .evaluation import ErrorSummary, relative_pose_errors
 from .offline import read_cmc_tracks
 from .results import read_ground_truth
@@ -173,126 +174,6 @@ def detector_case(bag: Path, preset, seed: int) -> dict:
             "seconds": seconds, "frames": sum(len(v) for v in frames.values())}
 
 
-def relative_pose_bound(bag: Path, groups: dict[str, list[str]], preset) -> dict[str, float]:
-    """Cramer-Rao bound of each CMC's position in its group: the marginal covariance of
-    the group bundle adjustment evaluated at the ground truth (GTSAM Marginals) with the
-    simulated detector's noise, gauge fixed by the first camera and the scale of the
-    first baseline. Observations are the recorded detections, each snapped to the
-    nearest frame of the group's first camera (the estimator interpolates the tracks to
-    a common grid; the bound takes the cameras as synchronised). Returns camera -> (RMS KU-aligned position error [m], rotation
-    error [deg]) that an efficient estimator would reach (the bound pushed through the
-    evaluation's alignment)."""
-    import gtsam
-    from gtsam.symbol_shorthand import L, X
-
-    from yowo_common.bundle import cal3, pose3
-    from yowo_common.geometry import transform_points
-    from yowo_common.ros.bag import read_messages
-    from yowo_common.rosconv import camera_info_to_model, points_to_array, stamp_to_ns
-    from yowo_sim.capture import GT_AGENT_KEYPOINTS
-
-    truth = read_ground_truth(bag)
-    gt = truth.cameras
-    spec = preset.detector
-    period = int(1e9 / preset.cmc_hz)
-    agent: dict[int, np.ndarray] = {}
-    dets: dict[str, list[tuple[int, int]]] = {}
-    cams = {}
-    for topic, _, msg in read_messages(bag):
-        if topic == GT_AGENT_KEYPOINTS:
-            # The cameras' ground truth is in YOWO's map frame, the agent's in the simulator's.
-            agent[stamp_to_ns(msg.header.stamp)] = transform_points(
-                truth.T_map_sim, points_to_array([p.position for p in msg.poses]))
-        elif topic.endswith("/agent_keypoints"):
-            dets.setdefault(msg.camera_name, []).extend((stamp_to_ns(msg.header.stamp), k.id) for k in msg.keypoints)
-        elif topic.startswith("/cmc/") and topic.endswith("/camera_info") and topic.split("/")[2] not in cams:
-            cams[topic.split("/")[2]] = camera_info_to_model(msg)
-    bounds = {}
-    for names in groups.values():
-        obs: dict[tuple[int, int], list] = {}
-        # Snapping to an absolute grid would split two cameras whose frames lie 0.4 and
-        # 0.8 periods past it into different slots: they would share no point.
-        phase = min((stamp for stamp, _ in dets.get(names[0], [])), default=0)
-        for i, n in enumerate(names):
-            for stamp, kp in dets.get(n, []):
-                if stamp in agent and kp < len(agent[stamp]):
-                    obs.setdefault((round((stamp - phase) / period), kp), []).append((i, n, agent[stamp][kp], kp))
-        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        for i, n in enumerate(names):
-            values.insert(X(i), pose3(gt[n]))
-        for key, views in enumerate(v for v in obs.values() if len({i for i, *_ in v}) >= 2):
-            values.insert(L(key), gtsam.Point3(*views[0][2]))  # shared point: the grid slot's first sample
-            for i, n, P, kp in views:
-                sigma = spec.sigma_px.get(kp, spec.sigma_body_px)
-                graph.add(gtsam.GenericProjectionFactorCal3_S2(
-                    gtsam.Point2(*cams[n].project_world(gt[n], views[0][2][None])[0][0]),
-                    gtsam.noiseModel.Isotropic.Sigma(2, max(sigma, 0.1)), X(i), L(key), cal3(cams[n])))
-        # Gauge priors tight against the cm-level bounds yet loose enough for a stable Cholesky.
-        graph.add(gtsam.PriorFactorPose3(X(0), pose3(gt[names[0]]), gtsam.noiseModel.Isotropic.Sigma(6, 1e-5)))
-        base = float(np.linalg.norm(gt[names[1]][:3, 3] - gt[names[0]][:3, 3]))
-        graph.add(gtsam.RangeFactorPose3(X(0), X(1), base, gtsam.noiseModel.Isotropic.Sigma(1, 1e-5)))
-        # The metric is KU-aligned, so push the bound through the same alignment: sample
-        # the joint marginal, perturb the ground truth, align, measure (Monte Carlo).
-        cov = _camera_covariance(graph, values, len(names))
-        if cov is None:
-            continue  # no bound for this group (too little parallax)
-        rng = np.random.default_rng(0)
-        errors = {n: [] for n in names}
-        for delta in rng.multivariate_normal(np.zeros(len(cov)), cov, size=200):
-            est = {names[0]: gt[names[0]]}
-            for i, n in enumerate(names[1:]):
-                est[n] = pose3(gt[n]).retract(delta[6 * i: 6 * i + 6]).matrix()
-            for e in relative_pose_errors(est, gt, {"g": names})[0]:
-                errors[e.name].append((e.eps_pos_m, e.eps_rot_deg))
-        bounds.update({n: tuple(np.sqrt(np.mean(np.square(v), axis=0)).tolist()) for n, v in errors.items()})
-    return bounds
-
-
-def _camera_covariance(graph, values, num_cameras: int) -> np.ndarray | None:
-    """Joint covariance of cameras 1..N-1 (6 each, tangent space) of a bundle graph over
-    poses X(i) and points L(j): the points are eliminated (Schur complement) point by
-    point as A_c^T (I - Q Q^T) A_c, Q an orthonormal basis of the point's Jacobian
-    columns. The textbook H_cc - H_cl H_ll^-1 H_lc loses to rounding on nearly
-    parallax-free points (information eigenvalues of -1e15 on small s0); the projection
-    is positive semi-definite by construction. (GTSAM's Marginals runs a Cholesky that
-    gives up on the ill-conditioned but regular two-camera groups.) None when the
-    cameras' information is singular."""
-    from gtsam.symbol_shorthand import X
-
-    n = 6 * num_cameras
-    col = {X(i): 6 * i for i in range(num_cameras)}
-    H_cc = np.zeros((n, n))
-    rows: dict[int, tuple[list, list]] = {}   # point key -> (camera rows, point rows)
-    linear = graph.linearize(values)
-    for k in range(linear.size()):
-        f = linear.at(k)
-        A, keys = f.jacobian()[0], list(f.keys())
-        dims = [6 if key in col else 3 for key in keys]
-        blocks = dict(zip(keys, np.split(A, np.cumsum(dims)[:-1], axis=1)))
-        A_c = np.zeros((len(A), n))
-        for key in keys:
-            if key in col:
-                A_c[:, col[key]:col[key] + 6] = blocks[key]
-        point = [key for key in keys if key not in col]
-        if point:
-            entry = rows.setdefault(point[0], ([], []))
-            entry[0].append(A_c)
-            entry[1].append(blocks[point[0]])
-        else:
-            H_cc += A_c.T @ A_c
-    for cam_rows, point_rows in rows.values():
-        A_c, A_l = np.vstack(cam_rows), np.vstack(point_rows)
-        U, sv, _ = np.linalg.svd(A_l, full_matrices=False)
-        Q = U[:, sv > 1e-10 * sv[0]]   # a point seen without parallax is free along its ray
-        R = A_c - Q @ (Q.T @ A_c)
-        H_cc += R.T @ R
-    info = H_cc[6:, 6:] - H_cc[6:, :6] @ np.linalg.solve(H_cc[:6, :6], H_cc[:6, 6:])
-    eig = np.linalg.eigvalsh(info)
-    if eig[0] <= 1e-12 * eig[-1]:
-        return None
-    return np.linalg.inv(info)
-
-
 def full_case(bag: Path, images: bool) -> dict:
     """The whole method (offline API) with and without joint optimisation, the
     Hloc/Kapture-style localisation of each CMC's background against the ego map
@@ -358,26 +239,12 @@ def code_version() -> str:
     return head + ("+changes" if git("status", "--porcelain", "--", str(here.parents[1])) else "")
 
 
-# Bumped when the bound's computation changes: a resumed run recomputes the stored
-# cases' bounds (a property of the recording and YOWO's groups, seconds per case).
-BOUND_VERSION = 2
-
-
-def bound_case(case: dict, bag: Path) -> dict:
-    bound = relative_pose_bound(bag, case["relative"]["YOWO"]["groups"],
-                                scenario_preset(case["preset"], case["scenario"]))
-    out = {"version": BOUND_VERSION, "cameras": len(bound)}
-    for k, what in enumerate(("position_m", "rotation_deg")):
-        out[what] = {n: b[k] for n, b in bound.items()}
-    return out
-
-
 def run_case(preset: str, scenario: str, seed: int, bag: Path, full: bool) -> dict:
     """One recording: every table's numbers, and this process's peak memory."""
     images = has_cmc_images(bag)
     case = {"preset": preset, "scenario": scenario, "seed": seed, "bag": bag.name, "code": code_version(),
             "relative": relative_pose_case(bag, images)}
-    case["bound"] = bound_case(case, bag)
+    case["bound"] = bound_case(case, bag, scenario_preset(preset, scenario))
     if images:
         case["detector"] = detector_case(bag, scenario_preset(preset, scenario), seed)
     if full:
@@ -401,7 +268,7 @@ def run_bench(presets: list[str], seeds: list[int], scenarios: list[str], out_di
         for c in stored:
             if c["bound"].get("version") != BOUND_VERSION:
                 log(f"{c['preset']} {c['scenario']} seed {c['seed']}: recomputing the stored bound")
-                c["bound"] = bound_case(c, out_dir / "bags" / c["bag"])
+                c["bound"] = bound_case(c, out_dir / "bags" / c["bag"], scenario_preset(c["preset"], c["scenario"]))
             done[(c["preset"], c["scenario"], c["seed"], "full" in c)] = c
         saved.write_text("".join(json.dumps(c) + "\n" for c in stored))
     elif saved.exists():
