@@ -31,6 +31,9 @@ def test_distortion_roundtrip(model, D):
     np.testing.assert_allclose(ideal, expected, atol=1e-3)
     rays = cam.bearings(uv)
     np.testing.assert_allclose(rays, P / np.linalg.norm(P, axis=1, keepdims=True), atol=1e-5)
+    # No points (a keyframe without features): empty arrays, not OpenCV's None.
+    uv, ok = cam.project(np.zeros((0, 3)))
+    assert uv.shape == (0, 2) and ok.shape == (0,)
 
 
 def test_project_world_uses_pose():

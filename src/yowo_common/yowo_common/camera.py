@@ -62,6 +62,8 @@ class CameraModel:
             z = np.where(in_front, P[:, 2], 1.0)
             uv = (P[:, :2] / z[:, None]) @ self.K[:2, :2].T + self.K[:2, 2]
             return uv, in_front
+        if len(P) == 0:   # OpenCV returns None for no points
+            return np.zeros((0, 2)), in_front
         zero = np.zeros(3)
         if self.distortion_model == EQUIDISTANT:
             uv = cv2.fisheye.projectPoints(P[None], zero, zero, self.K, self.D[:4])[0]

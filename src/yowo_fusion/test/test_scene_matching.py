@@ -17,3 +17,26 @@ def test_sift_keypoints_are_unbiased(detect):
     uv = detect(np.repeat(img.astype(np.uint8)[..., None], 3, axis=2))
     nearest = np.array([uv[np.argmin(np.linalg.norm(uv - c, axis=1))] for c in centres])
     assert np.abs(nearest - centres).max() < 0.05
+
+
+def test_landmarks_claiming_one_feature_give_no_match_instead_of_an_opencv_error():
+    """Texture-poor view: many landmarks find the same single keypoint. One feature serves
+    one landmark, which leaves fewer points than PnP takes: None (the caller keeps its
+    prior), not OpenCV's assertion (seen on the texture_poor benchmark scene)."""
+    from yowo_common.camera import CameraModel
+
+    v, u = np.mgrid[0:240, 0:320].astype(float)
+    img = np.full(u.shape, 60.0)
+    for cx, cy in [(100.0, 120.0)] + [(x, y) for x in (190.0, 240.0, 290.0) for y in (30.0, 80.0, 130.0, 180.0, 220.0)]:
+        img += 150 * np.exp(-((u - cx) ** 2 + (v - cy) ** 2) / (2 * 3.0 ** 2))
+    rgb = np.repeat(img.astype(np.uint8)[..., None], 3, axis=2)
+    uv, desc = scene_matching.detect_features(rgb, "SIFT", 100)
+    assert len(uv) >= scene_matching.SceneMatchParams().min_inliers   # else match_scene stops before matching
+    k = int(np.argmin(np.linalg.norm(uv - [100.0, 120.0], axis=1)))
+    camera = CameraModel.from_fov(320, 240, 70.0)
+    offsets = np.random.default_rng(0).uniform(-5, 5, (20, 2))    # 20 landmarks around the one blob
+    rays = np.column_stack([(uv[k] + offsets - camera.K[:2, 2]) / camera.K[0, 0], np.ones(20)])
+    landmarks = 2.0 * rays
+    matches = scene_matching.match_scene(rgb, camera, np.eye(4), landmarks, np.repeat(desc[k][None], 20, axis=0),
+                                         "SIFT")
+    assert matches is None

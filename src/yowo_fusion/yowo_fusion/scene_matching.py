@@ -72,12 +72,12 @@ def match_scene(rgb: np.ndarray, camera: CameraModel, T_world_cam_prior: np.ndar
             continue
         lm_idx.append(j)
         feat_idx.append(cands[order[0]])
-    if len(lm_idx) < params.min_inliers:
-        return None
-    lm_idx, feat_idx = np.array(lm_idx), np.array(feat_idx)
+    lm_idx, feat_idx = np.array(lm_idx, dtype=int), np.array(feat_idx, dtype=int)
     # One feature serves one landmark: keep the first claim.
     _, first = np.unique(feat_idx, return_index=True)
     lm_idx, feat_idx = lm_idx[first], feat_idx[first]
+    if len(lm_idx) < params.min_inliers:   # counted after the one-to-one rule (PnP needs 4 or more)
+        return None
     T_cam_world = inv_se3(T_world_cam_prior)
     rvec0, _ = cv2.Rodrigues(T_cam_world[:3, :3])
     cv2.setRNGSeed(0)  # deterministic RANSAC: the same recording gives the same cameras
