@@ -76,23 +76,36 @@ class Walk:
         return se3(R_world_body @ R_BODY_OPTICAL, eye)
 
 
-def _visibility_graph_path(free: Polygon, a: np.ndarray, b: np.ndarray, nodes: np.ndarray) -> np.ndarray:
-    """Shortest path from a to b inside `free` over the polygon's vertices."""
-    pts = np.vstack([a, b, nodes])
-    n = len(pts)
-    ii, jj = np.triu_indices(n, 1)
-    segs = shapely.linestrings(np.stack([pts[ii], pts[jj]], axis=1))
-    ok = shapely.covers(free, segs)
-    w = np.linalg.norm(pts[ii] - pts[jj], axis=1)
-    graph = csr_matrix((w[ok], (ii[ok], jj[ok])), shape=(n, n))
-    dist, pred = dijkstra(graph, directed=False, indices=0, return_predecessors=True)
-    if not np.isfinite(dist[1]):
-        raise ValueError(f"no walkable path from {a.round(2).tolist()} to {b.round(2).tolist()}")
-    path, k = [1], 1
-    while k != 0:
-        k = pred[k]
-        path.append(k)
-    return pts[path[::-1]]
+class _VisibilityGraph:
+    """Shortest paths inside `free` over the polygon's vertices. The node-to-node
+    visibility is tested once per walk, on the prepared polygon: per leg, only the
+    legs' ends are new (the large preset's floor has ~1000 vertices and 42 targets;
+    testing every pair per leg took hours)."""
+
+    def __init__(self, free: Polygon, nodes: np.ndarray):
+        shapely.prepare(free)
+        self.free, self.nodes = free, nodes
+        ii, jj = np.triu_indices(len(nodes), 1)
+        ok = shapely.covers(free, shapely.linestrings(np.stack([nodes[ii], nodes[jj]], axis=1)))
+        self.ii, self.jj = ii[ok] + 2, jj[ok] + 2     # indices among [a, b, *nodes]
+
+    def path(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        pts = np.vstack([a, b, self.nodes])
+        n = len(pts)
+        ends_i = np.concatenate([[0], np.zeros(n - 2, int), np.ones(n - 2, int)])
+        ends_j = np.concatenate([[1], np.arange(2, n), np.arange(2, n)])
+        ok = shapely.covers(self.free, shapely.linestrings(np.stack([pts[ends_i], pts[ends_j]], axis=1)))
+        ii, jj = np.concatenate([ends_i[ok], self.ii]), np.concatenate([ends_j[ok], self.jj])
+        w = np.linalg.norm(pts[ii] - pts[jj], axis=1)
+        graph = csr_matrix((w, (ii, jj)), shape=(n, n))
+        dist, pred = dijkstra(graph, directed=False, indices=0, return_predecessors=True)
+        if not np.isfinite(dist[1]):
+            raise ValueError(f"no walkable path from {a.round(2).tolist()} to {b.round(2).tolist()}")
+        path, k = [1], 1
+        while k != 0:
+            k = pred[k]
+            path.append(k)
+        return pts[path[::-1]]
 
 
 CORNER_CLEARANCE_M = 0.3  # paths keep this far from reflex corners, so rounding stays inside
@@ -116,7 +129,7 @@ def plan_walk(free: Polygon, start_xy, targets_xy: list, spec: WalkSpec, rng: np
     """Walk from start through every target (nearest-first order), pausing at each;
     `free` is the walkable floor already shrunk by the body's clearance."""
     free = free if isinstance(free, Polygon) else max(free.geoms, key=lambda g: g.area)
-    nodes = _corner_nodes(free)
+    graph = _VisibilityGraph(free, _corner_nodes(free))
     current = _nearest_free(free, start_xy)
     remaining = [_nearest_free(free, t) for t in targets_xy]
     legs, pauses = [current[None]], [0.0]
@@ -125,7 +138,7 @@ def plan_walk(free: Polygon, start_xy, targets_xy: list, spec: WalkSpec, rng: np
     while remaining:
         k = int(np.argmin([np.linalg.norm(r - current) for r in remaining]))
         target = remaining.pop(k)
-        leg = _visibility_graph_path(free, current, target, nodes)
+        leg = graph.path(current, target)
         legs.append(leg[1:])
         pauses += [0.0] * (len(leg) - 2) + [spec.pause_s + (spec.long_pause_s if visit == long_pause_at else 0.0)]
         current, visit = target, visit + 1
