@@ -177,11 +177,25 @@ def _rmse(res: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum(r**2, axis=1)))) if len(r) else float("nan")
 
 
-def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, str], cmcs: dict[str, CmcInput],
-         params: FusionParams = FusionParams()) -> FusionResult:
-    ideal_ego = CameraModel(ego.camera.width, ego.camera.height, ego.camera.K)
-    ego_obs = Observations(ego.obs_pose.astype(int), ego.obs_landmark.astype(int),
-                           ego.camera.undistort_pixels(ego.obs_uv), np.full(len(ego.obs_pose), params.joint.ego_sigma_px))
+@dataclass
+class _GroupedCmcs:
+    """The grouped cameras, each group aligned to the world, and their agent observations
+    (points: every group's local track moved by its alignment; chain: the group of each)."""
+
+    names: list[str]
+    cams: list[CameraModel]              # ideal pinhole (undistorted)
+    T_init: list[np.ndarray]             # T_world_cam from the group's alignment
+    group_of: dict[str, str]
+    agent: AgentTrack
+    agent_obs: Observations
+    agent_chain: np.ndarray
+    head_offset: np.ndarray
+    alignments: dict[str, Sim3]
+    failed: dict[str, str]               # camera -> why it is not among the grouped ones
+
+
+def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, str],
+                   cmcs: dict[str, CmcInput], params: FusionParams) -> _GroupedCmcs:
     names, cams, T_init, group_of = [], [], [], {}
     agent_pts, agent_ns, agent_ids, agent_chain = [], [], [], []
     c_idx, p_idx, uv_obs, sig_obs = [], [], [], []
@@ -229,6 +243,18 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
                        np.vstack(agent_pts or [np.zeros((0, 3))]))
     agent_obs = Observations(np.array(c_idx, int), np.array(p_idx, int), np.array(uv_obs).reshape(-1, 2),
                              np.array(sig_obs))
+    return _GroupedCmcs(names, cams, T_init, group_of, agent, agent_obs,
+                        np.concatenate(agent_chain or [np.zeros(0, int)]), head_offset, alignments, failed)
+
+
+def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, str], cmcs: dict[str, CmcInput],
+         params: FusionParams = FusionParams()) -> FusionResult:
+    ideal_ego = CameraModel(ego.camera.width, ego.camera.height, ego.camera.K)
+    ego_obs = Observations(ego.obs_pose.astype(int), ego.obs_landmark.astype(int),
+                           ego.camera.undistort_pixels(ego.obs_uv), np.full(len(ego.obs_pose), params.joint.ego_sigma_px))
+    grouped = _gather_groups(ego, groups, ungrouped, cmcs, params)
+    names, cams, T_init, group_of = grouped.names, grouped.cams, grouped.T_init, grouped.group_of
+    agent, agent_obs, head_offset = grouped.agent, grouped.agent_obs, grouped.head_offset
     scene_obs, scene_count = _scene_observations(names, cams, T_init, cmcs, ego, params)
     registered: list[RegisteredCmc] = []
     T_ego, landmarks = ego.T_world_ego, ego.landmarks
@@ -236,7 +262,7 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
     if names:
         problem = JointProblem(ideal_ego, ego.stamps_ns, list(ego.T_world_ego), ego.landmarks, ego_obs, cams, T_init,
                                scene_obs, agent.points, agent.stamps_ns, agent.ids, agent_obs, head_offset,
-                               np.concatenate(agent_chain))
+                               grouped.agent_chain)
         res, jo_failure = None, ""
         if params.joint_optimisation:
             try:
@@ -270,10 +296,10 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
     # track implied by the ego trajectory (head top = T_world_ego * o, ground point under it
     # on the floor z = 0) -- an extension: the paper needs a group to have seen the agent.
     track = merge_tracks(agent, ego_agent_track(T_ego, ego.stamps_ns, head_offset), params.isolated.max_gap_s)
-    for n, why in sorted(failed.items()):
+    for n, why in sorted(grouped.failed.items()):
         registered.append(_register_isolated(n, why, cmcs.get(n), track, ego, landmarks, params))
     return FusionResult(sorted(registered, key=lambda r: r.name), T_ego, landmarks, agent, head_offset, cloud,
-                        ego.cloud_colors, layout, alignments)
+                        ego.cloud_colors, layout, grouped.alignments)
 
 
 def ego_agent_track(T_world_ego: np.ndarray, stamps_ns: np.ndarray, head_offset: np.ndarray) -> AgentTrack:
