@@ -37,7 +37,7 @@ def relative_pose_bound(bag: Path, groups: dict[str, list[str]], preset) -> dict
 
     from yowo_common.bundle import cal3, pose3
     from yowo_common.geometry import transform_points
-    from yowo_common.ros.bag import read_messages
+    from yowo_common.ros.bag import list_topics, read_messages
     from yowo_common.rosconv import camera_info_to_model, points_to_array, stamp_to_ns
     from yowo_sim.capture import GT_AGENT_KEYPOINTS
 
@@ -48,7 +48,10 @@ def relative_pose_bound(bag: Path, groups: dict[str, list[str]], preset) -> dict
     agent: dict[int, np.ndarray] = {}
     dets: dict[str, list[tuple[int, int]]] = {}
     cams = {}
-    for topic, _, msg in read_messages(bag):
+    # Only the topics used: a full read would decode every image of the recording.
+    topics = [t.name for t in list_topics(bag) if t.name == GT_AGENT_KEYPOINTS
+              or (t.name.startswith("/cmc/") and t.name.endswith(("/agent_keypoints", "/camera_info")))]
+    for topic, _, msg in read_messages(bag, topics):
         if topic == GT_AGENT_KEYPOINTS:
             # The cameras' ground truth is in YOWO's map frame, the agent's in the simulator's.
             agent[stamp_to_ns(msg.header.stamp)] = transform_points(
