@@ -41,3 +41,16 @@ def test_bench_on_tiny_writes_every_table(tmp_path, ros_env):
     assert "reused" in r.stdout + r.stderr and "recomputing the stored bound" in r.stdout + r.stderr
     (resumed,) = json.loads((out / "results.json").read_text())["cases"]
     assert resumed["bound"] == case["bound"] and resumed["relative"] == case["relative"]
+
+
+def test_a_failed_case_keeps_its_traceback_and_the_run_goes_on(tmp_path):
+    from yowo_bringup.bench import run_bench
+    bag = tmp_path / "bags" / "tiny_normal_s0"
+    bag.mkdir(parents=True)
+    (bag / "metadata.yaml").write_text("not: a rosbag2 metadata file\n")   # the case's reader fails in the worker
+    logged = []
+    result = run_bench(["tiny"], [0], ["normal"], tmp_path, log=logged.append)
+    (failure,) = result["failures"]
+    assert result["cases"] == [] and failure["preset"] == "tiny" and failure["seed"] == 0
+    assert "run_case" in failure["traceback"], failure     # the worker's frames, not only the message
+    assert any("FAILED" in line and "run_case" in line for line in logged)

@@ -8,6 +8,7 @@ import json
 import multiprocessing
 import resource
 import time
+import traceback
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -295,8 +296,11 @@ def run_bench(presets: list[str], seeds: list[int], scenarios: list[str], out_di
             with ProcessPoolExecutor(1, mp_context=spawn) as pool:
                 case = pool.submit(run_case, preset, scenario, seed, bag, full).result()
         except Exception as exc:  # one broken case must not lose the others
-            failures.append({"preset": preset, "scenario": scenario, "seed": seed, "error": str(exc)})
-            log(f"{preset} {scenario} seed {seed}: FAILED: {exc}")
+            # The worker's traceback arrives as the exception's cause; keep it to find the failing call.
+            trace = "".join(traceback.format_exception(exc))
+            failures.append({"preset": preset, "scenario": scenario, "seed": seed, "error": str(exc),
+                             "traceback": trace})
+            log(f"{preset} {scenario} seed {seed}: FAILED: {exc}\n{trace}")
             continue
         with saved.open("a") as f:
             f.write(json.dumps(case) + "\n")

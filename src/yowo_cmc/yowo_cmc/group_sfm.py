@@ -15,6 +15,7 @@ import numpy as np
 from yowo_common.bundle import BundleProblem, Observations, robust_sigma, solve
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3, se3
+from yowo_common.pnp import sqpnp_ransac
 
 from .tracks import CameraTracks, TrackParams, noise_scale, resample
 
@@ -384,16 +385,12 @@ class IncrementalSfm:
         keys = [k for k in self.obs.per_camera[c] if k in self.points]
         obj = np.array([self.points[k] for k in keys])
         img = np.array([self.obs.per_camera[c][k] for k in keys])
-        cv2.setRNGSeed(RANSAC_SEED)
-        ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-            obj, img, self.obs.cameras[c].K, None, iterationsCount=2000,
-            reprojectionError=self.params.pnp_px * self.obs.noise_scale[c], confidence=0.999, flags=cv2.SOLVEPNP_SQPNP)
-        if not ok or inliers is None or len(inliers) < self.params.min_pnp:
-            self.failed[c] = (f"PnP found {0 if inliers is None else len(inliers)} consistent agent points "
-                              f"(needs {self.params.min_pnp})")
+        rvec, tvec, idx = sqpnp_ransac(obj, img, self.obs.cameras[c].K,
+                                       self.params.pnp_px * self.obs.noise_scale[c], seed=RANSAC_SEED)
+        if len(idx) < self.params.min_pnp:
+            self.failed[c] = f"PnP found {len(idx)} consistent agent points (needs {self.params.min_pnp})"
             return False
         K = self.obs.cameras[c].K
-        idx = inliers.ravel()
         rvec, tvec = cv2.solvePnPRefineLM(obj[idx], img[idx], K, None, rvec, tvec)
         candidates = [inv_se3(se3(cv2.Rodrigues(rvec)[0], tvec.ravel()))]
         # Our addition: the group's points this camera sees may all be one id (one plane),

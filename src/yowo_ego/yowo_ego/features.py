@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 
 from yowo_common.geometry import inv_se3
+from yowo_common.pnp import sqpnp_ransac
 
 
 @dataclass(frozen=True)
@@ -124,13 +125,9 @@ def relative_pose(a: KeyframeFeatures, b: KeyframeFeatures, matches: np.ndarray,
         return None
     idx = np.flatnonzero(ok)
     X = backproject(a.uv[matches[idx, 0]], a.depth[matches[idx, 0]], K)
-    cv2.setRNGSeed(0)  # OpenCV's RANSAC draws from a global (per-thread) RNG: same input, same result
-    found, rvec, tvec, inliers = cv2.solvePnPRansac(X, b.uv[matches[idx, 1]], K, None,
-                                                    reprojectionError=params.pnp_px, iterationsCount=300,
-                                                    confidence=0.999, flags=cv2.SOLVEPNP_SQPNP)
-    if not found or inliers is None or len(inliers) < params.pnp_min_inliers:
+    rvec, tvec, inl = sqpnp_ransac(X, b.uv[matches[idx, 1]], K, params.pnp_px, iterations=300)
+    if len(inl) < params.pnp_min_inliers:
         return None
-    inl = inliers.ravel()
     # Polish on the inliers (SQPnP inside RANSAC sees only minimal samples).
     rvec, tvec = cv2.solvePnPRefineLM(X[inl], b.uv[matches[idx[inl], 1]], K, None, rvec, tvec)
     T = np.eye(4)

@@ -42,3 +42,15 @@ def test_of_two_planar_solutions_the_one_above_the_agent_wins():
     assert len(scores) == 2 and sorted(s[0][0] for s in scores) == [False, True]   # one of them is under the agent
     (_, T, _) = max(scores, key=lambda s: s[0])
     assert np.linalg.norm(T[:3, 3] - T_world_cam[:3, 3]) < 0.05
+
+
+def test_an_agent_standing_still_in_view_is_a_reason_not_a_crash():
+    camera = CameraModel.from_fov(640, 480, 80.0)
+    T_world_cam = look_at(np.array([0.5, -1.0, 2.6]), np.array([0.0, 1.5, 0.8]))
+    stamps = np.arange(60, dtype=np.int64) * 100_000_000
+    head = np.tile([[0.2, 1.4, 1.7]], (len(stamps), 1))           # only the head top is seen, never moving
+    uv, _ = camera.project_world(T_world_cam, head)
+    tracks = {0: KeypointTrack(stamps, uv, np.full(len(stamps), 0.9))}
+    agent = AgentTrack(stamps, np.zeros(len(stamps), np.int64), head)
+    result, why = register_by_agent(CameraTracks("cam", camera, tracks), agent)
+    assert result is None and "stood still" in why

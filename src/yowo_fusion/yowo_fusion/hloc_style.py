@@ -31,6 +31,7 @@ from scipy.spatial import cKDTree
 
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3, se3, transform_points
+from yowo_common.pnp import sqpnp_ransac
 from yowo_ego.features import create_sift, sample_depth
 
 RANSAC_SEED = 0  # OpenCV's RANSAC and k-means draw from a global RNG: seeded for repeatable results
@@ -249,15 +250,12 @@ def localize(db: KeyframeDatabase, name: str, background: np.ndarray, camera: Ca
     if len(obj) < params.min_inliers:
         return LocalizationResult(name, None, f"only {len(obj)} 2D-3D matches with {len(entries)} keyframes "
                                   f"(needs {params.min_inliers})", 0, len(obj), retrieved)
-    cv2.setRNGSeed(RANSAC_SEED)
-    ok, rvec, tvec, inliers = cv2.solvePnPRansac(obj, img, camera.K, None, iterationsCount=params.pnp_iterations,
-                                                 reprojectionError=params.pnp_px, confidence=0.9999,
-                                                 flags=cv2.SOLVEPNP_SQPNP)
-    n = 0 if inliers is None else len(inliers)
-    if not ok or n < params.min_inliers:
+    rvec, tvec, idx = sqpnp_ransac(obj, img, camera.K, params.pnp_px, iterations=params.pnp_iterations,
+                                   confidence=0.9999, seed=RANSAC_SEED)
+    n = len(idx)
+    if n < params.min_inliers:
         return LocalizationResult(name, None, f"PnP RANSAC found {n} inliers among {len(obj)} matches "
                                   f"(needs {params.min_inliers})", n, len(obj), retrieved)
-    idx = inliers.ravel()
     rvec, tvec = cv2.solvePnPRefineLM(obj[idx], img[idx], camera.K, None, rvec, tvec)
     T = inv_se3(se3(cv2.Rodrigues(rvec)[0], tvec.ravel()))
     return LocalizationResult(name, T, "", n, len(obj), retrieved)

@@ -11,12 +11,14 @@ import numpy as np
 from yowo_cmc.tracks import CameraTracks, TrackParams, resample
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3, se3
+from yowo_common.pnp import sqpnp_all, sqpnp_ransac
 
 
 @dataclass(frozen=True)
 class IsolatedParams:
     min_matches: int = 8
     pnp_px: float = 4.0
+    min_spread_m: float = 0.05       # RMS spread of the 3D points below which no pose is attempted
     max_gap_s: float = 0.25          # the world track is interpolated only between samples this close
     tracks: TrackParams = TrackParams()
 
@@ -67,18 +69,18 @@ def register_by_agent(cam: CameraTracks, track: AgentTrack, params: IsolatedPara
     if len(P) < params.min_matches:
         return None, (f"only {len(P)} of its agent keypoints fall on the optimised agent track "
                       f"(needs {params.min_matches})")
-    cv2.setRNGSeed(0)  # deterministic RANSAC: the same recording gives the same cameras
-    ok, rvec, tvec, inliers = cv2.solvePnPRansac(P, uv, ideal.K, None, iterationsCount=2000,
-                                                 reprojectionError=params.pnp_px, confidence=0.999,
-                                                 flags=cv2.SOLVEPNP_SQPNP)
+    spread_m = float(np.sqrt(np.var(P, axis=0).sum()))
+    if spread_m < params.min_spread_m:
+        return None, (f"its {len(P)} agent correspondences lie within {spread_m:.3f} m RMS of each other "
+                      f"(needs {params.min_spread_m} m: the agent stood still in its view)")
+    rvec, tvec, inliers = sqpnp_ransac(P, uv, ideal.K, params.pnp_px)
     candidates = []
-    if ok and inliers is not None and len(inliers) >= params.min_matches:
+    if len(inliers) >= params.min_matches:
         candidates.append((rvec, tvec))
     # Head tops and ground points along a straight walk are nearly coplanar: RANSAC's minimal
     # samples then admit a mirrored pose (standard s1: a camera 3.9 m / 86 deg off, under the
     # agent's head). SQPnP on every correspondence is the second candidate.
-    _, rvecs, tvecs, _ = cv2.solvePnPGeneric(P, uv, ideal.K, None, flags=cv2.SOLVEPNP_SQPNP)
-    candidates += list(zip(rvecs, tvecs))
+    candidates += sqpnp_all(P, uv, ideal.K)
     best = max((_score(P, uv, ideal, rv, tv, params) for rv, tv in candidates), key=lambda c: c[0], default=None)
     if best is None or best[0][1] < params.min_matches:
         return None, f"PnP on {len(P)} agent correspondences found no consistent pose"
