@@ -142,3 +142,34 @@ def test_cameras_chained_by_single_edges_still_pair_up():
     (left,) = set(cams) - set(group.names)
     assert result.ungrouped == {left: "joined to a group by a single camera pair (needs two paths to its members)"}
     check_relative(group, cams, 0.03, 0.3)
+
+
+def test_weak_detections_are_down_weighted_in_the_bundle_adjustment():
+    """The image detector's ground point from the feet alone (head out of view) is rated
+    0.3x a full detection and biased by several pixels. Its sigma is scaled by the
+    confidence ratio, which must pull the poses back towards the truth."""
+    from dataclasses import replace
+
+    from yowo_cmc.tracks import KeypointTrack, sigma_factors
+    cams = three_camera_rig()
+    tracks = observe(cams, loop_walk((3.0, 2.5), (2.0, 1.5)), 40.0, sigma_px=1.0, seed=5)
+    rng = np.random.default_rng(7)
+    for i, cam in enumerate(tracks):
+        g = cam.tracks[1]
+        weak = np.sin((g.stamps_ns - g.stamps_ns[0]) / 1e9 * 0.9 + 2 * i) > 0.1   # stretches, as when the head leaves
+        bias = rng.normal(0, 1, 2)
+        uv = g.uv + np.outer(weak, 7.0 * bias / np.linalg.norm(bias))
+        conf = np.where(weak, 0.27, g.confidence)
+        cam.tracks[1] = KeypointTrack(g.stamps_ns, uv, conf)
+    factors = sigma_factors(tracks[0].tracks[1], tracks[0].tracks[1].stamps_ns, TrackParams())
+    assert np.allclose(factors[tracks[0].tracks[1].confidence == 0.27], 0.9 / 0.27)
+    assert np.all(factors[tracks[0].tracks[1].confidence == 0.9] == 1.0)
+
+    def rotation_error(params):
+        (group,) = calibrate_groups(tracks, params).groups
+        errs, _ = relative_pose_errors(group.T_local_cam, {n: cams[n][1] for n in group.T_local_cam},
+                                       {"g": list(group.T_local_cam)})
+        return np.mean([e.eps_rot_deg for e in errs])
+    weighted = rotation_error(SfmParams())
+    unweighted = rotation_error(SfmParams(tracks=replace(TrackParams(), weak_confidence_ratio=0.0)))
+    assert weighted < 0.6 * unweighted, (weighted, unweighted)

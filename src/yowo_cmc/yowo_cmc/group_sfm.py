@@ -17,7 +17,7 @@ from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3, se3
 from yowo_common.pnp import sqpnp_ransac
 
-from .tracks import CameraTracks, TrackParams, noise_scale, resample
+from .tracks import CameraTracks, TrackParams, noise_scale, resample, sigma_factors
 
 MAX_IDS = 1000  # keypoint ids per grid time: key = grid index * MAX_IDS + id
 RANSAC_SEED = 0  # OpenCV's RANSAC draws from a global RNG: seed it so a bag always gives the same result
@@ -65,6 +65,7 @@ class GridObservations:
     names: list[str]
     per_camera: list[dict[int, np.ndarray]]  # camera -> {key: uv (2,)}
     noise_scale: list[float]               # camera -> factor on its pixel thresholds (tracks.noise_scale)
+    sigma_factor: list[dict[int, float]]   # camera -> {key: factor on its BA sigma} for weak detections only
 
     def keys(self, c: int) -> np.ndarray:
         return np.fromiter(self.per_camera[c].keys(), dtype=np.int64)
@@ -115,20 +116,24 @@ def sample_on_grid(cams: list[CameraTracks], params: TrackParams) -> GridObserva
     all_stamps = np.concatenate([t.stamps_ns for c in cams for t in c.tracks.values()] or [np.zeros(0, np.int64)])
     if len(all_stamps) == 0:
         return GridObservations(np.zeros(0, np.int64), [], [c.name for c in cams], [{} for _ in cams],
-                                [1.0 for _ in cams])
+                                [1.0 for _ in cams], [{} for _ in cams])
     t0 = all_stamps.min() - all_stamps.min() % period
     grid = np.arange(t0, all_stamps.max() + period, period, dtype=np.int64)
-    per_camera, models = [], []
+    per_camera, models, factors = [], [], []
     scales = [noise_scale(c, params) for c in cams]
     for cam, scale in zip(cams, scales):
         model, samples = resample(cam, grid, params, scale)
         models.append(model)
-        obs = {}
+        obs, weak = {}, {}
         for kp_id, (uv, ok) in samples.items():
             if kp_id < MAX_IDS:
-                obs.update((int(k) * MAX_IDS + kp_id, uv[k]) for k in np.flatnonzero(ok))
+                at = np.flatnonzero(ok)
+                obs.update((int(k) * MAX_IDS + kp_id, uv[k]) for k in at)
+                factor = sigma_factors(cam.tracks[kp_id], grid[at], params)
+                weak.update((int(at[i]) * MAX_IDS + kp_id, float(factor[i])) for i in np.flatnonzero(factor > 1))
         per_camera.append(obs)
-    return GridObservations(grid, models, [c.name for c in cams], per_camera, scales)
+        factors.append(weak)
+    return GridObservations(grid, models, [c.name for c in cams], per_camera, scales, factors)
 
 
 def spread_subset(uv: np.ndarray, camera: CameraModel, params: SfmParams) -> np.ndarray:
@@ -426,7 +431,8 @@ class IncrementalSfm:
                     cam_i.append(index[c])
                     pt_i.append(kidx[k])
                     uv.append(p)
-                    sig.append(sigma_by_id.get(k % MAX_IDS, self.params.initial_sigma_px * self.obs.noise_scale[c]))
+                    sig.append(sigma_by_id.get(k % MAX_IDS, self.params.initial_sigma_px * self.obs.noise_scale[c])
+                               * self.obs.sigma_factor[c].get(k, 1.0))
         obs = Observations(np.array(cam_i, dtype=int), np.array(pt_i, dtype=int), np.array(uv).reshape(-1, 2),
                            np.array(sig, dtype=float))
         baseline = np.linalg.norm(self.poses[second][:3, 3])

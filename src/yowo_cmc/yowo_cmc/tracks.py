@@ -47,6 +47,11 @@ class TrackParams:
     gap_factor: float = 2.5         # a gap longer than this many frame periods splits a segment
     gate_px: float = 8.0            # residual to the smoothed track above which a sample is dropped
     min_confidence: float = 0.1
+    # A sample rated below this fraction of its track's full confidence (90th percentile;
+    # not the median, as most of a track can be weak) is a weaker kind of detection (the
+    # image detector's ground point from the feet alone: 0.3x a full one); the bundle
+    # adjustment scales its sigma by full confidence / its confidence.
+    weak_confidence_ratio: float = 0.5
     # The pixel thresholds here and in SfmParams were tuned on detections whose best
     # keypoint id has ~1 px noise (estimated 0.9-1.9 px by noise_px). A camera whose best id
     # is noisier than this has them scaled by the ratio (noise_scale); never below 1.
@@ -160,6 +165,21 @@ def interpolate(track: KeypointTrack, stamps_ns: np.ndarray, max_gap_ns: int) ->
     uv[ok] = (1 - a[ok, None]) * track.uv[li[ok]] + a[ok, None] * track.uv[ri[ok]]
     uv[exact] = track.uv[ri[exact]]
     return uv, ok | exact
+
+
+def sigma_factors(track: KeypointTrack, stamps_ns: np.ndarray, params: TrackParams) -> np.ndarray:
+    """Per stamp, the factor on a bundle adjustment's sigma from the confidence of the
+    track's nearest sample: full / its confidence for weak samples (weak_confidence_ratio),
+    1 otherwise. Simulated keypoints (confidence 0.85 +- 0.03, outliers 0.7x) are never weak."""
+    if len(track) == 0:
+        return np.ones(len(stamps_ns))
+    after = np.minimum(np.searchsorted(track.stamps_ns, stamps_ns), len(track) - 1)
+    before = np.maximum(after - 1, 0)
+    nearest = np.where(np.abs(track.stamps_ns[before] - stamps_ns) < np.abs(track.stamps_ns[after] - stamps_ns),
+                       before, after)
+    conf = track.confidence[nearest]
+    full = float(np.percentile(track.confidence, 90))
+    return np.where(conf < params.weak_confidence_ratio * full, full / np.maximum(conf, 1e-3), 1.0)
 
 
 def resample(cam: CameraTracks, stamps_ns: np.ndarray, params: TrackParams, scale: float | None = None
