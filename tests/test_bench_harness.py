@@ -29,7 +29,7 @@ def test_bench_on_tiny_writes_every_table(tmp_path, ros_env):
     text = (tmp_path / "B.md").read_text()
     assert text == (out / "BENCHMARKS.md").read_text()
     for title in ("relative_pose_eval", "Image detector", "register_pose_eval", "scene_map", "Table ablation",
-                  "Speed and scale", "Cramer-Rao"):
+                  "Speed and scale", "Cramer-Rao", "efficient avg eps_rot"):
         assert title in text, title
     assert "yowo bench --preset tiny --seeds 0" in text
 
