@@ -50,3 +50,15 @@ def test_problems_name_what_is_wrong():
     assert any("focal" in p for p in bad.problems())
     weird = CameraModel(640, 480, np.eye(3) * 300, [0.1, 0, 0, 0], "kannala_brandt_custom")
     assert any("not supported" in p for p in weird.problems())
+
+
+def test_rays_beyond_the_distortion_fold_are_outside_the_model():
+    # k1 < 0 turns the radial mapping back at ~63 deg: a ray at 74 deg lands inside the image.
+    cam = CameraModel(640, 480, [[442, 0, 319.5], [0, 440.6, 242.4], [0, 0, 1]], [-0.1034, 0.0025, 0, 0, 0])
+    P = np.array([[3.5 * np.cos(0.3), 3.5 * np.sin(0.3), 1.0],   # 74 deg off-axis
+                  [0.5, -0.3, 1.0],                                # 30 deg
+                  [0.0, 0.0, -1.0]])                               # behind
+    uv, in_front = cam.project(P)
+    assert cam.in_image(uv[:1]).all() and in_front[0]              # the fold: inside the image
+    assert cam.within_model(P).tolist() == [False, True, False]
+    assert CameraModel.from_fov(640, 480, 80.0).within_model(P).tolist() == [True, True, False]

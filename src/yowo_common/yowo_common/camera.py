@@ -71,6 +71,19 @@ class CameraModel:
             uv = cv2.projectPoints(P, zero, zero, self.K, self.D)[0]
         return uv.reshape(-1, 2), in_front
 
+    def within_model(self, points_cam: np.ndarray, tol_px: float = 1.0) -> np.ndarray:
+        """Mask of points in front whose projection the model inverts: a polynomial
+        distortion turns back beyond some field angle and folds rays from far outside the
+        lens's view into the image, which no real lens does. Round trip test:
+        undistort(project(P)) is P's ideal (distortion-free) projection."""
+        uv, in_front = self.project(points_cam)
+        if not self.has_distortion or len(uv) == 0:
+            return in_front
+        P = np.asarray(points_cam, dtype=float).reshape(-1, 3)
+        z = np.where(in_front, P[:, 2], 1.0)
+        ideal = (P[:, :2] / z[:, None]) @ self.K[:2, :2].T + self.K[:2, 2]
+        return in_front & (np.linalg.norm(self.undistort_pixels(uv) - ideal, axis=1) <= tol_px)
+
     def project_world(self, T_world_cam: np.ndarray, points_world: np.ndarray):
         return self.project(transform_points(inv_se3(T_world_cam), points_world))
 

@@ -33,8 +33,10 @@ def visible_points(camera: CameraModel, T_world_cam: np.ndarray, points_world: n
                    margin_m: float) -> tuple[np.ndarray, np.ndarray]:
     """(raw pixels, mask of points in the image and not hidden behind the static scene)."""
     P_cam = transform_points(inv_se3(T_world_cam), points_world)
-    uv, in_front = camera.project(P_cam)
-    visible = in_front & camera.in_image(uv) & np.isfinite(uv).all(axis=1)
+    uv, _ = camera.project(P_cam)
+    # Not `in_front` alone: rays beyond the distortion's fold land in the image too (the
+    # `large` recording's corridor cameras "saw" the agent 70 deg off-axis, 11677 times).
+    visible = camera.within_model(P_cam) & camera.in_image(uv) & np.isfinite(uv).all(axis=1)
     safe = np.where(visible[:, None], uv, 0.0)  # points behind the camera project to NaN
     cols = np.clip(np.round(safe[:, 0]).astype(int), 0, camera.width - 1)
     rows = np.clip(np.round(safe[:, 1]).astype(int), 0, camera.height - 1)
