@@ -33,6 +33,11 @@ def _finite(values) -> list[float]:
     return [v for v in values if v is not None and np.isfinite(v)]
 
 
+def _errors_and_bounds(cases: list[dict], k: int, what: str) -> list[tuple[float, float]]:
+    """(YOWO's error, bound record `what`) of every camera with a bound; k: 0 position, 1 rotation."""
+    return [(c["relative"]["YOWO"]["errors"][n][k], b) for c in cases for n, b in c["bound"][what].items()]
+
+
 def _mean(values) -> float:
     values = _finite(values)
     return float(np.mean(values)) if values else float("nan")
@@ -192,7 +197,7 @@ def markdown(results: dict, command: str, env: dict) -> str:
     for (p, s), cs in settings.items():
         row = [p, s, f"{sum(c['bound']['cameras'] for c in cs)} / {sum(c['relative']['YOWO']['calibrated'] for c in cs)}"]
         for k, what, unit in ((0, "position_m", ".4f"), (1, "rotation_deg", ".3f")):
-            bounds = [(c["relative"]["YOWO"]["errors"][n][k], b) for c in cs for n, b in c["bound"][what].items()]
+            bounds = _errors_and_bounds(cs, k, what)
             row += [f"{_median(b for _, b in bounds):{unit}}", f"{_median(e / b for e, b in bounds if b > 0):.2f}"]
         rows.append(row)
     lines += _table(["preset", "scenario", "cameras with a bound / calibrated", "median bound eps_pos [m]",
@@ -203,7 +208,7 @@ def markdown(results: dict, command: str, env: dict) -> str:
     for (p, s), cs in settings.items():
         row = [p, s]
         for k, what, unit in ((0, "mean_position_m", ".4f"), (1, "mean_rotation_deg", ".3f")):
-            pairs = [(c["relative"]["YOWO"]["errors"][n][k], b) for c in cs for n, b in c["bound"][what].items()]
+            pairs = _errors_and_bounds(cs, k, what)
             row += [f"{_mean(b for _, b in pairs):{unit}}", f"{_mean(e for e, _ in pairs):{unit}}"]
         rows.append(row)
     lines += _table(["preset", "scenario", "efficient avg eps_pos [m]", "YOWO avg eps_pos [m]",

@@ -59,9 +59,7 @@ class CameraModel:
         P = np.asarray(points_cam, dtype=float).reshape(-1, 3)
         in_front = P[:, 2] > 1e-9
         if not self.has_distortion:
-            z = np.where(in_front, P[:, 2], 1.0)
-            uv = (P[:, :2] / z[:, None]) @ self.K[:2, :2].T + self.K[:2, 2]
-            return uv, in_front
+            return self._ideal(P, in_front), in_front
         if len(P) == 0:   # OpenCV returns None for no points
             return np.zeros((0, 2)), in_front
         zero = np.zeros(3)
@@ -79,10 +77,13 @@ class CameraModel:
         uv, in_front = self.project(points_cam)
         if not self.has_distortion or len(uv) == 0:
             return in_front
-        P = np.asarray(points_cam, dtype=float).reshape(-1, 3)
-        z = np.where(in_front, P[:, 2], 1.0)
-        ideal = (P[:, :2] / z[:, None]) @ self.K[:2, :2].T + self.K[:2, 2]
+        ideal = self._ideal(np.asarray(points_cam, dtype=float).reshape(-1, 3), in_front)
         return in_front & (np.linalg.norm(self.undistort_pixels(uv) - ideal, axis=1) <= tol_px)
+
+    def _ideal(self, P: np.ndarray, in_front: np.ndarray) -> np.ndarray:
+        """Pinhole (distortion-free) pixels of points in the optical frame."""
+        z = np.where(in_front, P[:, 2], 1.0)
+        return (P[:, :2] / z[:, None]) @ self.K[:2, :2].T + self.K[:2, 2]
 
     def project_world(self, T_world_cam: np.ndarray, points_world: np.ndarray):
         return self.project(transform_points(inv_se3(T_world_cam), points_world))
