@@ -47,7 +47,7 @@ class TrackParams:
     gap_factor: float = 2.5         # a gap longer than this many frame periods splits a segment
     gate_px: float = 8.0            # residual to the smoothed track above which a sample is dropped
     min_confidence: float = 0.1
-    # A sample rated below this fraction of its track's full confidence (90th percentile;
+    # Our addition (the paper's CMC BA has no detection confidence): a sample rated below this fraction of its track's full confidence (90th percentile;
     # not the median, as most of a track can be weak) is a weaker kind of detection (the
     # image detector's ground point from the feet alone: 0.3x a full one); the bundle
     # adjustment scales its sigma by full confidence / its confidence.
