@@ -47,10 +47,11 @@ class TrackParams:
     gap_factor: float = 2.5         # a gap longer than this many frame periods splits a segment
     gate_px: float = 8.0            # residual to the smoothed track above which a sample is dropped
     min_confidence: float = 0.1
-    # Our addition (the paper's CMC BA has no detection confidence): a sample rated below this fraction of its track's full confidence (90th percentile;
-    # not the median, as most of a track can be weak) is a weaker kind of detection (the
-    # image detector's ground point from the feet alone: 0.3x a full one); the bundle
-    # adjustment scales its sigma by full confidence / its confidence.
+    # Our addition (the paper's CMC BA has no detection confidence): a sample rated below
+    # this fraction of its track's full confidence (90th percentile; not the median, as
+    # most of a track can be weak) is a weaker kind of detection (the image detector's
+    # ground point from the feet alone: 0.3x a full one); the bundle adjustment scales its
+    # sigma by full confidence / its confidence.
     weak_confidence_ratio: float = 0.5
     # The pixel thresholds here and in SfmParams were tuned on detections whose best
     # keypoint id has ~1 px noise (estimated 0.9-1.9 px by noise_px). A camera whose best id
