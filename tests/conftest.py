@@ -1,35 +1,22 @@
-import fcntl
-import os
-import random
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from yowo_bringup.isolation import PRIVATE, graph_network
+
 GRAPH = Path(__file__).parent / "graph"
 
 
 @pytest.fixture
 def ros_env():
-    """An environment with a DDS domain of its own, so concurrent test runs (other
-    checkouts, CI next to development) never cross-talk: the domain is claimed with
-    an exclusive lock on /tmp/yowo-ros-domain-<id>.lock, held for the test and
-    released by the kernel even if the test process dies."""
-    domains = list(range(1, 101))
-    random.Random().shuffle(domains)
-    for domain in domains:
-        lock = open(f"/tmp/yowo-ros-domain-{domain}.lock", "w")
-        try:
-            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            lock.close()
-            continue
-        env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-        yield env
-        lock.close()
-        return
-    pytest.fail("every ROS domain 1-100 is locked by other test runs")
+    """An environment with a DDS domain of its own (claimed as `yowo run` claims a private
+    one), so concurrent test runs (other checkouts, CI next to development) never
+    cross-talk; the graph verbs inside a test claim private domains of their own."""
+    network = graph_network(PRIVATE)
+    yield network.env
+    network.release()
 
 
 @pytest.fixture

@@ -1,5 +1,6 @@
 """The bad-input catalogue: each case gives a clear message naming what is wrong and
 where, partial results where possible, and a non-zero exit only when nothing useful exists."""
+import json
 import os
 import signal
 import subprocess
@@ -11,7 +12,7 @@ import numpy as np
 import yaml
 
 from e2e_helpers import three_camera_recording, yowo
-from yowo_common.ros.bag import BagWriter, read_messages
+from yowo_common.ros.bag import BagWriter, list_topics, read_messages
 
 
 def test_missing_and_empty_recordings(tmp_path, ros_env):
@@ -23,13 +24,33 @@ def test_missing_and_empty_recordings(tmp_path, ros_env):
     assert r.returncode == 2 and "holds no messages" in r.stderr and "Traceback" not in r.stderr
 
 
-def test_truncated_mcap_is_named(tmp_path, ros_env):
-    three_camera_recording(tmp_path / "rec")
+def test_truncated_recording_is_played_up_to_its_last_readable_message(tmp_path, ros_env):
+    cams, _ = three_camera_recording(tmp_path / "rec")
+    full = {t.name: t.count for t in list_topics(tmp_path / "rec")}
     (mcap,) = (tmp_path / "rec").glob("*.mcap")
     data = mcap.read_bytes()
-    mcap.write_bytes(data[: len(data) // 2])
+    mcap.write_bytes(data[: int(len(data) * 0.7)])       # the recorder died: no summary, no footer
+    (tmp_path / "rec" / "metadata.yaml").unlink()          # and it never wrote metadata.yaml
     r = yowo("info", tmp_path / "rec", env=ros_env)
-    assert r.returncode == 2 and str(tmp_path / "rec") in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode == 0 and "damaged" in r.stdout and "recovered" in r.stdout, r.stdout + r.stderr
+    r = yowo("calibrate-cmc", tmp_path / "rec", "-o", tmp_path / "out", env=ros_env)
+    assert r.returncode == 0, r.stderr
+    assert "recovered" in r.stderr and str(mcap) in r.stderr            # the console says what was recovered
+    log = yaml.safe_load((tmp_path / "out" / "run_log.yaml").read_text())
+    played = log["replay_published"]
+    # Most of the walk was there and is played, every message of it reaches its stage.
+    for topic, n in played.items():
+        assert 0.55 * full[topic] < n < full[topic], (topic, n, full[topic])
+        assert log["received"][topic] == {f"keypoint_tracker_{topic.split('/')[2]}": n}
+    assert "recovered" in log["replay_error"]
+    r = yowo("eval", tmp_path / "out", "--bag", tmp_path / "rec", env=ros_env)
+    assert r.returncode == 0, r.stderr
+    rel = json.loads((tmp_path / "out" / "metrics.json").read_text())["relative"]["summary"]
+    assert rel["count"] == len(cams) and rel["pos_max"] < 0.05, rel
+    # Cut inside its first record, nothing is readable: a clear message, exit 2.
+    mcap.write_bytes(data[:30])
+    r = yowo("calibrate-cmc", tmp_path / "rec", "-o", tmp_path / "out2", env=ros_env)
+    assert r.returncode == 2 and str(tmp_path / "rec") in r.stderr and "Traceback" not in r.stderr, r.stderr
 
 
 def test_zero_camera_info_and_blind_camera_give_partial_results(tmp_path, ros_env):
@@ -62,24 +83,58 @@ def test_non_monotonic_stamps_are_rejected_and_counted(tmp_path, ros_env):
     assert "1 stamp not after the previous frame" in stages["keypoint_tracker_c1"]
 
 
-def test_killed_node_fails_the_run_with_its_name(tmp_path, ros_env):
+def _kill_when(out, node, after_s):
+    """SIGKILL one node of a running graph (its pid file) `after_s` seconds after it started."""
+    pid_file = out / "logs" / f"{node}.pid"
+    deadline = time.monotonic() + 120
+    while not pid_file.exists() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    time.sleep(after_s)
+    os.kill(int(pid_file.read_text()), signal.SIGKILL)
+
+
+def test_killed_stages_are_restarted_and_every_camera_is_calibrated(tmp_path, ros_env):
+    cams, _ = three_camera_recording(tmp_path / "rec", duration_s=40.0)
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "yowo_bringup.cli", "calibrate-cmc", str(tmp_path / "rec"),
+                             "-o", str(out), "--rate", "1.0"], env=ros_env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    # The tracker dies mid-replay (it must be sent what it missed), the group SfM later (its
+    # inputs come again from the trackers' durable streams).
+    killers = [threading.Thread(target=_kill_when, args=(out, "keypoint_tracker_c1", 20.0)),
+               threading.Thread(target=_kill_when, args=(out, "group_sfm", 30.0))]
+    for k in killers:
+        k.start()
+    console, err = proc.communicate(timeout=300)
+    for k in killers:
+        k.join()
+    assert proc.returncode == 0, err
+    assert "node 'keypoint_tracker_c1' died (exit -9); restarted it" in console
+    assert "node 'group_sfm' died (exit -9); restarted it" in console
+    doc = yaml.safe_load((out / "cameras.yaml").read_text())["cameras"]
+    assert sorted(c["name"] for c in doc if c["status"] == "ok") == sorted(cams)
+    log = yaml.safe_load((out / "run_log.yaml").read_text())
+    assert log["restarts"] == {"keypoint_tracker_c1": [-9], "group_sfm": [-9]}
+    assert log["replay_resent"] > 0                  # what the tracker had been sent before it died
+    for topic, n in log["replay_published"].items():  # the restarted tracker got every message
+        assert log["received"][topic] == {f"keypoint_tracker_{topic.split('/')[2]}": n}, topic
+    r = yowo("eval", out, "--bag", tmp_path / "rec", env=ros_env)
+    assert r.returncode == 0, r.stderr
+    rel = json.loads((out / "metrics.json").read_text())["relative"]["summary"]
+    assert rel["count"] == 3 and rel["pos_max"] < 0.03, rel
+
+
+def test_killed_replay_ends_the_run_with_its_name(tmp_path, ros_env):
     three_camera_recording(tmp_path / "rec", duration_s=60.0)
     out = tmp_path / "out"
     proc = subprocess.Popen([sys.executable, "-m", "yowo_bringup.cli", "calibrate-cmc", str(tmp_path / "rec"),
                              "-o", str(out), "--rate", "1.0"], env=ros_env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
-
-    def kill_group_sfm():
-        # The supervisor records each node's pid; kill that one process once it exists.
-        pid_file = out / "logs" / "group_sfm.pid"
-        deadline = time.monotonic() + 60
-        while not pid_file.exists() and time.monotonic() < deadline:
-            time.sleep(0.2)
-        time.sleep(2.0)  # mid-run
-        os.kill(int(pid_file.read_text()), signal.SIGKILL)
-    killer = threading.Thread(target=kill_group_sfm)
+    killer = threading.Thread(target=_kill_when, args=(out, "replay", 5.0))
     killer.start()
     _, err = proc.communicate(timeout=180)
     killer.join()
     assert proc.returncode == 1
-    assert "node 'group_sfm' died" in err and "Traceback (most recent call last)" not in err.split("died")[0]
+    assert "node 'replay' died (exit -9); the replay cannot be restarted" in err
+    assert "Traceback (most recent call last)" not in err.split("died")[0]
+    assert (out / "run_log.yaml").exists()

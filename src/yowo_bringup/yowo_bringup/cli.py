@@ -69,23 +69,32 @@ def cmd_simulate(args) -> int:
 
 def _execute(args, mode: str):
     """Plan and run the graph; returns the outcome or None (message printed) on failure."""
+    from .isolation import PRIVATE, SHARED, graph_network
     from .run import plan_live, plan_run
     from .run_node import RunFailed, execute
 
     if args.verb == "live":
         plan = plan_live(args.cameras, args.output, mode=mode, source=args.cmc_source, image_topic=args.image_topic,
-                         ego_topics=(args.ego_color, args.ego_depth, args.ego_info), overrides=_load_overrides(args))
-        what = "live run (end the walk with 'yowo end-walk')"
+                         ego_topics=(args.ego_color, args.ego_depth, args.ego_info), overrides=_load_overrides(args),
+                         run_id=args.run_id)
+        what = f"live run {plan.run_id} (end the walk with 'yowo end-walk')"
+        domain = SHARED                       # live cameras are on the user's graph
     else:
         plan = plan_run(args.bag, args.output, mode=mode, rate=args.rate, overrides=_load_overrides(args),
-                        source=args.cmc_source)
-        what = f"{mode} run of {args.bag}"
+                        source=args.cmc_source, run_id=args.run_id)
+        what = f"{mode} run {plan.run_id} of {args.bag}"
+        # Private unless asked: lingering serves the user's /tf_static subscribers.
+        domain = args.domain or (SHARED if args.linger > 0 else PRIVATE)
+    plan.select(args.nodes)
+    plan.max_restarts = args.max_restarts
+    network = graph_network(domain if domain in (PRIVATE, SHARED) else int(domain))
     for w in plan.warnings:
         print(f"warning: {w}", file=sys.stderr)
     print(f"{what}: {len(plan.cameras)} CMCs ({', '.join(plan.cameras)}), "
-          f"{len(plan.nodes)} node processes; logs in {Path(args.output) / 'logs'}")
+          f"{len(plan.local_nodes)} node processes here; graph on {network.describe()}; "
+          f"logs in {Path(args.output) / 'logs'}")
     try:
-        return execute(plan, timeout_s=args.timeout, linger_s=getattr(args, "linger", 0.0))
+        return execute(plan, timeout_s=args.timeout, network=network, linger_s=getattr(args, "linger", 0.0))
     except RunFailed as exc:
         print(f"yowo {args.verb}: {exc}\n(partial results, if any, are in {args.output})", file=sys.stderr)
         return None
@@ -170,6 +179,21 @@ def _add_run_options(p) -> None:
     p.add_argument("--cmc-source", choices=("auto", "keypoints", "images"), default="auto",
                    help="CMC agent keypoints: recorded /cmc/<n>/agent_keypoints, the built-in image detector, "
                         "or auto (keypoints when recorded, else images)")
+    p.add_argument("--domain", metavar="private|shared|ID",
+                   help="DDS graph of the run: 'private' (default; a ROS domain no other run on this host uses, "
+                        "localhost discovery), 'shared' (your ROS_DOMAIN_ID and discovery settings; the default "
+                        "with --linger), or a domain id (a graph split across hosts with --nodes)")
+    _add_graph_options(p)
+
+
+def _add_graph_options(p) -> None:
+    p.add_argument("--run-id", help="the run's id, in every status message (default: a new one); give every host "
+                                    "of a split run the same")
+    p.add_argument("--nodes", nargs="+", metavar="PATTERN",
+                   help="start only these nodes here (names or patterns, e.g. replay 'keypoint_tracker_*'); the "
+                        "others run on other hosts of the same --domain and --run-id")
+    p.add_argument("--max-restarts", type=int, default=2,
+                   help="restart a node that dies up to this many times (it is sent what it missed)")
 
 
 def cmd_eval(args) -> int:
@@ -188,8 +212,8 @@ def cmd_end_walk(args) -> int:
     """Live operation: tell the running stages that the walk is over."""
     from .run_node import end_walk
 
-    end_walk(args.linger)
-    print("end of walk announced on /yowo/replay/status")
+    end_walk(args.linger, args.run_id or "")
+    print("end of walk announced on /yowo/replay/status" + (f" to run {args.run_id}" if args.run_id else ""))
     return 0
 
 
@@ -273,11 +297,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params", help="YAML file of node parameters: {node: {param: value}}")
     p.add_argument("--set", action="append", metavar="NODE.PARAM=VALUE", help="override one node parameter")
     p.add_argument("--timeout", type=float, default=24 * 3600.0, help="give up after this many seconds")
+    _add_graph_options(p)
     p.set_defaults(func=cmd_live)
 
     p = verbs.add_parser("end-walk", help="live operation: the walk is over, let every stage finalise")
     p.add_argument("--linger", type=float, default=10.0,
                    help="seconds to keep the announcement up once a stage has matched")
+    p.add_argument("--run-id", help="the live run to end (default: any live run on this ROS domain)")
     p.set_defaults(func=cmd_end_walk)
 
     p = verbs.add_parser("demo", help="generate a sample recording, run the full graph, print the metrics")
@@ -310,10 +336,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    from .isolation import NoFreeDomain
+
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (BagError, ValueError) as exc:
+    except (BagError, ValueError, NoFreeDomain) as exc:
         print(f"yowo {args.verb}: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 
-from yowo_common.ros.bag import BagTopic, list_topics
+from yowo_common.ros.bag import BagTopic, list_topics, recording_damage
 
 from yowo_common.topics import (EGO_COLOR, EGO_DEPTH, EGO_INFO, cmc_image_topics,  # noqa: F401  (the contract)
                                 cmc_info_topic, cmc_keypoints_topic)
@@ -27,7 +27,7 @@ class RecordingInputs:
 def discover_inputs(bag) -> RecordingInputs:
     topics = list_topics(bag)
     by_name = {t.name: t for t in topics}
-    problems = []
+    problems = [d for d in [recording_damage(bag)] if d]
     if not topics or all(t.count == 0 for t in topics):
         problems.append(f"{bag}: the recording holds no messages")
 

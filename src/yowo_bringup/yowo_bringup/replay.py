@@ -23,6 +23,10 @@ class Pacer:
         due = self._wall0 + (bag_time_ns - self._bag0) / 1e9 / self.rate
         return max(0.0, due - now_s)
 
+    def shift(self, seconds: float) -> None:
+        """Playing paused this long (a catch-up): later messages are due that much later."""
+        self._wall0 += seconds
+
 
 def select_topics(all_topics: list[str], include: list[str], exclude_prefixes: list[str]) -> list[str]:
     """Topics to play: `include` (all when empty), minus those under an excluded prefix

@@ -5,7 +5,14 @@ Lossless mode: every publisher is reliable with KEEP_ALL history, and after ever
 `ack_window` messages on a topic the node waits until all of them are acknowledged
 by every matched subscriber (DDS flow control: a subscriber whose KEEP_ALL queue is
 full stops acknowledging, so a slow stage slows the replay instead of losing data;
-at most `ack_window` messages per topic are ever in flight)."""
+at most `ack_window` messages per topic are ever in flight).
+
+Catch-up: the replay follows the stages' statuses of its run while it plays and until
+every stage has finished. When the supervisor restarted a stage (a new incarnation in
+its status), playing pauses, and once the replay has discovered the new process's
+subscriptions, it sends that stage's topics again from the start up to where playing
+is, then resumes. Only one stage reads each replayed topic (tracker or ego mapper),
+so nobody else sees the repetition."""
 from __future__ import annotations
 
 import os
@@ -21,7 +28,7 @@ from std_msgs.msg import Header
 from yowo_msgs.msg import ReplayStatus, StageStatus
 
 from yowo_common import topics
-from yowo_common.ros.bag import BagError, list_topics, message_class, read_raw
+from yowo_common.ros.bag import BagError, list_topics, message_class, read_raw, recording_damage
 from yowo_common.ros.context import ros_context
 from yowo_common.ros.stage import LATCHED
 from yowo_common.rosconv import ns_to_time
@@ -49,6 +56,8 @@ class ReplayNode(Node):
         self.ack_timeout_s = self.declare_parameter("ack_timeout_s", 60.0).value
         self.ack_window = max(1, self.declare_parameter("ack_window", 16).value)
         self.linger_s = self.declare_parameter("linger_s", 3.0).value
+        self.run_id = self.declare_parameter("run_id", "").value
+        self.recovered = ""           # what was recovered of a damaged recording
         self.include = [t for t in self.include if t]
         self.wait_for = [t for t in self.wait_for if t]
         self.status_pub = self.create_publisher(ReplayStatus, topics.REPLAY_STATUS, LATCHED)
@@ -56,6 +65,26 @@ class ReplayNode(Node):
         self.pubs = {}
         self.counts: dict[str, int] = {}
         self.unacked: dict[str, int] = {}
+        self.resent = 0
+        self.stage_status: dict[str, StageStatus] = {}
+        self.caught_up: dict[str, int] = {s: 0 for s in self.stages}    # incarnation each stage was served
+        self.stray_messages = 0
+        for stage in self.stages:
+            self.create_subscription(StageStatus, topics.status(stage),
+                                     lambda m, st=stage: self._on_stage_status(st, m), LATCHED)
+        self._last_spin = 0.0
+
+    def _on_stage_status(self, stage: str, msg: StageStatus) -> None:
+        if msg.run_id != self.run_id:
+            self.stray_messages += bool(msg.run_id)
+            return
+        self.stage_status[stage] = msg
+
+    def _spin_now_and_then(self) -> None:
+        """Take the stages' statuses while playing (at most every 50 ms: spinning costs)."""
+        if time.monotonic() - self._last_spin > 0.05:
+            rclpy.spin_once(self, timeout_sec=0)
+            self._last_spin = time.monotonic()
 
     def _qos(self, latched: bool) -> QoSProfile:
         if latched:
@@ -68,25 +97,61 @@ class ReplayNode(Node):
         self.status_pub.publish(ReplayStatus(
             header=Header(stamp=ns_to_time(stamp_ns)), state=state, bag=str(self.bag),
             bag_start=ns_to_time(start_ns), bag_end=ns_to_time(end_ns),
-            topics=list(self.counts), published_counts=list(self.counts.values()), error=error))
+            topics=list(self.counts), published_counts=list(self.counts.values()), error=error,
+            run_id=self.run_id, resent_messages=self.resent))
 
     def _expected_subscribers(self, deadline: float) -> dict[str, int]:
         """topic -> number of stages that subscribe to it (from their latched status)."""
-        status: dict[str, StageStatus] = {}
-        subs = [self.create_subscription(StageStatus, topics.status(s), lambda m, s=s: status.__setitem__(s, m),
-                                         LATCHED) for s in self.stages]
-        while len(status) < len(self.stages) and time.monotonic() < deadline:
+        while len(self.stage_status) < len(self.stages) and time.monotonic() < deadline:
             rclpy.spin_once(self, timeout_sec=0.05)
-        for sub in subs:
-            self.destroy_subscription(sub)
-        missing = sorted(set(self.stages) - set(status))
+        missing = sorted(set(self.stages) - set(self.stage_status))
         if missing:
             self.get_logger().warning(f"no status from stage(s) {', '.join(missing)}")
         expected: dict[str, int] = {}
-        for msg in status.values():
+        for msg in self.stage_status.values():
             for t in msg.input_topics:
                 expected[t] = expected.get(t, 0) + 1
         return expected
+
+    def _restarted_stages(self) -> list[str]:
+        return [s for s, m in self.stage_status.items() if m.incarnation > self.caught_up[s]]
+
+    def _catch_up(self, stage: str) -> None:
+        """Send a restarted stage its replayed topics again, up to where playing is."""
+        deadline = time.monotonic() + self.wait_timeout_s
+        while time.monotonic() < deadline:
+            status = self.stage_status[stage]
+            wanted = [t for t in status.input_topics if t in self.pubs]
+            known = {bytes(e.endpoint_gid).hex() for t in wanted for e in self.get_subscriptions_info_by_topic(t)}
+            if len(status.replay_reader_gids) >= len(wanted) and known >= set(status.replay_reader_gids):
+                break
+            rclpy.spin_once(self, timeout_sec=0.05)
+        else:
+            self.get_logger().warning(f"{stage} (restarted) has not matched the replay's topics after "
+                                      f"{self.wait_timeout_s:.0f} s; sending anyway")
+        self.caught_up[stage] = status.incarnation
+        todo = {t: self.counts[t] for t in wanted if self.counts[t]}
+        sent = dict.fromkeys(todo, 0)
+        if todo:
+            for raw in read_raw(self.bag, list(todo)):
+                if sent[raw.topic] >= todo[raw.topic]:
+                    if all(sent[t] >= n for t, n in todo.items()):
+                        break
+                    continue
+                self._publish(raw)
+                sent[raw.topic] += 1
+            for topic in [t for t, n in self.unacked.items() if n]:
+                self._wait_acked(topic)
+        self.resent += sum(sent.values())
+        self.get_logger().info(f"{stage} restarted (incarnation {status.incarnation}): sent it "
+                               f"{sum(sent.values())} messages again on {', '.join(todo) or 'no topic'}")
+
+    def _publish(self, raw) -> None:
+        self.pubs[raw.topic].publish(raw.data)
+        if self.lossless and not raw.latched:
+            self.unacked[raw.topic] = self.unacked.get(raw.topic, 0) + 1
+            if self.unacked[raw.topic] >= self.ack_window:
+                self._wait_acked(raw.topic)
 
     def _wait_for_subscribers(self) -> None:
         """Publishers exist before the first message and every subscriber is matched to
@@ -112,6 +177,7 @@ class ReplayNode(Node):
     def run(self) -> int:
         try:
             topics = list_topics(self.bag)
+            self.recovered = recording_damage(self.bag)
         except BagError as exc:
             self.get_logger().error(str(exc))
             self._status(ReplayStatus.STATE_FINISHED, 0, 0, 0, str(exc))
@@ -122,6 +188,8 @@ class ReplayNode(Node):
             if t.name in played:
                 self.pubs[t.name] = self.create_publisher(message_class(t.msgtype), t.name, self._qos(t.latched))
         self._wait_for_subscribers()
+        if self.recovered:
+            self.get_logger().warning(self.recovered)
         pacer = Pacer(self.rate)
         start_ns = end_ns = 0
         error = ""
@@ -131,34 +199,44 @@ class ReplayNode(Node):
                                f"{' (lossless)' if self.lossless else ''}")
         try:
             for raw in read_raw(self.bag, played):
-                pub = self.pubs[raw.topic]
+                self._spin_now_and_then()
+                for stage in self._restarted_stages():
+                    paused = time.monotonic()
+                    self._catch_up(stage)
+                    pacer.shift(time.monotonic() - paused)
                 time.sleep(pacer.delay_s(raw.log_time_ns))
                 start_ns = start_ns or raw.log_time_ns
                 end_ns = raw.log_time_ns
                 if self.publish_clock:
                     self.clock_pub.publish(Clock(clock=ns_to_time(raw.log_time_ns)))
-                pub.publish(raw.data)
+                self._publish(raw)
                 self.counts[raw.topic] += 1
-                if self.lossless and not raw.latched:
-                    self.unacked[raw.topic] = self.unacked.get(raw.topic, 0) + 1
-                    if self.unacked[raw.topic] >= self.ack_window:
-                        self._wait_acked(raw.topic)
                 if time.monotonic() - last_status > 1.0:
                     self._status(ReplayStatus.STATE_PLAYING, end_ns, start_ns, end_ns)
                     last_status = time.monotonic()
         except BagError as exc:
             error = str(exc)
             self.get_logger().error(f"{error}; finishing with what was played")
+        error = error or self.recovered
         for topic in [t for t, n in self.unacked.items() if n]:
             self._wait_acked(topic)
         self._status(ReplayStatus.STATE_FINISHED, end_ns, start_ns, end_ns, error)
         total = sum(self.counts.values())
         self.get_logger().info(f"finished: {total} messages published"
                                + "".join(f"\n  {t}: {n}" for t, n in self.counts.items()))
-        end = time.monotonic() + self.linger_s  # late joiners still get the latched status
-        while time.monotonic() < end:
+        # Late joiners still get the latched status; a stage restarted from now on until
+        # every stage is done is sent what it missed.
+        end = time.monotonic() + self.linger_s
+        while time.monotonic() < end or not self._stages_done():
             rclpy.spin_once(self, timeout_sec=0.1)
-        return 0 if total and not error else (2 if not total else 1)
+            for stage in self._restarted_stages():
+                self._catch_up(stage)
+                self._status(ReplayStatus.STATE_FINISHED, end_ns, start_ns, end_ns, error)
+        return 0 if total else 2
+
+    def _stages_done(self) -> bool:
+        return all(s in self.stage_status and self.stage_status[s].state != StageStatus.STATE_RUNNING
+                   for s in self.stages)
 
 
 def main(args=None):

@@ -2,6 +2,8 @@
 results directory. No rclpy here: run_node.py executes the plan."""
 from __future__ import annotations
 
+import fnmatch
+import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -36,6 +38,32 @@ class RunPlan:
     final_stage: str
     outputs: dict[str, str] = field(default_factory=dict)   # latched topic -> type the runner collects
     warnings: list[str] = field(default_factory=list)
+    run_id: str = ""                       # in every status: nodes ignore other runs' (see isolation.py)
+    local: list[str] = field(default_factory=lambda: ["*"])  # patterns of the nodes this host starts
+    max_restarts: int = 2                  # per node: a node that dies more often ends the run
+
+    @property
+    def local_nodes(self) -> list[NodeSpec]:
+        return [n for n in self.nodes if any(fnmatch.fnmatchcase(n.name, p) for p in self.local)]
+
+    def select(self, patterns: list[str] | None) -> None:
+        """Start only the nodes matching `patterns` here (a graph split across hosts)."""
+        if not patterns:
+            return
+        unknown = [p for p in patterns if not any(fnmatch.fnmatchcase(n.name, p) for n in self.nodes)]
+        if unknown:
+            raise ValueError(f"--nodes {' '.join(unknown)}: no such node in this run "
+                             f"({', '.join(n.name for n in self.nodes)})")
+        self.local = list(patterns)
+
+
+def new_run_id() -> str:
+    return uuid.uuid4().hex[:12]
+
+
+def _stamp_run(nodes: list[NodeSpec], run_id: str) -> None:
+    for spec in nodes:
+        spec.parameters["run_id"] = run_id
 
 
 @dataclass
@@ -64,9 +92,10 @@ def cmc_source(name: str, present: set[str], preference: str = "auto") -> tuple[
 
 
 def plan_run(bag, out_dir, mode: str = FULL, rate: float = 0.0, overrides: dict | None = None,
-             source: str = "auto") -> RunPlan:
+             source: str = "auto", run_id: str | None = None) -> RunPlan:
     """Nodes for a recording. `overrides`: {node: {param: value}} from a YAML file or the CLI;
-    `source`: where CMC agent keypoints come from (auto, keypoints or images)."""
+    `source`: where CMC agent keypoints come from (auto, keypoints or images); `run_id`:
+    the same on every host of a split run (a new one by default)."""
     inputs = discover_inputs(bag)
     present = {t.name for t in inputs.topics if t.count > 0}
     problems = list(inputs.problems)
@@ -99,12 +128,15 @@ def plan_run(bag, out_dir, mode: str = FULL, rate: float = 0.0, overrides: dict 
         "stages": [n.name for n in nodes], "linger_s": 1.0})
     replay.parameters.update((overrides or {}).get("replay", {}))
     nodes.append(replay)  # last: it waits for the stages' subscriptions
-    return RunPlan(Path(bag), Path(out_dir), mode, cameras, nodes, final, outputs, problems)
+    run_id = run_id or new_run_id()
+    _stamp_run(nodes, run_id)
+    return RunPlan(Path(bag), Path(out_dir), mode, cameras, nodes, final, outputs, problems, run_id)
 
 
 def plan_live(cameras: list[str], out_dir, mode: str = FULL, source: str = "keypoints",
               image_topic: str = "image_raw/compressed", ego_topics: tuple[str, str, str] = (
-                  EGO_COLOR[1], EGO_DEPTH[0], EGO_INFO), overrides: dict | None = None) -> RunPlan:
+                  EGO_COLOR[1], EGO_DEPTH[0], EGO_INFO), overrides: dict | None = None,
+              run_id: str | None = None) -> RunPlan:
     """Nodes for live operation on camera topics (no recording): the same graph without
     the replay; the stages finalise when `yowo end-walk` announces the end of the walk."""
     if len(cameras) < 2:
@@ -114,7 +146,9 @@ def plan_live(cameras: list[str], out_dir, mode: str = FULL, source: str = "keyp
     trackers = [(c, source, f"/cmc/{c}/{image_topic}" if source == "images" or mode == FULL else "")
                 for c in cameras]
     nodes, final, outputs = _stage_nodes(mode, trackers, ego_topics, overrides)
-    return RunPlan(None, Path(out_dir), mode, list(cameras), nodes, final, outputs)
+    run_id = run_id or new_run_id()
+    _stamp_run(nodes, run_id)
+    return RunPlan(None, Path(out_dir), mode, list(cameras), nodes, final, outputs, run_id=run_id)
 
 
 def _stage_nodes(mode: str, trackers: list[tuple[str, str, str]], ego: tuple[str, str, str],
@@ -175,8 +209,10 @@ def write_group_calibration(path: Path, groups: list[CameraGroupResult], ungroup
     path.write_text(yaml.safe_dump({"cameras": sorted(cams, key=lambda c: c["name"])}, sort_keys=False))
 
 
-def write_run_results(plan: RunPlan, outputs: dict, status: dict, replay, seconds: float, failure: str) -> RunOutcome:
-    """Everything a run produced into plan.out_dir (partial results when a stage failed)."""
+def write_run_results(plan: RunPlan, outputs: dict, status: dict, replay, seconds: float, failure: str,
+                      graph: dict | None = None) -> RunOutcome:
+    """Everything a run produced into plan.out_dir (partial results when a stage failed);
+    `graph`: the run's network, restarts and stray messages, for the run log."""
     from yowo_cmc.messages import groups_from_msg
 
     out, files = plan.out_dir, []
@@ -197,7 +233,9 @@ def write_run_results(plan: RunPlan, outputs: dict, status: dict, replay, second
         "bag": str(plan.bag or "live"), "mode": plan.mode, "seconds": round(seconds, 2), "failure": failure,
         "warnings": plan.warnings, "stages": {s: m.message for s, m in status.items()},
         "replay_published": published, "received": received,
-        "replay_error": replay.error if replay is not None else "no replay status"}, sort_keys=False))
+        "replay_resent": int(replay.resent_messages) if replay is not None else 0,
+        "replay_error": replay.error if replay is not None else "no replay status",
+        **(graph or {})}, sort_keys=False))
     files.append(out / "run_log.yaml")
     return RunOutcome(files, cameras, ungrouped, published, received)
 

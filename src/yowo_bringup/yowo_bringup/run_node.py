@@ -2,6 +2,7 @@
 status topics, collect the latched outputs and hand them to the results writer."""
 from __future__ import annotations
 
+import os
 import time
 
 import rclpy
@@ -13,6 +14,7 @@ from yowo_common.ros.context import ros_context
 from yowo_common import topics
 from yowo_common.ros.stage import LATCHED
 
+from .isolation import PRIVATE, GraphNetwork, graph_network
 from .run import RunOutcome, RunPlan, write_run_results
 from .supervisor import Supervisor, write_params_file
 
@@ -20,6 +22,8 @@ from .supervisor import Supervisor, write_params_file
 # succeeded published them all (a loaded machine took > 2 s to deliver the map clouds);
 # after a failure some never come.
 GRACE_S = {"done": 30.0, "failed": 2.0}
+# What decides which DDS graph a process joins.
+DDS_ENV = ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS")
 
 
 class RunFailed(RuntimeError):
@@ -27,27 +31,42 @@ class RunFailed(RuntimeError):
 
 
 class RunMonitor(Node):
-    def __init__(self, stages: list[str], outputs: dict[str, str]):
+    def __init__(self, stages: list[str], outputs: dict[str, str], run_id: str = ""):
         super().__init__("yowo_run")
+        self.run_id = run_id
+        self.stray_messages = 0
         self.status: dict[str, StageStatus] = {}
         self.replay: ReplayStatus | None = None
         self.outputs: dict[str, object] = {}
         for s in stages:
-            self.create_subscription(StageStatus, topics.status(s), lambda m, s=s: self.status.__setitem__(s, m),
-                                     LATCHED)
+            self.create_subscription(StageStatus, topics.status(s), lambda m, s=s: self._on_status(s, m), LATCHED)
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay, LATCHED)
         self._relay = None
+        self._announced = None
         for topic, msgtype in outputs.items():
             self.create_subscription(message_class(msgtype), topic,
                                      lambda m, t=topic: self.outputs.__setitem__(t, m), LATCHED)
 
+    def _own(self, msg) -> bool:
+        self.stray_messages += bool(msg.run_id) and msg.run_id != self.run_id
+        return msg.run_id == self.run_id
+
+    def _on_status(self, stage: str, msg: StageStatus) -> None:
+        if self._own(msg):
+            self.status[stage] = msg
+
     def _on_replay(self, msg: ReplayStatus) -> None:
-        self.replay = msg
+        if self._own(msg):
+            self.replay = msg
+        if msg.run_id in ("", self.run_id) and msg.state == ReplayStatus.STATE_FINISHED:
+            self._announced = msg             # `yowo end-walk` (to this or to any live run)
 
     def relay_end_of_walk(self) -> None:
-        """Live runs: keep `yowo end-walk`'s announcement latched for the rest of the run,
-        so a stage whose subscription matches after the announcer left still gets it."""
-        if self._relay is None and self.replay is not None and self.replay.state == ReplayStatus.STATE_FINISHED:
+        """Live runs: take `yowo end-walk`'s announcement for this run and keep it latched
+        for the rest of the run, so a stage whose subscription matches late still gets it."""
+        if self._relay is None and self._announced is not None:
+            self.replay = self._announced
+            self.replay.run_id = self.run_id
             self._relay = self.create_publisher(ReplayStatus, topics.REPLAY_STATUS, LATCHED)
             self._relay.publish(self.replay)
 
@@ -60,78 +79,122 @@ class RunMonitor(Node):
         done = [s for s in stages if self.finished(s)]
         return f"replayed {played} messages; stages done {len(done)}/{len(stages)}"
 
+    def strays(self) -> dict[str, int]:
+        """Status messages of other runs each node heard and ignored."""
+        counts = {s: int(m.stray_messages) for s, m in self.status.items()}
+        return {"yowo_run": self.stray_messages, **counts}
 
-def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, env: dict | None = None,
+
+def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphNetwork | None = None,
             linger_s: float = 0.0) -> RunOutcome:
-    """Run the graph and write the results directory. Raises RunFailed with the reason
-    (after writing whatever partial results exist). `linger_s`: after a successful run,
-    keep the graph up this long with the results written (late /tf_static subscribers)."""
+    """Run the graph (the plan's local nodes; the others run on other hosts) and write the
+    results directory. Raises RunFailed with the reason (after writing whatever partial
+    results exist). `network`: the run's DDS domain (a private one by default);
+    `linger_s`: after a successful run, keep the graph up this long with the results
+    written (late /tf_static subscribers)."""
+    network = network or graph_network(PRIVATE)
     plan.out_dir.mkdir(parents=True, exist_ok=True)
     params_file = plan.out_dir / "params.yaml"
     write_params_file(plan.nodes, params_file)
-    sup = Supervisor(plan.out_dir / "logs", env)
+    sup = Supervisor(plan.out_dir / "logs", network.env, params_file)
     stages = [n.name for n in plan.nodes if n.name != "replay"]
     t0 = time.monotonic()
-    failure, outcome = "", None
-    with ros_context([]):
-        monitor = RunMonitor(stages, plan.outputs)
-        try:
-            for spec in plan.nodes:  # replay last: it waits for the stages' subscriptions
-                sup.start(spec, params_file)
-            last_report, finished_at = 0.0, None
-            while True:
-                rclpy.spin_once(monitor, timeout_sec=0.1)
-                if plan.bag is None:
-                    monitor.relay_end_of_walk()
-                dead = sup.dead()
-                if dead:
-                    p = dead[0]
-                    failure = (f"node '{p.spec.name}' died (exit {p.popen.returncode}); last log lines:\n"
-                               f"{p.log_tail()}")
-                    break
-                final = monitor.finished(plan.final_stage)
-                if final is not None and finished_at is None:
-                    finished_at = time.monotonic()
-                grace = GRACE_S["failed" if final is not None and final.state == StageStatus.STATE_FAILED else "done"]
-                if finished_at is not None and (all(t in monitor.outputs for t in plan.outputs)
-                                                or time.monotonic() - finished_at > grace):
-                    if final.state == StageStatus.STATE_FAILED:
-                        failure = f"stage '{plan.final_stage}' failed: {final.message}"
-                    break
-                if time.monotonic() - t0 > timeout_s:
-                    failure = (f"no result after {timeout_s:.0f} s; "
-                               + ", ".join(f"{s}={'done' if monitor.finished(s) else 'running'}" for s in stages))
-                    break
-                if time.monotonic() - last_report > 5.0:
-                    last_report = time.monotonic()
-                    log(f"[{time.monotonic() - t0:6.1f} s] {monitor.progress(stages)}")
-            if linger_s > 0 and not failure:
-                outcome = write_run_results(plan, dict(monitor.outputs), dict(monitor.status), monitor.replay,
-                                            time.monotonic() - t0, failure)
-                log(f"results written to {plan.out_dir}; the graph stays up {linger_s:.0f} s (latched /tf_static)")
-                end = time.monotonic() + linger_s
-                while time.monotonic() < end and not sup.dead():
+    failure, outcome, notes = "", None, set()
+    saved_env = {k: os.environ.get(k) for k in DDS_ENV}
+    os.environ.update({k: network.env[k] for k in DDS_ENV if k in network.env})  # this process's own node
+    for k in DDS_ENV:
+        if k not in network.env:
+            os.environ.pop(k, None)
+
+    def graph_log() -> dict:
+        return {"graph": {"run_id": plan.run_id, "ros_domain_id": network.domain_id, "private": network.private,
+                          "discovery_range": network.discovery, "nodes_on_this_host": [p.spec.name for p in sup.procs],
+                          "stray_status_messages": monitor.strays()},
+                "restarts": {p.spec.name: p.exits for p in sup.procs if p.exits}}
+    try:
+        with ros_context([]):
+            monitor = RunMonitor(stages, plan.outputs, plan.run_id)
+            try:
+                for spec in plan.local_nodes:  # replay last: it waits for the stages' subscriptions
+                    sup.start(spec)
+                last_report, finished_at = 0.0, None
+                while True:
                     rclpy.spin_once(monitor, timeout_sec=0.1)
-        finally:
-            outputs, status, replay = dict(monitor.outputs), dict(monitor.status), monitor.replay
-            monitor.destroy_node()
-            sup.stop()
+                    if plan.bag is None:
+                        monitor.relay_end_of_walk()
+                    failure = _restart_dead(sup, plan.max_restarts, log)
+                    if failure:
+                        break
+                    if monitor.replay is not None and monitor.replay.error not in notes | {""}:
+                        notes.add(monitor.replay.error)
+                        if monitor.replay.error not in plan.warnings:   # a damaged file is told at the start
+                            log(f"warning: {monitor.replay.error}")
+                    final = monitor.finished(plan.final_stage)
+                    if final is not None and finished_at is None:
+                        finished_at = time.monotonic()
+                    grace = GRACE_S["failed" if final is not None and final.state == StageStatus.STATE_FAILED
+                                    else "done"]
+                    if finished_at is not None and (all(t in monitor.outputs for t in plan.outputs)
+                                                    or time.monotonic() - finished_at > grace):
+                        if final.state == StageStatus.STATE_FAILED:
+                            failure = f"stage '{plan.final_stage}' failed: {final.message}"
+                        break
+                    if time.monotonic() - t0 > timeout_s:
+                        failure = (f"no result after {timeout_s:.0f} s; "
+                                   + ", ".join(f"{s}={'done' if monitor.finished(s) else 'running'}" for s in stages))
+                        break
+                    if time.monotonic() - last_report > 5.0:
+                        last_report = time.monotonic()
+                        log(f"[{time.monotonic() - t0:6.1f} s] {monitor.progress(stages)}")
+                if linger_s > 0 and not failure:
+                    outcome = write_run_results(plan, dict(monitor.outputs), dict(monitor.status), monitor.replay,
+                                                time.monotonic() - t0, failure, graph_log())
+                    log(f"results written to {plan.out_dir}; the graph stays up {linger_s:.0f} s (latched /tf_static)")
+                    end = time.monotonic() + linger_s
+                    while time.monotonic() < end and not sup.dead():
+                        rclpy.spin_once(monitor, timeout_sec=0.1)
+            finally:
+                outputs, status, replay, graph = dict(monitor.outputs), dict(monitor.status), monitor.replay, graph_log()
+                monitor.destroy_node()
+                sup.stop()
+    finally:
+        for k, v in saved_env.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+        network.release()
     if outcome is None:
-        outcome = write_run_results(plan, outputs, status, replay, time.monotonic() - t0, failure)
+        outcome = write_run_results(plan, outputs, status, replay, time.monotonic() - t0, failure, graph)
     if failure:
         raise RunFailed(failure)
     return outcome
 
 
-def end_walk(linger_s: float = 5.0) -> None:
+def _restart_dead(sup: Supervisor, max_restarts: int, log) -> str:
+    """Restart every node that died (the replay cannot be: it is the one that re-sends what
+    a restarted stage missed); the failure message when a node cannot be restarted."""
+    for p in sup.dead():
+        died = f"node '{p.spec.name}' died (exit {p.popen.returncode})"
+        if p.spec.name == "replay" or len(p.exits) >= max_restarts:
+            why = ("the replay cannot be restarted: nobody could re-send what the stages missed"
+                   if p.spec.name == "replay" else f"it was restarted {len(p.exits)} times already")
+            return f"{died}; {why}; last log lines:\n{p.log_tail()}"
+        sup.restart(p)
+        log(f"warning: {died}; restarted it ({len(p.exits)} of at most {max_restarts}); it is sent what it missed")
+    return ""
+
+
+def end_walk(linger_s: float = 5.0, run_id: str = "") -> None:
     """Live operation: announce the end of the walk (what a replay does at the end of a
-    recording), so every stage finalises with what it has received."""
+    recording), so every stage finalises with what it has received. Without a run id the
+    announcement goes to any live run on the domain (its monitor relays it to its stages)."""
     from yowo_common.ros.stage import REPLAY
 
     with ros_context([]):
         node = Node("yowo_end_walk")
         pub = node.create_publisher(ReplayStatus, topics.REPLAY_STATUS, LATCHED)
-        pub.publish(ReplayStatus(state=ReplayStatus.STATE_FINISHED, bag=f"live ({REPLAY} not used)"))
+        pub.publish(ReplayStatus(state=ReplayStatus.STATE_FINISHED, bag=f"live ({REPLAY} not used)", run_id=run_id))
         # Latched: stages that match while we linger still get it. Discovery on a busy
         # machine takes seconds, so the linger starts once a first stage has matched.
         deadline = time.monotonic() + 60.0

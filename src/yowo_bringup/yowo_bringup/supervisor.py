@@ -1,5 +1,6 @@
-"""Start YOWO's nodes as separate processes, keep their logs, notice when one dies,
-and stop them all cleanly (SIGINT, then SIGTERM, then SIGKILL)."""
+"""Start YOWO's nodes as separate processes, keep their logs, restart one that dies
+(its `incarnation` parameter counts the restarts, so the replay and the upstream stages
+send it what it missed), and stop them all cleanly (SIGINT, then SIGTERM, then SIGKILL)."""
 from __future__ import annotations
 
 import os
@@ -25,6 +26,8 @@ class NodeProcess:
     spec: NodeSpec
     popen: subprocess.Popen
     log_path: Path
+    incarnation: int = 0
+    exits: list[int] = field(default_factory=list)     # exit codes of earlier incarnations
 
     def log_tail(self, lines: int = 15) -> str:
         try:
@@ -47,24 +50,38 @@ def write_params_file(specs: list[NodeSpec], path: Path) -> None:
 
 
 class Supervisor:
-    def __init__(self, log_dir: Path, env: dict | None = None):
+    def __init__(self, log_dir: Path, env: dict | None = None, params_file: Path | None = None):
         self.log_dir = Path(log_dir)
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.env = dict(os.environ if env is None else env)
+        self.params_file = params_file
         self.procs: list[NodeProcess] = []
 
-    def start(self, spec: NodeSpec, params_file: Path | None = None) -> NodeProcess:
+    def _popen(self, spec: NodeSpec, incarnation: int, mode: str) -> subprocess.Popen:
         cmd = [sys.executable, "-m", spec.module, "--ros-args", "-r", f"__node:={spec.name}"]
-        if params_file is not None and spec.parameters:
-            cmd += ["--params-file", str(params_file)]
-        log_path = self.log_dir / f"{spec.name}.log"
-        with open(log_path, "w") as log:
+        if self.params_file is not None and spec.parameters:
+            cmd += ["--params-file", str(self.params_file)]
+        if incarnation:
+            cmd += ["-p", f"incarnation:={incarnation}"]
+        with open(self.log_dir / f"{spec.name}.log", mode) as log:
+            if incarnation:
+                log.write(f"--- [yowo supervisor] restarted (incarnation {incarnation}) ---\n")
+                log.flush()
             popen = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=self.env,
                                      start_new_session=True)  # our own Ctrl-C handling stops them in order
         (self.log_dir / f"{spec.name}.pid").write_text(f"{popen.pid}\n")  # for users and tests
-        proc = NodeProcess(spec, popen, log_path)
+        return popen
+
+    def start(self, spec: NodeSpec) -> NodeProcess:
+        proc = NodeProcess(spec, self._popen(spec, 0, "w"), self.log_dir / f"{spec.name}.log")
         self.procs.append(proc)
         return proc
+
+    def restart(self, proc: NodeProcess) -> None:
+        """Start a dead node again as its next incarnation (its log continues)."""
+        proc.exits.append(proc.popen.returncode)
+        proc.incarnation += 1
+        proc.popen = self._popen(proc.spec, proc.incarnation, "a")
 
     def dead(self) -> list[NodeProcess]:
         """Processes that exited with an error."""

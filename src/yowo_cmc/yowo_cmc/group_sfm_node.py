@@ -28,7 +28,8 @@ class GroupSfmNode(StageNode):
         self.last_stamp = 0
         self.pub = self.output(CameraGroupArray, topics.GROUPS, LATCHED)
         for cam in cameras:
-            self.stream_input(CameraInfo, f"/cmc/{cam}/camera_info", lambda m, c=cam: self.on_info(c, m))
+            self.stream_input(CameraInfo, topics.tracker_camera_info(cam), lambda m, c=cam: self.on_info(c, m),
+                              upstream=topics.tracker_stage(cam))
             self.stream_input(AgentKeypoints, topics.tracker_keypoints(cam), lambda m, c=cam: self.on_keypoints(c, m),
                               upstream=topics.tracker_stage(cam))
 

@@ -43,6 +43,7 @@ class KeypointTrackerNode(StageNode):
         self.frame_id = f"{camera}_optical_frame"    # the images' frame, once one arrived
         self.pub = self.output(AgentKeypoints, topics.tracker_keypoints(camera))
         self.pub_background = self.output(Image, topics.tracker_background(camera), LATCHED)
+        self.pub_info = self.output(CameraInfo, topics.tracker_camera_info(camera), LATCHED)
         self.stream_input(CameraInfo, f"/cmc/{camera}/camera_info", self.on_info)
         self.detector = ImageKeypointSource(camera) if self.source == "images" else None
         if self.detector is None:
@@ -69,6 +70,7 @@ class KeypointTrackerNode(StageNode):
                 self.info_problem = f"/cmc/{self.camera}/camera_info: {exc}"
                 self.get_logger().error(self.info_problem)
                 return
+            self.pub_info.publish(msg)
             if self.detector is not None:
                 self.publish_frames(self.detector.set_camera(self.acc.camera))
 

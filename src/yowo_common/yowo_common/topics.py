@@ -59,6 +59,12 @@ def tracker_keypoints(camera: str) -> str:
     return f"/yowo/cmc/{camera}/agent_keypoints"
 
 
+def tracker_camera_info(camera: str) -> str:
+    """The CMC's first valid CameraInfo, latched: only the tracker reads the replayed
+    /cmc/<name>/ topics, so a restarted tracker alone is sent them again."""
+    return f"/yowo/cmc/{camera}/camera_info"
+
+
 def tracker_background(camera: str) -> str:
     """The CMC's agent-free background image (sensor_msgs/Image rgb8), latched."""
     return f"/yowo/cmc/{camera}/background"

@@ -48,7 +48,8 @@ class FusionNode(StageNode):
         self.stream_input(CameraGroupArray, topics.GROUPS, lambda m: setattr(self, "groups", m),
                           upstream=topics.GROUP_SFM_STAGE)
         for cam in cameras:
-            self.stream_input(CameraInfo, f"/cmc/{cam}/camera_info", lambda m, c=cam: self.on_info(c, m))
+            self.stream_input(CameraInfo, topics.tracker_camera_info(cam), lambda m, c=cam: self.on_info(c, m),
+                              upstream=topics.tracker_stage(cam))
             self.stream_input(AgentKeypoints, topics.tracker_keypoints(cam),
                               lambda m, c=cam: self.acc[c].add(frame_from_msg(m)), upstream=topics.tracker_stage(cam))
             self.stream_input(Image, topics.tracker_background(cam),

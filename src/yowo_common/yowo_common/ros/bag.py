@@ -5,16 +5,21 @@ from __future__ import annotations
 
 import functools
 import importlib
+import io
+import mmap
 import os
+import struct
 import sys
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 from rclpy.serialization import deserialize_message, serialize_message
-from rosbags.interfaces import (ConnectionExtRosbag2, Qos, QosDurability, QosHistory, QosLiveliness,
+from mcap.stream_reader import StreamReader
+from rosbags.interfaces import (Connection, ConnectionExtRosbag2, Qos, QosDurability, QosHistory, QosLiveliness,
                                 QosReliability, QosTime)
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 _NO_TIME = QosTime(sec=0, nsec=0)
@@ -105,7 +110,9 @@ class BagWriter:
         self._writer.write(conn, int(stamp_ns), serialize_message(msg))
 
 
-def open_reader(path) -> Reader:
+def open_reader(path):
+    """A rosbags Reader; for an MCAP whose end is missing (recorder killed, disk full,
+    power lost: no summary, maybe no metadata.yaml) a RecoveredMcap of what is readable."""
     path = Path(path)
     if not path.exists():
         raise BagError(f"{path}: no such recording")
@@ -113,8 +120,20 @@ def open_reader(path) -> Reader:
         reader = Reader(path)
         reader.open()
     except Exception as exc:  # rosbags raises several types for damaged files
+        files = sorted(path.glob("*.mcap")) if path.is_dir() else [path] if path.suffix == ".mcap" else []
+        if len(files) == 1:
+            recovered = RecoveredMcap(files[0], f"{exc}")
+            if recovered.connections:
+                return recovered
         raise BagError(f"{path}: cannot open recording: {exc}") from exc
     return reader
+
+
+def recording_damage(path) -> str:
+    """What was recovered of a damaged recording ('' when it opens normally)."""
+    reader = open_reader(path)
+    reader.close()
+    return getattr(reader, "damage", "")
 
 
 def list_topics(path) -> list[BagTopic]:
@@ -123,6 +142,137 @@ def list_topics(path) -> list[BagTopic]:
         return [BagTopic(c.topic, c.msgtype, c.msgcount, qos_is_latched(c)) for c in reader.connections]
     finally:
         reader.close()
+
+
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+_OP_FOOTER, _OP_CHUNK = 0x02, 0x06
+
+
+def _records_of(data: bytes):
+    """MCAP records (a chunk's contents included) in `data`, up to the first incomplete one."""
+    from mcap.exceptions import EndOfFile
+
+    try:
+        yield from StreamReader(io.BytesIO(data), skip_magic=True, validate_crcs=True).records
+    except EndOfFile:
+        return
+
+
+def _torn_chunk_records(body: bytes) -> bytes:
+    """The records at the start of a chunk cut short: its header, then as much of its
+    (decompressed) contents as the file holds."""
+    (comp_len,) = struct.unpack_from("<I", body, 28)
+    compression = body[32:32 + comp_len].decode()
+    payload = body[32 + comp_len + 8:]
+    if compression == "":
+        return payload
+    if compression == "zstd":
+        import zstandard
+        return zstandard.ZstdDecompressor().decompressobj().decompress(payload)
+    if compression == "lz4":
+        import lz4.frame
+        return lz4.frame.LZ4FrameDecompressor().decompress(payload)
+    return b""
+
+
+def _mcap_stream(file: Path):
+    """(record, chunk index) of every readable record of an MCAP read front to back without
+    its summary; the last item is (None, where and why the readable part ends)."""
+    with open(file, "rb") as f:
+        data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if file.stat().st_size else b""
+    try:
+        if data[:8] != _MCAP_MAGIC:
+            yield None, "not an MCAP file (no magic at its start)"
+            return
+        pos, chunk = 8, 0
+        while pos + 9 <= len(data):
+            opcode, length = struct.unpack_from("<BQ", data, pos)
+            if opcode == _OP_FOOTER:
+                yield None, ""
+                return
+            body_end = pos + 9 + length
+            if body_end > len(data):
+                if opcode == _OP_CHUNK and len(data) - pos - 9 > 40:
+                    try:
+                        for rec in _records_of(_torn_chunk_records(bytes(data[pos + 9:]))):
+                            yield rec, chunk
+                    except Exception:       # a torn compressed frame: what decoded is kept
+                        pass
+                    yield None, f"the file ends inside the chunk at byte {pos}: its complete messages are kept"
+                    return
+                break
+            try:
+                for rec in _records_of(bytes(data[pos:body_end])):
+                    yield rec, chunk
+            except Exception as exc:        # a damaged record (CRC): the stream ends before it
+                yield None, f"a damaged record at byte {pos} ({exc}): the rest is skipped"
+                return
+            pos, chunk = body_end, chunk + 1
+        yield None, f"the file ends inside a record at byte {pos}"
+    finally:
+        if isinstance(data, mmap.mmap):
+            data.close()
+
+
+@functools.lru_cache(maxsize=8)
+def _scan_mcap(file: str, size: int, mtime_ns: int):
+    """(channels, schemas, per-channel counts, why the readable part ended, first and last
+    log time) of an MCAP read as a stream."""
+    from mcap.records import Channel, Message, Schema
+
+    channels, schemas, counts, stamps, end = {}, {}, {}, [], ""
+    for record, info in _mcap_stream(Path(file)):
+        if record is None:
+            end = info
+        elif isinstance(record, Schema):
+            schemas[record.id] = record
+        elif isinstance(record, Channel):
+            channels[record.id] = record
+        elif isinstance(record, Message):
+            counts[record.channel_id] = counts.get(record.channel_id, 0) + 1
+            stamps.append(record.log_time)
+    span = (min(stamps), max(stamps)) if stamps else (0, 0)
+    return channels, schemas, counts, end, span
+
+
+class RecoveredMcap:
+    """The readable part of an MCAP file without its end, read as a stream (what
+    `ros2 bag reindex` and the MCAP stream reader recover), up to the last complete
+    message. Messages come in file order, sorted by log time within each chunk (a
+    recorder writes chunks in time order)."""
+
+    def __init__(self, file: Path, open_error: str):
+        self.file = Path(file)
+        st = self.file.stat()
+        channels, schemas, counts, why, (t0, t1) = _scan_mcap(str(self.file), st.st_size, st.st_mtime_ns)
+        self.connections = []
+        for cid, ch in sorted(channels.items()):
+            schema = schemas.get(ch.schema_id)
+            qos_text = ch.metadata.get("offered_qos_profiles", "")
+            ext = ConnectionExtRosbag2(serialization_format=ch.message_encoding,
+                                       offered_qos_profiles=parse_qos(qos_text) if qos_text else [])
+            self.connections.append(Connection(cid, ch.topic, schema.name if schema else "", "", "",
+                                               counts.get(cid, 0), ext, None))
+        total = sum(counts.values())
+        span = f" ({(t1 - t0) / 1e9:.1f} s of recording)" if total else ""
+        self.damage = (f"{self.file} ({st.st_size} bytes) is damaged ({open_error.rstrip('.')}); recovered "
+                       f"{total} messages{span}" + (f"; {why}" if why else ""))
+
+    def messages(self, connections=None):
+        from mcap.records import Message
+
+        by_id = {c.id: c for c in (connections or self.connections)}
+        pending, chunk = [], None
+        for record, info in _mcap_stream(self.file):
+            if record is None or info != chunk:
+                for m in sorted(pending, key=lambda r: r.log_time):
+                    yield by_id[m.channel_id], m.log_time, m.data
+                pending, chunk = [], info
+            if isinstance(record, Message) and record.channel_id in by_id:
+                pending.append(record)
+
+    def close(self) -> None:
+        pass
 
 
 @dataclass(frozen=True)
@@ -136,7 +286,8 @@ class RawMessage:
 
 def read_raw(path, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
     """Serialised messages in log-time order. A damaged file ends the iteration
-    with a BagError after every readable message."""
+    with a BagError after every readable message; a file without its end is read up to
+    its last readable message (see RecoveredMcap)."""
     reader = open_reader(path)
     try:
         wanted = None if topics is None else set(topics)

@@ -31,8 +31,16 @@ class StageNode(Node):
     def __init__(self, name: str):
         super().__init__(name)
         self.stage = self.get_name()  # a launcher may rename the node (one tracker per camera)
+        # Isolation: statuses of other runs are counted and ignored. Incarnation: how often
+        # the supervisor restarted this stage (upstream statuses and the replay re-send what
+        # a restarted stage missed).
+        self.run_id = self.declare_parameter("run_id", "").value
+        self.incarnation = self.declare_parameter("incarnation", 0).value
+        self.stray_messages = 0
         self.completion = StreamCompletion({})
         self.published: Counter = Counter()
+        self._replay_readers: list = []
+        self._seen_stamps: dict[str, set[int]] = {}
         self._status_pub = self.create_publisher(StageStatus, topics.status(self.stage), LATCHED)
         self._watched: set[str] = set()
         self._finalized = False
@@ -45,14 +53,25 @@ class StageNode(Node):
         qos = qos or (STREAM if upstream == REPLAY else DURABLE_STREAM)
         self.completion.inputs[topic] = upstream
         self._watch(upstream)
+        seen = self._seen_stamps.setdefault(topic, set()) if upstream != REPLAY else None
 
         def counted(msg):
+            if seen is not None:
+                # A restarted upstream stage publishes its stream again from the start; its
+                # stamps are strictly increasing, so a stamp seen before is that repetition.
+                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                if stamp in seen:
+                    return
+                seen.add(stamp)
             self.completion.on_received(topic)
             try:
                 callback(msg)
             except Exception as exc:  # a bad message must not kill the stage; it is reported
                 self.get_logger().error(f"{topic}: {exc}\n{traceback.format_exc(limit=3)}")
-        return self.create_subscription(msg_type, topic, counted, qos)
+        sub = self.create_subscription(msg_type, topic, counted, qos)
+        if upstream == REPLAY:
+            self._replay_readers.append(sub)
+        return sub
 
     def output(self, msg_type, topic: str, qos=DURABLE_STREAM):
         pub = self.create_publisher(msg_type, topic, qos)
@@ -77,13 +96,25 @@ class StageNode(Node):
             self.create_subscription(StageStatus, topics.status(upstream),
                                      lambda m, up=upstream: self._on_stage_status(up, m), LATCHED)
 
+    def _own_run(self, msg) -> bool:
+        """A status of this run; another run's is counted as stray, one without a run id
+        (`yowo end-walk`, relayed by the live run's monitor with its id) is ignored."""
+        if msg.run_id == self.run_id:
+            return True
+        self.stray_messages += bool(msg.run_id)
+        return False
+
     def _on_replay_status(self, msg: ReplayStatus) -> None:
+        if not self._own_run(msg):
+            return
         if msg.state == ReplayStatus.STATE_FINISHED:
             if msg.error:
                 self.get_logger().warning(f"replay ended early: {msg.error}")
             self.completion.on_upstream_finished(REPLAY, msg.topics, msg.published_counts)
 
     def _on_stage_status(self, upstream: str, msg: StageStatus) -> None:
+        if not self._own_run(msg):
+            return
         if msg.state in (StageStatus.STATE_FINISHED, StageStatus.STATE_FAILED):
             self.completion.on_upstream_finished(upstream, msg.topics, msg.published_counts)
 
@@ -109,7 +140,17 @@ class StageNode(Node):
         self._status_pub.publish(StageStatus(
             header=Header(stamp=self.get_clock().now().to_msg()), stage=self.stage, state=state,
             topics=list(self.published), published_counts=list(self.published.values()),
-            input_topics=list(c.inputs), received_counts=[c.received[t] for t in c.inputs], message=message))
+            input_topics=list(c.inputs), received_counts=[c.received[t] for t in c.inputs], message=message,
+            run_id=self.run_id, incarnation=self.incarnation, stray_messages=self.stray_messages,
+            replay_reader_gids=self._reader_gids()))
+
+    def _reader_gids(self) -> list[str]:
+        """GIDs of this process's subscriptions to replayed topics, as the graph lists them."""
+        gids = []
+        for sub in self._replay_readers:
+            gids += [bytes(e.endpoint_gid).hex() for e in self.get_subscriptions_info_by_topic(sub.topic_name)
+                     if e.node_name == self.get_name() and e.node_namespace == self.get_namespace()]
+        return gids
 
     @property
     def finished(self) -> bool:
