@@ -33,10 +33,13 @@ def write_keypoint_bag(path, cams, tracks):
             bag.write(f"/cmc/{ct.name}/agent_keypoints", AgentKeypoints(header=h, camera_name=ct.name, keypoints=kps), s)
 
 
-def three_camera_recording(path, seed=0, duration_s=20.0, tamper=None):
-    """A one-room recording with three CMCs; `tamper(cams, tracks)` may damage it first."""
-    cams = {"c1": ceiling_camera(0.3, 0.3, (2.5, 2.5)), "c2": ceiling_camera(4.7, 0.3, (2.5, 2.5), z=3.3),
-            "c3": ceiling_camera(2.5, 4.7, (2.5, 2.3))}
+def three_camera_recording(path, seed=0, duration_s=20.0, tamper=None, layout=0):
+    """A one-room recording with three CMCs (c1, c2, c3, mounted after `layout` 0 or 1);
+    `tamper(cams, tracks)` may damage it first."""
+    cams = ({"c1": ceiling_camera(0.3, 0.3, (2.5, 2.5)), "c2": ceiling_camera(4.7, 0.3, (2.5, 2.5), z=3.3),
+             "c3": ceiling_camera(2.5, 4.7, (2.5, 2.3))} if layout == 0 else
+            {"c1": ceiling_camera(4.7, 4.7, (2.3, 2.5), z=2.8), "c2": ceiling_camera(0.3, 2.5, (2.7, 2.5)),
+             "c3": ceiling_camera(4.7, 1.0, (2.0, 3.0), z=3.5)})
     tracks = observe(cams, loop_walk((2.5, 2.5), (1.5, 1.2), 10.0), duration_s, sigma_px=0.5, seed=seed)
     if tamper is not None:
         tamper(cams, tracks)

@@ -32,9 +32,9 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
     # Only a working pipeline lands every camera within 15 cm / 2 deg in the map frame.
     assert reg["count"] == 3 and reg["pos_max"] < 0.15 and reg["rot_max"] < 2.0, metrics
     assert metrics["ego"]["ate_rmse_m"] < 0.10
-    # The same recording run again gives the same cameras.yaml, byte for byte; this run
-    # lingers, and a subscriber started after the results are written gets every camera
-    # on /tf_static (transient local).
+    # The same recording run again gives the same cameras, trajectory, layout and map, byte
+    # for byte; this run lingers (on the test's domain: --linger shares the graph), and a
+    # subscriber started after the results are written gets every camera on /tf_static.
     again = tmp_path / "again"
     with yowo_background("run", bag, "-o", again, "--linger", "30", "--timeout", "600", env=ros_env) as run:
         deadline = time.monotonic() + 600
@@ -44,7 +44,8 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
                               capture_output=True, text=True, timeout=60)
         stdout, stderr = run.communicate(timeout=120)
     assert run.returncode == 0, stdout[-3000:] + stderr[-3000:]
-    assert (again / "cameras.yaml").read_text() == (out / "cameras.yaml").read_text()
+    for name in ("cameras.yaml", "ego_trajectory.tum", "layout.json", "map.ply", "ego_trajectory_ego.tum"):
+        assert (again / name).read_bytes() == (out / name).read_bytes(), name
     cams = yaml.safe_load((out / "cameras.yaml").read_text())["cameras"]
     assert late.returncode == 0, late.stderr
     got = {line.split()[0]: float(line.split()[1]) for line in late.stdout.splitlines()}

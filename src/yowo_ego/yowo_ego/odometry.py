@@ -145,11 +145,22 @@ def downsample(frame: RgbdFrame, scale: int, edge_ratio: float = 0.03) -> tuple[
     return np.ascontiguousarray(color), np.clip(np.round(mm), 0, 65535).astype(np.uint16)
 
 
+# Open3D 0.20's Gaussian filter (its image pyramid's) differs by 1 ulp within 2 px of the
+# image border from one process to the next (measured: two outcomes, chosen at random per
+# process). The dense odometry sees the images inside a border of invalid depth, 2 px at
+# its coarsest level, so those pixels never count and a recording gives the same poses in
+# every run. `RgbdOdometry` shifts K's principal point to match.
+ODOMETRY_PAD_PX = 8
+
+
 def o3d_rgbd(color: np.ndarray, depth_mm: np.ndarray) -> o3d.t.geometry.RGBDImage:
-    """Tensor RGBD image (float colour in [0, 1], float depth in mm); copies the arrays."""
-    c = o3d.core.Tensor(np.ascontiguousarray(color, dtype=np.float32) / 255.0)
-    d = o3d.core.Tensor(np.ascontiguousarray(depth_mm, dtype=np.float32))
-    return o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(c), o3d.t.geometry.Image(d))
+    """Tensor RGBD image (float colour in [0, 1], float depth in mm) inside a border of
+    ODOMETRY_PAD_PX (replicated colour, no depth); copies the arrays."""
+    pad = ODOMETRY_PAD_PX
+    color = np.pad(np.asarray(color, dtype=np.float32) / 255.0, ((pad, pad), (pad, pad), (0, 0)), mode="edge")
+    depth = np.pad(np.asarray(depth_mm, dtype=np.float32), pad)
+    return o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(o3d.core.Tensor(color)),
+                                    o3d.t.geometry.Image(o3d.core.Tensor(depth)))
 
 
 @dataclass
@@ -172,7 +183,10 @@ class RgbdOdometry:
         self.params = params
         self.K_full = np.asarray(K, dtype=float)
         self.K = scaled_K(self.K_full, params.scale)
-        self._K = o3d.core.Tensor(self.K)
+        K_padded = self.K.copy()
+        K_padded[:2, 2] += ODOMETRY_PAD_PX
+        self._K = o3d.core.Tensor(K_padded)        # of the images o3d_rgbd makes
+        self._K_depth = o3d.core.Tensor(self.K)     # of the plain depth images `information` takes
         self._criteria = [_odo.OdometryConvergenceCriteria(n) for n in params.iterations]
         self._polish_criteria = [_odo.OdometryConvergenceCriteria(params.polish_iterations)]
 
@@ -223,7 +237,7 @@ class RgbdOdometry:
         info = _odo.compute_odometry_information_matrix(
             o3d.t.geometry.Image(o3d.core.Tensor(np.ascontiguousarray(source_depth_mm, dtype=np.float32))),
             o3d.t.geometry.Image(o3d.core.Tensor(np.ascontiguousarray(target_depth_mm, dtype=np.float32))),
-            self._K, o3d.core.Tensor(T_target_source), self.params.info_distance_m, 1000.0,
+            self._K_depth, o3d.core.Tensor(T_target_source), self.params.info_distance_m, 1000.0,
             self.params.depth_max_m).numpy()
         return np.asarray(info, dtype=float)
 
