@@ -1,9 +1,12 @@
 """Live operation: `yowo live` runs the graph on camera topics with no recording;
 a separate process publishes like camera drivers would, `yowo end-walk` ends the walk,
-and the CMC groups are calibrated from what arrived."""
+and the CMC groups are calibrated from what arrived, even after a tracker restart."""
 import json
+import os
+import signal
 import subprocess
 import sys
+import time
 
 import yaml
 
@@ -25,6 +28,16 @@ def test_live_cmc_calibration_ends_on_end_walk(tmp_path, ros_env):
                                 capture_output=True, text=True, timeout=180)
         assert source.returncode == 0, source.stderr
         assert live.poll() is None             # nothing finalises before the walk is declared over
+        # A tracker dies after the cameras sent everything: live, nobody can send it again,
+        # but what it had published before stays with the group SfM.
+        pid_file = out / "logs" / "keypoint_tracker_a1.pid"
+        killed = int(pid_file.read_text())
+        os.kill(killed, signal.SIGKILL)
+        deadline = time.monotonic() + 30
+        while int(pid_file.read_text()) == killed and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert int(pid_file.read_text()) != killed                  # restarted
+        time.sleep(3.0)
         r = yowo("end-walk", "--linger", "10", env=ros_env, timeout=120)
         assert r.returncode == 0, r.stderr
         stdout, stderr = live.communicate(timeout=240)
@@ -39,6 +52,8 @@ def test_live_cmc_calibration_ends_on_end_walk(tmp_path, ros_env):
     log = yaml.safe_load((out / "run_log.yaml").read_text())
     assert log["bag"] == "live"
     sent = {t.name: t.count for t in list_topics(tmp_path / "rec")}
-    for c in cams:  # reliable and acknowledged: the trackers received every message the source sent
+    assert log["restarts"] == {"keypoint_tracker_a1": [-9]}
+    for c in cams:  # reliable and acknowledged: every message the source sent reached the group SfM
         topic = f"/cmc/{c}/agent_keypoints"
-        assert log["received"][topic] == {f"keypoint_tracker_{c}": sent[topic]}
+        assert log["received"][topic] == {f"keypoint_tracker_{c}": sent[topic] if c != "a1" else 0}
+        assert log["received"][f"/yowo/cmc/{c}/agent_keypoints"]["group_sfm"] == sent[topic]

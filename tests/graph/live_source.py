@@ -18,11 +18,9 @@ def main():
         qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
         pubs = {t.name: node.create_publisher(message_class(t.msgtype), t.name, qos)
                 for t in list_topics(bag) if t.name.startswith("/cmc/")}
-        # A CMC-only graph: the tracker takes everything, the group SfM also the CameraInfo.
-        wanted = {t: 2 if t.endswith("/camera_info") else 1 for t in pubs}
-
+        # A camera's topics are read by its tracker alone.
         def unmatched():
-            return [t for t, p in pubs.items() if p.get_subscription_count() < wanted[t]]
+            return [t for t, p in pubs.items() if p.get_subscription_count() < 1]
         deadline = time.monotonic() + 60.0
         while unmatched() and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.05)
