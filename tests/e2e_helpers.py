@@ -69,3 +69,18 @@ def yowo_background(*args, env):
         if proc.poll() is None:
             proc.terminate()
             proc.wait(timeout=30)
+
+
+def kill_when_playing(out, node, after_s):
+    """SIGKILL one node of a running graph (by its pid file) `after_s` seconds after the
+    replay started playing (its log says so)."""
+    import os
+    import signal
+    import time
+
+    replay_log, pid_file = out / "logs" / "replay.log", out / "logs" / f"{node}.pid"
+    deadline = time.monotonic() + 180
+    while time.monotonic() < deadline and not (replay_log.exists() and "playing" in replay_log.read_text()):
+        time.sleep(0.1)
+    time.sleep(after_s)
+    os.kill(int(pid_file.read_text()), signal.SIGKILL)

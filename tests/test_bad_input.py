@@ -11,7 +11,7 @@ import time
 import numpy as np
 import yaml
 
-from e2e_helpers import three_camera_recording, yowo
+from e2e_helpers import kill_when_playing, three_camera_recording, yowo
 from yowo_common.ros.bag import BagWriter, list_topics, read_messages
 
 
@@ -83,16 +83,6 @@ def test_non_monotonic_stamps_are_rejected_and_counted(tmp_path, ros_env):
     assert "1 stamp not after the previous frame" in stages["keypoint_tracker_c1"]
 
 
-def _kill_when(out, node, after_s):
-    """SIGKILL one node of a running graph (its pid file) `after_s` seconds after it started."""
-    pid_file = out / "logs" / f"{node}.pid"
-    deadline = time.monotonic() + 120
-    while not pid_file.exists() and time.monotonic() < deadline:
-        time.sleep(0.2)
-    time.sleep(after_s)
-    os.kill(int(pid_file.read_text()), signal.SIGKILL)
-
-
 def test_killed_stages_are_restarted_and_every_camera_is_calibrated(tmp_path, ros_env):
     cams, _ = three_camera_recording(tmp_path / "rec", duration_s=40.0)
     out = tmp_path / "out"
@@ -101,8 +91,8 @@ def test_killed_stages_are_restarted_and_every_camera_is_calibrated(tmp_path, ro
                             stderr=subprocess.PIPE, text=True)
     # The tracker dies mid-replay (it must be sent what it missed), the group SfM later (its
     # inputs come again from the trackers' durable streams).
-    killers = [threading.Thread(target=_kill_when, args=(out, "keypoint_tracker_c1", 20.0)),
-               threading.Thread(target=_kill_when, args=(out, "group_sfm", 30.0))]
+    killers = [threading.Thread(target=kill_when_playing, args=(out, "keypoint_tracker_c1", 8.0)),
+               threading.Thread(target=kill_when_playing, args=(out, "group_sfm", 20.0))]
     for k in killers:
         k.start()
     console, err = proc.communicate(timeout=300)
@@ -118,6 +108,8 @@ def test_killed_stages_are_restarted_and_every_camera_is_calibrated(tmp_path, ro
     assert log["replay_resent"] > 0                  # what the tracker had been sent before it died
     for topic, n in log["replay_published"].items():  # the restarted tracker got every message
         assert log["received"][topic] == {f"keypoint_tracker_{topic.split('/')[2]}": n}, topic
+    # ... in order: it kept every frame (none "not after the previous frame")
+    assert log["stages"]["keypoint_tracker_c1"] == log["stages"]["keypoint_tracker_c2"].replace("c2", "c1")
     r = yowo("eval", out, "--bag", tmp_path / "rec", env=ros_env)
     assert r.returncode == 0, r.stderr
     rel = json.loads((out / "metrics.json").read_text())["relative"]["summary"]
@@ -130,7 +122,7 @@ def test_killed_replay_ends_the_run_with_its_name(tmp_path, ros_env):
     proc = subprocess.Popen([sys.executable, "-m", "yowo_bringup.cli", "calibrate-cmc", str(tmp_path / "rec"),
                              "-o", str(out), "--rate", "1.0"], env=ros_env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
-    killer = threading.Thread(target=_kill_when, args=(out, "replay", 5.0))
+    killer = threading.Thread(target=kill_when_playing, args=(out, "replay", 3.0))
     killer.start()
     _, err = proc.communicate(timeout=180)
     killer.join()

@@ -11,7 +11,7 @@ from html.parser import HTMLParser
 import yaml
 
 from conftest import GRAPH
-from e2e_helpers import yowo, yowo_background
+from e2e_helpers import kill_when_playing, yowo, yowo_background
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
 
@@ -33,10 +33,13 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
     assert reg["count"] == 3 and reg["pos_max"] < 0.15 and reg["rot_max"] < 2.0, metrics
     assert metrics["ego"]["ate_rmse_m"] < 0.10
     # The same recording run again gives the same cameras, trajectory, layout and map, byte
-    # for byte; this run lingers (on the test's domain: --linger shares the graph), and a
+    # for byte, even though its ego mapper is killed mid-replay (restarted, sent what it
+    # missed); this run lingers (on the test's domain: --linger shares the graph), and a
     # subscriber started after the results are written gets every camera on /tf_static.
     again = tmp_path / "again"
-    with yowo_background("run", bag, "-o", again, "--linger", "30", "--timeout", "600", env=ros_env) as run:
+    with yowo_background("run", bag, "-o", again, "--linger", "30", "--timeout", "600", "--rate", "0.5",
+                         env=ros_env) as run:
+        kill_when_playing(again, "ego_mapper", 3.0)
         deadline = time.monotonic() + 600
         while not (again / "report.html").exists() and run.poll() is None and time.monotonic() < deadline:
             time.sleep(0.5)
@@ -46,6 +49,8 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
     assert run.returncode == 0, stdout[-3000:] + stderr[-3000:]
     for name in ("cameras.yaml", "ego_trajectory.tum", "layout.json", "map.ply", "ego_trajectory_ego.tum"):
         assert (again / name).read_bytes() == (out / name).read_bytes(), name
+    log_again = yaml.safe_load((again / "run_log.yaml").read_text())
+    assert log_again["restarts"] == {"ego_mapper": [-9]} and log_again["replay_resent"] > 0, log_again["restarts"]
     cams = yaml.safe_load((out / "cameras.yaml").read_text())["cameras"]
     assert late.returncode == 0, late.stderr
     got = {line.split()[0]: float(line.split()[1]) for line in late.stdout.splitlines()}

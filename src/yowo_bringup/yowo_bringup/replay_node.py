@@ -58,6 +58,8 @@ class ReplayNode(Node):
         self.linger_s = self.declare_parameter("linger_s", 3.0).value
         self.run_id = self.declare_parameter("run_id", "").value
         self.recovered = ""           # what was recovered of a damaged recording
+        self.state, self.error = ReplayStatus.STATE_PLAYING, ""
+        self.start_ns = self.end_ns = 0   # log times of the first and the latest played message
         self.include = [t for t in self.include if t]
         self.wait_for = [t for t in self.wait_for if t]
         self.status_pub = self.create_publisher(ReplayStatus, topics.REPLAY_STATUS, LATCHED)
@@ -93,11 +95,12 @@ class ReplayNode(Node):
             return QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
         return QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 
-    def _status(self, state: int, stamp_ns: int, start_ns: int, end_ns: int, error: str = "") -> None:
+    def _status(self, catch_up: tuple[str, int] = ("", 0)) -> None:
         self.status_pub.publish(ReplayStatus(
-            header=Header(stamp=ns_to_time(stamp_ns)), state=state, bag=str(self.bag),
-            bag_start=ns_to_time(start_ns), bag_end=ns_to_time(end_ns),
-            topics=list(self.counts), published_counts=list(self.counts.values()), error=error,
+            catch_up_stage=catch_up[0], catch_up_incarnation=catch_up[1],
+            header=Header(stamp=ns_to_time(self.end_ns)), state=self.state, bag=str(self.bag),
+            bag_start=ns_to_time(self.start_ns), bag_end=ns_to_time(self.end_ns),
+            topics=list(self.counts), published_counts=list(self.counts.values()), error=self.error,
             run_id=self.run_id, resent_messages=self.resent))
 
     def _expected_subscribers(self, deadline: float) -> dict[str, int]:
@@ -130,6 +133,11 @@ class ReplayNode(Node):
             self.get_logger().warning(f"{stage} (restarted) has not matched the replay's topics after "
                                       f"{self.wait_timeout_s:.0f} s; sending anyway")
         self.caught_up[stage] = status.incarnation
+        # The stage takes replayed messages from this announcement on (acknowledged first,
+        # so it is in the stage's queue before the first repeated message).
+        self._status((stage, status.incarnation))
+        if not self.status_pub.wait_for_all_acked(Duration(seconds=self.ack_timeout_s)):
+            self.get_logger().warning(f"{stage}: the catch-up announcement was not acknowledged")
         todo = {t: self.counts[t] for t in wanted if self.counts[t]}
         sent = dict.fromkeys(todo, 0)
         if todo:
@@ -180,7 +188,8 @@ class ReplayNode(Node):
             self.recovered = recording_damage(self.bag)
         except BagError as exc:
             self.get_logger().error(str(exc))
-            self._status(ReplayStatus.STATE_FINISHED, 0, 0, 0, str(exc))
+            self.state, self.error = ReplayStatus.STATE_FINISHED, str(exc)
+            self._status()
             return 2
         played = select_topics([t.name for t in topics], self.include, self.exclude)
         self.counts = {t: 0 for t in played}
@@ -191,8 +200,6 @@ class ReplayNode(Node):
         if self.recovered:
             self.get_logger().warning(self.recovered)
         pacer = Pacer(self.rate)
-        start_ns = end_ns = 0
-        error = ""
         last_status = time.monotonic()
         self.get_logger().info(f"playing {len(played)} topics of {self.bag} at "
                                f"{'max' if self.rate <= 0 else f'{self.rate:g}x'} speed"
@@ -205,22 +212,23 @@ class ReplayNode(Node):
                     self._catch_up(stage)
                     pacer.shift(time.monotonic() - paused)
                 time.sleep(pacer.delay_s(raw.log_time_ns))
-                start_ns = start_ns or raw.log_time_ns
-                end_ns = raw.log_time_ns
+                self.start_ns = self.start_ns or raw.log_time_ns
+                self.end_ns = raw.log_time_ns
                 if self.publish_clock:
                     self.clock_pub.publish(Clock(clock=ns_to_time(raw.log_time_ns)))
                 self._publish(raw)
                 self.counts[raw.topic] += 1
                 if time.monotonic() - last_status > 1.0:
-                    self._status(ReplayStatus.STATE_PLAYING, end_ns, start_ns, end_ns)
+                    self._status()
                     last_status = time.monotonic()
         except BagError as exc:
-            error = str(exc)
-            self.get_logger().error(f"{error}; finishing with what was played")
-        error = error or self.recovered
+            self.error = str(exc)
+            self.get_logger().error(f"{self.error}; finishing with what was played")
+        self.error = self.error or self.recovered
         for topic in [t for t, n in self.unacked.items() if n]:
             self._wait_acked(topic)
-        self._status(ReplayStatus.STATE_FINISHED, end_ns, start_ns, end_ns, error)
+        self.state = ReplayStatus.STATE_FINISHED
+        self._status()
         total = sum(self.counts.values())
         self.get_logger().info(f"finished: {total} messages published"
                                + "".join(f"\n  {t}: {n}" for t, n in self.counts.items()))
@@ -231,7 +239,8 @@ class ReplayNode(Node):
             rclpy.spin_once(self, timeout_sec=0.1)
             for stage in self._restarted_stages():
                 self._catch_up(stage)
-                self._status(ReplayStatus.STATE_FINISHED, end_ns, start_ns, end_ns, error)
+                self.state = ReplayStatus.STATE_FINISHED
+        self._status()
         return 0 if total else 2
 
     def _stages_done(self) -> bool:

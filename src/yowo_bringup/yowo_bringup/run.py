@@ -61,9 +61,13 @@ def new_run_id() -> str:
     return uuid.uuid4().hex[:12]
 
 
-def _stamp_run(nodes: list[NodeSpec], run_id: str) -> None:
+def _stamp_run(nodes: list[NodeSpec], run_id: str, replayed: bool) -> None:
+    """Every node's run id; `replayed`: the stages' inputs come from a replay, which re-sends
+    them to a restarted stage (live, nobody can)."""
     for spec in nodes:
         spec.parameters["run_id"] = run_id
+        if spec.name != "replay":
+            spec.parameters["replayed"] = replayed
 
 
 @dataclass
@@ -129,7 +133,7 @@ def plan_run(bag, out_dir, mode: str = FULL, rate: float = 0.0, overrides: dict 
     replay.parameters.update((overrides or {}).get("replay", {}))
     nodes.append(replay)  # last: it waits for the stages' subscriptions
     run_id = run_id or new_run_id()
-    _stamp_run(nodes, run_id)
+    _stamp_run(nodes, run_id, replayed=True)
     return RunPlan(Path(bag), Path(out_dir), mode, cameras, nodes, final, outputs, problems, run_id)
 
 
@@ -147,7 +151,7 @@ def plan_live(cameras: list[str], out_dir, mode: str = FULL, source: str = "keyp
                 for c in cameras]
     nodes, final, outputs = _stage_nodes(mode, trackers, ego_topics, overrides)
     run_id = run_id or new_run_id()
-    _stamp_run(nodes, run_id)
+    _stamp_run(nodes, run_id, replayed=False)
     return RunPlan(None, Path(out_dir), mode, list(cameras), nodes, final, outputs, run_id=run_id)
 
 

@@ -36,6 +36,10 @@ class StageNode(Node):
         # a restarted stage missed).
         self.run_id = self.declare_parameter("run_id", "").value
         self.incarnation = self.declare_parameter("incarnation", 0).value
+        # A replay re-sends a restarted stage its topics from the start; until it announces
+        # that, the replayed messages reaching this incarnation are out of order: skipped.
+        replayed = self.declare_parameter("replayed", False).value
+        self._replay_open = self.incarnation == 0 or not replayed
         self.stray_messages = 0
         self.completion = StreamCompletion({})
         self.published: Counter = Counter()
@@ -56,6 +60,8 @@ class StageNode(Node):
         seen = self._seen_stamps.setdefault(topic, set()) if upstream != REPLAY else None
 
         def counted(msg):
+            if upstream == REPLAY and not self._replay_open:
+                return
             if seen is not None:
                 # A restarted upstream stage publishes its stream again from the start; its
                 # stamps are strictly increasing, so a stamp seen before is that repetition.
@@ -107,6 +113,8 @@ class StageNode(Node):
     def _on_replay_status(self, msg: ReplayStatus) -> None:
         if not self._own_run(msg):
             return
+        if (msg.catch_up_stage, msg.catch_up_incarnation) == (self.stage, self.incarnation):
+            self._replay_open = True
         if msg.state == ReplayStatus.STATE_FINISHED:
             if msg.error:
                 self.get_logger().warning(f"replay ended early: {msg.error}")
