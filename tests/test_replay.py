@@ -29,7 +29,7 @@ def make_bag(path, n_kp=300, img_every=10):
 
 def replay_cmd(bag, wait_for, rate=0.0):
     return [sys.executable, "-m", "yowo_bringup.replay_node", "--ros-args", "-p", f"bag:={bag}",
-            "-p", f"rate:={rate}", "-p", f"wait_for_topics:=[{','.join(wait_for)}]", "-p", "linger_s:=1.0"]
+            "-p", f"wait_for_topics:=[{','.join(wait_for)}]", "-p", f'config:="{{rate: {rate}, linger_s: 1.0}}"']
 
 
 def test_lossless_replay_to_slow_subscriber(tmp_path, ros_env, start_script):

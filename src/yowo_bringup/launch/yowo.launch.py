@@ -4,7 +4,8 @@ wheel; without a ROS install `yowo run` starts the same nodes itself).
 Live:    ros2 launch yowo_bringup yowo.launch.py cameras:="[cam00, cam01]"
          ... walk ..., then `yowo end-walk` (or a replay's end) finalises every stage.
 Replay:  ros2 launch yowo_bringup yowo.launch.py cameras:="[cam00, cam01]" bag:=/path/to/bag
-Parameters: config/yowo.yaml (override with params_file:=...)."""
+Configuration: the tree of config/yowo.yaml (another file: config_file:=...); each node
+gets its section as its `config` parameter, as `yowo run` does."""
 import os
 
 import yaml
@@ -14,29 +15,35 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from yowo_bringup.config import load_config, section_yaml
+
 
 def _nodes(context):
     cameras = yaml.safe_load(LaunchConfiguration("cameras").perform(context)) or []
-    params = LaunchConfiguration("params_file").perform(context)
+    config = load_config(LaunchConfiguration("config_file").perform(context))
     bag = LaunchConfiguration("bag").perform(context)
+
+    def params(node: str, **wiring) -> list[dict]:
+        return [{"config": section_yaml(config, node), **wiring}]
     nodes = [Node(package="yowo_cmc", executable="keypoint_tracker_node", name=f"keypoint_tracker_{c}",
-                  parameters=[params, {"camera": c}]) for c in cameras]
+                  parameters=params("keypoint_tracker", camera=c)) for c in cameras]
     nodes += [
-        Node(package="yowo_cmc", executable="group_sfm_node", name="group_sfm", parameters=[params, {"cameras": cameras}]),
-        Node(package="yowo_ego", executable="ego_mapper_node", name="ego_mapper", parameters=[params]),
-        Node(package="yowo_fusion", executable="fusion_node", name="fusion", parameters=[params, {"cameras": cameras}]),
+        Node(package="yowo_cmc", executable="group_sfm_node", name="group_sfm",
+             parameters=params("group_sfm", cameras=cameras)),
+        Node(package="yowo_ego", executable="ego_mapper_node", name="ego_mapper", parameters=params("ego_mapper")),
+        Node(package="yowo_fusion", executable="fusion_node", name="fusion", parameters=params("fusion", cameras=cameras)),
     ]
     if bag:
         nodes.append(Node(package="yowo_bringup", executable="replay_node", name="replay",
-                          parameters=[params, {"bag": bag}]))
+                          parameters=params("replay", bag=bag)))
     return nodes
 
 
 def generate_launch_description():
-    default_params = os.path.join(get_package_share_directory("yowo_bringup"), "config", "yowo.yaml")
+    default_config = os.path.join(get_package_share_directory("yowo_bringup"), "config", "yowo.yaml")
     return LaunchDescription([
         DeclareLaunchArgument("cameras", description="CMC names, e.g. [cam00, cam01]"),
         DeclareLaunchArgument("bag", default_value="", description="recording to replay (empty: live topics)"),
-        DeclareLaunchArgument("params_file", default_value=default_params),
+        DeclareLaunchArgument("config_file", default_value=default_config),
         OpaqueFunction(function=_nodes),
     ])

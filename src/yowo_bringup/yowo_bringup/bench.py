@@ -15,12 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
-from yowo_cmc.group_sfm import SfmParams, calibrate_groups
+from yowo_cmc.group_sfm import calibrate_groups
 from yowo_cmc.omecc_style import calibrate_groups_omecc
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
 
 from .bench_bound import BOUND_VERSION, bound_case
+from .config import YowoConfig
 from .evaluation import ErrorSummary, relative_pose_errors
 from .offline import read_cmc_tracks
 from .results import read_ground_truth
@@ -44,21 +45,22 @@ SCENARIOS = {
 SCALE_ONLY_PRESETS = {"large"}
 
 # Relative calibration methods compared in Table "relative_pose_eval": label ->
-# (keypoint source, calibration). The baselines are labelled reimplementations of the
-# ideas, not the authors' code.
+# (keypoint source, calibration(tracks, the tree's SfmParams)). The baselines are
+# labelled reimplementations of the ideas, not the authors' code.
 RELATIVE_METHODS = {
     "YOWO": ("keypoints", calibrate_groups),
     "YOWO, image detector": ("images", calibrate_groups),
     # Cameras outside the 2-edge-connected groups also pair up along their strongest
     # edge: more cameras calibrated, each pair resting on a single edge.
-    "YOWO, left-over pairs": ("keypoints", lambda tracks: calibrate_groups(tracks, SfmParams(pair_leftovers=True))),
+    "YOWO, left-over pairs": ("keypoints", lambda tracks, sfm: calibrate_groups(
+        tracks, replace(sfm, pair_leftovers=True))),
     # E-matrix pair with the most inliers, PnP in order of matches, one BA with one
     # sigma; no overlap scores (neither for ordering nor for the edge rule).
-    "ECCMP-style": ("keypoints", lambda tracks: calibrate_groups(
-        tracks, SfmParams(overlap_ordering=False, per_id_sigma=False, min_edge_overlap=0.0))),
+    "ECCMP-style": ("keypoints", lambda tracks, sfm: calibrate_groups(
+        tracks, replace(sfm, overlap_ordering=False, per_id_sigma=False, min_edge_overlap=0.0))),
     # Factor graph over the person keypoints from a pairwise initialisation with a
     # person-height scale prior (yowo_cmc.omecc_style); YOWO's grouping.
-    "OMECC-style": ("keypoints", calibrate_groups_omecc),
+    "OMECC-style": ("keypoints", lambda tracks, sfm: calibrate_groups_omecc(tracks)),
 }
 
 
@@ -106,18 +108,18 @@ def has_cmc_images(bag: Path) -> bool:
     return any(counts.get(t, 0) for name in inputs.cmc_names for t in cmc_image_topics(name))
 
 
-def relative_pose_case(bag: Path, images: bool, baselines: bool = True) -> dict:
+def relative_pose_case(bag: Path, images: bool, baselines: bool = True, config: YowoConfig = YowoConfig()) -> dict:
     """Table relative_pose_eval's rows for one recording (YOWO alone without `baselines`)."""
     gt = read_ground_truth(bag).cameras
-    tracks = {"keypoints": read_cmc_tracks(bag, source="keypoints")}
+    tracks = {"keypoints": read_cmc_tracks(bag, "keypoints", config.cmc)}
     if images:
-        tracks["images"] = read_cmc_tracks(bag, source="images")
+        tracks["images"] = read_cmc_tracks(bag, "images", config.cmc)
     out = {}
     for method, (source, calibrate) in RELATIVE_METHODS.items():
         if source not in tracks or not (baselines or method == "YOWO"):
             continue
         t0 = time.perf_counter()
-        result = calibrate(tracks[source])
+        result = calibrate(tracks[source], config.cmc.sfm)
         seconds = time.perf_counter() - t0
         est = {n: T for g in result.groups for n, T in g.T_local_cam.items()}
         groups = {g.group_id: g.names for g in result.groups}
@@ -128,7 +130,7 @@ def relative_pose_case(bag: Path, images: bool, baselines: bool = True) -> dict:
     return out
 
 
-def detector_case(bag: Path, preset, seed: int) -> dict:
+def detector_case(bag: Path, preset, seed: int, config: YowoConfig = YowoConfig()) -> dict:
     """The built-in image detector against the simulator's agent keypoints (issue: median
     error <= 3 px, >= 90 % of the frames with the whole agent in view detected). The agent
     is in full view when every body keypoint is in the image and not hidden by the static
@@ -141,7 +143,7 @@ def detector_case(bag: Path, preset, seed: int) -> dict:
     from yowo_sim.render import Renderer
 
     t0 = time.perf_counter()
-    tracks = {t.name: t for t in read_cmc_tracks(bag, source="images")}
+    tracks = {t.name: t for t in read_cmc_tracks(bag, "images", config.cmc)}
     seconds = time.perf_counter() - t0
     setup = build_capture(preset, seed)
     renderer = Renderer(setup.scene)
@@ -176,23 +178,24 @@ def detector_case(bag: Path, preset, seed: int) -> dict:
             "seconds": seconds, "frames": sum(len(v) for v in frames.values())}
 
 
-def full_case(bag: Path, images: bool) -> dict:
+def full_case(bag: Path, images: bool, config: YowoConfig = YowoConfig()) -> dict:
     """The whole method (offline API) with and without joint optimisation, the
     Hloc/Kapture-style localisation of each CMC's background against the ego map
     without and with YOWO's poses as prior (Table register_pose_eval_2, when the
     recording has CMC images); ego ATE per stage of the ego pipeline; layout IoU;
     time per stage and the real-time factor."""
     from yowo_fusion.hloc_style import build_database, localize, read_keyframe_images
-    from yowo_fusion.pipeline import ISOLATED_PNP, CmcInput, FusionParams, fuse
+    from yowo_fusion.pipeline import ISOLATED_PNP, CmcInput, fuse
 
     from .evaluation import Trajectory, ate, layout_iou, registration_errors
     from .offline import ego_map_data, process
 
     gt = read_ground_truth(bag)
-    r = process(bag)
+    r = process(bag, config)
     tracks, backgrounds = r.tracks, r.backgrounds
     no_jo = fuse(ego_map_data(r.ego), r.grouping.groups, r.grouping.ungrouped,
-                 {t.name: CmcInput(t, backgrounds.get(t.name)) for t in tracks}, FusionParams(joint_optimisation=False))
+                 {t.name: CmcInput(t, backgrounds.get(t.name)) for t in tracks},
+                 replace(config.fusion, joint_optimisation=False))
 
     def registration(est: dict, cameras: int = len(gt.cameras)) -> dict:
         errors = registration_errors(est, gt.cameras)
@@ -241,23 +244,25 @@ def code_version() -> str:
     return head + ("+changes" if git("status", "--porcelain", "--", str(here.parents[1])) else "")
 
 
-def run_case(preset: str, scenario: str, seed: int, bag: Path, full: bool) -> dict:
+def run_case(preset: str, scenario: str, seed: int, bag: Path, full: bool, config: YowoConfig = YowoConfig()
+             ) -> dict:
     """One recording: every table's numbers, and this process's peak memory."""
     images = has_cmc_images(bag)
     case = {"preset": preset, "scenario": scenario, "seed": seed, "bag": bag.name, "code": code_version(),
             # The scale-only presets measure speed and scale: YOWO alone.
-            "relative": relative_pose_case(bag, images, baselines=preset not in SCALE_ONLY_PRESETS)}
+            "relative": relative_pose_case(bag, images, preset not in SCALE_ONLY_PRESETS, config)}
     case["bound"] = bound_case(case, bag, scenario_preset(preset, scenario))
     if images:
-        case["detector"] = detector_case(bag, scenario_preset(preset, scenario), seed)
+        case["detector"] = detector_case(bag, scenario_preset(preset, scenario), seed, config)
     if full:
-        case["full"] = full_case(bag, images)
+        case["full"] = full_case(bag, images, config)
     case["peak_memory_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return case
 
 
 def run_bench(presets: list[str], seeds: list[int], scenarios: list[str], out_dir: Path, log=print,
-              full: bool = True, sweep_preset: str | None = None, resume: bool = False, on_case=None) -> dict:
+              full: bool = True, sweep_preset: str | None = None, resume: bool = False, on_case=None,
+              config: YowoConfig = YowoConfig()) -> dict:
     """Every preset x scenario x seed; with `sweep_preset`, scenarios other than
     "normal" run on that preset only (the larger presets take the normal scenario).
     Each finished case is saved at once to cases.jsonl; `resume` reuses those; `on_case`
@@ -294,7 +299,7 @@ def run_bench(presets: list[str], seeds: list[int], scenarios: list[str], out_di
         bag = bag_for(preset, scenario, seed, out_dir / "bags", log)
         try:
             with ProcessPoolExecutor(1, mp_context=spawn) as pool:
-                case = pool.submit(run_case, preset, scenario, seed, bag, full).result()
+                case = pool.submit(run_case, preset, scenario, seed, bag, full, config).result()
         except Exception as exc:  # one broken case must not lose the others
             # The worker's traceback arrives as the exception's cause; keep it to find the failing call.
             trace = "".join(traceback.format_exception(exc))

@@ -73,20 +73,19 @@ def _execute(args, mode: str):
     from .run import plan_live, plan_run
     from .run_node import RunFailed, execute
 
+    config = _config(args)
     if args.verb == "live":
         plan = plan_live(args.cameras, args.output, mode=mode, source=args.cmc_source, image_topic=args.image_topic,
-                         ego_topics=(args.ego_color, args.ego_depth, args.ego_info), overrides=_load_overrides(args),
+                         ego_topics=(args.ego_color, args.ego_depth, args.ego_info), config=config,
                          run_id=args.run_id)
         what = f"live run {plan.run_id} (end the walk with 'yowo end-walk')"
         domain = SHARED                       # live cameras are on the user's graph
     else:
-        plan = plan_run(args.bag, args.output, mode=mode, rate=args.rate, overrides=_load_overrides(args),
-                        source=args.cmc_source, run_id=args.run_id)
+        plan = plan_run(args.bag, args.output, mode=mode, config=config, source=args.cmc_source, run_id=args.run_id)
         what = f"{mode} run {plan.run_id} of {args.bag}"
         # Private unless asked: lingering serves the user's /tf_static subscribers.
         domain = args.domain or (SHARED if args.linger > 0 else PRIVATE)
     plan.select(args.nodes)
-    plan.max_restarts = args.max_restarts
     network = graph_network(domain if domain in (PRIVATE, SHARED) else int(domain))
     for w in plan.warnings:
         print(f"warning: {w}", file=sys.stderr)
@@ -152,26 +151,22 @@ def cmd_calibrate_cmc(args) -> int:
     return 0 if out.cameras else 1
 
 
-def _load_overrides(args) -> dict:
-    """Node parameters from --params YAML ({node: {param: value}}) and --set node.param=value."""
-    import yaml
+def _config(args):
+    """The configuration tree: --config FILE, then every --set section.key=value, then the
+    options that are shorthands for keys (--rate, --max-restarts)."""
+    from .config import load_config
 
-    overrides = yaml.safe_load(open(args.params)) if args.params else {}
-    for item in args.set or []:
-        key, _, value = item.partition("=")
-        node, _, param = key.partition(".")
-        if not param:
-            raise ValueError(f"--set {item}: expected node.param=value")
-        overrides.setdefault(node, {})[param] = yaml.safe_load(value)
-    return overrides
+    shorthands = [f"replay.rate={args.rate}"] if getattr(args, "rate", None) is not None else []
+    if getattr(args, "max_restarts", None) is not None:
+        shorthands.append(f"supervisor.max_restarts={args.max_restarts}")
+    return load_config(args.config, (args.set or []) + shorthands)
 
 
 def _add_run_options(p) -> None:
     p.add_argument("bag", help="rosbag2 directory or .mcap file")
     p.add_argument("-o", "--output", required=True, help="results directory")
-    p.add_argument("--rate", type=float, default=0.0, help="replay speed (x real time; 0 = as fast as possible)")
-    p.add_argument("--params", help="YAML file of node parameters: {node: {param: value}}")
-    p.add_argument("--set", action="append", metavar="NODE.PARAM=VALUE", help="override one node parameter")
+    p.add_argument("--rate", type=float, help="replay speed (x real time; 0 = as fast as possible): replay.rate")
+    _add_config_options(p)
     p.add_argument("--timeout", type=float, default=3600.0, help="give up after this many seconds")
     p.add_argument("--linger", type=float, default=0.0,
                    help="keep the graph up this many seconds after the results are written (late /tf_static "
@@ -192,8 +187,25 @@ def _add_graph_options(p) -> None:
     p.add_argument("--nodes", nargs="+", metavar="PATTERN",
                    help="start only these nodes here (names or patterns, e.g. replay 'keypoint_tracker_*'); the "
                         "others run on other hosts of the same --domain and --run-id")
-    p.add_argument("--max-restarts", type=int, default=2,
-                   help="restart a node that dies up to this many times (it is sent what it missed)")
+    p.add_argument("--max-restarts", type=int,
+                   help="restart a node that dies up to this many times (it is sent what it missed): "
+                        "supervisor.max_restarts")
+
+
+def _add_config_options(p) -> None:
+    p.add_argument("--config", metavar="YAML", help="configuration file: sections of the tree (replay, ego, cmc, "
+                                                    "fusion, supervisor) with the keys to change; "
+                                                    "'yowo config' prints every key with its default")
+    p.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
+                   help="change one key of the configuration tree, e.g. ego.odometry.scale=1 (repeatable)")
+
+
+def cmd_config(args) -> int:
+    """Print the resolved configuration tree (defaults, --config, --set) as YAML."""
+    from yowo_common.config import dump
+
+    print(dump(_config(args)), end="")
+    return 0
 
 
 def cmd_eval(args) -> int:
@@ -251,7 +263,8 @@ def cmd_bench(args) -> int:
     markdown = Path(args.markdown) if args.markdown else None
     results = run_bench(args.preset, args.seeds, args.scenarios, out, full=not args.cmc_only,
                         sweep_preset=args.sweep_preset, resume=args.resume,
-                        on_case=lambda partial: write_outputs(partial, out, markdown))   # tables so far
+                        on_case=lambda partial: write_outputs(partial, out, markdown),   # tables so far
+                        config=_config(args))
     write_outputs(results, out, Path(args.markdown) if args.markdown else None)
     print(f"wrote {out / 'BENCHMARKS.md'} and {out / 'results.json'}" + (f" and {args.markdown}" if args.markdown else ""))
     return 0
@@ -294,8 +307,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ego-color", default="/ego/color/image_raw/compressed")
     p.add_argument("--ego-depth", default="/ego/depth/image_raw")
     p.add_argument("--ego-info", default="/ego/color/camera_info")
-    p.add_argument("--params", help="YAML file of node parameters: {node: {param: value}}")
-    p.add_argument("--set", action="append", metavar="NODE.PARAM=VALUE", help="override one node parameter")
+    _add_config_options(p)
     p.add_argument("--timeout", type=float, default=24 * 3600.0, help="give up after this many seconds")
     _add_graph_options(p)
     p.set_defaults(func=cmd_live)
@@ -324,9 +336,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cmc-only", action="store_true", help="only the CMC relative calibration tables (fast)")
     p.add_argument("--sweep-preset", help="run the scenarios other than 'normal' (and kp_outliers_5pct) on this preset only")
     p.add_argument("--resume", action="store_true", help="reuse the cases already finished in OUTPUT/cases.jsonl")
+    _add_config_options(p)
     p.add_argument("--from-results", action="store_true",
                    help="run nothing: render the tables again from OUTPUT/results.json (e.g. after a report change)")
     p.set_defaults(func=cmd_bench)
+
+    p = verbs.add_parser("config", help="print the configuration tree: every key with its value (defaults, "
+                                        "--config, --set), as a --config file takes it")
+    _add_config_options(p)
+    p.set_defaults(func=cmd_config)
 
     p = verbs.add_parser("eval", help="metric tables of a results directory against a bag's ground truth")
     p.add_argument("results", help="results directory of yowo run / calibrate-cmc")

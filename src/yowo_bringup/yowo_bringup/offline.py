@@ -6,26 +6,41 @@ import logging
 import time
 from dataclasses import dataclass
 
-from yowo_cmc.keypoint_input import TrackAccumulator, frame_from_msg
+from yowo_cmc.config import CmcParams
+from yowo_cmc.keypoint_input import TrackAccumulator, frame_from_msg, frame_to_msg
 from yowo_cmc.tracks import CameraTracks
 from yowo_common.ros.bag import read_messages
 from yowo_common.rosconv import camera_info_to_model
 
+from .config import YowoConfig
 from .contract import discover_inputs
 from .run import cmc_info_topic, cmc_source
 
 log = logging.getLogger(__name__)
 
 
-def read_cmc_tracks(bag, source: str = "auto") -> list[CameraTracks]:
+def read_cmc_tracks(bag, source: str = "auto", params: CmcParams | None = None) -> list[CameraTracks]:
     """Every CMC's validated agent keypoint tracks (cameras sorted by name, as the graph
     does), from recorded keypoints or the built-in image detector (see run.cmc_source)."""
-    from yowo_cmc.keypoint_input import ImageKeypointSource
-    from yowo_common.rosconv import decode_color, stamp_to_ns
+    return read_cmc_inputs(bag, source, params, backgrounds=False)[0]
 
+
+def read_cmc_inputs(bag, source: str = "auto", params: CmcParams | None = None, backgrounds: bool = True
+                    ) -> tuple[list[CameraTracks], dict]:
+    """What the keypoint trackers hand on, computed as they do in one pass over the
+    recording: each CMC's tracks (its validated frames as published messages, validated
+    again on receipt) and, with `backgrounds`, its agent-free background (the detector's
+    model, or the median of sampled images when the keypoints were recorded)."""
+    from yowo_cmc.background import BackgroundSampler
+    from yowo_cmc.keypoint_input import ImageKeypointSource
+    from std_msgs.msg import Header
+
+    from yowo_common.rosconv import decode_color, encode_raw, stamp_to_ns
+
+    params = params or CmcParams()
     inputs = discover_inputs(bag)
     present = {t.name for t in inputs.topics if t.count > 0}
-    acc, detectors, by_topic, unusable = {}, {}, {}, set()
+    acc, detectors, samplers, by_topic, unusable = {}, {}, {}, {}, set()
     for n in inputs.cmc_names:
         kind, keypoints, image = cmc_source(n, present, source)
         if not kind:
@@ -33,10 +48,13 @@ def read_cmc_tracks(bag, source: str = "auto") -> list[CameraTracks]:
         acc[n] = TrackAccumulator(n)
         by_topic[cmc_info_topic(n)] = n
         if kind == "images":
-            detectors[n] = ImageKeypointSource(n)
+            detectors[n] = ImageKeypointSource(n, params.detector, params.max_pending_frames)
             by_topic[image] = n
         else:
             by_topic[keypoints] = n
+            if image and backgrounds:
+                samplers[n] = BackgroundSampler(params.background_period_s)
+                by_topic[image] = n
     for topic, _, msg in read_messages(bag, by_topic):
         n = by_topic[topic]
         a, detector = acc[n], detectors.get(n)
@@ -50,16 +68,31 @@ def read_cmc_tracks(bag, source: str = "auto") -> list[CameraTracks]:
                 log.warning("%s: %s; camera '%s' left out", topic, exc, n)
                 continue
             frames = detector.set_camera(a.camera) if detector else []
+        elif topic.endswith("/agent_keypoints"):
+            frames = [frame_from_msg(msg)]
         elif detector:
             frames = detector.push(stamp_to_ns(msg.header.stamp), decode_color(msg))
         else:
-            frames = [frame_from_msg(msg)]
+            if samplers[n].wants(stamp_to_ns(msg.header.stamp)):
+                samplers[n].add(stamp_to_ns(msg.header.stamp), decode_color(msg))
+            frames = []
         for f in frames:
             a.add(f)
     for n, detector in detectors.items():
         for f in detector.flush():
             acc[n].add(f)
-    return [a.tracks() for a in acc.values() if a.camera is not None and a.frames]
+    tracks = []
+    for a in acc.values():
+        if a.camera is None or not a.frames:
+            continue
+        received = TrackAccumulator(a.name, a.camera)
+        for f in a.frames:
+            received.add(frame_from_msg(frame_to_msg(f, a.name, "")))
+        tracks.append(received.tracks())
+    found = {n: s.image() for n, s in samplers.items() if s.count}
+    found.update({n: d.background for n, d in detectors.items() if backgrounds and d.background is not None})
+    # As published: an rgb8 image.
+    return tracks, {n: decode_color(encode_raw(img, "rgb8", Header())) for n, img in found.items()}
 
 
 def ego_map_data(ego) -> "EgoMapData":
@@ -73,23 +106,6 @@ def ego_map_data(ego) -> "EgoMapData":
                       ego.cloud_colors, ego.layout)
 
 
-def read_backgrounds(bag, names: list[str], period_s: float = 1.0) -> dict:
-    """Each CMC's agent-free background (temporal median of sampled frames), when images were recorded."""
-    from yowo_cmc.background import BackgroundSampler
-    from yowo_common.rosconv import decode_color, stamp_to_ns
-
-    from .contract import cmc_image_topics
-
-    by_topic = {t: n for n in names for t in cmc_image_topics(n)}
-    samplers = {n: BackgroundSampler(period_s) for n in names}
-    for topic, _, msg in read_messages(bag, by_topic):
-        s = samplers[by_topic[topic]]
-        stamp = stamp_to_ns(msg.header.stamp)
-        if s.wants(stamp):
-            s.add(stamp, decode_color(msg))
-    return {n: s.image() for n, s in samplers.items() if s.count}
-
-
 @dataclass
 class OfflineResult:
     ego: object                     # yowo_ego EgoMapResult
@@ -100,24 +116,24 @@ class OfflineResult:
     backgrounds: dict               # camera -> agent-free background (RGB), when images were recorded
 
 
-def process(bag, fusion_params=None, ego_params=None) -> OfflineResult:
-    """The whole method on one recording: ego map, CMC groups, collaborative processing."""
+def process(bag, config: YowoConfig | None = None, source: str = "auto") -> OfflineResult:
+    """The whole method on one recording (what `yowo run` computes, with the same tree):
+    ego map, CMC groups, collaborative processing."""
     from yowo_cmc.group_sfm import calibrate_groups
-    from yowo_ego.pipeline import EgoParams
     from yowo_ego.recording import map_bag
-    from yowo_fusion.pipeline import CmcInput, FusionParams, fuse
+    from yowo_fusion.pipeline import CmcInput, fuse
 
+    config = config or YowoConfig()
     seconds = {}
     t0 = time.perf_counter()
-    ego, _ = map_bag(bag, ego_params or EgoParams())
+    ego, _ = map_bag(bag, config.ego)
     seconds["ego"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    tracks = read_cmc_tracks(bag)
-    grouping = calibrate_groups(tracks)
+    tracks, backgrounds = read_cmc_inputs(bag, source, config.cmc)
+    grouping = calibrate_groups(tracks, config.cmc.sfm)
     seconds["cmc"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    backgrounds = read_backgrounds(bag, [t.name for t in tracks])
     fusion = fuse(ego_map_data(ego), grouping.groups, grouping.ungrouped,
-                  {t.name: CmcInput(t, backgrounds.get(t.name)) for t in tracks}, fusion_params or FusionParams())
+                  {t.name: CmcInput(t, backgrounds.get(t.name)) for t in tracks}, config.fusion)
     seconds["fusion"] = time.perf_counter() - t0
     return OfflineResult(ego, grouping, fusion, seconds, tracks, backgrounds)

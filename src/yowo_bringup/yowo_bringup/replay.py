@@ -2,7 +2,20 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class ReplayParams:
+    """The `replay` section of the configuration tree."""
+    rate: float = 0.0                    # x real time; 0: as fast as the graph keeps up (lossless)
+    lossless: bool = True                # reliable KEEP_ALL + wait for acknowledgements every ack_window
+    ack_window: int = 16                 # messages per topic in flight at most
+    ack_timeout_s: float = 60.0          # a subscriber that acknowledges nothing this long is given up
+    wait_timeout_s: float = 30.0         # for the stages' subscriptions before playing
+    publish_clock: bool = True           # /clock at the recording's time
+    exclude_prefixes: tuple[str, ...] = ("/gt/",)   # never played (ground truth)
+    linger_s: float = 1.0                # after the end: late joiners still get the latched status
 
 
 @dataclass

@@ -29,11 +29,12 @@ from yowo_msgs.msg import ReplayStatus, StageStatus
 
 from yowo_common import topics
 from yowo_common.ros.bag import BagError, list_topics, message_class, read_raw, recording_damage
+from yowo_common.config import describe_changes, load
 from yowo_common.ros.context import ros_context
 from yowo_common.ros.stage import LATCHED
 from yowo_common.rosconv import ns_to_time
 
-from .replay import Pacer, select_topics
+from .replay import Pacer, ReplayParams, select_topics
 
 # Fast DDS acknowledges only on its heartbeat (3 s by default); this profile shortens it.
 FASTDDS_PROFILE = Path(__file__).parent / "config" / "replay_fastdds.xml"
@@ -43,19 +44,17 @@ class ReplayNode(Node):
     def __init__(self):
         super().__init__("replay")
         self.bag = self.declare_parameter("bag", "").value
-        self.rate = self.declare_parameter("rate", 1.0).value
-        self.lossless = self.declare_parameter("lossless", True).value
-        self.publish_clock = self.declare_parameter("publish_clock", True).value
+        p = load(ReplayParams, self.declare_parameter("config", "").value, where="replay")
+        self.get_logger().info(f"configuration: {describe_changes(p, 'replay')}")
+        self.rate, self.lossless, self.publish_clock = p.rate, p.lossless, p.publish_clock
+        self.exclude = list(p.exclude_prefixes)
+        self.wait_timeout_s, self.ack_timeout_s, self.linger_s = p.wait_timeout_s, p.ack_timeout_s, p.linger_s
+        self.ack_window = max(1, p.ack_window)
         self.include = list(self.declare_parameter("topics", [""]).value or [])
-        self.exclude = list(self.declare_parameter("exclude_prefixes", ["/gt/"]).value or [])
         self.wait_for = list(self.declare_parameter("wait_for_topics", [""]).value or [])
         # Stages whose subscriptions must all be matched before playing: their status
         # lists their inputs, so each topic waits for exactly its subscribers.
         self.stages = [s for s in self.declare_parameter("stages", [""]).value or [] if s]
-        self.wait_timeout_s = self.declare_parameter("wait_timeout_s", 30.0).value
-        self.ack_timeout_s = self.declare_parameter("ack_timeout_s", 60.0).value
-        self.ack_window = max(1, self.declare_parameter("ack_window", 16).value)
-        self.linger_s = self.declare_parameter("linger_s", 3.0).value
         self.run_id = self.declare_parameter("run_id", "").value
         self.recovered = ""           # what was recovered of a damaged recording
         self.state, self.error = ReplayStatus.STATE_PLAYING, ""

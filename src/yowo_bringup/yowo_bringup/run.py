@@ -13,6 +13,7 @@ import yaml
 from yowo_cmc.group_sfm import CameraGroupResult
 from yowo_common import topics
 
+from .config import YowoConfig, section_yaml
 from .contract import (EGO_COLOR, EGO_DEPTH, EGO_INFO, cmc_image_topics, cmc_info_topic, cmc_keypoints_topic,
                        discover_inputs)
 from .results import pose_entry
@@ -40,7 +41,7 @@ class RunPlan:
     warnings: list[str] = field(default_factory=list)
     run_id: str = ""                       # in every status: nodes ignore other runs' (see isolation.py)
     local: list[str] = field(default_factory=lambda: ["*"])  # patterns of the nodes this host starts
-    max_restarts: int = 2                  # per node: a node that dies more often ends the run
+    config: YowoConfig = field(default_factory=YowoConfig)
 
     @property
     def local_nodes(self) -> list[NodeSpec]:
@@ -61,11 +62,12 @@ def new_run_id() -> str:
     return uuid.uuid4().hex[:12]
 
 
-def _stamp_run(nodes: list[NodeSpec], run_id: str, replayed: bool) -> None:
-    """Every node's run id; `replayed`: the stages' inputs come from a replay, which re-sends
-    them to a restarted stage (live, nobody can)."""
+def _stamp_run(nodes: list[NodeSpec], run_id: str, replayed: bool, config: YowoConfig) -> None:
+    """Every node's run id and section of the configuration tree; `replayed`: the stages'
+    inputs come from a replay, which re-sends them to a restarted stage (live, nobody can)."""
     for spec in nodes:
         spec.parameters["run_id"] = run_id
+        spec.parameters["config"] = section_yaml(config, spec.name)
         if spec.name != "replay":
             spec.parameters["replayed"] = replayed
 
@@ -95,11 +97,12 @@ def cmc_source(name: str, present: set[str], preference: str = "auto") -> tuple[
     return ("keypoints", keypoints, image) if keypoints else ("", "", "")
 
 
-def plan_run(bag, out_dir, mode: str = FULL, rate: float = 0.0, overrides: dict | None = None,
-             source: str = "auto", run_id: str | None = None) -> RunPlan:
-    """Nodes for a recording. `overrides`: {node: {param: value}} from a YAML file or the CLI;
+def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, source: str = "auto",
+             run_id: str | None = None) -> RunPlan:
+    """Nodes for a recording. `config`: the configuration tree (defaults when None);
     `source`: where CMC agent keypoints come from (auto, keypoints or images); `run_id`:
     the same on every host of a split run (a new one by default)."""
+    config = config or YowoConfig()
     inputs = discover_inputs(bag)
     present = {t.name for t in inputs.topics if t.count > 0}
     problems = list(inputs.problems)
@@ -126,20 +129,17 @@ def plan_run(bag, out_dir, mode: str = FULL, rate: float = 0.0, overrides: dict 
     ego = (_first_present(EGO_COLOR, present), _first_present(EGO_DEPTH, present), EGO_INFO)
     if mode == FULL:
         played += list(ego)
-    nodes, final, outputs = _stage_nodes(mode, trackers, ego, overrides)
-    replay = NodeSpec("replay", STAGE_MODULES["replay"], {
-        "bag": str(bag), "rate": float(rate), "topics": played, "wait_for_topics": played,
-        "stages": [n.name for n in nodes], "linger_s": 1.0})
-    replay.parameters.update((overrides or {}).get("replay", {}))
-    nodes.append(replay)  # last: it waits for the stages' subscriptions
+    nodes, final, outputs = _stage_nodes(mode, trackers, ego)
+    nodes.append(NodeSpec("replay", STAGE_MODULES["replay"], {  # last: it waits for the stages' subscriptions
+        "bag": str(bag), "topics": played, "wait_for_topics": played, "stages": [n.name for n in nodes]}))
     run_id = run_id or new_run_id()
-    _stamp_run(nodes, run_id, replayed=True)
-    return RunPlan(Path(bag), Path(out_dir), mode, cameras, nodes, final, outputs, problems, run_id)
+    _stamp_run(nodes, run_id, True, config)
+    return RunPlan(Path(bag), Path(out_dir), mode, cameras, nodes, final, outputs, problems, run_id, config=config)
 
 
 def plan_live(cameras: list[str], out_dir, mode: str = FULL, source: str = "keypoints",
               image_topic: str = "image_raw/compressed", ego_topics: tuple[str, str, str] = (
-                  EGO_COLOR[1], EGO_DEPTH[0], EGO_INFO), overrides: dict | None = None,
+                  EGO_COLOR[1], EGO_DEPTH[0], EGO_INFO), config: YowoConfig | None = None,
               run_id: str | None = None) -> RunPlan:
     """Nodes for live operation on camera topics (no recording): the same graph without
     the replay; the stages finalise when `yowo end-walk` announces the end of the walk."""
@@ -149,14 +149,15 @@ def plan_live(cameras: list[str], out_dir, mode: str = FULL, source: str = "keyp
         raise ValueError(f"live run: CMC keypoint source '{source}' (keypoints or images)")
     trackers = [(c, source, f"/cmc/{c}/{image_topic}" if source == "images" or mode == FULL else "")
                 for c in cameras]
-    nodes, final, outputs = _stage_nodes(mode, trackers, ego_topics, overrides)
+    config = config or YowoConfig()
+    nodes, final, outputs = _stage_nodes(mode, trackers, ego_topics)
     run_id = run_id or new_run_id()
-    _stamp_run(nodes, run_id, replayed=False)
-    return RunPlan(None, Path(out_dir), mode, list(cameras), nodes, final, outputs, run_id=run_id)
+    _stamp_run(nodes, run_id, False, config)
+    return RunPlan(None, Path(out_dir), mode, list(cameras), nodes, final, outputs, run_id=run_id, config=config)
 
 
-def _stage_nodes(mode: str, trackers: list[tuple[str, str, str]], ego: tuple[str, str, str],
-                 overrides: dict | None) -> tuple[list[NodeSpec], str, dict[str, str]]:
+def _stage_nodes(mode: str, trackers: list[tuple[str, str, str]], ego: tuple[str, str, str]
+                 ) -> tuple[list[NodeSpec], str, dict[str, str]]:
     """The stage processes (trackers: (camera, source, image topic)), the final stage and
     the latched outputs the runner collects."""
     cameras = [c for c, _, _ in trackers]
@@ -176,8 +177,6 @@ def _stage_nodes(mode: str, trackers: list[tuple[str, str, str]], ego: tuple[str
                         topics.REFINED_LAYOUT: "yowo_msgs/msg/SceneLayout",
                         topics.REFINED_MAP_POINTS: "sensor_msgs/msg/PointCloud2", topics.EGO_PATH: "nav_msgs/msg/Path",
                         topics.REFINED_EGO_PATH: "nav_msgs/msg/Path"})
-    for spec in nodes:
-        spec.parameters.update((overrides or {}).get(spec.name, {}))
     return nodes, final, outputs
 
 

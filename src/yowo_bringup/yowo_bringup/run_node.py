@@ -6,6 +6,7 @@ import os
 import time
 
 import rclpy
+import yaml
 from rclpy.node import Node
 from yowo_msgs.msg import ReplayStatus, StageStatus
 
@@ -14,6 +15,7 @@ from yowo_common.ros.context import ros_context
 from yowo_common import topics
 from yowo_common.ros.stage import LATCHED
 
+from .config import params_document
 from .isolation import PRIVATE, GraphNetwork, graph_network
 from .run import RunOutcome, RunPlan, write_run_results
 from .supervisor import Supervisor, write_params_file
@@ -93,9 +95,12 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
     `linger_s`: after a successful run, keep the graph up this long with the results
     written (late /tf_static subscribers)."""
     network = network or graph_network(PRIVATE)
-    plan.out_dir.mkdir(parents=True, exist_ok=True)
-    params_file = plan.out_dir / "params.yaml"
+    (plan.out_dir / "logs").mkdir(parents=True, exist_ok=True)
+    params_file = plan.out_dir / "logs" / "ros_params.yaml"        # what the nodes are started with
     write_params_file(plan.nodes, params_file)
+    (plan.out_dir / "params.yaml").write_text(yaml.safe_dump(params_document(
+        plan.config, {n.name: {k: v for k, v in n.parameters.items() if k != "config"} for n in plan.nodes}),
+        sort_keys=False))
     sup = Supervisor(plan.out_dir / "logs", network.env, params_file)
     stages = [n.name for n in plan.nodes if n.name != "replay"]
     t0 = time.monotonic()
@@ -122,7 +127,7 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
                     rclpy.spin_once(monitor, timeout_sec=0.1)
                     if plan.bag is None:
                         monitor.relay_end_of_walk()
-                    failure = _restart_dead(sup, plan.max_restarts, log)
+                    failure = _restart_dead(sup, plan.config.supervisor.max_restarts, log)
                     if failure:
                         break
                     if monitor.replay is not None and monitor.replay.error not in notes | {""}:

@@ -11,7 +11,8 @@ from yowo_common.ros.context import spin_node
 from yowo_common.ros.stage import LATCHED, StageNode
 from yowo_common.rosconv import camera_info_to_model
 
-from .group_sfm import SfmParams, calibrate_groups
+from .config import CmcParams
+from .group_sfm import calibrate_groups
 from .keypoint_input import TrackAccumulator, frame_from_msg
 from .messages import groups_to_msg
 
@@ -22,8 +23,7 @@ class GroupSfmNode(StageNode):
         cameras = [c for c in self.declare_parameter("cameras", [""]).value if c]
         if not cameras:
             raise ValueError("group_sfm_node needs the parameter cameras:=[name, ...]")
-        self.params = SfmParams(min_matches=self.declare_parameter("min_matches", 8).value,
-                                ransac_px=self.declare_parameter("ransac_px", 2.0).value)
+        self.params = self.section(CmcParams, "cmc").sfm
         self.acc = {c: TrackAccumulator(c) for c in cameras}
         self.last_stamp = 0
         self.pub = self.output(CameraGroupArray, topics.GROUPS, LATCHED)

@@ -89,6 +89,19 @@ def frame_from_msg(msg) -> KeypointFrame:
                          np.array([k.confidence for k in kps], dtype=float))
 
 
+def frame_to_msg(frame: KeypointFrame, camera: str, frame_id: str):
+    """KeypointFrame -> yowo_msgs/AgentKeypoints, as a tracker publishes it (the offline API
+    passes frames through it too, so both compute on the same numbers)."""
+    from std_msgs.msg import Header
+    from yowo_msgs.msg import AgentKeypoints, Keypoint2D
+
+    from yowo_common.rosconv import ns_to_time
+
+    return AgentKeypoints(header=Header(stamp=ns_to_time(frame.stamp_ns), frame_id=frame_id), camera_name=camera,
+                          keypoints=[Keypoint2D(id=int(i), x=float(u), y=float(v), confidence=float(c))
+                                     for i, (u, v), c in zip(frame.ids, frame.uv, frame.confidence)])
+
+
 class ImageKeypointSource:
     """The built-in detector on one camera's image stream: (stamp, RGB) in, keypoint
     frames out in stamp order (delayed: the detector waits for its background and

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Header
-from yowo_msgs.msg import AgentKeypoints, Keypoint2D
+from yowo_msgs.msg import AgentKeypoints
 
 from yowo_common import topics
 from yowo_common.ros.context import spin_node
@@ -20,7 +20,8 @@ from yowo_common.ros.stage import LATCHED, StageNode
 from yowo_common.rosconv import camera_info_to_model, decode_color, encode_raw, ns_to_time, stamp_to_ns
 
 from .background import BackgroundSampler
-from .keypoint_input import ImageKeypointSource, KeypointFrame, TrackAccumulator, frame_from_msg
+from .config import CmcParams
+from .keypoint_input import ImageKeypointSource, KeypointFrame, TrackAccumulator, frame_from_msg, frame_to_msg
 
 SOURCES = ("keypoints", "images")
 
@@ -39,17 +40,19 @@ class KeypointTrackerNode(StageNode):
         if self.source == "images" and not image_topic:
             raise ValueError(f"camera '{camera}': source:=images needs image_topic:=<topic>")
         self.acc = TrackAccumulator(camera)
+        params = self.section(CmcParams, "cmc")
         self.info_problem = ""
         self.frame_id = f"{camera}_optical_frame"    # the images' frame, once one arrived
         self.pub = self.output(AgentKeypoints, topics.tracker_keypoints(camera))
         self.pub_background = self.output(Image, topics.tracker_background(camera), LATCHED)
         self.pub_info = self.output(CameraInfo, topics.tracker_camera_info(camera), LATCHED)
         self.stream_input(CameraInfo, f"/cmc/{camera}/camera_info", self.on_info)
-        self.detector = ImageKeypointSource(camera) if self.source == "images" else None
+        self.detector = (ImageKeypointSource(camera, params.detector, params.max_pending_frames)
+                         if self.source == "images" else None)
         if self.detector is None:
             self.stream_input(AgentKeypoints, f"/cmc/{camera}/agent_keypoints", self.on_keypoints)
         # With external keypoints, images (when recorded) only give the background for scene keypoints.
-        self.background = BackgroundSampler(self.declare_parameter("background_period_s", 1.0).value)
+        self.background = BackgroundSampler(params.background_period_s)
         if image_topic:
             msg_type = CompressedImage if image_topic.endswith("/compressed") else Image
             self.stream_input(msg_type, image_topic, self.on_image)
@@ -86,10 +89,7 @@ class KeypointTrackerNode(StageNode):
         for f in frames:
             kept = self.acc.add(f)
             if kept is not None:
-                self.pub.publish(AgentKeypoints(
-                    header=Header(stamp=ns_to_time(kept.stamp_ns), frame_id=self.frame_id), camera_name=self.camera,
-                    keypoints=[Keypoint2D(id=int(i), x=float(u), y=float(v), confidence=float(c))
-                               for i, (u, v), c in zip(kept.ids, kept.uv, kept.confidence)]))
+                self.pub.publish(frame_to_msg(kept, self.camera, self.frame_id))
 
     def finalize(self) -> str:
         background, parts = self.background.image(), [self.acc.summary()]

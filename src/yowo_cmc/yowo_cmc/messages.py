@@ -15,10 +15,12 @@ def groups_to_msg(result: GroupingResult, stamp_ns: int) -> CameraGroupArray:
     msg = CameraGroupArray(header=Header(stamp=ns_to_time(stamp_ns), frame_id=""))
     for g in result.groups:
         msg.groups.append(CameraGroup(
-            group_id=g.group_id, reference_camera=g.reference, camera_names=list(g.names),
+            group_id=g.group_id, reference_camera=g.reference, initial_pair_camera=g.initial_pair[1],
+            camera_names=list(g.names),
             poses_local_camera=[matrix_to_pose(g.T_local_cam[n]) for n in g.names],
             reprojection_rmse_px=[float(g.rmse_px[n]) for n in g.names],
             num_observations=[int(g.num_observations[n]) for n in g.names],
+            sigma_keypoint_ids=[int(i) for i in g.sigma_px_by_id], sigma_px=[float(s) for s in g.sigma_px_by_id.values()],
             track_stamps=[ns_to_time(int(s)) for s in g.point_stamps_ns],
             track_keypoint_ids=[int(i) for i in g.point_ids],
             track_points=array_to_points(g.points)))
@@ -36,6 +38,7 @@ def groups_from_msg(msg: CameraGroupArray) -> tuple[list[CameraGroupResult], dic
             {n: pose_to_matrix(p) for n, p in zip(names, g.poses_local_camera)},
             np.array([stamp_to_ns(s) for s in g.track_stamps], dtype=np.int64),
             np.array(g.track_keypoint_ids, dtype=int), points_to_array(g.track_points),
-            dict(zip(names, g.reprojection_rmse_px)), dict(zip(names, g.num_observations)), {},
-            (g.reference_camera, "")))
+            dict(zip(names, g.reprojection_rmse_px)), dict(zip(names, g.num_observations)),
+            {int(i): float(s) for i, s in zip(g.sigma_keypoint_ids, g.sigma_px)},
+            (g.reference_camera, g.initial_pair_camera)))
     return groups, dict(zip(msg.ungrouped_cameras, msg.ungrouped_reasons))

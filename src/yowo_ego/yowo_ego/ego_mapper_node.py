@@ -29,6 +29,7 @@ class EgoMapperNode(StageNode):
         self.color_topic = self.declare_parameter("color_topic", topics.EGO_COLOR[1]).value
         self.depth_topic = self.declare_parameter("depth_topic", topics.EGO_DEPTH[1]).value
         self.info_topic = self.declare_parameter("info_topic", topics.EGO_INFO).value
+        self.params = self.section(EgoParams, "ego")
         self.mapper: EgoMapper | None = None
         self.info_problem = ""
         self.early: list[tuple[int, object, object]] = []
@@ -49,7 +50,7 @@ class EgoMapperNode(StageNode):
         if self.mapper is not None or self.info_problem:
             return
         try:
-            self.mapper = EgoMapper(camera_info_to_model(msg), EgoParams(), self.info_topic)
+            self.mapper = EgoMapper(camera_info_to_model(msg), self.params, self.info_topic)
         except ValueError as exc:
             self.info_problem = f"{self.info_topic}: {exc}"
             self.get_logger().error(self.info_problem)

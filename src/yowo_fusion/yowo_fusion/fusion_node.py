@@ -30,9 +30,7 @@ class FusionNode(StageNode):
     def __init__(self):
         super().__init__(topics.FUSION_STAGE)
         cameras = [c for c in self.declare_parameter("cameras", [""]).value if c]
-        self.params = FusionParams(
-            use_scene_keypoints=self.declare_parameter("use_scene_keypoints", True).value,
-            joint_optimisation=self.declare_parameter("joint_optimisation", True).value)
+        self.params = self.section(FusionParams, "fusion")
         self.acc = {c: TrackAccumulator(c) for c in cameras}
         self.backgrounds = {}
         self.ego_map = self.groups = self.layout = self.cloud = None

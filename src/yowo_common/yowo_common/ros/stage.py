@@ -12,6 +12,7 @@ from std_msgs.msg import Header
 from yowo_msgs.msg import ReplayStatus, StageStatus
 
 from .. import topics
+from ..config import describe_changes, load
 from ..streams import StreamCompletion
 
 REPLAY = "replay"
@@ -50,6 +51,13 @@ class StageNode(Node):
         self._finalized = False
         self.create_timer(0.2, self._check)
         self.create_timer(2.0, lambda: self.publish_status(StageStatus.STATE_RUNNING) if not self._finalized else None)
+
+    def section(self, cls, where: str):
+        """This node's section of the configuration tree (YAML in its `config` parameter;
+        empty: the defaults)."""
+        params = load(cls, self.declare_parameter("config", "").value, where=where)
+        self.get_logger().info(f"configuration: {describe_changes(params, where)}")
+        return params
 
     # --- wiring -----------------------------------------------------------------
     def stream_input(self, msg_type, topic: str, callback, upstream: str = REPLAY, qos=None):

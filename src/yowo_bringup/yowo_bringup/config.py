@@ -1,0 +1,88 @@
+"""YOWO's one configuration tree. Each section is the dataclass its stage already uses,
+so defaults live in exactly one place (the dataclass field); `yowo run --config FILE
+--set section.key=value`, the nodes (each gets its section as YAML in its `config`
+parameter), the offline API and the benchmark all take a YowoConfig, and every run
+records the resolved tree with the software versions in results/params.yaml."""
+from __future__ import annotations
+
+import platform
+import subprocess
+from dataclasses import dataclass, field
+from importlib import metadata
+from pathlib import Path
+
+import yaml
+
+from yowo_cmc.config import CmcParams
+from yowo_common.config import ConfigError, dump, load, to_dict
+from yowo_ego.pipeline import EgoParams
+from yowo_fusion.pipeline import FusionParams
+
+from .replay import ReplayParams
+
+__all__ = ["ConfigError", "YowoConfig", "SupervisorParams", "load_config", "section_yaml", "versions"]
+
+
+@dataclass(frozen=True)
+class SupervisorParams:
+    max_restarts: int = 2                 # per node; a node that dies more often ends the run
+
+
+@dataclass(frozen=True)
+class YowoConfig:
+    replay: ReplayParams = field(default_factory=ReplayParams)
+    ego: EgoParams = field(default_factory=EgoParams)
+    cmc: CmcParams = field(default_factory=CmcParams)
+    fusion: FusionParams = field(default_factory=FusionParams)
+    supervisor: SupervisorParams = field(default_factory=SupervisorParams)
+
+
+# Which section each node reads (trackers are keypoint_tracker_<camera>).
+NODE_SECTIONS = {"replay": "replay", "ego_mapper": "ego", "keypoint_tracker": "cmc", "group_sfm": "cmc",
+                 "fusion": "fusion"}
+
+
+def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> YowoConfig:
+    """The tree from a YAML file (sections of keys, any subset) and dotted overrides."""
+    text = None
+    if path is not None:
+        path = Path(path)
+        if not path.is_file():
+            raise ConfigError(f"{path}: no such configuration file")
+        text = path.read_text()
+        try:
+            yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"{path}: not YAML: {exc}") from exc
+    try:
+        return load(YowoConfig, text, overrides)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}" if path is not None else str(exc)) from exc
+
+
+def section_yaml(config: YowoConfig, node: str) -> str:
+    """The YAML of a node's section (its `config` parameter)."""
+    kind = "keypoint_tracker" if node.startswith("keypoint_tracker") else node
+    return dump(getattr(config, NODE_SECTIONS[kind]))
+
+
+def versions() -> dict[str, str]:
+    """The software a run used, for params.yaml and the benchmark."""
+    out = {"python": platform.python_version()}
+    for dist in ("yowo_bringup", "ros-jazzy-rclpy", "gtsam", "open3d-cpu", "opencv-python-headless", "numpy",
+                 "scipy", "rosbags", "mcap", "dacite"):
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            out[dist] = "not installed"
+    try:
+        out["git"] = subprocess.run(["git", "describe", "--always", "--dirty"], cwd=Path(__file__).parent,
+                                    capture_output=True, text=True, timeout=5).stdout.strip() or "unknown"
+    except (OSError, subprocess.TimeoutExpired):
+        out["git"] = "unknown"
+    return out
+
+
+def params_document(config: YowoConfig, nodes: dict[str, dict]) -> dict:
+    """results/params.yaml: the resolved tree, the software, each node's wiring."""
+    return {"config": to_dict(config), "versions": versions(), "nodes": nodes}

@@ -1,0 +1,16 @@
+"""The `cmc` section of YOWO's configuration tree: what the keypoint trackers and the
+group SfM use."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from .group_sfm import SfmParams
+from .image_detector import DetectorParams
+
+
+@dataclass(frozen=True)
+class CmcParams:
+    detector: DetectorParams = field(default_factory=DetectorParams)   # the built-in model-free detector
+    sfm: SfmParams = field(default_factory=SfmParams)                  # groups, incremental SfM, group BA
+    background_period_s: float = 1.0      # recorded images sampled this often for the agent-free background
+    max_pending_frames: int = 300         # detector frames that may wait for the camera's CameraInfo

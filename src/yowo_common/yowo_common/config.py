@@ -1,0 +1,125 @@
+"""The configuration tree's mechanics: typed (frozen) dataclasses from YAML or dicts, with
+dotted overrides (`ego.odometry.scale=1`), validated by dacite: an unknown key or a value
+of the wrong type is a ConfigError naming the key. The dataclasses are the one place where
+defaults live; this module knows none of them."""
+from __future__ import annotations
+
+import dataclasses
+import difflib
+from typing import Any, TypeVar
+
+import dacite
+import yaml
+
+T = TypeVar("T")
+
+
+class ConfigError(ValueError):
+    pass
+
+
+def _number(value):
+    """An int where a float is expected (YAML writes 4 for 4.0); anything else is checked."""
+    return float(value) if isinstance(value, int) and not isinstance(value, bool) else value
+
+
+_DACITE = dacite.Config(strict=True, check_types=True, cast=[tuple], type_hooks={float: _number})
+
+
+def to_dict(obj) -> dict:
+    """The tree as plain YAML-able values (tuples as lists)."""
+    def plain(v):
+        if isinstance(v, (list, tuple)):
+            return [plain(x) for x in v]
+        if isinstance(v, dict):
+            return {k: plain(x) for k, x in v.items()}
+        return v
+    return plain(dataclasses.asdict(obj))
+
+
+def from_dict(cls: type[T], data: dict | None, where: str = "") -> T:
+    """`cls` with `data` over its defaults (nested sections may be partial)."""
+    merged = _merge(to_dict(cls()), data or {}, where)
+    try:
+        return dacite.from_dict(cls, merged, config=_DACITE)
+    except dacite.UnexpectedDataError as exc:
+        raise ConfigError(f"unknown key(s) {', '.join(_key(where, k) for k in sorted(exc.keys))}") from exc
+    except dacite.WrongTypeError as exc:
+        raise ConfigError(f"{_key(where, exc.field_path)}: expected {_type_name(exc.field_type)}, "
+                          f"got {exc.value!r}") from exc
+    except dacite.DaciteError as exc:
+        raise ConfigError(f"{where or 'configuration'}: {exc}") from exc
+
+
+def _key(where: str, key: str) -> str:
+    return f"{where}.{key}" if where else key
+
+
+def _type_name(t) -> str:
+    return getattr(t, "__name__", None) or str(t)
+
+
+def _merge(base: dict, over: dict, where: str, known: bool = True) -> dict:
+    """`over` onto `base`, section by section. `known`: `base` holds every key of the
+    section (a dataclass's), so any other key is unknown."""
+    if not isinstance(over, dict):
+        raise ConfigError(f"{where or 'configuration'}: expected a mapping of keys, got {over!r}")
+    out = dict(base)
+    for k, v in over.items():
+        if known and k not in out:
+            near = difflib.get_close_matches(str(k), list(out), n=1)
+            raise ConfigError(f"unknown key {_key(where, k)}" + (f" (did you mean {_key(where, near[0])}?)"
+                                                                  if near else f"; {where or 'the tree'} has "
+                                                                  + ", ".join(out)))
+        if isinstance(out.get(k), dict) and isinstance(v, dict):
+            out[k] = _merge(out[k], v, _key(where, k), known)
+        elif isinstance(out.get(k), dict):
+            raise ConfigError(f"{_key(where, k)}: is a section of keys, got {v!r}")
+        else:
+            out[k] = v
+    return out
+
+
+def dotted(items: list[str]) -> dict:
+    """['a.b=1', 'a.c=[1, 2]'] -> {'a': {'b': 1, 'c': [1, 2]}} (values parsed as YAML)."""
+    tree: dict[str, Any] = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip():
+            raise ConfigError(f"--set {item}: expected section.key=value")
+        *path, leaf = key.strip().split(".")
+        node = tree
+        for part in path:
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"--set {item}: {part} is set to a value and used as a section")
+        node[leaf] = yaml.safe_load(value)
+    return tree
+
+
+def load(cls: type[T], text_or_dict: str | dict | None = None, overrides: list[str] | None = None,
+         where: str = "") -> T:
+    """`cls` from YAML text (or a dict), then dotted overrides on top."""
+    data = yaml.safe_load(text_or_dict) if isinstance(text_or_dict, str) else text_or_dict
+    return from_dict(cls, _merge(data or {}, dotted(overrides or []), where, known=False), where)
+
+
+def changed(obj) -> dict[str, Any]:
+    """{dotted key: value} where `obj` differs from its class's defaults."""
+    def flat(d: dict, prefix: str = "") -> dict:
+        out = {}
+        for k, v in d.items():
+            out.update(flat(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": v})
+        return out
+    mine, defaults = flat(to_dict(obj)), flat(to_dict(type(obj)()))
+    return {k: v for k, v in mine.items() if defaults.get(k) != v}
+
+
+def describe_changes(obj, where: str = "") -> str:
+    """One line for a log: the keys set away from their defaults."""
+    diff = changed(obj)
+    return ", ".join(f"{_key(where, k)}={v}" for k, v in diff.items()) or "defaults"
+
+
+def dump(obj) -> str:
+    return yaml.safe_dump(to_dict(obj), sort_keys=False)
