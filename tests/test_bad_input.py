@@ -1,12 +1,9 @@
 """The bad-input catalogue: each case gives a clear message naming what is wrong and
 where, partial results where possible, and a non-zero exit only when nothing useful exists."""
 import json
-import os
-import signal
 import subprocess
 import sys
 import threading
-import time
 
 import numpy as np
 import yaml

@@ -1,7 +1,6 @@
 """One configuration tree: YAML + dotted overrides, validated with the key named; every
 section reaches its nodes and params.yaml; the offline API given the same tree computes
 what `yowo run` computes, byte for byte."""
-from pathlib import Path
 
 import pytest
 import yaml

@@ -4,7 +4,6 @@ import json
 
 import yaml
 
-from conftest import GRAPH
 from e2e_helpers import three_camera_recording, yowo, yowo_background
 
 

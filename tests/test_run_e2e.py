@@ -93,7 +93,8 @@ def check_report(path, cameras):
 
 
 def check_result_bag(path):
-    """result.mcap opens with rosbags and with the mcap library and holds every output topic."""
+    """result.mcap is one file, opens with rosbags and with the mcap library, holds every
+    output topic, the latched ones with their transient-local QoS."""
     from mcap.reader import make_reader
 
     from yowo_common import topics
@@ -102,9 +103,11 @@ def check_result_bag(path):
     wanted = {topics.TF_STATIC, topics.CMC_POSES, topics.LAYOUT_MARKERS, topics.EGO_MAP, topics.LAYOUT,
               topics.MAP_POINTS, topics.EGO_PATH, topics.GROUPS, topics.REFINED_MAP_POINTS, topics.REFINED_LAYOUT,
               topics.REFINED_EGO_PATH}
-    assert {t.name for t in list_topics(path) if t.count == 1} >= wanted          # rosbags
-    (file,) = path.glob("*.mcap")
-    with open(file, "rb") as f:
+    assert path.is_file()
+    found = list_topics(path)
+    assert {t.name for t in found if t.count == 1} >= wanted                      # rosbags
+    assert all(t.latched for t in found if t.name in wanted), [t for t in found if not t.latched]
+    with open(path, "rb") as f:
         reader = make_reader(f)
         seen = {channel.topic for _, channel, _ in reader.iter_messages()}
     assert seen >= wanted                                                         # mcap

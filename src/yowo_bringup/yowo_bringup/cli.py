@@ -102,6 +102,7 @@ def _execute(args, mode: str):
 def cmd_run(args) -> int:
     """The full pipeline through the real node graph: map + every CMC registered in it."""
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     from .run import FULL
@@ -111,10 +112,10 @@ def cmd_run(args) -> int:
         return 1
     table = Table(title="registered cameras (map frame)")
     for col in ("camera", "group", "method", "verdict", "position [m]", "RMSE [px]", "reason"):
-        table.add_column(col)
+        table.add_column(escape(col))         # brackets are rich markup unless escaped
     for c in out.cameras:
         pos = ", ".join(f"{v:.3f}" for v in c.T_world_cam[:3, 3]) if c.T_world_cam is not None else "-"
-        table.add_row(c.name, c.group or "-", c.method, c.status, pos, f"{c.rmse_px:.2f}", c.reason)
+        table.add_row(c.name, c.group or "-", c.method, c.status, pos, f"{c.rmse_px:.2f}", escape(c.reason))
     Console().print(table)
     metrics = Path(args.output) / "metrics.json"
     if metrics.exists():
@@ -270,9 +271,16 @@ def cmd_bench(args) -> int:
     return 0
 
 
+def _version() -> str:
+    from importlib.metadata import version
+
+    return f"yowo {version('yowo_bringup')} (ROS 2 Jazzy, rclpy {version('ros-jazzy-rclpy')})"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="yowo", description="YOWO: map a scene and register its ceiling cameras from one walk.")
+    parser.add_argument("--version", action="version", version=_version())
     verbs = parser.add_subparsers(dest="verb", required=True, metavar="VERB")
 
     p = verbs.add_parser("info", help="list a recording's topics and the cameras YOWO finds in it")

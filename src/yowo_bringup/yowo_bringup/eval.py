@@ -12,8 +12,18 @@ from .evaluation import ErrorSummary, ate, layout_iou, read_tum, registration_er
 from .results import read_camera_poses, read_floor_polygons, read_ground_truth
 
 
+RESULT_FILES = ("cameras.yaml", "ego_trajectory.tum", "layout.json")
+
+
 def evaluate(results_dir, bag) -> dict:
+    """Metrics of a results directory; ValueError naming what is missing when there is
+    nothing to evaluate."""
     results_dir = Path(results_dir)
+    if not results_dir.is_dir():
+        raise ValueError(f"{results_dir}: no such results directory")
+    if not any((results_dir / f).exists() for f in RESULT_FILES):
+        raise ValueError(f"{results_dir}: holds none of {', '.join(RESULT_FILES)}; nothing to evaluate "
+                         "(did the run fail? see its run_log.yaml)")
     gt = read_ground_truth(bag)
     if not gt.cameras and gt.ego is None:
         raise ValueError(f"{bag}: no ground truth (/gt/...) in the recording; nothing to evaluate against")
@@ -39,10 +49,13 @@ def evaluate(results_dir, bag) -> dict:
     layout = results_dir / "layout.json"
     if layout.exists() and gt.floor:
         out["layout"] = {"iou": layout_iou(read_floor_polygons(layout), gt.floor)}
+    if not out:
+        raise ValueError(f"{results_dir}: none of its results has ground truth in {bag} to compare with")
     return out
 
 
 def print_tables(metrics: dict, console) -> None:
+    from rich.markup import escape
     from rich.table import Table
 
     for key, title in (("registration", "CMC registration (world frame, no alignment)"),
@@ -53,8 +66,9 @@ def print_tables(metrics: dict, console) -> None:
         t = Table(title=title)
         for col in ("", "avg", "min", "max"):
             t.add_column(col)
-        t.add_row("eps_pos [m]", *(f"{s[f'pos_{k}']:.4f}" for k in ("avg", "min", "max")))
-        t.add_row("eps_rot [deg]", *(f"{s[f'rot_{k}']:.3f}" for k in ("avg", "min", "max")))
+        # Units in brackets are rich markup unless escaped.
+        t.add_row(escape("eps_pos [m]"), *(f"{s[f'pos_{k}']:.4f}" for k in ("avg", "min", "max")))
+        t.add_row(escape("eps_rot [deg]"), *(f"{s[f'rot_{k}']:.3f}" for k in ("avg", "min", "max")))
         console.print(t)
         if metrics[key].get("not_registered"):
             console.print(f"not registered: {', '.join(metrics[key]['not_registered'])}")

@@ -95,7 +95,7 @@ def read_cmc_inputs(bag, source: str = "auto", params: CmcParams | None = None, 
     return tracks, {n: decode_color(encode_raw(img, "rgb8", Header())) for n, img in found.items()}
 
 
-def ego_map_data(ego) -> "EgoMapData":
+def ego_map_data(ego):
     """yowo_ego's EgoMapResult -> the fusion's input: every frame's pose (the a2e factor
     needs the dense trajectory), observations re-indexed from keyframes to frames, and the
     cloud and layout (refined after joint optimisation)."""

@@ -290,17 +290,24 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
             files.append(path)
     final_layout = outputs.get(topics.REFINED_LAYOUT, outputs.get(topics.LAYOUT))
     floors = [points_to_array(p.points)[:, :2] for p in final_layout.floor_polygons] if final_layout else []
-    result_bag = out / "result.mcap"
-    if result_bag.exists():
-        import shutil
-        shutil.rmtree(result_bag)
-    latched = {topics.TF_STATIC, topics.CMC_POSES, topics.LAYOUT_MARKERS, topics.EGO_MAP, topics.LAYOUT,
+    import shutil
+    result_bag, staging = out / "result.mcap", out / ".result_bag"
+    for old in (result_bag, staging):
+        if old.is_dir():
+            shutil.rmtree(old)
+        elif old.exists():
+            old.unlink()
+    latched = {topics.GROUPS, topics.TF_STATIC, topics.CMC_POSES, topics.LAYOUT_MARKERS, topics.EGO_MAP, topics.LAYOUT,
                topics.MAP_POINTS, topics.EGO_PATH, topics.REFINED_LAYOUT, topics.REFINED_MAP_POINTS,
                topics.REFINED_EGO_PATH}
     stamp = max((stamp_to_ns(m.header.stamp) for m in outputs.values() if hasattr(m, "header")), default=0)
-    with BagWriter(result_bag) as bag:
+    with BagWriter(staging) as bag:
         for topic, msg in outputs.items():
             bag.write(topic, msg, stamp, latched=topic in latched)
+    # One MCAP file (its channels carry the QoS, latched ones transient-local), not a folder.
+    (written,) = staging.glob("*.mcap")
+    written.rename(result_bag)
+    shutil.rmtree(staging)
     files.append(result_bag)
     metrics, gt_cams = None, None
     try:

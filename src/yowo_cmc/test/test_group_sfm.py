@@ -1,5 +1,4 @@
 import numpy as np
-import pytest
 
 from yowo_bringup.evaluation import relative_pose_errors
 from yowo_cmc.group_sfm import SfmParams, calibrate_groups, overlap_score

@@ -177,7 +177,7 @@ def _verify_across(edges: list[OdometryEdge], checked: list[bool], pairs: list[P
     combined with the neighbour's checked edge implies the edge. Returns how
     many edges were replaced (in place); the extra pairs join ``pairs``."""
     K = odometry.K_full
-    n, replaced = len(edges), 0
+    replaced = 0
     step = {e.target: i for i, e in enumerate(edges) if e.source == e.target + 1}
     for i, e in enumerate(edges):
         a, b = e.target, e.source

@@ -41,5 +41,7 @@ def test_cloud_and_layout_follow_a_known_pose_correction():
     layout = rebuild_layout(transform_points(C, points), transform_points(C, T_old[:, :3, 3]))
     floor = Polygon(np.vstack(layout.floor_polygons))
     truth_moved, truth_before = Polygon(transform_points(C, np.column_stack([ROOM, np.zeros(4)]))[:, :2]), Polygon(ROOM)
-    iou = lambda a, b: a.intersection(b).area / a.union(b).area
+
+    def iou(a, b):
+        return a.intersection(b).area / a.union(b).area
     assert iou(floor, truth_moved) > 0.95 and iou(floor, truth_moved) > iou(floor, truth_before) + 0.05
