@@ -73,8 +73,9 @@ def read_cmc_inputs(bag, source: str = "auto", params: CmcParams | None = None, 
         elif detector:
             frames = detector.push(stamp_to_ns(msg.header.stamp), decode_color(msg))
         else:
-            if samplers[n].wants(stamp_to_ns(msg.header.stamp)):
-                samplers[n].add(stamp_to_ns(msg.header.stamp), decode_color(msg))
+            stamp = stamp_to_ns(msg.header.stamp)
+            if samplers[n].wants(stamp):
+                samplers[n].add(stamp, decode_color(msg))
             frames = []
         for f in frames:
             a.add(f)

@@ -31,7 +31,7 @@ from yowo_common import topics
 from yowo_common.ros.bag import BagError, list_topics, message_class, read_raw, recording_damage
 from yowo_common.config import describe_changes, load
 from yowo_common.ros.context import ros_context
-from yowo_common.ros.stage import LATCHED
+from yowo_common.ros.stage import LATCHED, RunFilter
 from yowo_common.rosconv import ns_to_time
 
 from .replay import Pacer, ReplayParams, select_topics
@@ -69,17 +69,15 @@ class ReplayNode(Node):
         self.resent = 0
         self.stage_status: dict[str, StageStatus] = {}
         self.caught_up: dict[str, int] = {s: 0 for s in self.stages}    # incarnation each stage was served
-        self.stray_messages = 0
+        self.runs = RunFilter(self.run_id)
         for stage in self.stages:
             self.create_subscription(StageStatus, topics.status(stage),
                                      lambda m, st=stage: self._on_stage_status(st, m), LATCHED)
         self._last_spin = 0.0
 
     def _on_stage_status(self, stage: str, msg: StageStatus) -> None:
-        if msg.run_id != self.run_id:
-            self.stray_messages += bool(msg.run_id)
-            return
-        self.stage_status[stage] = msg
+        if self.runs.accept(msg):
+            self.stage_status[stage] = msg
 
     def _spin_now_and_then(self) -> None:
         """Take the stages' statuses while playing (at most every 50 ms: spinning costs)."""
@@ -238,8 +236,6 @@ class ReplayNode(Node):
             rclpy.spin_once(self, timeout_sec=0.1)
             for stage in self._restarted_stages():
                 self._catch_up(stage)
-                self.state = ReplayStatus.STATE_FINISHED
-        self._status()
         return 0 if total else 2
 
     def _stages_done(self) -> bool:

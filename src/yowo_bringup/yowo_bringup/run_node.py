@@ -13,7 +13,7 @@ from yowo_msgs.msg import ReplayStatus, StageStatus
 from yowo_common.ros.bag import message_class
 from yowo_common.ros.context import ros_context
 from yowo_common import topics
-from yowo_common.ros.stage import LATCHED
+from yowo_common.ros.stage import LATCHED, RunFilter
 
 from .config import params_document
 from .isolation import PRIVATE, GraphNetwork, graph_network
@@ -36,7 +36,7 @@ class RunMonitor(Node):
     def __init__(self, stages: list[str], outputs: dict[str, str], run_id: str = ""):
         super().__init__("yowo_run")
         self.run_id = run_id
-        self.stray_messages = 0
+        self.runs = RunFilter(run_id)
         self.status: dict[str, StageStatus] = {}
         self.replay: ReplayStatus | None = None
         self.outputs: dict[str, object] = {}
@@ -49,16 +49,12 @@ class RunMonitor(Node):
             self.create_subscription(message_class(msgtype), topic,
                                      lambda m, t=topic: self.outputs.__setitem__(t, m), LATCHED)
 
-    def _own(self, msg) -> bool:
-        self.stray_messages += bool(msg.run_id) and msg.run_id != self.run_id
-        return msg.run_id == self.run_id
-
     def _on_status(self, stage: str, msg: StageStatus) -> None:
-        if self._own(msg):
+        if self.runs.accept(msg):
             self.status[stage] = msg
 
     def _on_replay(self, msg: ReplayStatus) -> None:
-        if self._own(msg):
+        if self.runs.accept(msg):
             self.replay = msg
         if msg.run_id in ("", self.run_id) and msg.state == ReplayStatus.STATE_FINISHED:
             self._announced = msg             # `yowo end-walk` (to this or to any live run)
@@ -84,7 +80,7 @@ class RunMonitor(Node):
     def strays(self) -> dict[str, int]:
         """Status messages of other runs each node heard and ignored."""
         counts = {s: int(m.stray_messages) for s, m in self.status.items()}
-        return {"yowo_run": self.stray_messages, **counts}
+        return {"yowo_run": self.runs.strays, **counts}
 
 
 def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphNetwork | None = None,

@@ -25,6 +25,21 @@ DURABLE_STREAM = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability
                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
+class RunFilter:
+    """Statuses of one run (isolation check): another run's are counted as stray and never
+    used; one without a run id (`yowo end-walk`, relayed by a live run's monitor with its
+    id) is ignored."""
+
+    def __init__(self, run_id: str):
+        self.run_id, self.strays = run_id, 0
+
+    def accept(self, msg) -> bool:
+        if msg.run_id == self.run_id:
+            return True
+        self.strays += bool(msg.run_id)
+        return False
+
+
 class StageNode(Node):
     """Subclasses declare inputs with `stream_input`, outputs with `output`, and
     implement `finalize()`; it runs once, when the inputs are complete."""
@@ -36,16 +51,15 @@ class StageNode(Node):
         # the supervisor restarted this stage (upstream statuses and the replay re-send what
         # a restarted stage missed).
         self.run_id = self.declare_parameter("run_id", "").value
+        self.runs = RunFilter(self.run_id)
         self.incarnation = self.declare_parameter("incarnation", 0).value
         # A replay re-sends a restarted stage its topics from the start; until it announces
         # that, the replayed messages reaching this incarnation are out of order: skipped.
         replayed = self.declare_parameter("replayed", False).value
         self._replay_open = self.incarnation == 0 or not replayed
-        self.stray_messages = 0
         self.completion = StreamCompletion({})
         self.published: Counter = Counter()
         self._replay_readers: list = []
-        self._seen_stamps: dict[str, set[int]] = {}
         self._status_pub = self.create_publisher(StageStatus, topics.status(self.stage), LATCHED)
         self._watched: set[str] = set()
         self._finalized = False
@@ -65,7 +79,7 @@ class StageNode(Node):
         qos = qos or (STREAM if upstream == REPLAY else DURABLE_STREAM)
         self.completion.inputs[topic] = upstream
         self._watch(upstream)
-        seen = self._seen_stamps.setdefault(topic, set()) if upstream != REPLAY else None
+        seen: set[int] | None = set() if upstream != REPLAY else None
 
         def counted(msg):
             if upstream == REPLAY and not self._replay_open:
@@ -110,16 +124,8 @@ class StageNode(Node):
             self.create_subscription(StageStatus, topics.status(upstream),
                                      lambda m, up=upstream: self._on_stage_status(up, m), LATCHED)
 
-    def _own_run(self, msg) -> bool:
-        """A status of this run; another run's is counted as stray, one without a run id
-        (`yowo end-walk`, relayed by the live run's monitor with its id) is ignored."""
-        if msg.run_id == self.run_id:
-            return True
-        self.stray_messages += bool(msg.run_id)
-        return False
-
     def _on_replay_status(self, msg: ReplayStatus) -> None:
-        if not self._own_run(msg):
+        if not self.runs.accept(msg):
             return
         if (msg.catch_up_stage, msg.catch_up_incarnation) == (self.stage, self.incarnation):
             self._replay_open = True
@@ -129,7 +135,7 @@ class StageNode(Node):
             self.completion.on_upstream_finished(REPLAY, msg.topics, msg.published_counts)
 
     def _on_stage_status(self, upstream: str, msg: StageStatus) -> None:
-        if not self._own_run(msg):
+        if not self.runs.accept(msg):
             return
         if msg.state in (StageStatus.STATE_FINISHED, StageStatus.STATE_FAILED):
             self.completion.on_upstream_finished(upstream, msg.topics, msg.published_counts)
@@ -157,7 +163,7 @@ class StageNode(Node):
             header=Header(stamp=self.get_clock().now().to_msg()), stage=self.stage, state=state,
             topics=list(self.published), published_counts=list(self.published.values()),
             input_topics=list(c.inputs), received_counts=[c.received[t] for t in c.inputs], message=message,
-            run_id=self.run_id, incarnation=self.incarnation, stray_messages=self.stray_messages,
+            run_id=self.run_id, incarnation=self.incarnation, stray_messages=self.runs.strays,
             replay_reader_gids=self._reader_gids()))
 
     def _reader_gids(self) -> list[str]:
