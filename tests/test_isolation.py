@@ -1,7 +1,9 @@
 """Runs that share a machine never share data: concurrent runs get private DDS domains,
 and a status of another run on the same domain is counted and never used."""
 import json
+import os
 
+import pytest
 import yaml
 
 from e2e_helpers import three_camera_recording, yowo, yowo_background
@@ -56,3 +58,18 @@ def test_status_of_another_run_is_counted_and_ignored(tmp_path, ros_env, start_s
     assert strays["yowo_run"] >= 5 and strays["group_sfm"] >= 3, strays
     assert all(strays[f"keypoint_tracker_{c}"] >= 1 for c in ("c1", "c2", "c3")), strays
     assert log["received"]["/yowo/cmc/c1/agent_keypoints"] == {"group_sfm": 200}
+
+
+def test_no_free_domain_is_a_clear_error():
+    from yowo_bringup.isolation import NoFreeDomain, claim_private_domain
+
+    domain, fd = claim_private_domain()
+    try:
+        # The only candidate is held (by this run): the claim says so instead of sharing it.
+        with pytest.raises(NoFreeDomain, match=f"all of {domain}-{domain} are held by other YOWO runs"):
+            claim_private_domain(candidates=range(domain, domain + 1))
+    finally:
+        os.close(fd)
+    again, fd = claim_private_domain(candidates=range(domain, domain + 1))   # released: free again
+    os.close(fd)
+    assert again == domain
