@@ -56,7 +56,10 @@ class StageNode(Node):
         # A replay re-sends a restarted stage its topics from the start; until it announces
         # that, the replayed messages reaching this incarnation are out of order: skipped.
         replayed = self.declare_parameter("replayed", False).value
-        self._replay_open = self.incarnation == 0 or not replayed
+        # Source time (the replay's clock) from which replayed messages count: messages the
+        # replay published before its catch-up announcement may still wait in this stage's
+        # queues after the announcement; the repetition is all published after it.
+        self._replay_since_ns: int | None = 0 if self.incarnation == 0 or not replayed else None
         self.completion = StreamCompletion({})
         self.published: Counter = Counter()
         self._replay_readers: list = []
@@ -81,8 +84,9 @@ class StageNode(Node):
         self._watch(upstream)
         seen: set[int] | None = set() if upstream != REPLAY else None
 
-        def counted(msg):
-            if upstream == REPLAY and not self._replay_open:
+        def counted(msg, info):
+            if upstream == REPLAY and (self._replay_since_ns is None
+                                       or info["source_timestamp"] < self._replay_since_ns):
                 return
             if seen is not None:
                 # A restarted upstream stage publishes its stream again from the start; its
@@ -124,11 +128,11 @@ class StageNode(Node):
             self.create_subscription(StageStatus, topics.status(upstream),
                                      lambda m, up=upstream: self._on_stage_status(up, m), LATCHED)
 
-    def _on_replay_status(self, msg: ReplayStatus) -> None:
+    def _on_replay_status(self, msg: ReplayStatus, info: dict) -> None:
         if not self.runs.accept(msg):
             return
         if (msg.catch_up_stage, msg.catch_up_incarnation) == (self.stage, self.incarnation):
-            self._replay_open = True
+            self._replay_since_ns = info["source_timestamp"]
         if msg.state == ReplayStatus.STATE_FINISHED:
             if msg.error:
                 self.get_logger().warning(f"replay ended early: {msg.error}")
