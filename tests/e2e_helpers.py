@@ -47,6 +47,16 @@ def three_camera_recording(path, seed=0, duration_s=20.0, tamper=None, layout=0)
     return cams, tracks
 
 
+def log_tails(out, nodes, lines=25) -> str:
+    """The last lines of some nodes' logs in a results directory (for a failure message)."""
+    parts = []
+    for node in nodes:
+        log = out / "logs" / f"{node}.log"
+        text = log.read_text(errors="replace").splitlines()[-lines:] if log.exists() else ["(no log)"]
+        parts.append(f"--- {log} ---\n" + "\n".join(text))
+    return "\n".join(parts)
+
+
 def yowo(*args, env, timeout=300):
     """The yowo CLI in its own process. Graph verbs get their own --timeout inside ours,
     so a hung graph is stopped (and its nodes reaped) by the supervisor, not orphaned."""

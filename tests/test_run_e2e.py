@@ -11,7 +11,7 @@ from html.parser import HTMLParser
 import yaml
 
 from conftest import GRAPH
-from e2e_helpers import kill_when_playing, yowo, yowo_background
+from e2e_helpers import kill_when_playing, log_tails, yowo, yowo_background
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
 
@@ -46,7 +46,7 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
         late = subprocess.run([sys.executable, str(GRAPH / "tf_static_late.py"), "sub", "15"], env=ros_env,
                               capture_output=True, text=True, timeout=60)
         stdout, stderr = run.communicate(timeout=120)
-    assert run.returncode == 0, stdout[-3000:] + stderr[-3000:]
+    assert run.returncode == 0, stdout[-3000:] + stderr[-3000:] + log_tails(again, ["replay", "ego_mapper"])
     for name in ("cameras.yaml", "ego_trajectory.tum", "layout.json", "map.ply", "ego_trajectory_ego.tum"):
         assert (again / name).read_bytes() == (out / name).read_bytes(), name
     log_again = yaml.safe_load((again / "run_log.yaml").read_text())

@@ -118,7 +118,11 @@ class ReplayNode(Node):
 
     def _catch_up(self, stage: str) -> None:
         """Send a restarted stage its replayed topics again, up to where playing is."""
-        deadline = time.monotonic() + self.wait_timeout_s
+        t0 = time.monotonic()
+        deadline = t0 + self.wait_timeout_s
+        log = self.get_logger()
+        log.info(f"{stage} restarted (incarnation {self.stage_status[stage].incarnation}): waiting for its "
+                 "subscriptions")
         while time.monotonic() < deadline:
             status = self.stage_status[stage]
             wanted = [t for t in status.input_topics if t in self.pubs]
@@ -127,16 +131,19 @@ class ReplayNode(Node):
                 break
             rclpy.spin_once(self, timeout_sec=0.05)
         else:
-            self.get_logger().warning(f"{stage} (restarted) has not matched the replay's topics after "
-                                      f"{self.wait_timeout_s:.0f} s; sending anyway")
+            log.warning(f"{stage} (restarted) has not matched the replay's topics after "
+                        f"{self.wait_timeout_s:.0f} s; sending anyway")
         self.caught_up[stage] = status.incarnation
         # The stage takes replayed messages from this announcement on (acknowledged first,
         # so it is in the stage's queue before the first repeated message).
         self._status((stage, status.incarnation))
         if not self.status_pub.wait_for_all_acked(Duration(seconds=self.ack_timeout_s)):
-            self.get_logger().warning(f"{stage}: the catch-up announcement was not acknowledged")
+            log.warning(f"{stage}: the catch-up announcement was not acknowledged")
         todo = {t: self.counts[t] for t in wanted if self.counts[t]}
+        log.info(f"{stage}: matched after {time.monotonic() - t0:.1f} s; sending it {sum(todo.values())} messages "
+                 "again")
         sent = dict.fromkeys(todo, 0)
+        last_status = time.monotonic()
         if todo:
             for raw in read_raw(self.bag, list(todo)):
                 if sent[raw.topic] >= todo[raw.topic]:
@@ -145,11 +152,14 @@ class ReplayNode(Node):
                     continue
                 self._publish(raw)
                 sent[raw.topic] += 1
+                self.resent += 1
+                if time.monotonic() - last_status > 1.0:    # progress (not an announcement)
+                    self._status()
+                    last_status = time.monotonic()
             for topic in [t for t, n in self.unacked.items() if n]:
                 self._wait_acked(topic)
-        self.resent += sum(sent.values())
-        self.get_logger().info(f"{stage} restarted (incarnation {status.incarnation}): sent it "
-                               f"{sum(sent.values())} messages again on {', '.join(todo) or 'no topic'}")
+        log.info(f"{stage} restarted (incarnation {status.incarnation}): sent it {sum(sent.values())} messages "
+                 f"again on {', '.join(todo) or 'no topic'} in {time.monotonic() - t0:.1f} s")
 
     def _publish(self, raw) -> None:
         self.pubs[raw.topic].publish(raw.data)

@@ -74,8 +74,9 @@ class RunMonitor(Node):
 
     def progress(self, stages: list[str]) -> str:
         played = sum(self.replay.published_counts) if self.replay else 0
+        resent = f" (+{self.replay.resent_messages} re-sent)" if self.replay and self.replay.resent_messages else ""
         done = [s for s in stages if self.finished(s)]
-        return f"replayed {played} messages; stages done {len(done)}/{len(stages)}"
+        return f"replayed {played} messages{resent}; stages done {len(done)}/{len(stages)}"
 
     def strays(self) -> dict[str, int]:
         """Status messages of other runs each node heard and ignored."""

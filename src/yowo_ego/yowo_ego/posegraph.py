@@ -52,6 +52,11 @@ class LoopParams:
     # When they disagree, the tracking edge stays if the SIFT matches support it
     # almost as well as the PnP estimate (PnP may be the ambiguous one).
     keep_support_ratio: float = 0.7
+    # A PnP estimate from the looser retry matching replaces an edge without the dense
+    # confirmation when the matches contradict the edge outright: it explains fewer than
+    # this fraction of what PnP explains (a wrong dense minimum on a fast turn explains
+    # none; an ambiguous PnP leaves the edge most of its support).
+    contradicted_support_ratio: float = 0.2
     # A pair whose matches are too few for the default check is retried with
     # looser matching (the support comparison still guards the result).
     retry_features: FeatureParams = FeatureParams(ratio=0.9, pnp_min_inliers=15)
@@ -145,7 +150,8 @@ def verify_edge(edge: OdometryEdge, pair: PairMatches, features: list[KeyframeFe
     and is clearly less supported by the matches is replaced: by the dense
     result restarted from PnP if that agrees with PnP, else by PnP itself.
     A PnP estimate from the looser retry matching must be confirmed by the
-    dense restart, unless the edge is a tracking break's guess. Returns the
+    dense restart, unless the edge is a tracking break's guess or the matches
+    contradict it (``contradicted_support_ratio``). Returns the
     edge to use and whether it was replaced."""
     fa, fb = features[pair.a], features[pair.b]
     K = odometry.K_full
@@ -156,14 +162,16 @@ def verify_edge(edge: OdometryEdge, pair: PairMatches, features: list[KeyframeFe
     if pnp is None:
         return edge, False
     T_pnp = inv_se3(pnp.T_b_a)
-    if edge.kind == "odometry" and (
-            _agree(edge.T_target_source, T_pnp, params)
-            or support(fa, fb, matches, inv_se3(edge.T_target_source), K)
-            >= params.keep_support_ratio * support(fa, fb, matches, pnp.T_b_a, K)):
+    edge_support = support(fa, fb, matches, inv_se3(edge.T_target_source), K)
+    pnp_support = support(fa, fb, matches, pnp.T_b_a, K)
+    if edge.kind == "odometry" and (_agree(edge.T_target_source, T_pnp, params)
+                                    or edge_support >= params.keep_support_ratio * pnp_support):
         return edge, False
     kf_a, kf_b = keyframes[pair.a], keyframes[pair.b]
     fixed = dense_edge(PairMatches(pair.a, pair.b, matches, pnp), kf_a, kf_b, odometry, params)
-    if fixed is None and (not loose or edge.kind == "break"):   # a break edge is only a guess anyway
+    # A break edge is only a guess anyway; a contradicted one is worse than PnP.
+    if fixed is None and (not loose or edge.kind == "break"
+                          or edge_support < params.contradicted_support_ratio * pnp_support):
         fixed = OdometryEdge(kf_b.index, kf_a.index, T_pnp,
                              odometry.information(kf_b.depth_mm, kf_a.depth_mm, T_pnp), "odometry")
     return (edge, False) if fixed is None else (fixed, True)
