@@ -71,7 +71,7 @@ fi
 build_interfaces "$ROOT/src/yowo_msgs" yowo_msgs
 
 # --- 4. our Python packages (editable) ---------------------------------------
-PY_PKGS=(yowo_common yowo_ego yowo_cmc yowo_fusion yowo_sim yowo_bringup)
+PY_PKGS=(yowo_common yowo_ego yowo_cmc yowo_fusion yowo_sim yowo_bringup yowo_eval)
 setup_files=(); for p in "${PY_PKGS[@]}"; do setup_files+=("$ROOT/src/$p/setup.py"); done
 py_hash=$(hash_of "${setup_files[@]}")
 if ! stamp_ok python-packages "$py_hash"; then

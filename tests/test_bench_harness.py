@@ -44,7 +44,7 @@ def test_bench_on_tiny_writes_every_table(tmp_path, ros_env):
 
 
 def test_a_failed_case_keeps_its_traceback_and_the_run_goes_on(tmp_path):
-    from yowo_bringup.bench import run_bench
+    from yowo_eval.bench import run_bench
     bag = tmp_path / "bags" / "tiny_normal_s0"
     bag.mkdir(parents=True)
     (bag / "metadata.yaml").write_text("not: a rosbag2 metadata file\n")   # the case's reader fails in the worker

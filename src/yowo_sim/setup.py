@@ -9,6 +9,6 @@ setup(
         ("share/yowo_sim", ["package.xml"]),
     ],
     zip_safe=True,
-    # Node executables (ros2 run yowo_sim <node>) and command-line tools.
-    entry_points={"console_scripts": []},
+    # Verbs of the `yowo` command line (found by yowo_bringup.plugins).
+    entry_points={"yowo.verbs": ["yowo_sim = yowo_sim.verbs:add_verbs"]},
 )

@@ -9,6 +9,8 @@ from pathlib import Path
 
 from yowo_common.ros.bag import BagError
 
+from .plugins import add_verbs, evaluator
+
 
 def cmd_info(args) -> int:
     """Summarise a recording: topics, types, counts, and the CMCs found."""
@@ -33,47 +35,13 @@ def cmd_info(args) -> int:
     return 0
 
 
-def cmd_simulate(args) -> int:
-    """Generate a synthetic recording with ground truth."""
-    from rich.progress import Progress
-
-    from yowo_sim.capture import generate
-    from yowo_sim.presets import get_preset
-
-    overrides = {}
-    if args.no_cmc_images:
-        overrides["cmc_images"] = False
-    if args.raw:
-        overrides["raw_images"] = True
-    if args.ego_hz:
-        overrides["ego_hz"] = args.ego_hz
-    if args.cmc_hz:
-        overrides["cmc_hz"] = args.cmc_hz
-    preset = get_preset(args.preset, **overrides)
-    with Progress() as bar:
-        task = bar.add_task(f"simulating '{args.preset}' (seed {args.seed})", total=None)
-        summary = generate(preset, args.seed, args.output,
-                           progress=lambda done, total: bar.update(task, completed=done, total=total))
-    if args.preview:
-        from yowo_sim.capture import build_capture
-        from yowo_sim.preview import render_preview
-
-        render_preview(build_capture(preset, args.seed), args.preview)
-        print(f"preview: {args.preview}")
-    fps = summary.rendered_frames / max(summary.render_seconds, 1e-9)
-    print(f"wrote {summary.path}: {summary.duration_s:.1f} s walk, {summary.ego_frames} ego frames, "
-          f"{summary.cmc_frames} CMC frames ({summary.cmc_frames_with_agent} with the agent detected), "
-          f"{len(summary.cmcs)} CMCs; rendering {fps:.1f} frames/s")
-    return 0
-
-
 def _execute(args, mode: str):
     """Plan and run the graph; returns the outcome or None (message printed) on failure."""
     from .isolation import PRIVATE, SHARED, graph_network
     from .run import plan_live, plan_run
     from .run_node import RunFailed, execute
 
-    config = _config(args)
+    config = config_from_args(args)
     if args.verb == "live":
         plan = plan_live(args.cameras, args.output, mode=mode, source=args.cmc_source, image_topic=args.image_topic,
                          ego_topics=(args.ego_color, args.ego_depth, args.ego_info), config=config,
@@ -117,10 +85,9 @@ def cmd_run(args) -> int:
         pos = ", ".join(f"{v:.3f}" for v in c.T_world_cam[:3, 3]) if c.T_world_cam is not None else "-"
         table.add_row(c.name, c.group or "-", c.method, c.status, pos, f"{c.rmse_px:.2f}", escape(c.reason))
     Console().print(table)
-    metrics = Path(args.output) / "metrics.json"
-    if metrics.exists():
-        from .eval import print_tables
-        print_tables(json.loads(metrics.read_text()), Console())
+    metrics, ev = Path(args.output) / "metrics.json", evaluator()
+    if metrics.exists() and ev is not None:
+        ev.print_tables(json.loads(metrics.read_text()), Console())
     print(f"results: {args.output}/ (report.html, cameras.yaml, ego_trajectory.tum, map.ply, layout.json after the "
           "joint optimisation; ego_trajectory_ego.tum, map_ego.ply, layout_ego.json the ego stage's; result.mcap)")
     return 0 if any(c.T_world_cam is not None for c in out.cameras) else 1
@@ -152,7 +119,7 @@ def cmd_calibrate_cmc(args) -> int:
     return 0 if out.cameras else 1
 
 
-def _config(args):
+def config_from_args(args):
     """The configuration tree: --config FILE, then every --set section.key=value, then the
     options that are shorthands for keys (--rate, --max-restarts)."""
     from .config import load_config
@@ -167,7 +134,7 @@ def _add_run_options(p) -> None:
     p.add_argument("bag", help="rosbag2 directory or .mcap file")
     p.add_argument("-o", "--output", required=True, help="results directory")
     p.add_argument("--rate", type=float, help="replay speed (x real time; 0 = as fast as possible): replay.rate")
-    _add_config_options(p)
+    add_config_options(p)
     p.add_argument("--timeout", type=float, default=3600.0, help="give up after this many seconds")
     p.add_argument("--linger", type=float, default=0.0,
                    help="keep the graph up this many seconds after the results are written (late /tf_static "
@@ -193,7 +160,7 @@ def _add_graph_options(p) -> None:
                         "supervisor.max_restarts")
 
 
-def _add_config_options(p) -> None:
+def add_config_options(p) -> None:
     p.add_argument("--config", metavar="YAML", help="configuration file: sections of the tree (replay, ego, cmc, "
                                                     "fusion, supervisor) with the keys to change; "
                                                     "'yowo config' prints every key with its default")
@@ -205,19 +172,7 @@ def cmd_config(args) -> int:
     """Print the resolved configuration tree (defaults, --config, --set) as YAML."""
     from yowo_common.config import dump
 
-    print(dump(_config(args)), end="")
-    return 0
-
-
-def cmd_eval(args) -> int:
-    """Metrics of a results directory against the recording's ground truth."""
-    from rich.console import Console
-
-    from .eval import evaluate, print_tables, write_metrics
-
-    metrics = evaluate(args.results, args.bag)
-    print_tables(metrics, Console())
-    write_metrics(metrics, Path(args.results) / "metrics.json")
+    print(dump(config_from_args(args)), end="")
     return 0
 
 
@@ -227,47 +182,6 @@ def cmd_end_walk(args) -> int:
 
     end_walk(args.linger, args.run_id or "")
     print("end of walk announced on /yowo/replay/status" + (f" to run {args.run_id}" if args.run_id else ""))
-    return 0
-
-
-def cmd_demo(args) -> int:
-    """Make (or reuse) a sample recording, run the full graph on it, show the metrics."""
-    from rich.progress import Progress
-
-    from yowo_sim.capture import generate
-    from yowo_sim.presets import get_preset
-
-    bag = Path(args.bag)
-    if not (bag / "metadata.yaml").exists():
-        with Progress() as bar:
-            task = bar.add_task(f"generating the sample recording {bag} (preset {args.preset}, seed 0)", total=None)
-            generate(get_preset(args.preset), 0, bag, progress=lambda d, t: bar.update(task, completed=d, total=t))
-    run_args = build_parser().parse_args(["run", str(bag), "-o", args.output])
-    code = cmd_run(run_args)
-    print(f"\nreport: {Path(args.output) / 'report.html'}")
-    return code
-
-
-def cmd_bench(args) -> int:
-    """YOWO and the baselines on generated recordings -> BENCHMARKS.md + results.json."""
-    from .bench import SCENARIOS, run_bench
-    from .bench_report import write_outputs
-
-    unknown = [s for s in args.scenarios if s not in SCENARIOS]
-    if unknown:
-        raise ValueError(f"unknown scenario(s) {', '.join(unknown)} (choose from {', '.join(SCENARIOS)})")
-    out = Path(args.output)
-    if args.from_results:
-        write_outputs(json.loads((out / "results.json").read_text()), out, Path(args.markdown) if args.markdown else None)
-        print(f"re-rendered {out / 'BENCHMARKS.md'} from {out / 'results.json'}")
-        return 0
-    markdown = Path(args.markdown) if args.markdown else None
-    results = run_bench(args.preset, args.seeds, args.scenarios, out, full=not args.cmc_only,
-                        sweep_preset=args.sweep_preset, resume=args.resume,
-                        on_case=lambda partial: write_outputs(partial, out, markdown),   # tables so far
-                        config=_config(args))
-    write_outputs(results, out, Path(args.markdown) if args.markdown else None)
-    print(f"wrote {out / 'BENCHMARKS.md'} and {out / 'results.json'}" + (f" and {args.markdown}" if args.markdown else ""))
     return 0
 
 
@@ -287,17 +201,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("bag", help="rosbag2 directory or .mcap file")
     p.set_defaults(func=cmd_info)
 
-    p = verbs.add_parser("simulate", help="generate a synthetic recording with ground truth")
-    p.add_argument("--preset", default="small", help="tiny | small | standard | large (default: small)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("-o", "--output", required=True, help="new rosbag2 directory to write (MCAP)")
-    p.add_argument("--no-cmc-images", action="store_true", help="record CMC keypoints only, no images")
-    p.add_argument("--raw", action="store_true", help="raw sensor_msgs/Image instead of compressed")
-    p.add_argument("--ego-hz", type=float, help="ego camera rate (default 15)")
-    p.add_argument("--cmc-hz", type=float, help="CMC rate (default 10)")
-    p.add_argument("--preview", metavar="PNG", help="also write a picture: ego frame, CMC frame, top view")
-    p.set_defaults(func=cmd_simulate)
-
     p = verbs.add_parser("run", help="map the scene and register every CMC in it (the full node graph)")
     _add_run_options(p)
     p.set_defaults(func=cmd_run)
@@ -315,7 +218,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ego-color", default="/ego/color/image_raw/compressed")
     p.add_argument("--ego-depth", default="/ego/depth/image_raw")
     p.add_argument("--ego-info", default="/ego/color/camera_info")
-    _add_config_options(p)
+    add_config_options(p)
     p.add_argument("--timeout", type=float, default=24 * 3600.0, help="give up after this many seconds")
     _add_graph_options(p)
     p.set_defaults(func=cmd_live)
@@ -326,38 +229,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--run-id", help="the live run to end (default: any live run on this ROS domain)")
     p.set_defaults(func=cmd_end_walk)
 
-    p = verbs.add_parser("demo", help="generate a sample recording, run the full graph, print the metrics")
-    p.add_argument("--preset", default="small")
-    p.add_argument("--bag", default="bags/demo_small", help="where the sample recording is (made if missing)")
-    p.add_argument("-o", "--output", default="results/demo")
-    p.set_defaults(func=cmd_demo)
-
-    p = verbs.add_parser("bench", help="YOWO and baselines on generated recordings -> BENCHMARKS.md")
-    p.add_argument("--preset", nargs="+", default=["small"],
-                   help="one or more of tiny, small, standard, large (several: the scale table; large "
-                   "runs the first seed only, keypoints only)")
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--scenarios", nargs="+", default=["normal"], help="normal, texture_poor, symmetric, "
-                   "dim_light, stationary, kp_noise_{0.5,1.0,2.0,5.0}px, kp_outliers_5pct")
-    p.add_argument("-o", "--output", default="bench", help="directory for bags, results.json, BENCHMARKS.md")
-    p.add_argument("--markdown", help="also write the tables here (e.g. BENCHMARKS.md at the repo root)")
-    p.add_argument("--cmc-only", action="store_true", help="only the CMC relative calibration tables (fast)")
-    p.add_argument("--sweep-preset", help="run the scenarios other than 'normal' (and kp_outliers_5pct) on this preset only")
-    p.add_argument("--resume", action="store_true", help="reuse the cases already finished in OUTPUT/cases.jsonl")
-    _add_config_options(p)
-    p.add_argument("--from-results", action="store_true",
-                   help="run nothing: render the tables again from OUTPUT/results.json (e.g. after a report change)")
-    p.set_defaults(func=cmd_bench)
-
     p = verbs.add_parser("config", help="print the configuration tree: every key with its value (defaults, "
                                         "--config, --set), as a --config file takes it")
-    _add_config_options(p)
+    add_config_options(p)
     p.set_defaults(func=cmd_config)
 
-    p = verbs.add_parser("eval", help="metric tables of a results directory against a bag's ground truth")
-    p.add_argument("results", help="results directory of yowo run / calibrate-cmc")
-    p.add_argument("--bag", required=True, help="the recording, with /gt topics")
-    p.set_defaults(func=cmd_eval)
+    add_verbs(verbs)            # of installed extensions (yowo_sim: simulate, demo; yowo_eval: bench, eval)
     return parser
 
 

@@ -1,21 +1,16 @@
 """The results directory of a run: writers and readers of cameras.yaml,
-ego_trajectory.tum (evaluation.write_tum), map.ply and layout.json (map_ego.ply and
-layout_ego.json: the ego stage's, before joint optimisation), and the ground
-truth of a recording for evaluation (the pipeline itself never reads /gt)."""
+ego_trajectory.tum (yowo_common.trajectory), map.ply and layout.json (map_ego.ply and
+layout_ego.json: the ego stage's, before joint optimisation)."""
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import yaml
 
 from yowo_common.geometry import quat_xyzw_from_rotation, rotation_from_quat_xyzw, se3
-from yowo_common.topics import GT_EGO_POSE, GT_FLOOR
 from yowo_fusion.pipeline import RegisteredCmc
-
-from .evaluation import Trajectory, map_frame_from_first_pose
 
 
 def pose_entry(T: np.ndarray) -> dict:
@@ -91,36 +86,3 @@ def write_layout_json(path: Path, layout) -> None:
 
 def read_floor_polygons(path: Path) -> list[np.ndarray]:
     return [np.asarray(p, dtype=float) for p in json.loads(Path(path).read_text())["floor_polygons"]]
-
-
-@dataclass
-class GroundTruth:
-    cameras: dict[str, np.ndarray]
-    ego: Trajectory | None
-    floor: list[np.ndarray]
-    # The simulator's frame -> YOWO's map frame; other /gt/ data (agent keypoints) need it.
-    T_map_sim: np.ndarray = field(default_factory=lambda: np.eye(4))
-
-
-def read_ground_truth(bag) -> GroundTruth:
-    from yowo_common.ros.bag import list_topics, read_messages
-    from yowo_common.rosconv import points_to_array, pose_to_matrix, stamp_to_ns
-
-    topics = [t.name for t in list_topics(bag) if t.name.startswith("/gt/")]
-    cams, ego_ns, ego_T, floor = {}, [], [], []
-    for topic, _, msg in read_messages(bag, topics):
-        if topic.startswith("/gt/cmc/"):
-            cams[topic.split("/")[3]] = pose_to_matrix(msg.pose)
-        elif topic == GT_EGO_POSE:
-            ego_ns.append(stamp_to_ns(msg.header.stamp))
-            ego_T.append(pose_to_matrix(msg.pose))
-        elif topic == GT_FLOOR:
-            floor.append(points_to_array(msg.polygon.points)[:, :2])
-    ego = Trajectory(np.array(ego_ns, dtype=np.int64), np.array(ego_T)) if ego_ns else None
-    T = np.eye(4)
-    if ego is not None:  # into YOWO's map convention (defined by the first ego pose)
-        T = map_frame_from_first_pose(ego.T_world_cam[np.argmin(ego.stamps_ns)])
-        cams = {n: T @ P for n, P in cams.items()}
-        ego = Trajectory(ego.stamps_ns, np.einsum("ij,njk->nik", T, ego.T_world_cam))
-        floor = [p @ T[:2, :2].T + T[:2, 3] for p in floor]
-    return GroundTruth(cams, ego, floor, T)

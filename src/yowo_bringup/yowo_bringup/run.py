@@ -248,7 +248,9 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     from yowo_common.rosconv import pointcloud2_to_xyz_rgb, points_to_array, pose_to_matrix, stamp_to_ns
     from yowo_fusion.messages import ego_map_from_msg, registered_from_msg
 
-    from .evaluation import Trajectory, write_tum
+    from yowo_common.trajectory import Trajectory, write_tum
+
+    from .plugins import evaluator
     from .report import write_report
     from .results import write_cameras_yaml, write_layout_json, write_ply
 
@@ -309,20 +311,14 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     written.rename(result_bag)
     shutil.rmtree(staging)
     files.append(result_bag)
-    metrics, gt_cams = None, None
-    try:
-        if plan.bag is None:
-            raise ValueError("live run: no ground truth")
-        from .eval import evaluate
-        from .results import read_ground_truth
-        metrics = evaluate(out, plan.bag)
-        gt_cams = read_ground_truth(plan.bag).cameras
-    except ValueError:
-        pass  # no ground truth in the recording: the report shows the results only
+    # With the evaluation installed and ground truth in the recording, the report also
+    # shows the errors (a live run has none).
+    ev = evaluator()
+    evaluated = ev.evaluate_run(out, plan.bag) if ev is not None and plan.bag is not None else None
+    metrics, gt_cams = evaluated or (None, None)
     write_report(out / "report.html", str(plan.bag or "live"), cameras, ego_xy, floors, metrics, gt_cams, plan.warnings)
     files.append(out / "report.html")
     if metrics:
-        from .eval import write_metrics
-        write_metrics(metrics, out / "metrics.json")
+        ev.write_metrics(metrics, out / "metrics.json")
         files.append(out / "metrics.json")
     return cameras

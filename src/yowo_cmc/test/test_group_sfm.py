@@ -1,6 +1,6 @@
 import numpy as np
 
-from yowo_bringup.evaluation import relative_pose_errors
+from yowo_eval.evaluation import relative_pose_errors
 from yowo_cmc.group_sfm import SfmParams, calibrate_groups, overlap_score
 from yowo_cmc.tracks import TrackParams
 from yowo_common.camera import CameraModel

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from yowo_bringup.evaluation import layout_iou
+from yowo_eval.evaluation import layout_iou
 from yowo_common.geometry import look_at, se3, transform_points
 from yowo_ego.frames import make_frame
 from yowo_ego.layout import KIND_CEILING, KIND_WALL, build_layout

@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from cmc_synthetic import HEIGHT, ceiling_camera, observe
-from yowo_bringup.evaluation import registration_errors
+from yowo_eval.evaluation import registration_errors
 from yowo_cmc.group_sfm import calibrate_groups
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import se3

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from yowo_fusion import hloc_style, scene_matching
+from yowo_eval import hloc_style
+from yowo_fusion import scene_matching
 
 
 @pytest.mark.parametrize("detect", [lambda rgb: scene_matching.detect_features(rgb, "SIFT", 100)[0],

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import platform
 import shlex
 import sys
 import time
@@ -15,18 +14,15 @@ import numpy as np
 
 
 def environment() -> dict:
-    import cv2
-    import open3d
-    from importlib.metadata import version
+    """The software (as results/params.yaml records it) and the machine of a benchmark."""
+    from yowo_bringup.config import versions
 
     cpu = ""
     try:
         cpu = next(line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name"))
     except (OSError, StopIteration):
         pass
-    return {"python": platform.python_version(), "numpy": np.__version__, "opencv": cv2.__version__,
-            "open3d": open3d.__version__, "gtsam": version("gtsam"), "cpu": cpu, "cores": os.cpu_count(),
-            "date": time.strftime("%Y-%m-%d")}
+    return {**versions(), "cpu": cpu, "cores": os.cpu_count(), "date": time.strftime("%Y-%m-%d")}
 
 
 def _finite(values) -> list[float]:
@@ -111,7 +107,8 @@ def markdown(results: dict, command: str, env: dict) -> str:
     settings = _by_setting(cases)
     lines = ["# BENCHMARKS", "", "Produced by:", "", "```", command, "```", "",
              f"Machine: {env['cpu']} ({env['cores']} cores); Python {env['python']}, numpy {env['numpy']}, "
-             f"OpenCV {env['opencv']}, Open3D {env['open3d']}, GTSAM {env['gtsam']}; {env['date']}.", "",
+             f"OpenCV {env.get('opencv-python-headless', env.get('opencv'))}, "
+             f"Open3D {env.get('open3d-cpu', env.get('open3d'))}, GTSAM {env['gtsam']}; {env['date']}.", "",
              f"Presets {', '.join(results['presets'])}; seeds {results['seeds']}. Errors are averaged over seeds "
              "(each seed's value is the avg or max over cameras); counts are summed over seeds. Baselines marked "
              "-style are labelled reimplementations of the ideas, not the authors' code.", "",

@@ -4,7 +4,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
-from yowo_bringup.bench_bound import _camera_covariance
+from yowo_eval.bound import _camera_covariance
 from yowo_common.bundle import cal3, pose3
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import look_at

@@ -5,9 +5,9 @@ import networkx as nx
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from yowo_bringup.evaluation import relative_pose_errors
+from yowo_eval.evaluation import relative_pose_errors
 from yowo_cmc.group_sfm import SfmParams
-from yowo_cmc.omecc_style import OmeccParams, calibrate_groups_omecc, consistent_poses
+from yowo_eval.omecc_style import OmeccParams, calibrate_groups_omecc, consistent_poses
 from yowo_cmc.tracks import TrackParams
 from yowo_common.geometry import inv_se3
 

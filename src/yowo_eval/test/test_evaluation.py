@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from yowo_bringup.evaluation import (ErrorSummary, Trajectory, ate, layout_iou, read_tum, registration_errors,
-                                     relative_pose_errors, write_tum)
 from yowo_common.geometry import Sim3, look_at, se3
+from yowo_common.trajectory import Trajectory, read_tum, write_tum
+from yowo_eval.evaluation import ErrorSummary, ate, layout_iou, registration_errors, relative_pose_errors
 
 
 def rig(n=4):
@@ -103,7 +103,7 @@ def test_layout_iou():
 
 
 def test_map_frame_from_first_pose():
-    from yowo_bringup.evaluation import map_frame_from_first_pose
+    from yowo_eval.evaluation import map_frame_from_first_pose
     from yowo_common.geometry import look_at
     first = look_at([3.0, 4.0, 1.6], [5.0, 4.0, 0.5])       # looking along +x, down
     T = map_frame_from_first_pose(first)

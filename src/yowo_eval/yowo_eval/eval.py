@@ -8,8 +8,11 @@ from pathlib import Path
 
 import yaml
 
-from .evaluation import ErrorSummary, ate, layout_iou, read_tum, registration_errors, relative_pose_errors
-from .results import read_camera_poses, read_floor_polygons, read_ground_truth
+from yowo_bringup.results import read_camera_poses, read_floor_polygons
+from yowo_common.trajectory import read_tum
+
+from .evaluation import ErrorSummary, ate, layout_iou, registration_errors, relative_pose_errors
+from .ground_truth import read_ground_truth
 
 
 RESULT_FILES = ("cameras.yaml", "ego_trajectory.tum", "layout.json")

@@ -4,7 +4,7 @@ from scipy.spatial.transform import Rotation
 
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import look_at, rotation_angle_deg, se3
-from yowo_fusion.hloc_style import HlocParams, KeyframeImage, build_database, localize
+from yowo_eval.hloc_style import HlocParams, KeyframeImage, build_database, localize
 from yowo_sim.render import Renderer
 from yowo_sim.scene import SceneSpec, build_scene
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from .evaluation import relative_pose_errors
-from .results import read_ground_truth
+from .ground_truth import read_ground_truth
 
 # Bumped when the bound's computation changes: a resumed run recomputes the stored
 # cases' bounds (a property of the recording and YOWO's groups, seconds per case).

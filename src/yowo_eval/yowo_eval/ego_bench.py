@@ -10,7 +10,7 @@ IoU, gravity error and processing speed.
   alignment; yaw and position do not enter).
 - Speed: ego frames / wall-clock seconds for decoding and the whole stage.
 
-    python -m yowo_ego.bench BAG [BAG ...]
+    python -m yowo_eval.ego_bench BAG [BAG ...]
 """
 from __future__ import annotations
 
@@ -21,27 +21,12 @@ import time
 
 import numpy as np
 
-from yowo_common.ros.bag import read_messages
-from yowo_common.rosconv import pose_to_matrix, stamp_to_ns
+from yowo_common.trajectory import Trajectory
+from yowo_ego.pipeline import EgoMapResult, EgoParams
+from yowo_ego.recording import map_bag
 
-from .pipeline import EgoMapResult, EgoParams
-from .recording import map_bag
-
-GT_POSE, GT_FLOOR = "/gt/ego/pose", "/gt/layout/floor"
-
-
-def read_ground_truth(bag):
-    stamps, poses, floors = [], [], []
-    for topic, _, msg in read_messages(bag, [GT_POSE, GT_FLOOR]):
-        if topic == GT_POSE:
-            stamps.append(stamp_to_ns(msg.header.stamp))
-            poses.append(pose_to_matrix(msg.pose))
-        else:
-            floors.append(np.array([[p.x, p.y] for p in msg.polygon.points]))
-    if not stamps:
-        raise ValueError(f"{bag}: no {GT_POSE}; the ego benchmark needs ground truth")
-    order = np.argsort(stamps)
-    return np.asarray(stamps, np.int64)[order], np.array(poses)[order], floors
+from .evaluation import associate, ate, layout_iou
+from .ground_truth import GroundTruth, read_ground_truth
 
 
 def gravity_error_deg(T_est: np.ndarray, T_gt: np.ndarray) -> float:
@@ -52,22 +37,21 @@ def gravity_error_deg(T_est: np.ndarray, T_gt: np.ndarray) -> float:
     return float(np.degrees(np.arccos(cos)).mean())
 
 
-def evaluate(result: EgoMapResult, gt_stamps: np.ndarray, gt_poses: np.ndarray, gt_floors: list[np.ndarray]
-             ) -> dict[str, float]:
-    from yowo_bringup.evaluation import Trajectory, associate, ate, layout_iou
-
-    ref = Trajectory(gt_stamps, gt_poses)
+def evaluate(result: EgoMapResult, gt: GroundTruth) -> dict[str, float]:
+    if gt.ego is None:
+        raise ValueError("no /gt/ego/pose in the recording; the ego benchmark needs ground truth")
+    ref = gt.ego
     metrics: dict[str, float] = {}
     final = None
     for stage, poses in result.trajectories.items():
         a = ate(Trajectory(result.stamps_ns, poses), ref)
         metrics[f"ate_{stage}_m"] = a.rmse_m
         final = a
-    i_est, i_ref = associate(result.stamps_ns, gt_stamps, 10_000_000)
-    metrics["gravity_error_deg"] = gravity_error_deg(result.T_world_cam[i_est], gt_poses[i_ref])
+    i_est, i_ref = associate(result.stamps_ns, ref.stamps_ns, 10_000_000)
+    metrics["gravity_error_deg"] = gravity_error_deg(result.T_world_cam[i_est], ref.T_world_cam[i_ref])
     S = final.alignment
     est = [S.apply(np.column_stack([p, np.zeros(len(p))]))[:, :2] for p in result.layout.floor_polygons]
-    metrics["layout_iou"] = layout_iou(est, gt_floors) if gt_floors else float("nan")
+    metrics["layout_iou"] = layout_iou(est, gt.floor) if gt.floor else float("nan")
     return metrics
 
 
@@ -76,8 +60,7 @@ def bench_bag(bag, params: EgoParams = EgoParams()) -> dict[str, float]:
     t0, c0 = time.perf_counter(), time.process_time()
     result, _ = map_bag(bag, params)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    gt_stamps, gt_poses, gt_floors = read_ground_truth(bag)
-    metrics = evaluate(result, gt_stamps, gt_poses, gt_floors)
+    metrics = evaluate(result, read_ground_truth(bag))
     duration = (result.stamps_ns[-1] - result.stamps_ns[0]) * 1e-9
     n = len(result.stamps_ns)
     metrics.update(frames=n, duration_s=duration, wall_s=wall, cpu_s=cpu, fps=n / wall,
@@ -88,7 +71,7 @@ def bench_bag(bag, params: EgoParams = EgoParams()) -> dict[str, float]:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m yowo_ego.bench", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m yowo_eval.ego_bench", description=__doc__.split("\n\n")[0])
     parser.add_argument("bags", nargs="+")
     parser.add_argument("--json", help="write all metrics to this file")
     args = parser.parse_args(argv)

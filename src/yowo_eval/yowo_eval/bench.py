@@ -16,15 +16,16 @@ from pathlib import Path
 import numpy as np
 
 from yowo_cmc.group_sfm import calibrate_groups
-from yowo_cmc.omecc_style import calibrate_groups_omecc
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
 
-from .bench_bound import BOUND_VERSION, bound_case
-from .config import YowoConfig
+from yowo_bringup.config import YowoConfig
+from yowo_bringup.offline import read_cmc_tracks
+
+from .bound import BOUND_VERSION, bound_case
 from .evaluation import ErrorSummary, relative_pose_errors
-from .offline import read_cmc_tracks
-from .results import read_ground_truth
+from .ground_truth import read_ground_truth
+from .omecc_style import calibrate_groups_omecc
 
 # Only scenarios that need CMC images render them (scene keypoints in CMC views, the
 # image detector, texture and light): the rest record keypoints only, 3-5x faster.
@@ -59,7 +60,7 @@ RELATIVE_METHODS = {
     "ECCMP-style": ("keypoints", lambda tracks, sfm: calibrate_groups(
         tracks, replace(sfm, overlap_ordering=False, per_id_sigma=False, min_edge_overlap=0.0))),
     # Factor graph over the person keypoints from a pairwise initialisation with a
-    # person-height scale prior (yowo_cmc.omecc_style); YOWO's grouping.
+    # person-height scale prior (yowo_eval.omecc_style); YOWO's grouping.
     "OMECC-style": ("keypoints", lambda tracks, sfm: calibrate_groups_omecc(tracks)),
 }
 
@@ -102,7 +103,7 @@ KEYPOINT_NAMES = {0: "head_top", 1: "ground"}
 
 
 def has_cmc_images(bag: Path) -> bool:
-    from .contract import cmc_image_topics, discover_inputs
+    from yowo_bringup.contract import cmc_image_topics, discover_inputs
     inputs = discover_inputs(bag)
     counts = {t.name: t.count for t in inputs.topics}
     return any(counts.get(t, 0) for name in inputs.cmc_names for t in cmc_image_topics(name))
@@ -184,11 +185,12 @@ def full_case(bag: Path, images: bool, config: YowoConfig = YowoConfig()) -> dic
     without and with YOWO's poses as prior (Table register_pose_eval_2, when the
     recording has CMC images); ego ATE per stage of the ego pipeline; layout IoU;
     time per stage and the real-time factor."""
-    from yowo_fusion.hloc_style import build_database, localize, read_keyframe_images
+    from yowo_bringup.offline import ego_map_data, process
+    from yowo_common.trajectory import Trajectory
     from yowo_fusion.pipeline import ISOLATED_PNP, CmcInput, fuse
 
-    from .evaluation import Trajectory, ate, layout_iou, registration_errors
-    from .offline import ego_map_data, process
+    from .evaluation import ate, layout_iou, registration_errors
+    from .hloc_style import build_database, localize, read_keyframe_images
 
     gt = read_ground_truth(bag)
     r = process(bag, config)

@@ -1,0 +1,1 @@
+"""YOWO evaluation and benchmark (metrics, bound, baselines); never imported by the runtime packages."""

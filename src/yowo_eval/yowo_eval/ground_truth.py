@@ -1,0 +1,45 @@
+"""The ground truth of a recording (/gt/... topics, written by the simulator), in
+YOWO's map frame. Only evaluation reads it; the pipeline never does."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from yowo_common.topics import GT_EGO_POSE, GT_FLOOR
+from yowo_common.trajectory import Trajectory
+
+from .evaluation import map_frame_from_first_pose
+
+
+@dataclass
+class GroundTruth:
+    cameras: dict[str, np.ndarray]
+    ego: Trajectory | None
+    floor: list[np.ndarray]
+    # The simulator's frame -> YOWO's map frame; other /gt/ data (agent keypoints) need it.
+    T_map_sim: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+
+def read_ground_truth(bag) -> GroundTruth:
+    from yowo_common.ros.bag import list_topics, read_messages
+    from yowo_common.rosconv import points_to_array, pose_to_matrix, stamp_to_ns
+
+    topics = [t.name for t in list_topics(bag) if t.name.startswith("/gt/")]
+    cams, ego_ns, ego_T, floor = {}, [], [], []
+    for topic, _, msg in read_messages(bag, topics):
+        if topic.startswith("/gt/cmc/"):
+            cams[topic.split("/")[3]] = pose_to_matrix(msg.pose)
+        elif topic == GT_EGO_POSE:
+            ego_ns.append(stamp_to_ns(msg.header.stamp))
+            ego_T.append(pose_to_matrix(msg.pose))
+        elif topic == GT_FLOOR:
+            floor.append(points_to_array(msg.polygon.points)[:, :2])
+    ego = Trajectory(np.array(ego_ns, dtype=np.int64), np.array(ego_T)) if ego_ns else None
+    T = np.eye(4)
+    if ego is not None:  # into YOWO's map convention (defined by the first ego pose)
+        T = map_frame_from_first_pose(ego.T_world_cam[np.argmin(ego.stamps_ns)])
+        cams = {n: T @ P for n, P in cams.items()}
+        ego = Trajectory(ego.stamps_ns, np.einsum("ij,njk->nik", T, ego.T_world_cam))
+        floor = [p @ T[:2, :2].T + T[:2, 3] for p in floor]
+    return GroundTruth(cams, ego, floor, T)

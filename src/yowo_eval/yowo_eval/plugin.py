@@ -1,0 +1,84 @@
+"""What yowo_eval adds to the `yowo` command line and to a run (entry points in its
+setup.py; yowo_bringup.plugins finds them): the `eval` and `bench` verbs, and the
+metrics of a run whose recording has ground truth."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from .eval import evaluate, print_tables, write_metrics
+
+__all__ = ["add_verbs", "evaluate_run", "print_tables", "write_metrics"]
+
+
+def evaluate_run(out_dir, bag) -> tuple[dict, dict] | None:
+    """(metrics, ground-truth camera poses) of a results directory, or None when the
+    recording has no ground truth for it."""
+    from .ground_truth import read_ground_truth
+
+    try:
+        return evaluate(out_dir, bag), read_ground_truth(bag).cameras
+    except ValueError:
+        return None
+
+
+def cmd_eval(args) -> int:
+    """Metrics of a results directory against the recording's ground truth."""
+    from rich.console import Console
+
+    metrics = evaluate(args.results, args.bag)
+    print_tables(metrics, Console())
+    write_metrics(metrics, Path(args.results) / "metrics.json")
+    return 0
+
+
+def cmd_bench(args) -> int:
+    """YOWO and the baselines on generated recordings -> BENCHMARKS.md + results.json."""
+    from yowo_bringup.cli import config_from_args
+
+    from .bench import SCENARIOS, run_bench
+    from .bench_report import write_outputs
+
+    unknown = [s for s in args.scenarios if s not in SCENARIOS]
+    if unknown:
+        raise ValueError(f"unknown scenario(s) {', '.join(unknown)} (choose from {', '.join(SCENARIOS)})")
+    out = Path(args.output)
+    markdown = Path(args.markdown) if args.markdown else None
+    if args.from_results:
+        write_outputs(json.loads((out / "results.json").read_text()), out, markdown)
+        print(f"re-rendered {out / 'BENCHMARKS.md'} from {out / 'results.json'}")
+        return 0
+    results = run_bench(args.preset, args.seeds, args.scenarios, out, full=not args.cmc_only,
+                        sweep_preset=args.sweep_preset, resume=args.resume,
+                        on_case=lambda partial: write_outputs(partial, out, markdown),   # tables so far
+                        config=config_from_args(args))
+    write_outputs(results, out, markdown)
+    print(f"wrote {out / 'BENCHMARKS.md'} and {out / 'results.json'}" + (f" and {markdown}" if markdown else ""))
+    return 0
+
+
+def add_verbs(verbs) -> None:
+    from yowo_bringup.cli import add_config_options
+
+    p = verbs.add_parser("bench", help="YOWO and baselines on generated recordings -> BENCHMARKS.md")
+    p.add_argument("--preset", nargs="+", default=["small"],
+                   help="one or more of tiny, small, standard, large (several: the scale table; large "
+                   "runs the first seed only, keypoints only)")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--scenarios", nargs="+", default=["normal"], help="normal, texture_poor, symmetric, "
+                   "dim_light, stationary, kp_noise_{0.5,1.0,2.0,5.0}px, kp_outliers_5pct")
+    p.add_argument("-o", "--output", default="bench", help="directory for bags, results.json, BENCHMARKS.md")
+    p.add_argument("--markdown", help="also write the tables here (e.g. BENCHMARKS.md at the repo root)")
+    p.add_argument("--cmc-only", action="store_true", help="only the CMC relative calibration tables (fast)")
+    p.add_argument("--sweep-preset", help="run the scenarios other than 'normal' (and kp_outliers_5pct) on this "
+                                          "preset only")
+    p.add_argument("--resume", action="store_true", help="reuse the cases already finished in OUTPUT/cases.jsonl")
+    add_config_options(p)
+    p.add_argument("--from-results", action="store_true",
+                   help="run nothing: render the tables again from OUTPUT/results.json (e.g. after a report change)")
+    p.set_defaults(func=cmd_bench)
+
+    p = verbs.add_parser("eval", help="metric tables of a results directory against a bag's ground truth")
+    p.add_argument("results", help="results directory of yowo run / calibrate-cmc")
+    p.add_argument("--bag", required=True, help="the recording, with /gt topics")
+    p.set_defaults(func=cmd_eval)

@@ -1,0 +1,77 @@
+"""What yowo_sim adds to the `yowo` command line (an entry point in its setup.py, found
+by yowo_bringup.plugins): `simulate` and `demo`."""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def cmd_simulate(args) -> int:
+    """Generate a synthetic recording with ground truth."""
+    from rich.progress import Progress
+
+    from yowo_sim.capture import generate
+    from yowo_sim.presets import get_preset
+
+    overrides = {}
+    if args.no_cmc_images:
+        overrides["cmc_images"] = False
+    if args.raw:
+        overrides["raw_images"] = True
+    if args.ego_hz:
+        overrides["ego_hz"] = args.ego_hz
+    if args.cmc_hz:
+        overrides["cmc_hz"] = args.cmc_hz
+    preset = get_preset(args.preset, **overrides)
+    with Progress() as bar:
+        task = bar.add_task(f"simulating '{args.preset}' (seed {args.seed})", total=None)
+        summary = generate(preset, args.seed, args.output,
+                           progress=lambda done, total: bar.update(task, completed=done, total=total))
+    if args.preview:
+        from yowo_sim.capture import build_capture
+        from yowo_sim.preview import render_preview
+
+        render_preview(build_capture(preset, args.seed), args.preview)
+        print(f"preview: {args.preview}")
+    fps = summary.rendered_frames / max(summary.render_seconds, 1e-9)
+    print(f"wrote {summary.path}: {summary.duration_s:.1f} s walk, {summary.ego_frames} ego frames, "
+          f"{summary.cmc_frames} CMC frames ({summary.cmc_frames_with_agent} with the agent detected), "
+          f"{len(summary.cmcs)} CMCs; rendering {fps:.1f} frames/s")
+    return 0
+
+
+def cmd_demo(args) -> int:
+    """Make (or reuse) a sample recording, run the full graph on it, show the metrics."""
+    from rich.progress import Progress
+
+    from yowo_sim.capture import generate
+    from yowo_sim.presets import get_preset
+
+    bag = Path(args.bag)
+    if not (bag / "metadata.yaml").exists():
+        with Progress() as bar:
+            task = bar.add_task(f"generating the sample recording {bag} (preset {args.preset}, seed 0)", total=None)
+            generate(get_preset(args.preset), 0, bag, progress=lambda d, t: bar.update(task, completed=d, total=t))
+    from yowo_bringup.cli import build_parser, cmd_run
+
+    code = cmd_run(build_parser().parse_args(["run", str(bag), "-o", args.output]))
+    print(f"\nreport: {Path(args.output) / 'report.html'}")
+    return code
+
+
+def add_verbs(verbs) -> None:
+    p = verbs.add_parser("simulate", help="generate a synthetic recording with ground truth")
+    p.add_argument("--preset", default="small", help="tiny | small | standard | large (default: small)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("-o", "--output", required=True, help="new rosbag2 directory to write (MCAP)")
+    p.add_argument("--no-cmc-images", action="store_true", help="record CMC keypoints only, no images")
+    p.add_argument("--raw", action="store_true", help="raw sensor_msgs/Image instead of compressed")
+    p.add_argument("--ego-hz", type=float, help="ego camera rate (default 15)")
+    p.add_argument("--cmc-hz", type=float, help="CMC rate (default 10)")
+    p.add_argument("--preview", metavar="PNG", help="also write a picture: ego frame, CMC frame, top view")
+    p.set_defaults(func=cmd_simulate)
+
+    p = verbs.add_parser("demo", help="generate a sample recording, run the full graph, print the metrics")
+    p.add_argument("--preset", default="small")
+    p.add_argument("--bag", default="bags/demo_small", help="where the sample recording is (made if missing)")
+    p.add_argument("-o", "--output", default="results/demo")
+    p.set_defaults(func=cmd_demo)
