@@ -38,6 +38,7 @@ def cmd_info(args) -> int:
 def _execute(args, mode: str):
     """Plan and run the graph; returns the outcome or None (message printed) on failure."""
     from .isolation import PRIVATE, SHARED, graph_network
+    from .progress import console_progress
     from .run import plan_live, plan_run
     from .run_node import RunFailed, execute
 
@@ -60,11 +61,16 @@ def _execute(args, mode: str):
     print(f"{what}: {len(plan.cameras)} CMCs ({', '.join(plan.cameras)}), "
           f"{len(plan.local_nodes)} node processes here; graph on {network.describe()}; "
           f"logs in {Path(args.output) / 'logs'}")
+    progress = console_progress(f"{args.verb} {plan.run_id}")
     try:
-        return execute(plan, timeout_s=args.timeout, network=network, linger_s=getattr(args, "linger", 0.0))
+        return execute(plan, timeout_s=args.timeout, network=network, linger_s=getattr(args, "linger", 0.0),
+                       progress=progress)
     except RunFailed as exc:
+        progress.close()
         print(f"yowo {args.verb}: {exc}\n(partial results, if any, are in {args.output})", file=sys.stderr)
         return None
+    finally:
+        progress.close()
 
 
 def cmd_run(args) -> int:

@@ -42,6 +42,7 @@ class RunPlan:
     run_id: str = ""                       # in every status: nodes ignore other runs' (see isolation.py)
     local: list[str] = field(default_factory=lambda: ["*"])  # patterns of the nodes this host starts
     config: YowoConfig = field(default_factory=YowoConfig)
+    replay_messages: int = 0               # what the replay will publish (0: live)
 
     @property
     def local_nodes(self) -> list[NodeSpec]:
@@ -134,7 +135,9 @@ def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, s
         "bag": str(bag), "topics": played, "wait_for_topics": played, "stages": [n.name for n in nodes]}))
     run_id = run_id or new_run_id()
     _stamp_run(nodes, run_id, True, config)
-    return RunPlan(Path(bag), Path(out_dir), mode, cameras, nodes, final, outputs, problems, run_id, config=config)
+    total = sum(t.count for t in inputs.topics if t.name in played)
+    return RunPlan(Path(bag), Path(out_dir), mode, cameras, nodes, final, outputs, problems, run_id, config=config,
+                   replay_messages=total)
 
 
 def plan_live(cameras: list[str], out_dir, mode: str = FULL, source: str = "keypoints",

@@ -17,6 +17,7 @@ from yowo_common.ros.stage import LATCHED, RunFilter
 
 from .config import params_document
 from .isolation import PRIVATE, GraphNetwork, graph_network
+from .progress import DONE, FAILED, RUNNING, WAITING, ProgressLines, RunProgress
 from .run import RunOutcome, RunPlan, write_run_results
 from .supervisor import Supervisor, write_params_file
 
@@ -45,6 +46,7 @@ class RunMonitor(Node):
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay, LATCHED)
         self._relay = None
         self._announced = None
+        self._playing_since: float | None = None
         for topic, msgtype in outputs.items():
             self.create_subscription(message_class(msgtype), topic,
                                      lambda m, t=topic: self.outputs.__setitem__(t, m), LATCHED)
@@ -72,11 +74,17 @@ class RunMonitor(Node):
         msg = self.status.get(stage)
         return msg if msg is not None and msg.state != StageStatus.STATE_RUNNING else None
 
-    def progress(self, stages: list[str]) -> str:
+    def progress(self, stages: list[str], elapsed_s: float, total: int) -> RunProgress:
         played = sum(self.replay.published_counts) if self.replay else 0
-        resent = f" (+{self.replay.resent_messages} re-sent)" if self.replay and self.replay.resent_messages else ""
-        done = [s for s in stages if self.finished(s)]
-        return f"replayed {played} messages{resent}; stages done {len(done)}/{len(stages)}"
+        if played and self._playing_since is None:
+            self._playing_since = elapsed_s
+        states = {}
+        for s in stages:
+            msg = self.status.get(s)
+            states[s] = (WAITING if msg is None else RUNNING if msg.state == StageStatus.STATE_RUNNING
+                         else FAILED if msg.state == StageStatus.STATE_FAILED else DONE)
+        return RunProgress(elapsed_s, played, total, self.replay.resent_messages if self.replay else 0,
+                           self._playing_since, states)
 
     def strays(self) -> dict[str, int]:
         """Status messages of other runs each node heard and ignored."""
@@ -85,12 +93,14 @@ class RunMonitor(Node):
 
 
 def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphNetwork | None = None,
-            linger_s: float = 0.0) -> RunOutcome:
+            linger_s: float = 0.0, progress=None) -> RunOutcome:
     """Run the graph (the plan's local nodes; the others run on other hosts) and write the
     results directory. Raises RunFailed with the reason (after writing whatever partial
     results exist). `network`: the run's DDS domain (a private one by default);
     `linger_s`: after a successful run, keep the graph up this long with the results
-    written (late /tf_static subscribers)."""
+    written (late /tf_static subscribers); `progress`: called with a RunProgress several
+    times a second (default: a line every 5 s through `log`)."""
+    progress = progress or ProgressLines(log)
     network = network or graph_network(PRIVATE)
     (plan.out_dir / "logs").mkdir(parents=True, exist_ok=True)
     params_file = plan.out_dir / "logs" / "ros_params.yaml"        # what the nodes are started with
@@ -119,7 +129,7 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
             try:
                 for spec in plan.local_nodes:  # replay last: it waits for the stages' subscriptions
                     sup.start(spec)
-                last_report, finished_at = 0.0, None
+                finished_at = None
                 while True:
                     rclpy.spin_once(monitor, timeout_sec=0.1)
                     if plan.bag is None:
@@ -145,9 +155,7 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
                         failure = (f"no result after {timeout_s:.0f} s; "
                                    + ", ".join(f"{s}={'done' if monitor.finished(s) else 'running'}" for s in stages))
                         break
-                    if time.monotonic() - last_report > 5.0:
-                        last_report = time.monotonic()
-                        log(f"[{time.monotonic() - t0:6.1f} s] {monitor.progress(stages)}")
+                    progress(monitor.progress(stages, time.monotonic() - t0, plan.replay_messages))
                 if linger_s > 0 and not failure:
                     outcome = write_run_results(plan, dict(monitor.outputs), dict(monitor.status), monitor.replay,
                                                 time.monotonic() - t0, failure, graph_log())

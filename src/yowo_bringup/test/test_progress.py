@@ -1,0 +1,28 @@
+from yowo_bringup.progress import DONE, FAILED, RUNNING, WAITING, ProgressLines, RunProgress
+
+
+def test_share_eta_and_states():
+    p = RunProgress(elapsed_s=30.0, played=250, total=1000, resent=40, playing_since_s=10.0,
+                    stages={"ego_mapper": RUNNING, "keypoint_tracker_a": DONE, "group_sfm": WAITING,
+                            "fusion": FAILED})
+    assert p.share == 0.25
+    # A quarter took 20 s of playing: three quarters take 60 s more.
+    assert abs(p.eta_s - 60.0) < 1e-9
+    line = p.line()
+    assert "replayed  25 % (250/1000 messages)" in line and "40 re-sent" in line and "ETA 60 s" in line
+    assert "stages done 2/4" in line and "running: ego_mapper" in line and "waiting: group_sfm" in line
+
+
+def test_no_eta_before_playing_or_when_live():
+    assert RunProgress(5.0, 0, 1000).eta_s is None
+    assert RunProgress(5.0, 1000, 1000, playing_since_s=1.0).eta_s is None      # the replay is over
+    live = RunProgress(5.0, 0, 0, stages={"fusion": RUNNING})
+    assert live.share is None and live.eta_s is None and "live" in live.line()
+
+
+def test_lines_are_rate_limited():
+    lines = []
+    show = ProgressLines(lines.append, period_s=3600.0)
+    for i in range(5):
+        show(RunProgress(float(i), i, 10))
+    assert len(lines) == 1 and lines[0].startswith("[   0.0 s] replayed")
