@@ -33,3 +33,48 @@ def test_runtime_packages_never_import_the_evaluation():
     offenders = [f"{p.relative_to(ROOT)}: {m}" for pkg in RUNTIME for p in (ROOT / "src" / pkg / pkg).rglob("*.py")
                  for m in imported_modules(p) if m.split(".")[0] in ("yowo_eval", "yowo_sim")]
     assert not offenders, offenders
+
+
+# The rosdep key of each third-party import (rosdistro rosdep/python.yaml and base.yaml;
+# gtsam is a package of the Jazzy distribution); None: no key exists, requirements.txt
+# installs it (said in the package.xml).
+ROSDEP = {"cv2": "python3-opencv", "numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-yaml",
+          "gtsam": "gtsam", "rosbags": "python3-rosbags-pip", "mcap": "mcap-ros2-support",
+          "shapely": "python3-shapely", "open3d": "python3-open3d-pip", "networkx": "python3-networkx",
+          "matplotlib": "python3-matplotlib", "rich": "python3-rich", "dacite": None, "lz4": None,
+          "zstandard": None}
+ROS_PACKAGES = {"rclpy", "builtin_interfaces", "geometry_msgs", "nav_msgs", "sensor_msgs", "std_msgs", "tf2_msgs",
+                "visualization_msgs", "rosgraph_msgs", "yowo_msgs", "yowo_common", "yowo_ego", "yowo_cmc",
+                "yowo_fusion", "yowo_bringup", "yowo_sim", "yowo_eval"}
+PYTHON_PACKAGES = RUNTIME + ("yowo_sim", "yowo_eval")
+
+
+def test_package_xml_declares_what_the_code_imports():
+    import xml.etree.ElementTree as ET
+
+    problems = []
+    for pkg in PYTHON_PACKAGES:
+        declared = {e.text for e in ET.parse(ROOT / "src" / pkg / "package.xml").getroot().iter("exec_depend")}
+        imported = {m.split(".")[0] for p in (ROOT / "src" / pkg / pkg).rglob("*.py") for m in imported_modules(p)}
+        imported -= set(sys.stdlib_module_names) | {pkg}
+        unknown = sorted(m for m in imported if m not in ROSDEP and m not in ROS_PACKAGES)
+        needed = {ROSDEP.get(m, m) for m in imported if m not in unknown} - {None}
+        if any((ROOT / "src" / pkg / pkg).glob("*_node.py")):
+            needed.add("rclpy")     # its nodes run on rclpy (through yowo_common's StageNode)
+        if unknown:
+            problems.append(f"{pkg}: no rosdep key known for {unknown} (add it to ROSDEP)")
+        if needed - declared:
+            problems.append(f"{pkg}/package.xml: missing exec_depend {sorted(needed - declared)}")
+        if declared - needed:
+            problems.append(f"{pkg}/package.xml: exec_depend {sorted(declared - needed)} is never imported")
+    assert not problems, "\n".join(problems)
+
+
+def test_every_python_package_has_the_setup_cfg_ros2_run_needs():
+    import configparser
+
+    for pkg in PYTHON_PACKAGES:
+        cfg = configparser.ConfigParser()
+        cfg.read(ROOT / "src" / pkg / "setup.cfg")
+        assert cfg.get("develop", "script_dir") == f"$base/lib/{pkg}", pkg
+        assert cfg.get("install", "install_scripts") == f"$base/lib/{pkg}", pkg
