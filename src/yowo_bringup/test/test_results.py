@@ -4,12 +4,13 @@ import numpy as np
 import yaml
 
 from yowo_bringup.results import write_cameras_yaml
+from yowo_common.camera import CameraModel
 from yowo_fusion.pipeline import RegisteredCmc
 
 
 def _camera(name: str, covariance: np.ndarray) -> RegisteredCmc:
     return RegisteredCmc(name, "g0", "group_sfm", "weak", "covariance unavailable", np.eye(4), covariance,
-                         np.diag([500.0, 500.0, 1.0]), 0.5, 100, 10)
+                         CameraModel(640, 480, np.diag([500.0, 500.0, 1.0])), 0.5, 100, 10)
 
 
 def test_unknown_covariance_is_written_as_unknown(tmp_path):

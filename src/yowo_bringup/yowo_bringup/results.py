@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from yowo_cmc.group_sfm import CameraGroupResult
+from yowo_common.camera import CameraModel
 from yowo_common.geometry import quat_xyzw_from_rotation, rotation_from_quat_xyzw, se3
 from yowo_fusion.pipeline import RegisteredCmc
 
@@ -30,9 +32,40 @@ def pose_sigma(covariance) -> np.ndarray | None:
     return np.sqrt(np.clip(np.diag(covariance), 0, None))
 
 
-def write_cameras_yaml(path: Path, cameras: list[RegisteredCmc]) -> None:
+# The clock offset of a CMC against the ego clock is not estimated yet: written as unknown
+# with the assumption the registration made, never as a measured 0.
+CLOCK_ENTRY = {"clock_offset_s": None, "clock": "assumed synchronised with the ego camera (offset not estimated)"}
+
+
+def intrinsics_entry(camera: CameraModel | None) -> dict:
+    """The CameraInfo intrinsics a camera was registered with (None: no CameraInfo arrived)."""
+    if camera is None:
+        return {"image_width": None, "image_height": None, "K": None, "distortion_model": None,
+                "distortion_coefficients": None}
+    return {"image_width": int(camera.width), "image_height": int(camera.height),
+            "K": np.asarray(camera.K).round(6).tolist(), "distortion_model": camera.distortion_model,
+            "distortion_coefficients": [round(float(v), 9) for v in camera.D]}
+
+
+def keypoint_noise_entry(group: CameraGroupResult | None) -> dict:
+    """The per-keypoint-id pixel noise the camera's group bundle adjustment estimated."""
+    if group is None or not group.sigma_px_by_id:
+        return {"keypoint_noise": None,
+                "keypoint_noise_note": "not estimated: no group bundle adjustment of this camera"}
+    sigma = dict(sorted(group.sigma_px_by_id.items()))
+    values = np.array(list(sigma.values()))
+    return {"keypoint_noise": {
+        "estimated_by": f"group {group.group_id} bundle adjustment (shared by its cameras)",
+        "sigma_px_by_keypoint_id": {int(i): round(float(v), 4) for i, v in sigma.items()},
+        "median_px": round(float(np.median(values)), 4), "min_px": round(float(values.min()), 4),
+        "max_px": round(float(values.max()), 4)}}
+
+
+def write_cameras_yaml(path: Path, cameras: list[RegisteredCmc], groups: list[CameraGroupResult] = ()) -> None:
     """Per CMC: how it was registered, T_world_camera (map -> <name>_optical_frame),
-    the 6x6 covariance (x, y, z, rx, ry, rz; m^2, rad^2), intrinsics, RMSE, counts."""
+    the 6x6 covariance (x, y, z, rx, ry, rz; m^2, rad^2), intrinsics and distortion, clock
+    offset, its group's keypoint noise (from `groups`), RMSE, counts."""
+    group_by_id = {g.group_id: g for g in groups}
     out = []
     for c in cameras:
         entry = {"name": c.name, "group": c.group, "method": c.method, "status": c.status, "reason": c.reason}
@@ -42,7 +75,8 @@ def write_cameras_yaml(path: Path, cameras: list[RegisteredCmc]) -> None:
             entry["covariance"] = np.asarray(c.covariance).round(12).tolist() if sig is not None else None
             entry["sigma"] = "unknown (see reason)" if sig is None else {
                 "position_m": sig[:3].round(5).tolist(), "rotation_deg": np.degrees(sig[3:]).round(4).tolist()}
-        entry.update({"K": np.asarray(c.K).round(6).tolist(), "reprojection_rmse_px": round(float(c.rmse_px), 4),
+        entry.update({**intrinsics_entry(c.camera), **CLOCK_ENTRY, **keypoint_noise_entry(group_by_id.get(c.group)),
+                      "reprojection_rmse_px": round(float(c.rmse_px), 4),
                       "num_agent_observations": int(c.num_agent), "num_scene_observations": int(c.num_scene)})
         out.append(entry)
     path.write_text(yaml.safe_dump({"frame": "map", "cameras": out}, sort_keys=False))

@@ -16,7 +16,7 @@ from yowo_common import topics
 from .config import YowoConfig, section_yaml
 from .contract import (EGO_COLOR, EGO_DEPTH, EGO_INFO, cmc_image_topics, cmc_info_topic, cmc_keypoints_topic,
                        discover_inputs)
-from .results import pose_entry
+from .results import CLOCK_ENTRY, intrinsics_entry, keypoint_noise_entry, pose_entry
 from .supervisor import NodeSpec
 
 STAGE_MODULES = {
@@ -183,31 +183,17 @@ def _stage_nodes(mode: str, trackers: list[tuple[str, str, str]], ego: tuple[str
     return nodes, final, outputs
 
 
-def read_intrinsics(bag, cameras: list[str]) -> dict[str, np.ndarray]:
-    """K of each camera from its first CameraInfo in the recording."""
-    from yowo_common.ros.bag import read_messages
-
-    wanted = {cmc_info_topic(c): c for c in cameras}
-    K = {}
-    for topic, _, msg in read_messages(bag, wanted):
-        K.setdefault(wanted[topic], np.asarray(msg.k, dtype=float).reshape(3, 3))
-        if len(K) == len(wanted):
-            break
-    return K
-
-
-def write_group_calibration(path: Path, groups: list[CameraGroupResult], ungrouped: dict[str, str],
-                            intrinsics: dict[str, np.ndarray]) -> None:
+def write_group_calibration(path: Path, groups: list[CameraGroupResult], ungrouped: dict[str, str]) -> None:
     """cameras.yaml of a CMC-only run: per camera its group and T_group_camera
-    (pseudo-scale: the group's reference camera is the identity)."""
+    (pseudo-scale: the group's reference camera is the identity), the intrinsics the group
+    SfM used, clock and keypoint noise as a full run writes them."""
     cams = []
     for g in groups:
         for n in g.names:
             cams.append({"name": n, "group": g.group_id, "method": "group_sfm", "status": "ok", "reason": "",
                          "frame": f"{g.group_id} (reference camera {g.reference}, arbitrary scale)",
                          "T_group_camera": pose_entry(g.T_local_cam[n]),
-                         # K from the recording; a live run leaves it to the camera's CameraInfo
-                         **({"K": np.asarray(intrinsics[n]).round(6).tolist()} if n in intrinsics else {}),
+                         **intrinsics_entry(g.cameras.get(n)), **CLOCK_ENTRY, **keypoint_noise_entry(g),
                          "reprojection_rmse_px": round(float(g.rmse_px[n]), 4),
                          "num_agent_observations": int(g.num_observations[n])})
     for n, why in ungrouped.items():
@@ -225,8 +211,7 @@ def write_run_results(plan: RunPlan, outputs: dict, status: dict, replay, second
     groups, ungrouped = groups_from_msg(outputs[topics.GROUPS]) if topics.GROUPS in outputs else ([], {})
     cameras: list = groups
     if plan.mode == CMC and topics.GROUPS in outputs:
-        write_group_calibration(out / "cameras.yaml", groups, ungrouped,
-                                read_intrinsics(plan.bag, plan.cameras) if plan.bag else {})
+        write_group_calibration(out / "cameras.yaml", groups, ungrouped)
         files.append(out / "cameras.yaml")
     if plan.mode == FULL:
         cameras = _write_full_results(plan, outputs, files)
@@ -247,6 +232,7 @@ def write_run_results(plan: RunPlan, outputs: dict, status: dict, replay, second
 
 
 def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list:
+    from yowo_cmc.messages import groups_from_msg
     from yowo_common.ros.bag import BagWriter
     from yowo_common.rosconv import pointcloud2_to_xyz_rgb, points_to_array, pose_to_matrix, stamp_to_ns
     from yowo_fusion.messages import ego_map_from_msg, registered_from_msg
@@ -254,14 +240,17 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     from yowo_common.trajectory import Trajectory, write_tum
 
     from .plugins import evaluator
+    from .exports import write_exports
     from .report import write_report
     from .results import write_cameras_yaml, write_layout_json, write_ply
 
     out = plan.out_dir
     cameras = registered_from_msg(outputs[topics.CMC_POSES]) if topics.CMC_POSES in outputs else []
+    groups = groups_from_msg(outputs[topics.GROUPS])[0] if topics.GROUPS in outputs else []
     if cameras:
-        write_cameras_yaml(out / "cameras.yaml", cameras)
+        write_cameras_yaml(out / "cameras.yaml", cameras, groups)
         files.append(out / "cameras.yaml")
+        files += write_exports(out / "export", cameras, groups, _export_ego_keyframes(outputs))
 
     def final_and_ego(refined: str, ego_only: str, stem: str, ext: str) -> list[tuple[Path, str]]:
         """The fusion's output (at the jointly optimised ego poses) as stem.ext and the ego
@@ -325,3 +314,21 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
         ev.write_metrics(metrics, out / "metrics.json")
         files.append(out / "metrics.json")
     return cameras
+
+
+def _export_ego_keyframes(outputs: dict):
+    """The ego map's keyframes for the exports, at the fusion's jointly optimised poses where
+    the run has them (the refined path holds one pose per keyframe stamp)."""
+    from dataclasses import replace
+
+    from yowo_common.rosconv import pose_to_matrix, stamp_to_ns
+    from yowo_fusion.messages import ego_map_from_msg
+
+    if topics.EGO_MAP not in outputs:
+        return None
+    ego = ego_map_from_msg(outputs[topics.EGO_MAP])
+    if topics.REFINED_EGO_PATH in outputs:
+        refined = {stamp_to_ns(p.header.stamp): pose_to_matrix(p.pose) for p in outputs[topics.REFINED_EGO_PATH].poses}
+        if all(int(s) in refined for s in ego.stamps_ns):
+            ego = replace(ego, T_world_ego=np.array([refined[int(s)] for s in ego.stamps_ns]).reshape(-1, 4, 4))
+    return ego

@@ -101,6 +101,7 @@ class CameraGroupResult:
     num_observations: dict[str, int]
     sigma_px_by_id: dict[int, float]
     initial_pair: tuple[str, str]
+    cameras: dict[str, CameraModel] = field(default_factory=dict)   # each member's intrinsics with distortion
 
 
 @dataclass
@@ -508,6 +509,7 @@ def calibrate_groups(cams: list[CameraTracks], params: SfmParams = SfmParams()) 
         result, failed = reconstruct_group(obs, members, pairs, f"g{len(results)}", params)
         reasons.update(failed)
         if result is not None and len(result.names) >= 2:
+            result.cameras = {c.name: c.camera for c in cams if c.name in result.names}
             results.append(result)
         elif result is not None:
             reasons.update({obs.names.index(n): "its group fell apart (too few registered cameras)"

@@ -5,8 +5,8 @@ import numpy as np
 from std_msgs.msg import Header
 from yowo_msgs.msg import CameraGroup, CameraGroupArray
 
-from yowo_common.rosconv import (array_to_points, matrix_to_pose, ns_to_time, points_to_array, pose_to_matrix,
-                                 stamp_to_ns)
+from yowo_common.rosconv import (array_to_points, camera_info_to_model, matrix_to_pose, model_to_camera_info,
+                                 ns_to_time, points_to_array, pose_to_matrix, stamp_to_ns)
 
 from .group_sfm import CameraGroupResult, GroupingResult
 
@@ -20,6 +20,7 @@ def groups_to_msg(result: GroupingResult, stamp_ns: int) -> CameraGroupArray:
             poses_local_camera=[matrix_to_pose(g.T_local_cam[n]) for n in g.names],
             reprojection_rmse_px=[float(g.rmse_px[n]) for n in g.names],
             num_observations=[int(g.num_observations[n]) for n in g.names],
+            camera_infos=[model_to_camera_info(g.cameras[n]) for n in g.names if n in g.cameras],
             sigma_keypoint_ids=[int(i) for i in g.sigma_px_by_id], sigma_px=[float(s) for s in g.sigma_px_by_id.values()],
             track_stamps=[ns_to_time(int(s)) for s in g.point_stamps_ns],
             track_keypoint_ids=[int(i) for i in g.point_ids],
@@ -40,5 +41,8 @@ def groups_from_msg(msg: CameraGroupArray) -> tuple[list[CameraGroupResult], dic
             np.array(g.track_keypoint_ids, dtype=int), points_to_array(g.track_points),
             dict(zip(names, g.reprojection_rmse_px)), dict(zip(names, g.num_observations)),
             {int(i): float(s) for i, s in zip(g.sigma_keypoint_ids, g.sigma_px)},
-            (g.reference_camera, g.initial_pair_camera)))
+            (g.reference_camera, g.initial_pair_camera),
+            # a group without them (an older message) has no intrinsics to give
+            {n: camera_info_to_model(i) for n, i in zip(names, g.camera_infos)} if len(g.camera_infos) == len(names)
+            else {}))
     return groups, dict(zip(msg.ungrouped_cameras, msg.ungrouped_reasons))

@@ -18,17 +18,28 @@ _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-
 @dataclass
 class CameraModel:
     """Intrinsics of one camera. ``K`` is 3x3, ``D`` the distortion coefficients
-    in OpenCV order for ``distortion_model`` (empty or all-zero: no distortion)."""
+    in OpenCV order for ``distortion_model`` (empty or all-zero: no distortion).
+    ``R`` (3x3) and ``P`` (3x4) are CameraInfo's rectification and projection, kept so
+    that exports give a camera's CameraInfo back as it came (None: identity, [K | 0]);
+    no geometry here uses them."""
 
     width: int
     height: int
     K: np.ndarray
     D: np.ndarray = field(default_factory=lambda: np.zeros(5))
     distortion_model: str = PLUMB_BOB
+    R: np.ndarray | None = None
+    P: np.ndarray | None = None
 
     def __post_init__(self):
         self.K = np.asarray(self.K, dtype=float).reshape(3, 3)
         self.D = np.asarray(self.D, dtype=float).reshape(-1)
+        if self.R is None:
+            self.R = np.eye(3)
+        if self.P is None:
+            self.P = np.column_stack([self.K, np.zeros(3)])
+        self.R = np.asarray(self.R, dtype=float).reshape(3, 3)
+        self.P = np.asarray(self.P, dtype=float).reshape(3, 4)
 
     @staticmethod
     def from_fov(width: int, height: int, hfov_deg: float) -> "CameraModel":

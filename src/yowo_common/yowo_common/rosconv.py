@@ -83,9 +83,12 @@ def array_to_points(xyz: np.ndarray) -> list[Point]:
 # --- camera info --------------------------------------------------------------
 def camera_info_to_model(info) -> CameraModel:
     """CameraInfo -> CameraModel; raises ValueError naming what is wrong."""
+    R, P = np.asarray(info.r, dtype=float), np.asarray(info.p, dtype=float)
     model = CameraModel(
         int(info.width), int(info.height), np.asarray(info.k, dtype=float).reshape(3, 3),
         np.asarray(info.d, dtype=float), info.distortion_model or PLUMB_BOB,
+        # an uncalibrated driver leaves R and P zero: identity and [K | 0] then
+        R if R.any() else None, P if P.any() else None,
     )
     problems = model.problems()
     if problems:
@@ -101,10 +104,8 @@ def model_to_camera_info(model: CameraModel, header=None) -> CameraInfo:
     info.distortion_model = model.distortion_model
     info.d = [float(v) for v in model.D]
     info.k = [float(v) for v in model.K.reshape(-1)]
-    info.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
-    P = np.zeros((3, 4))
-    P[:, :3] = model.K
-    info.p = [float(v) for v in P.reshape(-1)]
+    info.r = [float(v) for v in model.R.reshape(-1)]
+    info.p = [float(v) for v in model.P.reshape(-1)]
     return info
 
 

@@ -5,14 +5,15 @@ from __future__ import annotations
 import numpy as np
 from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import Point, PoseWithCovariance, TransformStamped
+from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import ColorRGBA, Header
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 from yowo_msgs.msg import EgoMap, RegisteredCamera, RegisteredCameraArray, SceneLayout
 
 from yowo_common.camera import CameraModel
-from yowo_common.rosconv import (camera_info_to_model, matrix_to_pose, matrix_to_transform, ns_to_time,
-                                 pointcloud2_to_xyz_rgb, points_to_array, pose_to_matrix, stamp_to_ns)
+from yowo_common.rosconv import (camera_info_to_model, matrix_to_pose, matrix_to_transform, model_to_camera_info,
+                                 ns_to_time, pointcloud2_to_xyz_rgb, points_to_array, pose_to_matrix, stamp_to_ns)
 from yowo_ego.layout import Layout, LayoutPlane
 
 from .pipeline import FAILED, OK, WEAK, EgoMapData, RegisteredCmc
@@ -57,6 +58,7 @@ def registered_to_msg(cameras: list[RegisteredCmc], stamp_ns: int) -> Registered
         out.cameras.append(RegisteredCamera(
             name=c.name, group=c.group, method=c.method, status=_STATUS[c.status], reason=c.reason,
             pose_world_camera=pose, k=[float(v) for v in np.asarray(c.K).reshape(-1)],
+            camera_info=model_to_camera_info(c.camera) if c.camera is not None else CameraInfo(),
             reprojection_rmse_px=float(c.rmse_px), num_agent_observations=int(c.num_agent),
             num_scene_observations=int(c.num_scene)))
     return out
@@ -91,11 +93,9 @@ def layout_markers(cameras: list[RegisteredCmc], floor_polygons: list[np.ndarray
                                   points=pts, color=ColorRGBA(r=0.6, g=0.6, b=0.6, a=1.0), lifetime=Duration()))
         out.markers[-1].scale.x = 0.03
         out.markers[-1].pose.orientation.w = 1.0
-    for i, c in enumerate(c for c in cameras if c.T_world_cam is not None):
-        # The image size is not in the message; the principal point's double is close enough to draw.
-        cam = CameraModel(int(2 * c.K[0, 2] + 1), int(2 * c.K[1, 2] + 1), c.K)
+    for i, c in enumerate(c for c in cameras if c.T_world_cam is not None and c.camera is not None):
         m = Marker(header=header, ns="cameras", id=i, type=Marker.LINE_LIST, action=Marker.ADD,
-                   points=[Point(x=float(x), y=float(y), z=float(z)) for x, y, z in frustum_lines(cam, c.T_world_cam)],
+                   points=[Point(x=float(x), y=float(y), z=float(z)) for x, y, z in frustum_lines(c.camera, c.T_world_cam)],
                    color=colour.get(c.status, colour[WEAK]))
         m.scale.x = 0.02
         m.pose.orientation.w = 1.0
@@ -117,6 +117,7 @@ def registered_from_msg(msg: RegisteredCameraArray) -> list[RegisteredCmc]:
         out.append(RegisteredCmc(c.name, c.group, c.method, status[c.status], c.reason,
                                  None if failed else pose_to_matrix(c.pose_world_camera.pose),
                                  None if failed else np.asarray(c.pose_world_camera.covariance).reshape(6, 6),
-                                 np.asarray(c.k).reshape(3, 3), c.reprojection_rmse_px,
+                                 camera_info_to_model(c.camera_info) if c.camera_info.width else None,
+                                 c.reprojection_rmse_px,
                                  c.num_agent_observations, c.num_scene_observations))
     return out

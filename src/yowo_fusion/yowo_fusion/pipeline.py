@@ -59,10 +59,14 @@ class RegisteredCmc:
     reason: str
     T_world_cam: np.ndarray | None
     covariance: np.ndarray | None    # 6x6 ROS order (x, y, z, rx, ry, rz), world frame; NaN: unknown
-    K: np.ndarray
+    camera: CameraModel | None       # the intrinsics (with distortion) used; None: no CameraInfo arrived
     rmse_px: float
     num_agent: int
     num_scene: int
+
+    @property
+    def K(self) -> np.ndarray:
+        return self.camera.K if self.camera is not None else np.zeros((3, 3))
 
 
 @dataclass(frozen=True)
@@ -291,7 +295,7 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
             if jo_failure:
                 status, reason = WEAK, "; ".join(r for r in (jo_failure, reason) if r)
             registered.append(RegisteredCmc(n, group_of[n], GROUP_SFM, status, reason, T_final[i], covs[i],
-                                            cams[i].K, rmse, int((agent_obs.camera == i).sum()), scene_count.get(n, 0)))
+                                            cmcs[n].tracks.camera, rmse, int((agent_obs.camera == i).sum()), scene_count.get(n, 0)))
     # Isolated CMCs: the optimised agent track where a group saw the agent, and elsewhere the
     # track implied by the ego trajectory (head top = T_world_ego * o, ground point under it
     # on the floor z = 0) -- an extension: the paper needs a group to have seen the agent.
@@ -346,13 +350,12 @@ def _scene_observations(names, cams, T_init, cmcs, ego: EgoMapData, params: Fusi
 
 def _register_isolated(name: str, why: str, cmc: CmcInput | None, agent: AgentTrack, ego: EgoMapData,
                        landmarks: np.ndarray, params: FusionParams) -> RegisteredCmc:
-    K = cmc.tracks.camera.K if cmc is not None else np.zeros((3, 3))
     if cmc is None:
-        return RegisteredCmc(name, "", NONE, FAILED, why, None, None, K, float("nan"), 0, 0)
+        return RegisteredCmc(name, "", NONE, FAILED, why, None, None, None, float("nan"), 0, 0)
     pnp, reason = register_by_agent(cmc.tracks, agent, params.isolated)
     if pnp is None:
         return RegisteredCmc(name, "", NONE, FAILED, f"{why}; isolated registration failed: {reason}", None, None,
-                             K, float("nan"), 0, 0)
+                             cmc.tracks.camera, float("nan"), 0, 0)
     P, uv, T = pnp.points, pnp.uv, pnp.T_world_cam
     n_agent, n_scene = len(P), 0
     if params.use_scene_keypoints:
@@ -367,4 +370,4 @@ def _register_isolated(name: str, why: str, cmc: CmcInput | None, agent: AgentTr
     cov, cov_failure = _covariance(pnp.camera, T, P, uv, max(rmse, 0.5))
     status, reason = _verdict(rmse, cov, params, cov_failure)
     return RegisteredCmc(name, "", ISOLATED_PNP, status, "; ".join(r for r in (f"isolated: {why}", reason) if r),
-                         T, cov, pnp.camera.K, rmse, n_agent, n_scene)
+                         T, cov, cmc.tracks.camera, rmse, n_agent, n_scene)
