@@ -32,7 +32,8 @@ def test_ground_truth_agent_in_the_map_frame_projects_onto_the_detections(tmp_pa
     from yowo_common.geometry import transform_points
     from yowo_common.ros.bag import read_messages
     from yowo_common.rosconv import camera_info_to_model, points_to_array, stamp_to_ns
-    from yowo_sim.capture import GT_AGENT_KEYPOINTS, generate
+    from yowo_common.topics import GT_AGENT_KEYPOINTS
+    from yowo_sim.capture import generate
     from yowo_sim.presets import get_preset
 
     bag = tmp_path / "tiny"

@@ -7,6 +7,7 @@ import json
 import sys
 from pathlib import Path
 
+from yowo_common import topics
 from yowo_common.ros.bag import BagError
 
 from .plugins import add_verbs, evaluator
@@ -221,9 +222,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cmc-source", choices=("keypoints", "images"), default="keypoints",
                    help="agent keypoints from /cmc/<n>/agent_keypoints or the built-in image detector")
     p.add_argument("--image-topic", default="image_raw/compressed", help="CMC image topic under /cmc/<name>/")
-    p.add_argument("--ego-color", default="/ego/color/image_raw/compressed")
-    p.add_argument("--ego-depth", default="/ego/depth/image_raw")
-    p.add_argument("--ego-info", default="/ego/color/camera_info")
+    p.add_argument("--ego-color", default=topics.EGO_COLOR[1])
+    p.add_argument("--ego-depth", default=topics.EGO_DEPTH[0])
+    p.add_argument("--ego-info", default=topics.EGO_INFO)
     add_config_options(p)
     p.add_argument("--timeout", type=float, default=24 * 3600.0, help="give up after this many seconds")
     _add_graph_options(p)

@@ -2,15 +2,12 @@
 must/may hold, and discovery of the ego camera and the CMCs from topic names."""
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 
 from yowo_common.ros.bag import BagTopic, list_topics, recording_damage
 
-from yowo_common.topics import (EGO_COLOR, EGO_DEPTH, EGO_INFO, cmc_image_topics,  # noqa: F401  (the contract)
-                                cmc_info_topic, cmc_keypoints_topic)
-
-_CMC_TOPIC = re.compile(r"^/cmc/(?P<name>[A-Za-z0-9_]+)/(?P<kind>image_raw(/compressed)?|camera_info|agent_keypoints)$")
+from yowo_common.topics import (EGO_COLOR, EGO_DEPTH, EGO_INFO, GT_PREFIX, cmc_image_topics,  # noqa: F401
+                                cmc_info_topic, cmc_keypoints_topic, parse_cmc_topic)
 
 
 @dataclass
@@ -45,9 +42,9 @@ def discover_inputs(bag) -> RecordingInputs:
 
     kinds: dict[str, set[str]] = {}
     for t in topics:
-        m = _CMC_TOPIC.match(t.name)
-        if m and t.count > 0:
-            kinds.setdefault(m["name"], set()).add(m["kind"].split("/")[0])
+        cmc = parse_cmc_topic(t.name)
+        if cmc and t.count > 0:
+            kinds.setdefault(cmc[0], set()).add(cmc[1].split("/")[0])
     cmc_names = []
     for name in sorted(kinds):
         if "camera_info" not in kinds[name]:
@@ -56,5 +53,5 @@ def discover_inputs(bag) -> RecordingInputs:
             problems.append(f"CMC '{name}': neither images nor agent keypoints; the camera is skipped")
         else:
             cmc_names.append(name)
-    has_gt = any(t.name.startswith("/gt/") for t in topics)
+    has_gt = any(t.name.startswith(GT_PREFIX) for t in topics)
     return RecordingInputs(topics, has_ego, cmc_names, has_gt, problems)

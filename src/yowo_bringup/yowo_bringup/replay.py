@@ -4,6 +4,8 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
+from yowo_common.topics import GT_PREFIX
+
 
 @dataclass(frozen=True)
 class ReplayParams:
@@ -14,7 +16,7 @@ class ReplayParams:
     ack_timeout_s: float = 60.0          # a subscriber that acknowledges nothing this long is given up
     wait_timeout_s: float = 30.0         # for the stages' subscriptions before playing
     publish_clock: bool = True           # /clock at the recording's time
-    exclude_prefixes: tuple[str, ...] = ("/gt/",)   # never played (ground truth)
+    exclude_prefixes: tuple[str, ...] = (GT_PREFIX,)   # never played (ground truth)
     linger_s: float = 1.0                # after the end: late joiners still get the latched status
 
 

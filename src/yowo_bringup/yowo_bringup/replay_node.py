@@ -62,7 +62,7 @@ class ReplayNode(Node):
         self.include = [t for t in self.include if t]
         self.wait_for = [t for t in self.wait_for if t]
         self.status_pub = self.create_publisher(ReplayStatus, topics.REPLAY_STATUS, LATCHED)
-        self.clock_pub = self.create_publisher(Clock, "/clock", 10)
+        self.clock_pub = self.create_publisher(Clock, topics.CLOCK, 10)
         self.pubs = {}
         self.counts: dict[str, int] = {}
         self.unacked: dict[str, int] = {}

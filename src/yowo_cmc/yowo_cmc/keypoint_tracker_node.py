@@ -46,11 +46,11 @@ class KeypointTrackerNode(StageNode):
         self.pub = self.output(AgentKeypoints, topics.tracker_keypoints(camera))
         self.pub_background = self.output(Image, topics.tracker_background(camera), LATCHED)
         self.pub_info = self.output(CameraInfo, topics.tracker_camera_info(camera), LATCHED)
-        self.stream_input(CameraInfo, f"/cmc/{camera}/camera_info", self.on_info)
+        self.stream_input(CameraInfo, topics.cmc_info_topic(camera), self.on_info)
         self.detector = (ImageKeypointSource(camera, params.detector, params.max_pending_frames)
                          if self.source == "images" else None)
         if self.detector is None:
-            self.stream_input(AgentKeypoints, f"/cmc/{camera}/agent_keypoints", self.on_keypoints)
+            self.stream_input(AgentKeypoints, topics.cmc_keypoints_topic(camera), self.on_keypoints)
         # With external keypoints, images (when recorded) only give the background for scene keypoints.
         self.background = BackgroundSampler(params.background_period_s)
         if image_topic:
@@ -70,7 +70,7 @@ class KeypointTrackerNode(StageNode):
             try:
                 self.acc.camera = camera_info_to_model(msg)
             except ValueError as exc:
-                self.info_problem = f"/cmc/{self.camera}/camera_info: {exc}"
+                self.info_problem = f"{topics.cmc_info_topic(self.camera)}: {exc}"
                 self.get_logger().error(self.info_problem)
                 return
             self.pub_info.publish(msg)

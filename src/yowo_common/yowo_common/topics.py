@@ -1,5 +1,6 @@
 """Topic and stage names of YOWO in one place: the recorded inputs and ground
 truth of shared/DESIGN.md §2, and YOWO's own outputs."""
+import re
 
 # --- inputs (recordings or live cameras) ---
 EGO_COLOR = ("/ego/color/image_raw", "/ego/color/image_raw/compressed")
@@ -20,14 +21,33 @@ def cmc_keypoints_topic(name: str) -> str:
     return f"/cmc/{name}/agent_keypoints"
 
 
+_CMC_TOPIC = re.compile(r"^/cmc/(?P<name>[A-Za-z0-9_]+)/(?P<kind>image_raw(/compressed)?|camera_info|agent_keypoints)$")
+
+
+def parse_cmc_topic(topic: str) -> tuple[str, str] | None:
+    """(camera name, kind) of a CMC input topic (kind: image_raw, image_raw/compressed,
+    camera_info or agent_keypoints), None for any other topic."""
+    m = _CMC_TOPIC.match(topic)
+    return (m["name"], m["kind"]) if m else None
+
+
 def gt_cmc_pose_topic(name: str) -> str:
     return f"/gt/cmc/{name}/pose"
 
 
+GT_PREFIX = "/gt/"                          # ground truth: read by evaluation only, never played
 GT_EGO_POSE = "/gt/ego/pose"
 GT_FLOOR = "/gt/layout/floor"
+GT_AGENT_KEYPOINTS = "/gt/agent/keypoints"  # geometry_msgs/PoseArray: poses[k].position = keypoint id k in map
+
+
+def parse_gt_cmc_pose_topic(topic: str) -> str | None:
+    """The camera name of a /gt/cmc/<name>/pose topic, else None."""
+    parts = topic.split("/")
+    return parts[3] if len(parts) == 5 and topic == gt_cmc_pose_topic(parts[3]) else None
 
 # --- YOWO's own topics ---
+CLOCK = "/clock"                            # rosgraph_msgs/Clock: the recording's time while replaying
 REPLAY_STATUS = "/yowo/replay/status"
 GROUPS = "/yowo/cmc/groups"                 # yowo_msgs/CameraGroupArray, latched
 EGO_MAP = "/yowo/ego/map"                   # yowo_msgs/EgoMap, latched

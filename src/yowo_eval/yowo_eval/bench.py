@@ -139,7 +139,8 @@ def detector_case(bag: Path, preset, seed: int, config: YowoConfig = YowoConfig(
     frame counts as detected when it has both the head top and the ground point."""
     from yowo_common.ros.bag import read_messages
     from yowo_common.rosconv import points_to_array, stamp_to_ns
-    from yowo_sim.capture import GT_AGENT_KEYPOINTS, build_capture
+    from yowo_common.topics import GT_AGENT_KEYPOINTS, parse_cmc_topic
+    from yowo_sim.capture import build_capture
     from yowo_sim.detector import visible_points
     from yowo_sim.render import Renderer
 
@@ -153,8 +154,8 @@ def detector_case(bag: Path, preset, seed: int, config: YowoConfig = YowoConfig(
     for topic, _, msg in read_messages(bag):
         if topic == GT_AGENT_KEYPOINTS:
             agent[stamp_to_ns(msg.header.stamp)] = points_to_array([p.position for p in msg.poses])
-        elif topic.startswith("/cmc/") and topic.endswith("/camera_info"):
-            frames.setdefault(topic.split("/")[2], []).append(stamp_to_ns(msg.header.stamp))
+        elif (parse_cmc_topic(topic) or ("", ""))[1] == "camera_info":
+            frames.setdefault(parse_cmc_topic(topic)[0], []).append(stamp_to_ns(msg.header.stamp))
     errors = {0: [], 1: []}
     full = detected = 0
     for name, stamps in frames.items():

@@ -41,7 +41,7 @@ def relative_pose_bound(bag: Path, groups: dict[str, list[str]], preset) -> dict
     from yowo_common.geometry import transform_points
     from yowo_common.ros.bag import list_topics, read_messages
     from yowo_common.rosconv import camera_info_to_model, points_to_array, stamp_to_ns
-    from yowo_sim.capture import GT_AGENT_KEYPOINTS
+    from yowo_common.topics import GT_AGENT_KEYPOINTS, parse_cmc_topic
 
     truth = read_ground_truth(bag)
     gt = truth.cameras
@@ -51,17 +51,17 @@ def relative_pose_bound(bag: Path, groups: dict[str, list[str]], preset) -> dict
     dets: dict[str, list[tuple[int, int]]] = {}
     cams = {}
     # Only the topics used: a full read would decode every image of the recording.
-    topics = [t.name for t in list_topics(bag) if t.name == GT_AGENT_KEYPOINTS
-              or (t.name.startswith("/cmc/") and t.name.endswith(("/agent_keypoints", "/camera_info")))]
+    kinds = {t.name: (parse_cmc_topic(t.name) or ("", ""))[1] for t in list_topics(bag)}
+    topics = [t for t, kind in kinds.items() if t == GT_AGENT_KEYPOINTS or kind in ("agent_keypoints", "camera_info")]
     for topic, _, msg in read_messages(bag, topics):
         if topic == GT_AGENT_KEYPOINTS:
             # The cameras' ground truth is in YOWO's map frame, the agent's in the simulator's.
             agent[stamp_to_ns(msg.header.stamp)] = transform_points(
                 truth.T_map_sim, points_to_array([p.position for p in msg.poses]))
-        elif topic.endswith("/agent_keypoints"):
+        elif kinds[topic] == "agent_keypoints":
             dets.setdefault(msg.camera_name, []).extend((stamp_to_ns(msg.header.stamp), k.id) for k in msg.keypoints)
-        elif topic.startswith("/cmc/") and topic.endswith("/camera_info") and topic.split("/")[2] not in cams:
-            cams[topic.split("/")[2]] = camera_info_to_model(msg)
+        elif kinds[topic] == "camera_info" and parse_cmc_topic(topic)[0] not in cams:
+            cams[parse_cmc_topic(topic)[0]] = camera_info_to_model(msg)
     bounds = {}
     for names in groups.values():
         obs: dict[tuple[int, int], list] = {}

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from yowo_common.topics import GT_EGO_POSE, GT_FLOOR
+from yowo_common.topics import GT_EGO_POSE, GT_FLOOR, GT_PREFIX, parse_gt_cmc_pose_topic
 from yowo_common.trajectory import Trajectory
 
 from .evaluation import map_frame_from_first_pose
@@ -25,11 +25,11 @@ def read_ground_truth(bag) -> GroundTruth:
     from yowo_common.ros.bag import list_topics, read_messages
     from yowo_common.rosconv import points_to_array, pose_to_matrix, stamp_to_ns
 
-    topics = [t.name for t in list_topics(bag) if t.name.startswith("/gt/")]
+    topics = [t.name for t in list_topics(bag) if t.name.startswith(GT_PREFIX)]
     cams, ego_ns, ego_T, floor = {}, [], [], []
     for topic, _, msg in read_messages(bag, topics):
-        if topic.startswith("/gt/cmc/"):
-            cams[topic.split("/")[3]] = pose_to_matrix(msg.pose)
+        if parse_gt_cmc_pose_topic(topic):
+            cams[parse_gt_cmc_pose_topic(topic)] = pose_to_matrix(msg.pose)
         elif topic == GT_EGO_POSE:
             ego_ns.append(stamp_to_ns(msg.header.stamp))
             ego_T.append(pose_to_matrix(msg.pose))

@@ -13,6 +13,7 @@ from geometry_msgs.msg import Point32, Polygon, PolygonStamped, Pose, PoseArray,
 from std_msgs.msg import Header
 from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
+from yowo_common import topics
 from yowo_common.camera import CameraModel
 from yowo_common.ros.bag import BagWriter
 from yowo_common.rosconv import (array_to_points, depth_to_mm, encode_color_jpeg, encode_depth_png, encode_raw,
@@ -28,7 +29,6 @@ from .walk import Walk, plan_walk
 
 START_NS = 1_700_000_000 * 10**9   # recordings start at a fixed epoch: deterministic stamps
 EGO_FRAME = "ego_optical_frame"
-GT_AGENT_KEYPOINTS = "/gt/agent/keypoints"  # PoseArray: poses[k].position = keypoint id k in map
 
 
 @dataclass
@@ -77,19 +77,20 @@ class _Recorder:
     def __init__(self, bag: BagWriter, preset: CapturePreset):
         self.bag, self.preset = bag, preset
 
-    def color(self, prefix: str, rgb: np.ndarray, cam: CameraModel, header: Header, stamp: int):
+    def color(self, image_topics: tuple[str, str], info_topic: str, rgb: np.ndarray, cam: CameraModel,
+              header: Header, stamp: int):
+        """`image_topics`: (raw, compressed) as yowo_common.topics names them."""
         if self.preset.raw_images:
-            self.bag.write(f"{prefix}/image_raw", encode_raw(rgb, "rgb8", header), stamp)
+            self.bag.write(image_topics[0], encode_raw(rgb, "rgb8", header), stamp)
         else:
-            self.bag.write(f"{prefix}/image_raw/compressed",
-                           encode_color_jpeg(rgb, header, self.preset.jpeg_quality), stamp)
-        self.bag.write(f"{prefix}/camera_info", model_to_camera_info(cam, header), stamp)
+            self.bag.write(image_topics[1], encode_color_jpeg(rgb, header, self.preset.jpeg_quality), stamp)
+        self.bag.write(info_topic, model_to_camera_info(cam, header), stamp)
 
     def depth(self, depth: np.ndarray, header: Header, stamp: int):
         if self.preset.raw_images:
-            self.bag.write("/ego/depth/image_raw", encode_raw(depth_to_mm(depth), "16UC1", header), stamp)
+            self.bag.write(topics.EGO_DEPTH[0], encode_raw(depth_to_mm(depth), "16UC1", header), stamp)
         else:
-            self.bag.write("/ego/depth/image_raw/compressedDepth", encode_depth_png(depth, header), stamp)
+            self.bag.write(topics.EGO_DEPTH[1], encode_depth_png(depth, header), stamp)
 
 
 def _schedule(duration_s: float, preset: CapturePreset, n_cmc: int, rng) -> list[tuple[int, str, int]]:
@@ -160,9 +161,10 @@ def generate(preset: CapturePreset, seed: int, out_path, progress: Callable[[int
                 T = walk.ego_pose_at(t)
                 rgb, depth, _ = render(ego_cam, T)
                 header = Header(stamp=ns_to_time(stamp), frame_id=EGO_FRAME)
-                rec.color("/ego/color", add_image_noise(rgb, preset.image_noise, rng), ego_cam, header, stamp)
+                rec.color(topics.EGO_COLOR, topics.EGO_INFO, add_image_noise(rgb, preset.image_noise, rng), ego_cam,
+                          header, stamp)
                 rec.depth(apply_depth_noise(depth, preset.depth, rng), header, stamp)
-                bag.write("/gt/ego/pose", PoseStamped(header=Header(stamp=header.stamp, frame_id="map"),
+                bag.write(topics.GT_EGO_POSE, PoseStamped(header=Header(stamp=header.stamp, frame_id="map"),
                                                       pose=matrix_to_pose(T)), stamp)
                 counts["ego"] += 1
             else:
@@ -173,17 +175,17 @@ def generate(preset: CapturePreset, seed: int, out_path, progress: Callable[[int
                 if preset.cmc_images:
                     rgb = render(cmc.camera, cmc.T_world_cam, agent_mesh(xy, heading, walk.height_m, phase))[0] \
                         if visible else backgrounds[idx][0]
-                    rec.color(f"/cmc/{cmc.name}", add_image_noise(rgb, preset.image_noise, rng), cmc.camera,
-                              header, stamp)
+                    rec.color(topics.cmc_image_topics(cmc.name), topics.cmc_info_topic(cmc.name),
+                              add_image_noise(rgb, preset.image_noise, rng), cmc.camera, header, stamp)
                 else:
-                    bag.write(f"/cmc/{cmc.name}/camera_info", model_to_camera_info(cmc.camera, header), stamp)
+                    bag.write(topics.cmc_info_topic(cmc.name), model_to_camera_info(cmc.camera, header), stamp)
                 det = detect(cmc.camera, cmc.T_world_cam, kps, backgrounds[idx][1], preset.detector, rng)
                 if preset.cmc_keypoints:
-                    bag.write(f"/cmc/{cmc.name}/agent_keypoints", AgentKeypoints(
+                    bag.write(topics.cmc_keypoints_topic(cmc.name), AgentKeypoints(
                         header=header, camera_name=cmc.name,
                         keypoints=[Keypoint2D(id=int(i), x=float(u), y=float(v), confidence=float(c))
                                    for i, (u, v), c in zip(det.ids, det.uv, det.confidence)]), stamp)
-                bag.write(GT_AGENT_KEYPOINTS, PoseArray(
+                bag.write(topics.GT_AGENT_KEYPOINTS, PoseArray(
                     header=Header(stamp=header.stamp, frame_id="map"),
                     poses=[Pose(position=p) for p in array_to_points([kps[k] for k in sorted(kps)])]), stamp)
                 counts["cmc"] += 1
@@ -197,9 +199,9 @@ def generate(preset: CapturePreset, seed: int, out_path, progress: Callable[[int
 def _write_static_ground_truth(bag: BagWriter, scene: Scene, cmcs: list[Cmc]) -> None:
     header = Header(stamp=ns_to_time(START_NS), frame_id="map")
     for cmc in cmcs:
-        bag.write(f"/gt/cmc/{cmc.name}/pose", PoseStamped(header=header, pose=matrix_to_pose(cmc.T_world_cam)),
+        bag.write(topics.gt_cmc_pose_topic(cmc.name), PoseStamped(header=header, pose=matrix_to_pose(cmc.T_world_cam)),
                   START_NS, latched=True)
     for poly in scene.floor_polygons:
         msg = PolygonStamped(header=header, polygon=Polygon(
             points=[Point32(x=float(x), y=float(y), z=0.0) for x, y in poly]))
-        bag.write("/gt/layout/floor", msg, START_NS, latched=True)
+        bag.write(topics.GT_FLOOR, msg, START_NS, latched=True)
