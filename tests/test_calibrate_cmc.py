@@ -4,6 +4,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import yaml
 
 from cmc_synthetic import ceiling_camera, loop_walk, observe
@@ -31,6 +32,14 @@ def test_calibrate_cmc_graph(tmp_path, ros_env):
     for c in doc:
         groups.setdefault(c["group"], []).append(c["name"])
     assert sorted(map(sorted, groups.values())) == [["a1", "a2", "a3"], ["b1", "b2"]]
+    # The intrinsics the group SfM used, as a full run writes them.
+    for c in doc:
+        model = cams[c["name"]][0]
+        assert (c["image_width"], c["image_height"], c["distortion_model"]) == (model.width, model.height, "plumb_bob")
+        assert np.allclose(c["K"], model.K, atol=1e-6) and np.allclose(c["distortion_coefficients"], model.D)
+        assert c["clock_offset_s"] is None and set(c["keypoint_noise"]["sigma_px_by_keypoint_id"]) == {0, 1}
+        # the BA's residual noise of the smoothed tracks: below the 0.7 px put on the raw keypoints
+        assert all(0.1 < s < 0.7 for s in c["keypoint_noise"]["sigma_px_by_keypoint_id"].values()), c["keypoint_noise"]
     r = subprocess.run([sys.executable, "-m", "yowo_bringup.cli", "eval", str(out), "--bag", str(tmp_path / "rec")],
                        env=ros_env, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr

@@ -77,11 +77,11 @@ def test_offline_api_and_graph_agree_with_the_same_tree(tmp_path, ros_env):
     assert "cmc.background_period_s=0.5" in logs["keypoint_tracker_cam00"]
     assert "fusion.ok_rmse_px=4.0" in logs["fusion"]
     offline = process(bag, load_config(None, sets))
-    write_cameras_yaml(tmp_path / "offline.yaml", offline.fusion.cameras)
+    write_cameras_yaml(tmp_path / "offline.yaml", offline.fusion.cameras, offline.grouping.groups)
     assert (tmp_path / "offline.yaml").read_text() == (out / "cameras.yaml").read_text()
     # ... and the keys changed what was computed: the default tree gives another result.
     default = process(bag, YowoConfig())
-    write_cameras_yaml(tmp_path / "default.yaml", default.fusion.cameras)
+    write_cameras_yaml(tmp_path / "default.yaml", default.fusion.cameras, default.grouping.groups)
     assert (tmp_path / "default.yaml").read_text() != (out / "cameras.yaml").read_text()
     # The detector's section reaches the trackers: blobs larger than the largest allowed
     # are never the agent, so no camera sees it.
