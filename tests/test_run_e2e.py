@@ -27,6 +27,7 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
         assert (out / name).exists(), name
     check_result_bag(out / "result.mcap")
     check_report(out / "report.html", ["cam00", "cam01", "cam02"])
+    check_exports(out)
     metrics = json.loads((out / "metrics.json").read_text())
     reg = metrics["registration"]["summary"]
     # Only a working pipeline lands every camera within 15 cm / 2 deg in the map frame.
@@ -60,6 +61,37 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
     log = yaml.safe_load((out / "run_log.yaml").read_text())
     for topic, n in log["replay_published"].items():  # lossless: every message reached every stage
         assert log["received"][topic] and all(v == n for v in log["received"][topic].values()), topic
+
+
+def check_exports(out):
+    """A real run's exports read back: the COLMAP model by pycolmap (CMC centres as in
+    cameras.yaml, ego keyframes at ego_trajectory.tum's poses, landmarks reprojecting onto
+    their observations), ego_trajectory.tum by evo, a camera_info YAML per camera."""
+    import numpy as np
+    import pycolmap
+    from evo.tools import file_interface
+
+    from yowo_common.trajectory import read_tum
+
+    cams = {c["name"]: c for c in yaml.safe_load((out / "cameras.yaml").read_text())["cameras"]}
+    rec = pycolmap.Reconstruction(str(out / "export" / "colmap"))
+    images = {im.name: im for im in rec.images.values()}
+    for name, c in cams.items():
+        info = yaml.safe_load((out / "export" / "camera_info" / f"{name}.yaml").read_text())
+        np.testing.assert_allclose(info["camera_matrix"]["data"], np.ravel(c["K"]), atol=1e-6)   # cameras.yaml: 6 digits
+        np.testing.assert_allclose(images[f"cmc/{name}.png"].projection_center(), c["T_world_camera"]["position"],
+                                   atol=1e-6)
+    tum = read_tum(out / "ego_trajectory.tum")
+    evo_traj = file_interface.read_tum_trajectory_file(str(out / "ego_trajectory.tum"))
+    np.testing.assert_allclose(evo_traj.positions_xyz, tum.positions, atol=1e-9)
+    np.testing.assert_allclose(evo_traj.timestamps, tum.stamps_ns / 1e9, atol=1e-6)
+    at = dict(zip(tum.stamps_ns.tolist(), tum.positions))
+    ego = [im for n, im in images.items() if n.startswith("ego/")]
+    assert len(ego) == len(tum.stamps_ns) and len(rec.points3D) > 100
+    for im in ego:
+        np.testing.assert_allclose(im.projection_center(), at[int(im.name[4:-4])], atol=1e-6)
+    rec.update_point_3d_errors()
+    assert rec.compute_mean_reprojection_error() < 3.0      # the ego map's landmarks at the refined poses
 
 
 def check_report(path, cameras):
