@@ -12,7 +12,8 @@ STAMPS=$VENV/.yowo-stamps
 log() { printf '\033[1m[setup]\033[0m %s\n' "$*"; }
 
 # --- 1. system packages -----------------------------------------------------
-APT_PKGS=(libusb-1.0-0 cmake build-essential python3-dev iproute2)
+# chromium: the report test renders report.html headless (a screenshot).
+APT_PKGS=(libusb-1.0-0 cmake build-essential python3-dev iproute2 chromium)
 missing=()
 for p in "${APT_PKGS[@]}"; do dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p"); done
 if ((${#missing[@]})); then

@@ -94,8 +94,9 @@ def check_exports(out):
     assert rec.compute_mean_reprojection_error() < 3.0      # the ego map's landmarks at the refined poses
 
 
-def check_report(path, cameras):
-    """report.html parses, embeds a real PNG top view and has a table row per camera."""
+def check_report(path, cameras, panels=None):
+    """report.html parses, embeds a real PNG top view, has a table row per camera and a
+    panel (a real PNG) per grouped camera (`panels`, default every camera)."""
     class Report(HTMLParser):
         def __init__(self):
             super().__init__()
@@ -103,7 +104,7 @@ def check_report(path, cameras):
 
         def handle_starttag(self, tag, attrs):
             if tag == "img":
-                self.images.append(dict(attrs)["src"])
+                self.images.append((dict(attrs)["alt"], dict(attrs)["src"]))
             elif tag == "td":
                 self._cell = ""
 
@@ -118,9 +119,11 @@ def check_report(path, cameras):
 
     report = Report()
     report.feed(path.read_text())
-    (src,) = report.images
-    png = base64.b64decode(src.split("base64,", 1)[1])
-    assert png.startswith(b"\x89PNG") and len(png) > 20_000          # a drawn figure, not a blank one
+    images = dict(report.images)
+    assert set(images) == {"top view"} | {f"{n} agent fit" for n in (cameras if panels is None else panels)}, images.keys()
+    for src in images.values():
+        png = base64.b64decode(src.split("base64,", 1)[1])
+        assert png.startswith(b"\x89PNG") and len(png) > 20_000      # a drawn figure, not a blank one
     assert all(name in report.cells for name in cameras), report.cells
 
 

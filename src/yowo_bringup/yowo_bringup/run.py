@@ -179,7 +179,7 @@ def _stage_nodes(mode: str, trackers: list[tuple[str, str, str]], ego: tuple[str
                         topics.LAYOUT: "yowo_msgs/msg/SceneLayout", topics.MAP_POINTS: "sensor_msgs/msg/PointCloud2",
                         topics.REFINED_LAYOUT: "yowo_msgs/msg/SceneLayout",
                         topics.REFINED_MAP_POINTS: "sensor_msgs/msg/PointCloud2", topics.EGO_PATH: "nav_msgs/msg/Path",
-                        topics.REFINED_EGO_PATH: "nav_msgs/msg/Path"})
+                        topics.REFINED_EGO_PATH: "nav_msgs/msg/Path", topics.AGENT_FIT: "yowo_msgs/msg/CameraAgentFitArray"})
     return nodes, final, outputs
 
 
@@ -235,13 +235,14 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     from yowo_cmc.messages import groups_from_msg
     from yowo_common.ros.bag import BagWriter
     from yowo_common.rosconv import pointcloud2_to_xyz_rgb, points_to_array, pose_to_matrix, stamp_to_ns
-    from yowo_fusion.messages import ego_map_from_msg, registered_from_msg
+    from yowo_common.rosconv import decode_color
+    from yowo_fusion.messages import agent_fits_from_msg, ego_map_from_msg, registered_from_msg
 
     from yowo_common.trajectory import Trajectory, write_tum
 
     from .plugins import evaluator
     from .exports import write_exports
-    from .report import write_report
+    from .report import wall_segments, write_report
     from .results import write_cameras_yaml, write_layout_json, write_ply
 
     out = plan.out_dir
@@ -291,13 +292,10 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
             shutil.rmtree(old)
         elif old.exists():
             old.unlink()
-    latched = {topics.GROUPS, topics.TF_STATIC, topics.CMC_POSES, topics.LAYOUT_MARKERS, topics.EGO_MAP, topics.LAYOUT,
-               topics.MAP_POINTS, topics.EGO_PATH, topics.REFINED_LAYOUT, topics.REFINED_MAP_POINTS,
-               topics.REFINED_EGO_PATH}
     stamp = max((stamp_to_ns(m.header.stamp) for m in outputs.values() if hasattr(m, "header")), default=0)
     with BagWriter(staging) as bag:
         for topic, msg in outputs.items():
-            bag.write(topic, msg, stamp, latched=topic in latched)
+            bag.write(topic, msg, stamp, latched=True)       # every collected output is latched
     # One MCAP file (its channels carry the QoS, latched ones transient-local), not a folder.
     (written,) = staging.glob("*.mcap")
     written.rename(result_bag)
@@ -308,7 +306,10 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     ev = evaluator()
     evaluated = ev.evaluate_run(out, plan.bag) if ev is not None and plan.bag is not None else None
     metrics, gt_cams = evaluated or (None, None)
-    write_report(out / "report.html", str(plan.bag or "live"), cameras, ego_xy, floors, metrics, gt_cams, plan.warnings)
+    walls = wall_segments(final_layout.planes) if final_layout else []
+    fits = agent_fits_from_msg(outputs[topics.AGENT_FIT]) if topics.AGENT_FIT in outputs else []
+    write_report(out / "report.html", str(plan.bag or "live"), cameras, ego_xy, floors, metrics, gt_cams, plan.warnings,
+                 walls, [(f, size, decode_color(bg) if bg is not None else None) for f, size, bg in fits])
     files.append(out / "report.html")
     if metrics:
         ev.write_metrics(metrics, out / "metrics.json")

@@ -29,6 +29,7 @@ def test_distortion_roundtrip(model, D):
     ideal = cam.undistort_pixels(uv)
     expected = P[:, :2] / P[:, 2:] @ cam.K[:2, :2].T + cam.K[:2, 2]
     np.testing.assert_allclose(ideal, expected, atol=1e-3)
+    np.testing.assert_allclose(cam.distort_pixels(expected), uv, atol=1e-6)     # and back
     rays = cam.bearings(uv)
     np.testing.assert_allclose(rays, P / np.linalg.norm(P, axis=1, keepdims=True), atol=1e-5)
     # No points (a keyframe without features): empty arrays, not OpenCV's None.

@@ -99,6 +99,12 @@ class CameraModel:
     def project_world(self, T_world_cam: np.ndarray, points_world: np.ndarray):
         return self.project(transform_points(inv_se3(T_world_cam), points_world))
 
+    def distort_pixels(self, uv: np.ndarray) -> np.ndarray:
+        """Pixels of the ideal pinhole camera (same K) -> raw pixels: undistort_pixels' inverse."""
+        uv = np.asarray(uv, dtype=float).reshape(-1, 2)
+        rays = np.column_stack([(uv - self.K[:2, 2]) @ np.linalg.inv(self.K[:2, :2]).T, np.ones(len(uv))])
+        return self.project(rays)[0]
+
     def undistort_pixels(self, uv: np.ndarray) -> np.ndarray:
         """Raw pixels -> pixels of the ideal (distortion-free) pinhole camera with the same K."""
         uv = np.asarray(uv, dtype=float).reshape(-1, 2)

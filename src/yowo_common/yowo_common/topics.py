@@ -62,6 +62,7 @@ LAYOUT_MARKERS = "/yowo/layout/markers"     # visualization_msgs/MarkerArray, la
 REFINED_MAP_POINTS = "/yowo/fusion/map/points"   # sensor_msgs/PointCloud2, latched
 REFINED_LAYOUT = "/yowo/fusion/layout"           # yowo_msgs/SceneLayout, latched
 REFINED_EGO_PATH = "/yowo/fusion/path"           # nav_msgs/Path, latched: the ego trajectory after JO
+AGENT_FIT = "/yowo/fusion/agent_fit"             # yowo_msgs/CameraAgentFitArray, latched: the report's panels
 
 EGO_STAGE, GROUP_SFM_STAGE, FUSION_STAGE = "ego_mapper", "group_sfm", "fusion"
 

@@ -11,7 +11,7 @@ from nav_msgs.msg import Path
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
-from yowo_msgs.msg import AgentKeypoints, CameraGroupArray, EgoMap, RegisteredCameraArray, SceneLayout
+from yowo_msgs.msg import AgentKeypoints, CameraAgentFitArray, CameraGroupArray, EgoMap, RegisteredCameraArray, SceneLayout
 
 from yowo_cmc.keypoint_input import TrackAccumulator, frame_from_msg
 from yowo_cmc.messages import groups_from_msg
@@ -21,7 +21,7 @@ from yowo_common.ros.stage import LATCHED, StageNode
 from yowo_common.rosconv import camera_info_to_model, decode_color
 from yowo_ego.ego_messages import path_msg, points_msg, scene_layout_msg
 
-from .messages import ego_map_from_msg, layout_markers, registered_to_msg, tf_static
+from .messages import agent_fits_to_msg, ego_map_from_msg, layout_markers, registered_to_msg, tf_static
 from .pipeline import CmcInput, FusionParams, fuse
 
 
@@ -40,6 +40,7 @@ class FusionNode(StageNode):
         self.pub_cloud = self.output(PointCloud2, topics.REFINED_MAP_POINTS, LATCHED)
         self.pub_layout = self.output(SceneLayout, topics.REFINED_LAYOUT, LATCHED)
         self.pub_path = self.output(Path, topics.REFINED_EGO_PATH, LATCHED)
+        self.pub_fits = self.output(CameraAgentFitArray, topics.AGENT_FIT, LATCHED)
         self.stream_input(EgoMap, topics.EGO_MAP, lambda m: setattr(self, "ego_map", m), upstream=topics.EGO_STAGE)
         self.stream_input(SceneLayout, topics.LAYOUT, lambda m: setattr(self, "layout", m), upstream=topics.EGO_STAGE)
         self.stream_input(PointCloud2, topics.MAP_POINTS, lambda m: setattr(self, "cloud", m), upstream=topics.EGO_STAGE)
@@ -82,6 +83,8 @@ class FusionNode(StageNode):
             self.pub_layout.publish(scene_layout_msg(result.layout, stamp))
         floors = result.layout.floor_polygons if result.layout is not None else []
         self.pub_markers.publish(layout_markers(result.cameras, floors, stamp))
+        self.pub_fits.publish(agent_fits_to_msg(result.agent_fits, {n: c.tracks.camera for n, c in cmcs.items()},
+                                                self.backgrounds, stamp))
         return "; ".join(f"{c.name}: {c.method} {c.status}" + (f" ({c.reason})" if c.reason else "")
                          for c in result.cameras)
 

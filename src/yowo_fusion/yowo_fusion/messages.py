@@ -1,22 +1,24 @@
-"""Fusion results <-> messages: RegisteredCameraArray, /tf_static, layout markers,
-and EgoMap (+ its cloud and layout) -> EgoMapData (message classes only, no rclpy)."""
+"""Fusion results <-> messages: RegisteredCameraArray, /tf_static, layout markers, the
+agent fits, and EgoMap (+ its cloud and layout) -> EgoMapData (message classes only, no
+rclpy)."""
 from __future__ import annotations
 
 import numpy as np
 from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import Point, PoseWithCovariance, TransformStamped
-from sensor_msgs.msg import CameraInfo
+from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import ColorRGBA, Header
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
-from yowo_msgs.msg import EgoMap, RegisteredCamera, RegisteredCameraArray, SceneLayout
+from yowo_msgs.msg import CameraAgentFit, CameraAgentFitArray, EgoMap, RegisteredCamera, RegisteredCameraArray, \
+    SceneLayout
 
 from yowo_common.camera import CameraModel
 from yowo_common.rosconv import (camera_info_to_model, matrix_to_pose, matrix_to_transform, model_to_camera_info,
                                  ns_to_time, pointcloud2_to_xyz_rgb, points_to_array, pose_to_matrix, stamp_to_ns)
 from yowo_ego.layout import Layout, LayoutPlane
 
-from .pipeline import FAILED, OK, WEAK, EgoMapData, RegisteredCmc
+from .pipeline import FAILED, OK, WEAK, AgentFit, EgoMapData, RegisteredCmc
 
 WORLD_FRAME = "map"
 _STATUS = {OK: RegisteredCamera.STATUS_OK, WEAK: RegisteredCamera.STATUS_WEAK, FAILED: RegisteredCamera.STATUS_FAILED}
@@ -107,6 +109,26 @@ def layout_markers(cameras: list[RegisteredCmc], floor_polygons: list[np.ndarray
         label.scale.z = 0.2
         out.markers.append(label)
     return out
+
+
+def agent_fits_to_msg(fits: list[AgentFit], cameras: dict[str, CameraModel], backgrounds: dict[str, Image],
+                      stamp_ns: int) -> CameraAgentFitArray:
+    out = CameraAgentFitArray(header=Header(stamp=ns_to_time(stamp_ns), frame_id=WORLD_FRAME))
+    for f in fits:
+        cam = cameras[f.name]
+        out.cameras.append(CameraAgentFit(
+            name=f.name, width=cam.width, height=cam.height, keypoint_ids=[int(i) for i in f.keypoint_ids],
+            observed_uv=np.asarray(f.observed_uv, np.float32).reshape(-1).tolist(),
+            reprojected_uv=np.asarray(f.reprojected_uv, np.float32).reshape(-1).tolist(),
+            background=backgrounds.get(f.name, Image())))
+    return out
+
+
+def agent_fits_from_msg(msg: CameraAgentFitArray) -> list[tuple[AgentFit, tuple[int, int], Image | None]]:
+    """(fit, (width, height), background image or None) per camera."""
+    return [(AgentFit(c.name, np.asarray(c.keypoint_ids, int), np.asarray(c.observed_uv, float).reshape(-1, 2),
+                      np.asarray(c.reprojected_uv, float).reshape(-1, 2)), (c.width, c.height),
+             c.background if c.background.width else None) for c in msg.cameras]
 
 
 def registered_from_msg(msg: RegisteredCameraArray) -> list[RegisteredCmc]:

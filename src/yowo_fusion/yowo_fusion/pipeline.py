@@ -69,6 +69,17 @@ class RegisteredCmc:
         return self.camera.K if self.camera is not None else np.zeros((3, 3))
 
 
+@dataclass
+class AgentFit:
+    """The fused agent track against one grouped CMC's observations, in its raw pixels
+    (what the report draws over the camera's background)."""
+
+    name: str
+    keypoint_ids: np.ndarray       # (M,)
+    observed_uv: np.ndarray        # (M, 2)
+    reprojected_uv: np.ndarray     # (M, 2), NaN behind the camera
+
+
 @dataclass(frozen=True)
 class FusionParams:
     align: AlignParams = AlignParams()
@@ -95,6 +106,7 @@ class FusionResult:
     point_colors: np.ndarray                  # (N, 3) in [0, 1]
     layout: Layout | None                     # rebuilt from point_cloud (the ego stage's without JO)
     alignments: dict[str, Sim3] = field(default_factory=dict)
+    agent_fits: list[AgentFit] = field(default_factory=list)
 
 
 def _head_offset(alignment: Sim3, top_stamps, top_local, ego: EgoMapData, max_gap_ns: int) -> np.ndarray:
@@ -261,6 +273,7 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
     agent, agent_obs, head_offset = grouped.agent, grouped.agent_obs, grouped.head_offset
     scene_obs, scene_count = _scene_observations(names, cams, T_init, cmcs, ego, params)
     registered: list[RegisteredCmc] = []
+    fits: list[AgentFit] = []
     T_ego, landmarks = ego.T_world_ego, ego.landmarks
     cloud, layout = ego.cloud_points, ego.layout
     if names:
@@ -290,6 +303,10 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
                                                    agent_obs.uv[sel], 2.0) for i, sel in enumerate(own)])
             agent_res = reprojection_residuals(cams, T_final, agent.points, agent_obs)
         for i, n in enumerate(names):
+            own = agent_obs.camera == i
+            raw = cmcs[n].tracks.camera
+            fits.append(AgentFit(n, agent.ids[agent_obs.point[own]], raw.distort_pixels(agent_obs.uv[own]),
+                                 raw.distort_pixels(agent_obs.uv[own] - agent_res[own])))
             rmse = _rmse(agent_res[agent_obs.camera == i])
             status, reason = _verdict(rmse, covs[i], params, cov_failures[i])
             if jo_failure:
@@ -303,7 +320,7 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
     for n, why in sorted(grouped.failed.items()):
         registered.append(_register_isolated(n, why, cmcs.get(n), track, ego, landmarks, params))
     return FusionResult(sorted(registered, key=lambda r: r.name), T_ego, landmarks, agent, head_offset, cloud,
-                        ego.cloud_colors, layout, grouped.alignments)
+                        ego.cloud_colors, layout, grouped.alignments, fits)
 
 
 def ego_agent_track(T_world_ego: np.ndarray, stamps_ns: np.ndarray, head_offset: np.ndarray) -> AgentTrack:
