@@ -150,7 +150,7 @@ def plan_live(cameras: list[str], out_dir, mode: str = FULL, source: str = "keyp
         raise ValueError(f"live run: {len(cameras)} CMC(s) given; needs at least 2")
     if source not in ("keypoints", "images"):
         raise ValueError(f"live run: CMC keypoint source '{source}' (keypoints or images)")
-    trackers = [(c, source, f"/cmc/{c}/{image_topic}" if source == "images" or mode == FULL else "")
+    trackers = [(c, source, topics.cmc_topic(c, image_topic) if source == "images" or mode == FULL else "")
                 for c in cameras]
     config = config or YowoConfig()
     nodes, final, outputs = _stage_nodes(mode, trackers, ego_topics)

@@ -9,8 +9,13 @@ EGO_INFO = "/ego/color/camera_info"
 EGO_IMU = "/ego/imu"
 
 
+def cmc_topic(name: str, relative: str) -> str:
+    """A topic of CMC `name` under /cmc/<name>/ (e.g. a live camera's image topic)."""
+    return f"/cmc/{name}/{relative.lstrip('/')}"
+
+
 def cmc_image_topics(name: str) -> tuple[str, str]:
-    return f"/cmc/{name}/image_raw", f"/cmc/{name}/image_raw/compressed"
+    return cmc_topic(name, "image_raw"), cmc_topic(name, "image_raw/compressed")
 
 
 def cmc_info_topic(name: str) -> str:
