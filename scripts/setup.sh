@@ -39,11 +39,12 @@ pip_q() {  # quiet pip; its whole output only when it fails
     || { echo "setup: pip $* failed:" >&2; tail -40 "$STAMPS/pip.log" >&2; exit 1; }
 }
 
-req_hash=$(hash_of "$ROOT/requirements.txt" "$ROOT/constraints.txt")
+req_hash=$(hash_of "$ROOT/requirements.txt" "$ROOT/constraints.txt" "$ROOT/requirements-nodeps.txt")
 if ! stamp_ok requirements "$req_hash"; then
   log "pip: installing requirements (pinned)"
   pip_q install --upgrade pip wheel
   pip_q install -r "$ROOT/requirements.txt" -c "$ROOT/constraints.txt"
+  pip_q install --no-deps -r "$ROOT/requirements-nodeps.txt"
   echo "$req_hash" > "$STAMPS/requirements"
 fi
 

@@ -146,9 +146,10 @@ def _add_run_options(p) -> None:
     p.add_argument("--linger", type=float, default=0.0,
                    help="keep the graph up this many seconds after the results are written (late /tf_static "
                         "subscribers)")
-    p.add_argument("--cmc-source", choices=("auto", "keypoints", "images"), default="auto",
-                   help="CMC agent keypoints: recorded /cmc/<n>/agent_keypoints, the built-in image detector, "
-                        "or auto (keypoints when recorded, else images)")
+    p.add_argument("--cmc-source", choices=("auto", "keypoints", "pose", "images"), default="auto",
+                   help="CMC agent keypoints: recorded /cmc/<n>/agent_keypoints, the human-pose model on the "
+                        "images (falling back to the model-free detector for a camera where it finds nobody), "
+                        "the model-free image detector, or auto (keypoints when recorded, else pose)")
     p.add_argument("--domain", metavar="private|shared|ID",
                    help="DDS graph of the run: 'private' (default; a ROS domain no other run on this host uses, "
                         "localhost discovery), 'shared' (your ROS_DOMAIN_ID and discovery settings; the default "
@@ -219,8 +220,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cameras", nargs="+", required=True, help="CMC names (topics /cmc/<name>/...)")
     p.add_argument("-o", "--output", required=True, help="results directory")
     p.add_argument("--cmc-only", action="store_true", help="relative calibration of the CMC groups only")
-    p.add_argument("--cmc-source", choices=("keypoints", "images"), default="keypoints",
-                   help="agent keypoints from /cmc/<n>/agent_keypoints or the built-in image detector")
+    p.add_argument("--cmc-source", choices=("keypoints", "pose", "images"), default="keypoints",
+                   help="agent keypoints from /cmc/<n>/agent_keypoints, the human-pose model or the model-free "
+                        "image detector")
     p.add_argument("--image-topic", default="image_raw/compressed", help="CMC image topic under /cmc/<name>/")
     p.add_argument("--ego-color", default=topics.EGO_COLOR[1])
     p.add_argument("--ego-depth", default=topics.EGO_DEPTH[0])

@@ -21,7 +21,8 @@ log = logging.getLogger(__name__)
 
 def read_cmc_tracks(bag, source: str = "auto", params: CmcParams | None = None) -> list[CameraTracks]:
     """Every CMC's validated agent keypoint tracks (cameras sorted by name, as the graph
-    does), from recorded keypoints or the built-in image detector (see run.cmc_source)."""
+    does), from recorded keypoints, the pose model or the model-free image detector (see
+    run.cmc_source)."""
     return read_cmc_inputs(bag, source, params, backgrounds=False)[0]
 
 
@@ -33,6 +34,7 @@ def read_cmc_inputs(bag, source: str = "auto", params: CmcParams | None = None, 
     model, or the median of sampled images when the keypoints were recorded)."""
     from yowo_cmc.background import BackgroundSampler
     from yowo_cmc.keypoint_input import ImageKeypointSource
+    from yowo_cmc.pose_model import PoseOrDetectorSource
     from std_msgs.msg import Header
 
     from yowo_common.rosconv import decode_color, encode_raw, stamp_to_ns
@@ -47,9 +49,13 @@ def read_cmc_inputs(bag, source: str = "auto", params: CmcParams | None = None, 
             continue
         acc[n] = TrackAccumulator(n)
         by_topic[cmc_info_topic(n)] = n
-        if kind == "images":
-            detectors[n] = ImageKeypointSource(n, params.detector, params.max_pending_frames)
+        if kind in ("images", "pose"):
+            detectors[n] = (ImageKeypointSource(n, params.detector, params.max_pending_frames) if kind == "images"
+                            else PoseOrDetectorSource(n, params.pose, params.pose_min_frames, params.detector,
+                                                      params.max_pending_frames))
             by_topic[image] = n
+            if kind == "pose" and backgrounds:       # the pose model has no background model of its own
+                samplers[n] = BackgroundSampler(params.background_period_s)
         else:
             by_topic[keypoints] = n
             if image and backgrounds:
@@ -70,13 +76,11 @@ def read_cmc_inputs(bag, source: str = "auto", params: CmcParams | None = None, 
             frames = detector.set_camera(a.camera) if detector else []
         elif topic.endswith("/agent_keypoints"):
             frames = [frame_from_msg(msg)]
-        elif detector:
-            frames = detector.push(stamp_to_ns(msg.header.stamp), decode_color(msg))
         else:
-            stamp = stamp_to_ns(msg.header.stamp)
-            if samplers[n].wants(stamp):
-                samplers[n].add(stamp, decode_color(msg))
-            frames = []
+            stamp, rgb = stamp_to_ns(msg.header.stamp), decode_color(msg)
+            frames = detector.push(stamp, rgb) if detector else []
+            if n in samplers and samplers[n].wants(stamp):
+                samplers[n].add(stamp, rgb)
         for f in frames:
             a.add(f)
     for n, detector in detectors.items():

@@ -86,15 +86,20 @@ def _first_present(candidates, present: set[str]) -> str:
     return next((t for t in candidates if t in present), "")
 
 
+CMC_SOURCES = ("auto", "keypoints", "pose", "images")
+
+
 def cmc_source(name: str, present: set[str], preference: str = "auto") -> tuple[str, str, str]:
     """(source, keypoint topic, image topic) of a CMC. `auto` prefers an external
-    detector's keypoints when recorded, else the built-in image detector."""
+    detector's keypoints when recorded, else the pose model on the images (which falls
+    back to the model-free detector for a camera where it never finds the agent)."""
     keypoints = cmc_keypoints_topic(name) if cmc_keypoints_topic(name) in present else ""
     image = _first_present(cmc_image_topics(name), present)
-    if preference not in ("auto", "keypoints", "images"):
-        raise ValueError(f"unknown CMC keypoint source '{preference}' (auto, keypoints or images)")
-    if preference == "images" or (preference == "auto" and not keypoints):
-        return ("images", "", image) if image else ("", "", "")
+    if preference not in CMC_SOURCES:
+        raise ValueError(f"unknown CMC keypoint source '{preference}' ({', '.join(CMC_SOURCES)})")
+    if preference in ("images", "pose") or (preference == "auto" and not keypoints):
+        kind = "pose" if preference == "auto" else preference
+        return (kind, "", image) if image else ("", "", "")
     return ("keypoints", keypoints, image) if keypoints else ("", "", "")
 
 
@@ -117,11 +122,12 @@ def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, s
         kind, keypoints, image = cmc_source(c, present, source)
         if not kind:
             wanted = {"keypoints": cmc_keypoints_topic(c), "images": " or ".join(cmc_image_topics(c))}
+            wanted["pose"] = wanted["images"]
             problems.append(f"CMC '{c}': no {wanted.get(source, wanted['keypoints'] + ' or images')}; "
                             "the camera is skipped")
             continue
         # External keypoints use images only for the background (scene keypoints: full runs).
-        image = image if kind == "images" or mode == FULL else ""
+        image = image if kind in ("images", "pose") or mode == FULL else ""
         cameras.append(c)
         trackers.append((c, kind, image))
         played += [cmc_info_topic(c)] + [t for t in (keypoints, image) if t]
@@ -148,9 +154,9 @@ def plan_live(cameras: list[str], out_dir, mode: str = FULL, source: str = "keyp
     the replay; the stages finalise when `yowo end-walk` announces the end of the walk."""
     if len(cameras) < 2:
         raise ValueError(f"live run: {len(cameras)} CMC(s) given; needs at least 2")
-    if source not in ("keypoints", "images"):
-        raise ValueError(f"live run: CMC keypoint source '{source}' (keypoints or images)")
-    trackers = [(c, source, topics.cmc_topic(c, image_topic) if source == "images" or mode == FULL else "")
+    if source not in CMC_SOURCES[1:]:
+        raise ValueError(f"live run: CMC keypoint source '{source}' ({', '.join(CMC_SOURCES[1:])})")
+    trackers = [(c, source, topics.cmc_topic(c, image_topic) if source != "keypoints" or mode == FULL else "")
                 for c in cameras]
     config = config or YowoConfig()
     nodes, final, outputs = _stage_nodes(mode, trackers, ego_topics)

@@ -6,11 +6,16 @@ from dataclasses import dataclass, field
 
 from .group_sfm import SfmParams
 from .image_detector import DetectorParams
+from .pose_model import PoseModelParams
 
 
 @dataclass(frozen=True)
 class CmcParams:
     detector: DetectorParams = field(default_factory=DetectorParams)   # the built-in model-free detector
+    pose: PoseModelParams = field(default_factory=PoseModelParams)      # the human-pose model (source pose)
+    # A camera uses the pose model once it has seen the agent in this many images; else
+    # (nobody it recognises) the model-free detector's keypoints.
+    pose_min_frames: int = 5
     sfm: SfmParams = field(default_factory=SfmParams)                  # groups, incremental SfM, group BA
     background_period_s: float = 1.0      # recorded images sampled this often for the agent-free background
     max_pending_frames: int = 300         # detector frames that may wait for the camera's CameraInfo

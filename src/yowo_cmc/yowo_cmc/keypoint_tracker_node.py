@@ -1,13 +1,16 @@
 """keypoint_tracker_node: one per CMC (parameter `camera`, node renamed to
 keypoint_tracker_<camera>). Publishes the camera's agent keypoints on
 /yowo/cmc/<name>/agent_keypoints for the group SfM (our outputs live under /yowo so
-they never loop back into inputs), from one of two sources (parameter `source`):
+they never loop back into inputs), from one of three sources (parameter `source`):
 
 - `keypoints`: an external detector's /cmc/<name>/agent_keypoints, validated;
+- `pose`: the human-pose model on `image_topic` (yowo_cmc.pose_model), or the
+  model-free detector for a camera in whose images the model never finds the agent;
 - `images`: the built-in model-free detector on `image_topic`.
 
-It also publishes the camera's agent-free background once (latched) when images
-arrive. Smoothing and undistortion happen in the group SfM, which sees whole tracks."""
+Its final status says which source the camera used. It also publishes the camera's
+agent-free background once (latched) when images arrive. Smoothing and undistortion
+happen in the group SfM, which sees whole tracks."""
 from __future__ import annotations
 
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
@@ -22,8 +25,9 @@ from yowo_common.rosconv import camera_info_to_model, decode_color, encode_raw, 
 from .background import BackgroundSampler
 from .config import CmcParams
 from .keypoint_input import ImageKeypointSource, KeypointFrame, TrackAccumulator, frame_from_msg, frame_to_msg
+from .pose_model import PoseOrDetectorSource
 
-SOURCES = ("keypoints", "images")
+SOURCES = ("keypoints", "pose", "images")
 
 
 class KeypointTrackerNode(StageNode):
@@ -37,8 +41,8 @@ class KeypointTrackerNode(StageNode):
         image_topic = self.declare_parameter("image_topic", "").value
         if self.source not in SOURCES:
             raise ValueError(f"camera '{camera}': unknown source '{self.source}' (choose from {', '.join(SOURCES)})")
-        if self.source == "images" and not image_topic:
-            raise ValueError(f"camera '{camera}': source:=images needs image_topic:=<topic>")
+        if self.source in ("images", "pose") and not image_topic:
+            raise ValueError(f"camera '{camera}': source:={self.source} needs image_topic:=<topic>")
         self.acc = TrackAccumulator(camera)
         params = self.section(CmcParams, "cmc")
         self.info_problem = ""
@@ -48,7 +52,11 @@ class KeypointTrackerNode(StageNode):
         self.pub_info = self.output(CameraInfo, topics.tracker_camera_info(camera), LATCHED)
         self.stream_input(CameraInfo, topics.cmc_info_topic(camera), self.on_info)
         self.detector = (ImageKeypointSource(camera, params.detector, params.max_pending_frames)
-                         if self.source == "images" else None)
+                         if self.source == "images" else
+                         PoseOrDetectorSource(camera, params.pose, params.pose_min_frames, params.detector,
+                                              params.max_pending_frames) if self.source == "pose" else None)
+        if self.source == "pose" and self.detector.problem:
+            self.get_logger().error(self.detector.problem)
         if self.detector is None:
             self.stream_input(AgentKeypoints, topics.cmc_keypoints_topic(camera), self.on_keypoints)
         # With external keypoints, images (when recorded) only give the background for scene keypoints.
@@ -59,11 +67,14 @@ class KeypointTrackerNode(StageNode):
 
     def on_image(self, msg) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
+        if self.detector is None and not self.background.wants(stamp):
+            return
+        rgb = decode_color(msg)
         if self.detector is not None:
             self.frame_id = msg.header.frame_id or self.frame_id
-            self.publish_frames(self.detector.push(stamp, decode_color(msg)))
-        elif self.background.wants(stamp):
-            self.background.add(stamp, decode_color(msg))
+            self.publish_frames(self.detector.push(stamp, rgb))
+        if self.background.wants(stamp) and (self.detector is None or self.source == "pose"):
+            self.background.add(stamp, rgb)      # the pose model needs no background; the scene keypoints do
 
     def on_info(self, msg: CameraInfo) -> None:
         if self.acc.camera is None and not self.info_problem:
@@ -92,10 +103,12 @@ class KeypointTrackerNode(StageNode):
                 self.pub.publish(frame_to_msg(kept, self.camera, self.frame_id))
 
     def finalize(self) -> str:
-        background, parts = self.background.image(), [self.acc.summary()]
+        background, parts = self.background.image(), ["source: recorded keypoints", self.acc.summary()]
         if self.detector is not None:
             self.publish_frames(self.detector.flush())
-            background, parts = self.detector.background, [self.acc.summary(), self.detector.summary()]
+            background = self.detector.background if self.detector.background is not None else background
+            parts = [self.detector.summary() if self.source == "pose" else
+                     f"source: model-free detector; {self.detector.summary()}", self.acc.summary()]
         if self.info_problem:
             parts.append(self.info_problem)
         if background is not None:

@@ -51,6 +51,7 @@ SCALE_ONLY_PRESETS = {"large"}
 RELATIVE_METHODS = {
     "YOWO": ("keypoints", calibrate_groups),
     "YOWO, image detector": ("images", calibrate_groups),
+    "YOWO, pose model": ("pose", calibrate_groups),
     # Cameras outside the 2-edge-connected groups also pair up along their strongest
     # edge: more cameras calibrated, each pair resting on a single edge.
     "YOWO, left-over pairs": ("keypoints", lambda tracks, sfm: calibrate_groups(
@@ -115,6 +116,7 @@ def relative_pose_case(bag: Path, images: bool, baselines: bool = True, config: 
     tracks = {"keypoints": read_cmc_tracks(bag, "keypoints", config.cmc)}
     if images:
         tracks["images"] = read_cmc_tracks(bag, "images", config.cmc)
+        tracks["pose"] = read_cmc_tracks(bag, "pose", config.cmc)
     out = {}
     for method, (source, calibrate) in RELATIVE_METHODS.items():
         if source not in tracks or not (baselines or method == "YOWO"):
