@@ -122,14 +122,16 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
         return {"graph": {"run_id": plan.run_id, "ros_domain_id": network.domain_id, "private": network.private,
                           "discovery_range": network.discovery, "nodes_on_this_host": [p.spec.name for p in sup.procs],
                           "stray_status_messages": monitor.strays()},
-                "restarts": {p.spec.name: p.exits for p in sup.procs if p.exits}}
+                "restarts": {p.spec.name: p.exits for p in sup.procs if p.exits},
+                # Sampled once a second from /proc: the last second of a node is not counted.
+                "resources": {p.spec.name: p.resources() for p in sup.procs}}
     try:
         with ros_context([]):
             monitor = RunMonitor(stages, plan.outputs, plan.run_id)
             try:
                 for spec in plan.local_nodes:  # replay last: it waits for the stages' subscriptions
                     sup.start(spec)
-                finished_at = None
+                finished_at, last_sample = None, 0.0
                 while True:
                     rclpy.spin_once(monitor, timeout_sec=0.1)
                     if plan.bag is None:
@@ -156,6 +158,9 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
                                    + ", ".join(f"{s}={'done' if monitor.finished(s) else 'running'}" for s in stages))
                         break
                     progress(monitor.progress(stages, time.monotonic() - t0, plan.replay_messages))
+                    if time.monotonic() - last_sample >= 1.0:
+                        sup.sample()
+                        last_sample = time.monotonic()
                 if linger_s > 0 and not failure:
                     outcome = write_run_results(plan, dict(monitor.outputs), dict(monitor.status), monitor.replay,
                                                 time.monotonic() - t0, failure, graph_log())
@@ -164,6 +169,7 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
                     while time.monotonic() < end and not sup.dead():
                         rclpy.spin_once(monitor, timeout_sec=0.1)
             finally:
+                sup.sample()
                 outputs, status, replay, graph = dict(monitor.outputs), dict(monitor.status), monitor.replay, graph_log()
                 monitor.destroy_node()
                 sup.stop()

@@ -22,12 +22,49 @@ class NodeSpec:
 
 
 @dataclass
+class Usage:
+    """A node process's resources as /proc last showed them (sampled while it runs:
+    a reaped process has none left to read)."""
+
+    cpu_s: float = 0.0            # user + system
+    peak_rss_mb: float = 0.0      # VmHWM
+    started: float = field(default_factory=time.monotonic)
+    last_seen: float = 0.0
+
+    @staticmethod
+    def read(pid: int) -> tuple[float, float] | None:
+        """(cpu seconds, peak RSS MB) of a live process, None when it is gone."""
+        try:
+            stat = Path(f"/proc/{pid}/stat").read_text()
+            status = Path(f"/proc/{pid}/status").read_text()
+        except OSError:
+            return None
+        fields = stat.rsplit(")", 1)[1].split()           # after "pid (comm)"
+        cpu = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        hwm = next((int(line.split()[1]) for line in status.splitlines() if line.startswith("VmHWM:")), 0)
+        return cpu, hwm / 1024.0
+
+
+@dataclass
 class NodeProcess:
     spec: NodeSpec
     popen: subprocess.Popen
     log_path: Path
     incarnation: int = 0
     exits: list[int] = field(default_factory=list)     # exit codes of earlier incarnations
+    usage: list[Usage] = field(default_factory=lambda: [Usage()])   # one per incarnation
+
+    def sample(self) -> None:
+        got = Usage.read(self.popen.pid) if self.popen.poll() is None else None
+        if got is not None:
+            u = self.usage[-1]
+            u.cpu_s, u.peak_rss_mb, u.last_seen = got[0], max(u.peak_rss_mb, got[1]), time.monotonic()
+
+    def resources(self) -> dict:
+        """CPU seconds (summed over incarnations), wall seconds alive, peak RSS."""
+        return {"cpu_s": round(sum(u.cpu_s for u in self.usage), 2),
+                "wall_s": round(sum(max(u.last_seen - u.started, 0.0) for u in self.usage), 2),
+                "peak_rss_mb": round(max(u.peak_rss_mb for u in self.usage), 1)}
 
     def log_tail(self, lines: int = 15) -> str:
         try:
@@ -82,6 +119,11 @@ class Supervisor:
         proc.exits.append(proc.popen.returncode)
         proc.incarnation += 1
         proc.popen = self._popen(proc.spec, proc.incarnation, "a")
+        proc.usage.append(Usage())
+
+    def sample(self) -> None:
+        for p in self.procs:
+            p.sample()
 
     def dead(self) -> list[NodeProcess]:
         """Processes that exited with an error."""
