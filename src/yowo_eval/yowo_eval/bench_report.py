@@ -224,7 +224,9 @@ def write_outputs(results: dict, out_dir: Path, markdown_path: Path | None) -> N
         command = "yowo " + " ".join(shlex.quote(a) for a in sys.argv[1:])   # `yowo` or `python -m yowo_bringup.cli`
         results = {**results, "environment": env, "command": command}
         (out_dir / "results.json").write_text(json.dumps(results, indent=1))
+    from .graph_bench import keep_section
+
     text = markdown(results, command, env)
     (out_dir / "BENCHMARKS.md").write_text(text)
-    if markdown_path is not None:
-        markdown_path.write_text(text)
+    if markdown_path is not None:       # the graph's speed table (yowo bench-graph) stays
+        markdown_path.write_text(keep_section(markdown_path.read_text() if markdown_path.exists() else "", text))

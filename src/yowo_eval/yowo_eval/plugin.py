@@ -57,6 +57,16 @@ def cmd_bench(args) -> int:
     return 0
 
 
+def cmd_bench_graph(args) -> int:
+    """`yowo run --rate 0` on generated recordings: the real graph's speed per stage."""
+    from .graph_bench import run_graph_bench
+
+    extra = [a for s in (args.set or []) for a in ("--set", s)] + (["--config", args.config] if args.config else [])
+    cases = run_graph_bench(args.preset, args.seeds, args.sources, Path(args.output),
+                            Path(args.markdown) if args.markdown else None, extra)
+    return 0 if all(c["exit"] == 0 for c in cases) else 1
+
+
 def add_verbs(verbs) -> None:
     from yowo_bringup.cli import add_config_options
 
@@ -77,6 +87,16 @@ def add_verbs(verbs) -> None:
     p.add_argument("--from-results", action="store_true",
                    help="run nothing: render the tables again from OUTPUT/results.json (e.g. after a report change)")
     p.set_defaults(func=cmd_bench)
+
+    p = verbs.add_parser("bench-graph", help="the real graph's speed (yowo run --rate 0) per stage -> BENCHMARKS.md")
+    p.add_argument("--preset", nargs="+", default=["small"])
+    p.add_argument("--seeds", type=int, nargs="+", default=[0])
+    p.add_argument("--sources", nargs="+", default=["keypoints", "images"], choices=("keypoints", "pose", "images"),
+                   help="CMC keypoint sources to time")
+    p.add_argument("-o", "--output", default="bench", help="directory for bags (shared with yowo bench) and runs")
+    p.add_argument("--markdown", help="put the table into this file (e.g. BENCHMARKS.md), replacing an earlier one")
+    add_config_options(p)
+    p.set_defaults(func=cmd_bench_graph)
 
     p = verbs.add_parser("eval", help="metric tables of a results directory against a bag's ground truth")
     p.add_argument("results", help="results directory of yowo run / calibrate-cmc")

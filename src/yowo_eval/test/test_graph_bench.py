@@ -1,0 +1,29 @@
+from yowo_eval.graph_bench import BEGIN, END, keep_section, replace_section, speed_markdown
+
+CASE = {"bag": "small_normal_s0", "source": "keypoints", "exit": 0, "recording_s": 40.0, "wall_s": 66.0, "ratio": 1.65,
+        "registration_pos_avg_m": 0.0123, "registration_rot_avg_deg": 0.201, "ego_ate_m": 0.0031,
+        "resources": {"keypoint_tracker_a": {"cpu_s": 2.0, "wall_s": 60.0, "peak_rss_mb": 210.0},
+                      "keypoint_tracker_b": {"cpu_s": 4.0, "wall_s": 62.0, "peak_rss_mb": 230.0},
+                      "ego_mapper": {"cpu_s": 30.5, "wall_s": 63.0, "peak_rss_mb": 800.0}}}
+
+
+def test_the_table_has_the_ratio_and_each_stage_once(tmp_path):
+    md = speed_markdown([CASE], "yowo bench-graph --preset small")
+    row = next(line for line in md.splitlines() if line.startswith("| small_normal_s0"))
+    assert "| 1.65 | 66 | 40 | 0.0123 / 0.201 | 0.0031 |" in row
+    # Trackers: mean CPU and lifetime, the largest peak.
+    assert "keypoint_tracker (each): 3.0 / 61 / 230" in row and "ego_mapper: 30.5 / 63 / 800" in row
+    failed = speed_markdown([{**CASE, "exit": 1}], "c")
+    assert "failed (exit 1)" in failed
+
+
+def test_the_section_is_replaced_in_place_and_survives_a_rerender(tmp_path):
+    doc = tmp_path / "BENCHMARKS.md"
+    doc.write_text("# BENCHMARKS\n\nold tables\n")
+    replace_section(doc, speed_markdown([CASE], "first"))
+    replace_section(doc, speed_markdown([{**CASE, "ratio": 0.45}], "second"))
+    text = doc.read_text()
+    assert text.count(BEGIN) == 1 and "second" in text and "first" not in text and "old tables" in text
+    rerendered = keep_section(text, "# BENCHMARKS\n\nnew tables\n")
+    assert "new tables" in rerendered and "old tables" not in rerendered and "| 0.45 |" in rerendered
+    assert rerendered.index(BEGIN) < rerendered.index(END)

@@ -1,0 +1,115 @@
+"""Speed of the real graph (issue #19): `yowo run --rate 0` on generated recordings,
+each node's CPU seconds, lifetime and peak memory (run_log.yaml: the supervisor samples
+/proc), processing time / recording time. Its table lives in BENCHMARKS.md between
+markers, so `yowo bench` re-rendering the rest keeps it."""
+from __future__ import annotations
+
+import json
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import yaml
+
+from .bench import bag_for
+
+BEGIN, END = "<!-- graph-speed:begin -->", "<!-- graph-speed:end -->"
+
+
+def recording_seconds(bag: Path) -> float:
+    from yowo_common.ros.bag import open_reader
+
+    reader = open_reader(bag)
+    try:
+        return (reader.end_time - reader.start_time) / 1e9
+    finally:
+        reader.close()
+
+
+def graph_case(bag: Path, out: Path, source: str, extra: list[str], timeout_s: float = 7200.0) -> dict:
+    cmd = [sys.executable, "-m", "yowo_bringup.cli", "run", str(bag), "-o", str(out), "--rate", "0",
+           "--cmc-source", source, "--timeout", str(timeout_s), *extra]
+    t0 = time.monotonic()
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s + 120)
+    wall = time.monotonic() - t0
+    log_file = out / "run_log.yaml"
+    log = yaml.safe_load(log_file.read_text()) if log_file.exists() else {}
+    recording = recording_seconds(bag)
+    metrics = json.loads((out / "metrics.json").read_text()) if (out / "metrics.json").exists() else {}
+    reg = metrics.get("registration", {}).get("summary", {})
+    return {"bag": bag.name, "source": source, "exit": r.returncode, "recording_s": recording, "wall_s": wall,
+            "ratio": wall / recording if recording > 0 else float("nan"), "resources": log.get("resources", {}),
+            "registration_pos_avg_m": reg.get("pos_avg"), "registration_rot_avg_deg": reg.get("rot_avg"),
+            "ego_ate_m": metrics.get("ego", {}).get("ate_rmse_m"),
+            "error": "" if r.returncode == 0 else (r.stderr or r.stdout)[-500:]}
+
+
+def _stage(name: str) -> str:
+    return "keypoint_tracker (each)" if name.startswith("keypoint_tracker_") else name
+
+
+def speed_markdown(cases: list[dict], command: str) -> str:
+    lines = [BEGIN, "## Speed of the real graph (`yowo run --rate 0`)", "", "Produced by:", "", "```", command, "```",
+             "", "Wall time of the whole `yowo run` (start-up, replay, every stage, results) over the recording's "
+             "length; per stage the CPU seconds, the process lifetime and the peak RSS (sampled from /proc once a "
+             "second; trackers: the mean and the largest peak over cameras). Registration and ATE as `yowo eval` "
+             "computes them.", "",
+             "| recording | source | processing / recording | wall [s] | recording [s] | registration avg [m / deg] "
+             "| ego ATE [m] | stage: CPU s / wall s / peak MB |", "|---|---|---|---|---|---|---|---|"]
+    for c in cases:
+        stages: dict[str, list[dict]] = {}
+        for name, r in c["resources"].items():
+            stages.setdefault(_stage(name), []).append(r)
+        cells = []
+        for name, rs in stages.items():
+            cpu = sum(r["cpu_s"] for r in rs) / len(rs)
+            wall = sum(r["wall_s"] for r in rs) / len(rs)
+            cells.append(f"{name}: {cpu:.1f} / {wall:.0f} / {max(r['peak_rss_mb'] for r in rs):.0f}")
+        reg = (f"{c['registration_pos_avg_m']:.4f} / {c['registration_rot_avg_deg']:.3f}"
+               if c.get("registration_pos_avg_m") is not None else "-")
+        ate = f"{c['ego_ate_m']:.4f}" if c.get("ego_ate_m") is not None else "-"
+        status = f"{c['ratio']:.2f}" if c["exit"] == 0 else f"failed (exit {c['exit']})"
+        lines.append(f"| {c['bag']} | {c['source']} | {status} | {c['wall_s']:.0f} | {c['recording_s']:.0f} | {reg} "
+                     f"| {ate} | {'<br>'.join(cells)} |")
+    return "\n".join(lines + ["", END, ""])
+
+
+def replace_section(markdown_path: Path, section: str) -> None:
+    """Put the section into a markdown file, replacing an earlier one."""
+    text = markdown_path.read_text() if markdown_path.exists() else ""
+    if BEGIN in text and END in text:
+        head, rest = text.split(BEGIN, 1)
+        text = head + section.rstrip("\n") + rest.split(END, 1)[1]
+    else:
+        text = text.rstrip("\n") + "\n\n" + section
+    markdown_path.write_text(text)
+
+
+def keep_section(old_text: str, new_text: str) -> str:
+    """`new_text` with the graph-speed section of `old_text` (when it had one) at its end."""
+    if BEGIN not in old_text or END not in old_text:
+        return new_text
+    section = BEGIN + old_text.split(BEGIN, 1)[1].split(END, 1)[0] + END + "\n"
+    return new_text.rstrip("\n") + "\n\n" + section
+
+
+def run_graph_bench(presets: list[str], seeds: list[int], sources: list[str], out_dir: Path,
+                    markdown_path: Path | None, extra: list[str], log=print) -> list[dict]:
+    command = "yowo " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    cases = []
+    for preset in presets:
+        for seed in seeds:
+            for source in sources:
+                bag = bag_for(preset, "normal", seed, out_dir / "bags", log)   # keypoints and images recorded
+                case = graph_case(bag, out_dir / "runs" / f"{bag.name}_{source}", source, extra)
+                log(f"{bag.name} ({source}): {case['wall_s']:.0f} s for {case['recording_s']:.0f} s of recording "
+                    f"({case['ratio']:.2f}), exit {case['exit']}")
+                cases.append(case)
+                (out_dir / "graph_cases.json").write_text(json.dumps(cases, indent=1))
+                section = speed_markdown(cases, command)
+                (out_dir / "GRAPH_SPEED.md").write_text(section)
+                if markdown_path is not None:
+                    replace_section(markdown_path, section)
+    return cases
