@@ -40,6 +40,12 @@ def gt_cmc_pose_topic(name: str) -> str:
     return f"/gt/cmc/{name}/pose"
 
 
+def gt_cmc_clock_offset_topic(name: str) -> str:
+    """std_msgs/Float64, latched: the CMC's clock minus the ego camera's [s] (its stamps are
+    true time + this). Recorded only when the clocks are not synchronised (absent: 0)."""
+    return f"/gt/cmc/{name}/clock_offset"
+
+
 GT_PREFIX = "/gt/"                          # ground truth: read by evaluation only, never played
 GT_EGO_POSE = "/gt/ego/pose"
 GT_FLOOR = "/gt/layout/floor"

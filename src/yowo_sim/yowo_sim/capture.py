@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 from geometry_msgs.msg import Point32, Polygon, PolygonStamped, Pose, PoseArray, PoseStamped
-from std_msgs.msg import Header
+from std_msgs.msg import Float64, Header
 from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
 from yowo_common import topics
@@ -120,6 +120,16 @@ class CaptureSetup:
     walk: Walk
     ego_camera: CameraModel
     rng: np.random.Generator
+    clock_offsets_ns: dict[str, int] = field(default_factory=dict)   # CMC clock - ego clock (preset's option)
+
+
+def clock_offsets(preset: CapturePreset, seed: int, cmcs: list[Cmc]) -> dict[str, int]:
+    """Each CMC's clock offset [ns], uniform in +-cmc_clock_offset_s. A generator of its
+    own: the option changes nothing else of the recording (same walk, same noise)."""
+    if preset.cmc_clock_offset_s == 0:
+        return {}
+    rng = np.random.default_rng([seed, 17])
+    return {c.name: int(round(rng.uniform(-1, 1) * preset.cmc_clock_offset_s * 1e9)) for c in cmcs}
 
 
 def build_capture(preset: CapturePreset, seed: int) -> CaptureSetup:
@@ -129,7 +139,7 @@ def build_capture(preset: CapturePreset, seed: int) -> CaptureSetup:
     walk = plan_walk(scene.free_space_polygon(), scene.rooms[0].center_xy(), [c.target_xy for c in cmcs],
                      preset.walk, rng)
     ego_cam = CameraModel.from_fov(preset.ego_width, preset.ego_height, preset.ego_hfov_deg)
-    return CaptureSetup(preset, scene, cmcs, walk, ego_cam, rng)
+    return CaptureSetup(preset, scene, cmcs, walk, ego_cam, rng, clock_offsets(preset, seed, cmcs))
 
 
 def generate(preset: CapturePreset, seed: int, out_path, progress: Callable[[int, int], None] | None = None
@@ -153,7 +163,7 @@ def generate(preset: CapturePreset, seed: int, out_path, progress: Callable[[int
     out_path = Path(out_path)
     with BagWriter(out_path) as bag:
         rec = _Recorder(bag, preset)
-        _write_static_ground_truth(bag, scene, cmcs)
+        _write_static_ground_truth(bag, scene, cmcs, setup.clock_offsets_ns)
         for n, (stamp, kind, idx) in enumerate(events):
             t = (stamp - START_NS) / 1e9
             xy, heading, phase = walk.state_at(t)
@@ -170,6 +180,7 @@ def generate(preset: CapturePreset, seed: int, out_path, progress: Callable[[int
             else:
                 cmc = cmcs[idx]
                 kps = agent_keypoints_3d(xy, heading, walk.height_m, phase)
+                truth_stamp, stamp = stamp, stamp + setup.clock_offsets_ns.get(cmc.name, 0)   # the CMC's clock
                 header = Header(stamp=ns_to_time(stamp), frame_id=f"{cmc.name}_optical_frame")
                 visible = agent_in_view(cmc, kps)
                 if preset.cmc_images:
@@ -186,8 +197,8 @@ def generate(preset: CapturePreset, seed: int, out_path, progress: Callable[[int
                         keypoints=[Keypoint2D(id=int(i), x=float(u), y=float(v), confidence=float(c))
                                    for i, (u, v), c in zip(det.ids, det.uv, det.confidence)]), stamp)
                 bag.write(topics.GT_AGENT_KEYPOINTS, PoseArray(
-                    header=Header(stamp=header.stamp, frame_id="map"),
-                    poses=[Pose(position=p) for p in array_to_points([kps[k] for k in sorted(kps)])]), stamp)
+                    header=Header(stamp=ns_to_time(truth_stamp), frame_id="map"),
+                    poses=[Pose(position=p) for p in array_to_points([kps[k] for k in sorted(kps)])]), truth_stamp)
                 counts["cmc"] += 1
                 counts["agent"] += int(len(det.ids) > 0)
             if progress:
@@ -196,11 +207,15 @@ def generate(preset: CapturePreset, seed: int, out_path, progress: Callable[[int
                           render_s, rendered)
 
 
-def _write_static_ground_truth(bag: BagWriter, scene: Scene, cmcs: list[Cmc]) -> None:
+def _write_static_ground_truth(bag: BagWriter, scene: Scene, cmcs: list[Cmc], clock_offsets_ns: dict[str, int]
+                               ) -> None:
     header = Header(stamp=ns_to_time(START_NS), frame_id="map")
     for cmc in cmcs:
         bag.write(topics.gt_cmc_pose_topic(cmc.name), PoseStamped(header=header, pose=matrix_to_pose(cmc.T_world_cam)),
                   START_NS, latched=True)
+    # Only with the option: a synchronised recording stays as it was (no offset topic = 0).
+    for name, offset in clock_offsets_ns.items():
+        bag.write(topics.gt_cmc_clock_offset_topic(name), Float64(data=offset / 1e9), START_NS, latched=True)
     for poly in scene.floor_polygons:
         msg = PolygonStamped(header=header, polygon=Polygon(
             points=[Point32(x=float(x), y=float(y), z=0.0) for x, y in poly]))

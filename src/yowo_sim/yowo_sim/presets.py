@@ -40,6 +40,10 @@ class CapturePreset:
     image_noise: float = 2.0                # sensor noise, grey levels (std)
     jpeg_quality: int = 90
     raw_images: bool = False                # sensor_msgs/Image instead of compressed
+    # Unsynchronised CMC clocks: each CMC's clock runs this far at most (s) ahead of or
+    # behind the ego camera's (the reference), drawn uniformly in [-max, +max] from the
+    # seed; its messages carry its own clock (header stamps and log times). 0: synchronised.
+    cmc_clock_offset_s: float = 0.0
 
 
 PRESETS = {

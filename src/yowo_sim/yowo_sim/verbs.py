@@ -21,6 +21,8 @@ def cmd_simulate(args) -> int:
         overrides["ego_hz"] = args.ego_hz
     if args.cmc_hz:
         overrides["cmc_hz"] = args.cmc_hz
+    if args.cmc_clock_offset:
+        overrides["cmc_clock_offset_s"] = args.cmc_clock_offset
     preset = get_preset(args.preset, **overrides)
     with Progress() as bar:
         task = bar.add_task(f"simulating '{args.preset}' (seed {args.seed})", total=None)
@@ -67,6 +69,8 @@ def add_verbs(verbs) -> None:
     p.add_argument("--raw", action="store_true", help="raw sensor_msgs/Image instead of compressed")
     p.add_argument("--ego-hz", type=float, help="ego camera rate (default 15)")
     p.add_argument("--cmc-hz", type=float, help="CMC rate (default 10)")
+    p.add_argument("--cmc-clock-offset", type=float, metavar="S",
+                   help="unsynchronised CMC clocks: each off the ego's by up to +-S seconds (default 0)")
     p.add_argument("--preview", metavar="PNG", help="also write a picture: ego frame, CMC frame, top view")
     p.set_defaults(func=cmd_simulate)
 
