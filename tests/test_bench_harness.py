@@ -12,8 +12,8 @@ def test_bench_on_tiny_writes_every_table(tmp_path, ros_env):
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     results = json.loads((out / "results.json").read_text())
     (case,) = results["cases"]
-    assert set(case["relative"]) == {"YOWO", "YOWO, image detector", "YOWO, left-over pairs", "ECCMP-style",
-                                     "OMECC-style"}
+    assert set(case["relative"]) == {"YOWO", "YOWO, image detector", "YOWO, pose model", "YOWO, left-over pairs",
+                                     "ECCMP-style", "OMECC-style"}
     yowo_rel = case["relative"]["YOWO"]
     assert yowo_rel["calibrated"] == 3 and yowo_rel["summary"]["pos_max"] < 0.10, yowo_rel   # a 7 s walk: ~4 cm
     assert case["detector"]["frames_full_view"] > 0 and 0 < case["detector"]["detection_rate"] <= 1
