@@ -1,0 +1,352 @@
+"""Clock offsets of unsynchronised CMCs from the agent's motion alone.
+
+Two cameras that watch the walking agent see the same 3D keypoint at the same instant
+only when their stamps are shifted by the offset between their clocks: at any other
+shift the correspondences (camera A's sample at t, camera B's track at t + delta) break
+the epipolar constraint in proportion to the agent's image speed. Per co-observing pair:
+a coarse search over +-max_offset_s (essential matrix by USAC at each shift, truncated
+Sampson cost over every correspondence), then one least-squares fit of the relative pose
+and the shift together (sub-frame), its sigma from the fit's curvature. Globally: the
+pair offsets over the co-visibility graph by weighted least squares, one reference
+camera per connected component, inconsistent pair estimates dropped one by one."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import networkx as nx
+import numpy as np
+from scipy.interpolate import make_interp_spline
+from scipy.optimize import least_squares
+from scipy.signal import savgol_coeffs
+from scipy.spatial.transform import Rotation
+
+from yowo_common.bundle import robust_sigma
+
+from .group_sfm import RANSAC_SEED, SfmParams, sampson_px, spread_subset
+from .tracks import CameraTracks, _window, clean_track, noise_scale, segments, undistort_tracks
+
+
+@dataclass(frozen=True)
+class ClockParams:
+    # Search range of a pair's offset |clock b - clock a|: twice the largest |offset| of one
+    # camera (+-1 s each: pairs up to 2 s apart), with a margin.
+    max_offset_s: float = 2.5
+    coarse_step_frames: float = 0.5     # coarse grid step, in frame periods of the faster camera
+    min_correspondences: int = 40       # co-visible samples (all keypoint ids) a pair needs at a shift
+    coarse_points: int = 150            # correspondences (spatially spread) per essential-matrix fit
+    # RANSAC iterations per fit: at a wrong shift most correspondences are outliers and
+    # the fit would run to OpenCV's 1000; near the right one it stops far sooner.
+    coarse_iterations: int = 300
+    truncate_px: float = 3.0            # coarse cost: Sampson error truncated here (x the pair's noise scale)
+    huber_px: float = 1.0               # refinement: Huber loss scale (x the pair's noise scale)
+    # A pair's sigma from the curvature assumes independent residuals, with their spread;
+    # the tracks are Savitzky-Golay smoothed, which shrinks the residuals by sqrt(c0) (the
+    # filter's centre weight) but not the slow noise a shift is fitted to: the sigma is
+    # scaled by 1 / sqrt(c0).
+    correlated_sigma: bool = True
+    max_pair_sigma_s: float = 0.02      # pair estimates less certain are not used (agent barely moving)
+    min_sigma_s: float = 1e-5           # floor on a pair's sigma: noise-free pairs would get unbounded weight
+    max_residual_sigma: float = 5.0     # a pair this many sigma off the global solution is dropped ...
+    min_residual_s: float = 0.005       # ... if it is also this far off (sigmas can be optimistic)
+
+
+@dataclass
+class PairOffset:
+    a: str
+    b: str
+    offset_s: float | None              # clock of b - clock of a (b's stamp of an instant = a's + this)
+    sigma_s: float | None
+    correspondences: int                # samples in the refinement (0: not refined)
+    rms_px: float | None                # Sampson error at the solution, robust (MAD) sigma
+    used: bool = False                  # in the global solution
+    reason: str = ""                    # why not usable / dropped ('' when used)
+
+
+@dataclass
+class CameraClock:
+    name: str
+    offset_s: float | None              # this camera's clock - the reference camera's
+    sigma_s: float | None
+    reference: str | None               # the camera of its component whose offset is fixed at 0
+    reason: str = ""                    # why there is no estimate
+
+
+@dataclass
+class ClockEstimate:
+    cameras: dict[str, CameraClock]
+    pairs: list[PairOffset] = field(default_factory=list)
+
+
+class _Tracks:
+    """One camera's cleaned, undistorted keypoint tracks as cubic splines per segment,
+    on a float time axis [s] from a common origin."""
+
+    def __init__(self, cam: CameraTracks, origin_ns: int, sfm: SfmParams):
+        self.name, self.period_s = cam.name, cam.frame_period_ns / 1e9
+        self.scale = noise_scale(cam, sfm.tracks)
+        cleaned = CameraTracks(cam.name, cam.camera, {i: clean_track(t, cam.frame_period_ns, sfm.tracks, self.scale)
+                                                      for i, t in cam.tracks.items()}, cam.frame_period_ns)
+        ideal = undistort_tracks(cleaned)
+        self.camera = ideal.camera
+        max_gap = int(sfm.tracks.gap_factor * cam.frame_period_ns)
+        self.samples: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self.splines: dict[int, list] = {}
+        for i, t in ideal.tracks.items():
+            if len(t) == 0:
+                continue
+            ts = (t.stamps_ns - origin_ns) / 1e9
+            self.samples[i] = (ts, t.uv)
+            self.splines[i] = [(ts[s][0], ts[s][-1], make_interp_spline(ts[s], t.uv[s], k=min(3, s.stop - s.start - 1)))
+                               for s in segments(t.stamps_ns, max_gap) if s.stop - s.start >= 2]
+        window = _window(cam.frame_period_ns, sfm.tracks)
+        self.correlation = 1.0 / savgol_coeffs(window, sfm.tracks.polyorder)[window // 2]
+
+    def times(self) -> np.ndarray:
+        return np.concatenate([ts for ts, _ in self.samples.values()]) if self.samples else np.zeros(0)
+
+    def at(self, kp_id: int, t: np.ndarray, within: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(uv, valid, segment index) at times t; valid where [t - within, t + within]
+        lies inside one segment (no extrapolation, no bridging of gaps)."""
+        uv, seg = np.full((len(t), 2), np.nan), np.full(len(t), -1)
+        for k, (t0, t1, spline) in enumerate(self.splines.get(kp_id, [])):
+            inside = (t - within >= t0) & (t + within <= t1)
+            if inside.any():
+                uv[inside] = spline(t[inside])
+                seg[inside] = k
+        return uv, seg >= 0, seg
+
+
+def _fundamental(E: np.ndarray, Ka: np.ndarray, Kb: np.ndarray) -> np.ndarray:
+    return np.linalg.inv(Kb).T @ E @ np.linalg.inv(Ka)
+
+
+def _normalised(uv: np.ndarray, K: np.ndarray) -> np.ndarray:
+    return (uv - K[:2, 2]) / np.diag(K)[:2]
+
+
+class _Pair:
+    """Correspondences of camera a's samples with camera b's tracks at a shift delta."""
+
+    def __init__(self, a: _Tracks, b: _Tracks):
+        self.a, self.b = a, b
+        self.ids = sorted(set(a.samples) & set(b.splines))
+        self.ta = np.concatenate([a.samples[i][0] for i in self.ids]) if self.ids else np.zeros(0)
+        self.uva = np.concatenate([a.samples[i][1] for i in self.ids]) if self.ids else np.zeros((0, 2))
+        self.id_of = np.concatenate([np.full(len(a.samples[i][0]), i) for i in self.ids]) if self.ids \
+            else np.zeros(0, int)
+
+    def b_at(self, delta: float, within: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        uv, ok, seg = np.full((len(self.ta), 2), np.nan), np.zeros(len(self.ta), bool), np.full(len(self.ta), -1)
+        for i in self.ids:
+            m = self.id_of == i
+            uv[m], ok[m], seg[m] = self.b.at(i, self.ta[m] + delta, within)
+        return uv, ok, seg
+
+
+def _coarse_cost(pair: _Pair, delta: float, params: ClockParams, sfm: SfmParams, thr_px: float
+                 ) -> tuple[float, np.ndarray | None]:
+    """(mean truncated squared Sampson error / threshold^2, essential matrix) at one shift."""
+    uvb, ok, _ = pair.b_at(delta)
+    if ok.sum() < params.min_correspondences:
+        return np.inf, None
+    pa, pb = pair.uva[ok], uvb[ok]
+    Ka, Kb = pair.a.camera.K, pair.b.camera.K
+    sub = spread_subset(pa, pair.a.camera, sfm)
+    sub = sub[np.linspace(0, len(sub) - 1, min(len(sub), params.coarse_points)).astype(int)]
+    if len(sub) < 8:
+        return np.inf, None
+    focal = 0.25 * (Ka[0, 0] + Ka[1, 1] + Kb[0, 0] + Kb[1, 1])
+    cv2.setRNGSeed(RANSAC_SEED)
+    try:
+        E, _ = cv2.findEssentialMat(_normalised(pa[sub], Ka), _normalised(pb[sub], Kb), np.eye(3),
+                                    cv2.USAC_DEFAULT, 0.999, thr_px / focal, params.coarse_iterations)
+    except cv2.error:  # degenerate configurations make USAC assert
+        return np.inf, None
+    if E is None or E.shape[0] < 3:
+        return np.inf, None
+    best = (np.inf, None)
+    for k in range(E.shape[0] // 3):     # the 5-point solver may return several
+        e = sampson_px(_fundamental(E[3 * k:3 * k + 3], Ka, Kb), pa, pb)
+        cost = float(np.mean(np.minimum(e, thr_px) ** 2)) / thr_px ** 2
+        best = min(best, (cost, E[3 * k:3 * k + 3]), key=lambda c: c[0])
+    return best
+
+
+def _signed_sampson(F: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
+    xa = np.column_stack([pa, np.ones(len(pa))])
+    xb = np.column_stack([pb, np.ones(len(pb))])
+    Fa, Ftb = xa @ F.T, xb @ F
+    return np.sum(xb * Fa, axis=1) / np.sqrt(Fa[:, 0] ** 2 + Fa[:, 1] ** 2 + Ftb[:, 0] ** 2 + Ftb[:, 1] ** 2 + 1e-300)
+
+
+def _refine(pair: _Pair, delta0: float, E0: np.ndarray, step: float, params: ClockParams, thr_px: float,
+            huber_px: float) -> tuple[float, float, int, float] | str:
+    """Relative pose and shift by one robust least-squares fit from the coarse minimum:
+    (offset, sigma, correspondences, rms px), or why it failed."""
+    # Correspondences that stay inside one segment of b over the whole search interval,
+    # and are inliers of the coarse fit: a fixed residual vector for the optimiser.
+    uvb, ok, seg = pair.b_at(delta0, within=step)
+    Ka, Kb = pair.a.camera.K, pair.b.camera.K
+    ok[ok] = sampson_px(_fundamental(E0, Ka, Kb), pair.uva[ok], uvb[ok]) <= thr_px
+    if ok.sum() < params.min_correspondences:
+        return f"{int(ok.sum())} inlier correspondences around the best shift (needs {params.min_correspondences})"
+    ta, pa, ids = pair.ta[ok], pair.uva[ok], pair.id_of[ok]
+    seg = seg[ok]
+    groups = [(np.flatnonzero((ids == i) & (seg == k)), pair.b.splines[i][k][2]) for i in pair.ids
+              for k in np.unique(seg[ids == i])]
+
+    def b_points(delta: float) -> np.ndarray:
+        pb = np.empty((len(ta), 2))
+        for idx, spline in groups:
+            pb[idx] = spline(ta[idx] + delta)
+        return pb
+
+    R0, _, t0 = cv2.decomposeEssentialMat(E0)   # any of the four: all give the same E up to sign
+    t0 = t0.ravel() / np.linalg.norm(t0)
+    e1 = np.cross(t0, [1.0, 0, 0] if abs(t0[0]) < 0.9 else [0, 1.0, 0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(t0, e1)
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        R = Rotation.from_rotvec(x[:3]).as_matrix() @ R0
+        t = t0 + x[3] * e1 + x[4] * e2
+        t /= np.linalg.norm(t)
+        tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+        return _signed_sampson(_fundamental(tx @ R, Ka, Kb), pa, b_points(x[5]))
+
+    lo = np.r_[np.full(5, -np.inf), delta0 - step]
+    hi = np.r_[np.full(5, np.inf), delta0 + step]
+    fit = least_squares(residuals, np.r_[np.zeros(5), delta0], bounds=(lo, hi), loss="huber", f_scale=huber_px,
+                        x_scale="jac", method="trf")
+    delta = float(fit.x[5])
+    if min(delta - lo[5], hi[5] - delta) < 1e-3 * step:
+        return f"the refined shift {delta:+.3f} s ran to the edge of its interval (no clear minimum)"
+    rms = robust_sigma(fit.fun[:, None])
+    inlier = np.abs(fit.fun) <= 3 * max(rms, 1e-12)
+    J = fit.jac[inlier]
+    try:
+        cov = np.linalg.inv(J.T @ J) * max(rms, 1e-12) ** 2
+    except np.linalg.LinAlgError:
+        return "the shift is not observable (singular fit)"
+    corr = max(pair.a.correlation, pair.b.correlation) if params.correlated_sigma else 1.0
+    sigma = float(np.sqrt(max(cov[5, 5], 0.0) * corr))
+    return delta, max(sigma, params.min_sigma_s), int(ok.sum()), float(rms)
+
+
+def estimate_pair(a: _Tracks, b: _Tracks, params: ClockParams, sfm: SfmParams) -> PairOffset:
+    """Offset of b's clock from a's: coarse search, then the sub-frame refinement."""
+    pair = _Pair(a, b)
+    scale = max(a.scale, b.scale)
+    thr = params.truncate_px * scale
+    step = params.coarse_step_frames * min(a.period_s, b.period_s)
+    grid = np.arange(-params.max_offset_s, params.max_offset_s + 0.5 * step, step)
+    costs = [_coarse_cost(pair, d, params, sfm, thr) for d in grid]
+    best = int(np.argmin([c for c, _ in costs]))
+    if not np.isfinite(costs[best][0]):
+        return PairOffset(a.name, b.name, None, None, 0, None,
+                          reason=f"fewer than {params.min_correspondences} co-visible samples at every shift")
+    if best in (0, len(grid) - 1):
+        return PairOffset(a.name, b.name, None, None, 0, None,
+                          reason=f"the best shift is at the edge of the search range (+-{params.max_offset_s:g} s): "
+                                 "the offset may lie beyond it")
+    refined = _refine(pair, float(grid[best]), costs[best][1], step, params, thr, params.huber_px * scale)
+    if isinstance(refined, str):
+        return PairOffset(a.name, b.name, None, None, 0, None, reason=refined)
+    delta, sigma, n, rms = refined
+    out = PairOffset(a.name, b.name, delta, sigma, n, rms)
+    if sigma > params.max_pair_sigma_s:
+        out.reason = f"sigma {sigma * 1e3:.1f} ms > {params.max_pair_sigma_s * 1e3:.0f} ms (too little motion)"
+    return out
+
+
+def covisible_pairs(cams: list[_Tracks], params: ClockParams) -> list[tuple[int, int]]:
+    """Camera pairs where one sees the agent at least min_correspondences times within
+    +-max_offset_s of when the other sees it: the only ones worth a search."""
+    bin_s = 0.5
+    pad = int(np.ceil(params.max_offset_s / bin_s))
+    bins = [np.unique(np.floor(c.times() / bin_s).astype(int)) for c in cams]
+    dilated = [np.unique((b[:, None] + np.arange(-pad, pad + 1)).ravel()) for b in bins]
+    out = []
+    for i in range(len(cams)):
+        ti = np.floor(cams[i].times() / bin_s).astype(int)
+        for j in range(i + 1, len(cams)):
+            if np.isin(ti, dilated[j]).sum() >= params.min_correspondences:
+                out.append((i, j))
+    return out
+
+
+def combine(names: list[str], pairs: list[PairOffset], params: ClockParams) -> dict[str, CameraClock]:
+    """One offset per camera from the usable pair offsets: weighted least squares per
+    connected component (its first camera fixed at 0); while a pair is more than
+    max_residual_sigma (and min_residual_s) off the solution, the worst is dropped."""
+    index = {n: k for k, n in enumerate(names)}
+    usable = [p for p in pairs if p.offset_s is not None and not p.reason]
+    out: dict[str, CameraClock] = {}
+    while True:
+        G = nx.Graph()
+        G.add_nodes_from(range(len(names)))
+        G.add_edges_from((index[p.a], index[p.b]) for p in usable)
+        solution, worst = {}, None
+        for comp in nx.connected_components(G):
+            members = sorted(comp)
+            if len(members) < 2:
+                continue
+            ref, col = members[0], {c: k for k, c in enumerate(members[1:])}
+            edges = [p for p in usable if index[p.a] in comp]
+            A = np.zeros((len(edges), len(col)))
+            for r, p in enumerate(edges):
+                if index[p.b] in col:
+                    A[r, col[index[p.b]]] += 1.0
+                if index[p.a] in col:
+                    A[r, col[index[p.a]]] -= 1.0
+            w = 1.0 / np.array([p.sigma_s for p in edges])
+            y = np.array([p.offset_s for p in edges])
+            x = np.linalg.lstsq(A * w[:, None], y * w, rcond=None)[0]
+            res = (y - A @ x) * w
+            dof = len(edges) - len(col)
+            # Pair sigmas are approximate: scale them by the observed scatter when it is larger.
+            inflate = max(1.0, float(np.sqrt(res @ res / dof))) if dof > 0 else 1.0
+            cov = np.linalg.inv((A * w[:, None]).T @ (A * w[:, None])) * inflate ** 2
+            solution[ref] = (0.0, 0.0, ref)
+            for c, k in col.items():
+                solution[c] = (float(x[k]), float(np.sqrt(cov[k, k])), ref)
+            off = np.abs(res) > params.max_residual_sigma
+            off &= np.abs(y - A @ x) > params.min_residual_s
+            if off.any():
+                k = int(np.argmax(np.where(off, np.abs(res), -1.0)))
+                if worst is None or abs(res[k]) > worst[1]:
+                    worst = (edges[k], abs(res[k]), float((y - A @ x)[k]))
+        if worst is None:
+            break
+        p, nsig, miss = worst
+        p.reason = f"inconsistent with the other pairs: {miss * 1e3:+.1f} ms off ({nsig:.1f} sigma)"
+        usable.remove(p)
+    for p in usable:
+        p.used = True
+    for k, n in enumerate(names):
+        if k in solution:
+            off, sig, ref = solution[k]
+            out[n] = CameraClock(n, off, sig, names[ref])
+            continue
+        mine = [p for p in pairs if n in (p.a, p.b)]
+        if not mine:
+            reason = (f"sees the agent at no time another camera does (within +-{params.max_offset_s:g} s): "
+                      "no pair to compare with")
+        else:
+            reason = "no usable camera pair: " + "; ".join(f"with '{p.b if p.a == n else p.a}': {p.reason}"
+                                                         for p in mine)
+        out[n] = CameraClock(n, None, None, None, reason)
+    return out
+
+
+def estimate_clock_offsets(tracks: list[CameraTracks], params: ClockParams = ClockParams(),
+                           sfm: SfmParams = SfmParams()) -> ClockEstimate:
+    """Each camera's clock offset from the reference camera of its co-visibility
+    component (raw-pixel tracks on each camera's own clock; `sfm` gives the track
+    cleaning and the spatial spread of the RANSAC subsets, as the group SfM uses them)."""
+    stamps = [t.stamps_ns.min() for c in tracks for t in c.tracks.values() if len(t)]
+    origin = int(min(stamps)) if stamps else 0
+    cams = [_Tracks(c, origin, sfm) for c in tracks]
+    pairs = [estimate_pair(cams[i], cams[j], params, sfm) for i, j in covisible_pairs(cams, params)]
+    return ClockEstimate(combine([c.name for c in tracks], pairs, params), pairs)
