@@ -37,6 +37,19 @@ def pose_sigma(covariance) -> np.ndarray | None:
 CLOCK_ENTRY = {"clock_offset_s": None, "clock": "assumed synchronised with the ego camera (offset not estimated)"}
 
 
+def clock_entry(name: str, group: CameraGroupResult | None) -> dict:
+    """The clock against the ego camera (not estimated), and against the camera's group
+    reference from the agent's motion (yowo_cmc.clock) where estimated."""
+    entry = dict(CLOCK_ENTRY)
+    if group is not None and name in group.clock_offsets_s:
+        entry["clock_offset_to_group_reference_s"] = {
+            "offset_s": round(group.clock_offsets_s[name], 6), "sigma_s": round(group.clock_sigmas_s[name], 6),
+            "reference_camera": group.reference,
+            "note": "this camera's clock minus the reference camera's, from the agent's motion; reported, not yet "
+                    "applied to the stamps"}
+    return entry
+
+
 def intrinsics_entry(camera: CameraModel | None) -> dict:
     """The CameraInfo intrinsics a camera was registered with (None: no CameraInfo arrived)."""
     if camera is None:
@@ -77,7 +90,8 @@ def write_cameras_yaml(path: Path, cameras: list[RegisteredCmc], groups: list[Ca
             entry["covariance"] = np.asarray(c.covariance).round(12).tolist() if sig is not None else None
             entry["sigma"] = "unknown (see reason)" if sig is None else {
                 "position_m": sig[:3].round(5).tolist(), "rotation_deg": np.degrees(sig[3:]).round(4).tolist()}
-        entry.update({**intrinsics_entry(c.camera), **CLOCK_ENTRY, **keypoint_noise_entry(group_by_id.get(c.group)),
+        entry.update({**intrinsics_entry(c.camera), **clock_entry(c.name, group_by_id.get(c.group)),
+                      **keypoint_noise_entry(group_by_id.get(c.group)),
                       "reprojection_rmse_px": round(float(c.rmse_px), 4),
                       "num_agent_observations": int(c.num_agent), "num_scene_observations": int(c.num_scene)})
         out.append(entry)

@@ -16,7 +16,7 @@ from yowo_common import topics
 from .config import YowoConfig, section_yaml
 from .contract import (EGO_COLOR, EGO_DEPTH, EGO_INFO, cmc_image_topics, cmc_info_topic, cmc_keypoints_topic,
                        discover_inputs)
-from .results import CLOCK_ENTRY, intrinsics_entry, keypoint_noise_entry, pose_entry
+from .results import clock_entry, intrinsics_entry, keypoint_noise_entry, pose_entry
 from .supervisor import NodeSpec
 
 STAGE_MODULES = {
@@ -199,7 +199,7 @@ def write_group_calibration(path: Path, groups: list[CameraGroupResult], ungroup
             cams.append({"name": n, "group": g.group_id, "method": "group_sfm", "status": "ok", "reason": "",
                          "frame": f"{g.group_id} (reference camera {g.reference}, arbitrary scale)",
                          "T_group_camera": pose_entry(g.T_local_cam[n]),
-                         **intrinsics_entry(g.cameras.get(n)), **CLOCK_ENTRY, **keypoint_noise_entry(g),
+                         **intrinsics_entry(g.cameras.get(n)), **clock_entry(n, g), **keypoint_noise_entry(g),
                          "reprojection_rmse_px": round(float(g.rmse_px[n]), 4),
                          "num_agent_observations": int(g.num_observations[n])})
     for n, why in ungrouped.items():

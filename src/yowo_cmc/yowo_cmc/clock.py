@@ -350,3 +350,17 @@ def estimate_clock_offsets(tracks: list[CameraTracks], params: ClockParams = Clo
     cams = [_Tracks(c, origin, sfm) for c in tracks]
     pairs = [estimate_pair(cams[i], cams[j], params, sfm) for i, j in covisible_pairs(cams, params)]
     return ClockEstimate(combine([c.name for c in tracks], pairs, params), pairs)
+
+
+def attach_to_groups(groups, estimate: ClockEstimate) -> None:
+    """Each group's members' clock offsets relative to the group's reference camera
+    (`clock_offsets_s`, `clock_sigmas_s`), where both are estimated on one reference."""
+    for g in groups:
+        ref = estimate.cameras.get(g.reference)
+        if ref is None or ref.offset_s is None:
+            continue
+        for n in g.names:
+            c = estimate.cameras.get(n)
+            if c is not None and c.offset_s is not None and c.reference == ref.reference:
+                g.clock_offsets_s[n] = c.offset_s - ref.offset_s
+                g.clock_sigmas_s[n] = float(np.hypot(c.sigma_s or 0.0, ref.sigma_s or 0.0)) if n != g.reference else 0.0

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from .group_sfm import SfmParams
+from .clock import ClockParams
 from .image_detector import DetectorParams
 from .pose_model import PoseModelParams
 
@@ -17,5 +18,7 @@ class CmcParams:
     # (nobody it recognises) the model-free detector's keypoints.
     pose_min_frames: int = 5
     sfm: SfmParams = field(default_factory=SfmParams)                  # groups, incremental SfM, group BA
+    clock: ClockParams = field(default_factory=ClockParams)            # clock offsets from the agent's motion
+    estimate_clock_offsets: bool = True   # reported in cameras.yaml (not yet applied to the stamps)
     background_period_s: float = 1.0      # recorded images sampled this often for the agent-free background
     max_pending_frames: int = 300         # detector frames that may wait for the camera's CameraInfo

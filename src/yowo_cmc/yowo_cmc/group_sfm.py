@@ -102,6 +102,9 @@ class CameraGroupResult:
     sigma_px_by_id: dict[int, float]
     initial_pair: tuple[str, str]
     cameras: dict[str, CameraModel] = field(default_factory=dict)   # each member's intrinsics with distortion
+    # Estimated clock offsets (yowo_cmc.clock): member's clock - the reference camera's [s].
+    clock_offsets_s: dict[str, float] = field(default_factory=dict)
+    clock_sigmas_s: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass

@@ -11,6 +11,7 @@ from yowo_common.ros.context import spin_node
 from yowo_common.ros.stage import LATCHED, StageNode
 from yowo_common.rosconv import camera_info_to_model
 
+from .clock import attach_to_groups, estimate_clock_offsets
 from .config import CmcParams
 from .group_sfm import calibrate_groups
 from .keypoint_input import TrackAccumulator, frame_from_msg
@@ -23,7 +24,8 @@ class GroupSfmNode(StageNode):
         cameras = [c for c in self.declare_parameter("cameras", [""]).value if c]
         if not cameras:
             raise ValueError("group_sfm_node needs the parameter cameras:=[name, ...]")
-        self.params = self.section(CmcParams, "cmc").sfm
+        self.cmc = self.section(CmcParams, "cmc")
+        self.params = self.cmc.sfm
         self.acc = {c: TrackAccumulator(c) for c in cameras}
         self.last_stamp = 0
         self.pub = self.output(CameraGroupArray, topics.GROUPS, LATCHED)
@@ -48,7 +50,10 @@ class GroupSfmNode(StageNode):
     def finalize(self) -> str:
         usable = [a for a in self.acc.values() if a.camera is not None]
         unusable = {a.name: "no usable CameraInfo" for a in self.acc.values() if a.camera is None}
-        result = calibrate_groups([a.tracks() for a in usable], self.params)
+        tracks = [a.tracks() for a in usable]
+        result = calibrate_groups(tracks, self.params)
+        if self.cmc.estimate_clock_offsets:
+            attach_to_groups(result.groups, estimate_clock_offsets(tracks, self.cmc.clock, self.params))
         result.ungrouped.update(unusable)
         self.pub.publish(groups_to_msg(result, self.last_stamp))
         lines = [f"{g.group_id}: {', '.join(g.names)} (initial pair {'/'.join(g.initial_pair)}, RMSE "
