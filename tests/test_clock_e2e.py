@@ -9,6 +9,7 @@ import yaml
 
 from yowo_common.ros.bag import read_messages
 from yowo_common.topics import gt_cmc_clock_offset_topic
+from yowo_eval.ground_truth import read_ground_truth
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
 
@@ -18,6 +19,10 @@ def test_calibrate_cmc_reports_the_clock_offsets(tmp_path, ros_env):
     summary = generate(replace(get_preset("tiny"), cmc_images=False, cmc_clock_offset_s=1.0), 2, bag)
     wanted = {gt_cmc_clock_offset_topic(c.name): c.name for c in summary.cmcs}
     truth = {wanted[t]: m.data for t, _, m in read_messages(bag, wanted)}
+    gt = read_ground_truth(bag)                  # the evaluation's reader puts stamps on the ego clock
+    assert gt.clock_offsets_s == truth and len(truth) == len(summary.cmcs)
+    name = summary.cmcs[0].name
+    assert gt.true_time_ns(name, 5_000_000_000) == 5_000_000_000 - round(truth[name] * 1e9)
     out = tmp_path / "results"
     r = subprocess.run([sys.executable, "-m", "yowo_bringup.cli", "calibrate-cmc", str(bag), "-o", str(out),
                         "--timeout", "240"], env=ros_env, capture_output=True, text=True, timeout=400)

@@ -59,7 +59,9 @@ def relative_pose_bound(bag: Path, groups: dict[str, list[str]], preset) -> dict
             agent[stamp_to_ns(msg.header.stamp)] = transform_points(
                 truth.T_map_sim, points_to_array([p.position for p in msg.poses]))
         elif kinds[topic] == "agent_keypoints":
-            dets.setdefault(msg.camera_name, []).extend((stamp_to_ns(msg.header.stamp), k.id) for k in msg.keypoints)
+            # On the ego clock, as the agent's ground truth is (a synchronised efficient estimator).
+            stamp = truth.true_time_ns(msg.camera_name, stamp_to_ns(msg.header.stamp))
+            dets.setdefault(msg.camera_name, []).extend((stamp, k.id) for k in msg.keypoints)
         elif kinds[topic] == "camera_info" and parse_cmc_topic(topic)[0] not in cams:
             cams[parse_cmc_topic(topic)[0]] = camera_info_to_model(msg)
     bounds = {}

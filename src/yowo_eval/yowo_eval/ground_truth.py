@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from yowo_common.topics import GT_EGO_POSE, GT_FLOOR, GT_PREFIX, parse_gt_cmc_pose_topic
+from yowo_common.topics import GT_EGO_POSE, GT_FLOOR, GT_PREFIX, gt_cmc_clock_offset_topic, parse_gt_cmc_pose_topic
 from yowo_common.trajectory import Trajectory
 
 from .evaluation import map_frame_from_first_pose
@@ -19,6 +19,12 @@ class GroundTruth:
     floor: list[np.ndarray]
     # The simulator's frame -> YOWO's map frame; other /gt/ data (agent keypoints) need it.
     T_map_sim: np.ndarray = field(default_factory=lambda: np.eye(4))
+    # Each CMC's clock minus the ego clock [s] (absent: synchronised); its stamps are true time + this.
+    clock_offsets_s: dict[str, float] = field(default_factory=dict)
+
+    def true_time_ns(self, camera: str, stamp_ns: int) -> int:
+        """A CMC's stamp on the ego clock (the ground truth's)."""
+        return int(stamp_ns) - round(self.clock_offsets_s.get(camera, 0.0) * 1e9)
 
 
 def read_ground_truth(bag) -> GroundTruth:
@@ -27,8 +33,12 @@ def read_ground_truth(bag) -> GroundTruth:
 
     topics = [t.name for t in list_topics(bag) if t.name.startswith(GT_PREFIX)]
     cams, ego_ns, ego_T, floor = {}, [], [], []
+    clocks = {gt_cmc_clock_offset_topic(n): n for n in map(parse_gt_cmc_pose_topic, topics) if n}
+    offsets = {}
     for topic, _, msg in read_messages(bag, topics):
-        if parse_gt_cmc_pose_topic(topic):
+        if topic in clocks:
+            offsets[clocks[topic]] = float(msg.data)
+        elif parse_gt_cmc_pose_topic(topic):
             cams[parse_gt_cmc_pose_topic(topic)] = pose_to_matrix(msg.pose)
         elif topic == GT_EGO_POSE:
             ego_ns.append(stamp_to_ns(msg.header.stamp))
@@ -42,4 +52,4 @@ def read_ground_truth(bag) -> GroundTruth:
         cams = {n: T @ P for n, P in cams.items()}
         ego = Trajectory(ego.stamps_ns, np.einsum("ij,njk->nik", T, ego.T_world_cam))
         floor = [p @ T[:2, :2].T + T[:2, 3] for p in floor]
-    return GroundTruth(cams, ego, floor, T)
+    return GroundTruth(cams, ego, floor, T, offsets)

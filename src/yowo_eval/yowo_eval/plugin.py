@@ -76,7 +76,7 @@ def add_verbs(verbs) -> None:
                    "runs the first seed only, keypoints only)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--scenarios", nargs="+", default=["normal"], help="normal, texture_poor, symmetric, "
-                   "dim_light, stationary, kp_noise_{0.5,1.0,2.0,5.0}px, kp_outliers_5pct")
+                   "dim_light, stationary, kp_noise_{0.5,1.0,2.0,5.0}px, kp_outliers_5pct, clock_offsets")
     p.add_argument("-o", "--output", default="bench", help="directory for bags, results.json, BENCHMARKS.md")
     p.add_argument("--markdown", help="also write the tables here (e.g. BENCHMARKS.md at the repo root)")
     p.add_argument("--cmc-only", action="store_true", help="only the CMC relative calibration tables (fast)")
