@@ -67,11 +67,11 @@ def _execute(args, mode: str):
         return execute(plan, timeout_s=args.timeout, network=network, linger_s=getattr(args, "linger", 0.0),
                        progress=progress)
     except RunFailed as exc:
-        progress.close()
-        print(f"yowo {args.verb}: {exc}\n(partial results, if any, are in {args.output})", file=sys.stderr)
-        return None
+        failure = exc
     finally:
-        progress.close()
+        progress.close()        # before the message: a live bar would redraw over it
+    print(f"yowo {args.verb}: {failure}\n(partial results, if any, are in {args.output})", file=sys.stderr)
+    return None
 
 
 def cmd_run(args) -> int:

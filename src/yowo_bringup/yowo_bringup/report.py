@@ -32,8 +32,7 @@ def floor_footprint(c: RegisteredCmc, floor_z: float = 0.0, max_range_m: float =
     points above the horizon ends at max_range_m): the camera's view on the floor."""
     cam, T = c.camera, c.T_world_cam
     corners = np.array([[0, 0], [cam.width - 1, 0], [cam.width - 1, cam.height - 1], [0, cam.height - 1]], float)
-    rays = np.column_stack([cam.undistort_pixels(corners), np.ones(4)]) @ np.linalg.inv(cam.K).T @ T[:3, :3].T
-    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    rays = cam.bearings(corners) @ T[:3, :3].T
     C = T[:3, 3]
     down = rays[:, 2] < -1e-6
     t = np.where(down, (floor_z - C[2]) / np.where(down, rays[:, 2], -1.0), max_range_m)

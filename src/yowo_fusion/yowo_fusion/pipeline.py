@@ -307,12 +307,12 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
             raw = cmcs[n].tracks.camera
             fits.append(AgentFit(n, agent.ids[agent_obs.point[own]], raw.distort_pixels(agent_obs.uv[own]),
                                  raw.distort_pixels(agent_obs.uv[own] - agent_res[own])))
-            rmse = _rmse(agent_res[agent_obs.camera == i])
+            rmse = _rmse(agent_res[own])
             status, reason = _verdict(rmse, covs[i], params, cov_failures[i])
             if jo_failure:
                 status, reason = WEAK, "; ".join(r for r in (jo_failure, reason) if r)
             registered.append(RegisteredCmc(n, group_of[n], GROUP_SFM, status, reason, T_final[i], covs[i],
-                                            cmcs[n].tracks.camera, rmse, int((agent_obs.camera == i).sum()), scene_count.get(n, 0)))
+                                            raw, rmse, int(own.sum()), scene_count.get(n, 0)))
     # Isolated CMCs: the optimised agent track where a group saw the agent, and elsewhere the
     # track implied by the ego trajectory (head top = T_world_ego * o, ground point under it
     # on the floor z = 0) -- an extension: the paper needs a group to have seen the agent.
