@@ -73,3 +73,12 @@ def test_a_camera_showing_nobody_falls_back_to_the_model_free_detector():
     assert not source.uses_pose
     source.flush()
     assert source.summary().startswith("source: model-free detector (pose model movenet: the agent in 0 of 30")
+
+
+def test_an_unusable_pose_model_is_named_and_the_model_free_detector_serves():
+    source = PoseOrDetectorSource("c9", PoseModelParams(model="no_such_model"), 5, DetectorParams(), 300)
+    assert source.pose is None and "camera 'c9': pose model unavailable" in source.problem
+    assert "no_such_model" in source.problem
+    source.set_camera(CameraModel.from_fov(320, 240, 70.0))
+    assert source.push(1_000_000_000, np.zeros((240, 320, 3), np.uint8)) == []
+    assert source.summary().startswith("source: model-free detector (camera 'c9': pose model unavailable")
