@@ -1,6 +1,7 @@
 """A live camera source: publishes every message of a recording on its topic (as
 drivers would: reliable, no end-of-stream announcement) once every subscriber of a
-CMC-only graph has matched, then waits until all of them are acknowledged."""
+CMC-only graph has matched, then waits until all of them are acknowledged and until
+every stage that reads them reports (in its status) that it has taken them all in."""
 import sys
 import time
 
@@ -8,7 +9,10 @@ import rclpy
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from yowo_common.ros.bag import list_topics, message_class, read_messages
+from yowo_common import topics
 from yowo_common.ros.context import ros_context
+from yowo_common.ros.stage import LATCHED
+from yowo_msgs.msg import StageStatus
 
 
 def main():
@@ -31,6 +35,25 @@ def main():
         for p in pubs.values():
             if not p.wait_for_all_acked(rclpy.duration.Duration(seconds=30)):
                 sys.exit("live_source: messages not acknowledged within 30 s")
+        # Acknowledged is not processed: a stage may still hold messages in its queue.
+        sent = {t.name: t.count for t in list_topics(bag) if t.name in pubs}
+        taken: dict[str, dict[str, int]] = {}   # stage -> its counted inputs among ours -> taken in
+
+        def on_status(msg):
+            taken[msg.stage] = {t: n for t, n in zip(msg.input_topics, msg.received_counts) if t in sent}
+        stages = sorted({f"keypoint_tracker_{topics.parse_cmc_topic(t)[0]}" for t in pubs})
+        subs = [node.create_subscription(StageStatus, topics.status(s), on_status, LATCHED) for s in stages]
+        deadline = time.monotonic() + 60.0
+
+        def behind():
+            late = {t: f"{n}/{sent[t]}" for inputs in taken.values() for t, n in inputs.items() if n < sent[t]}
+            return {**{s: "no status yet" for s in stages if s not in taken}, **late}
+        while behind() and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        if behind():
+            sys.exit(f"live_source: the trackers had not taken in every message after 60 s: {behind()}")
+        for s in subs:
+            node.destroy_subscription(s)
         node.destroy_node()
 
 
