@@ -52,14 +52,16 @@ def _execute(args, mode: str):
         domain = SHARED                       # live cameras are on the user's graph
     else:
         plan = plan_run(args.bag, args.output, mode=mode, config=config, source=args.cmc_source, run_id=args.run_id)
-        what = f"{mode} run {plan.run_id} of {args.bag}"
+        what = f"{plan.mode} run {plan.run_id} of {args.bag}"
+        if plan.mode_reason:   # the user asked for a full run; say plainly why it is not one
+            print(f"ego-only run (the map alone, no camera is registered): {plan.mode_reason}")
         # Private unless asked: lingering serves the user's /tf_static subscribers.
         domain = args.domain or (SHARED if args.linger > 0 else PRIVATE)
     plan.select(args.nodes)
     network = graph_network(domain if domain in (PRIVATE, SHARED) else int(domain))
     for w in plan.warnings:
         print(f"warning: {w}", file=sys.stderr)
-    print(f"{what}: {len(plan.cameras)} CMCs ({', '.join(plan.cameras)}), "
+    print(f"{what}: {len(plan.cameras)} CMCs ({', '.join(plan.cameras) or 'none'}), "
           f"{len(plan.local_nodes)} node processes here; graph on {network.describe()}; "
           f"logs in {Path(args.output) / 'logs'}")
     progress = console_progress(f"{args.verb} {plan.run_id}")
@@ -80,11 +82,18 @@ def cmd_run(args) -> int:
     from rich.markup import escape
     from rich.table import Table
 
-    from .run import FULL
+    from .run import EGO, FULL
 
     out = _execute(args, FULL)
     if out is None:
         return 1
+    metrics, ev = Path(args.output) / "metrics.json", evaluator()
+    if out.mode == EGO:
+        if metrics.exists() and ev is not None:
+            ev.print_tables(json.loads(metrics.read_text()), Console())
+        print(f"results: {args.output}/ (ego-only: ego_trajectory.tum, map.ply, layout.json, report.html, result.mcap; "
+              "cameras.yaml says why no camera was registered)")
+        return 0 if (Path(args.output) / "ego_trajectory.tum").exists() else 1
     table = Table(title="registered cameras (map frame)")
     for col in ("camera", "group", "method", "verdict", "position [m]", "RMSE [px]", "reason"):
         table.add_column(escape(col))         # brackets are rich markup unless escaped
@@ -92,7 +101,6 @@ def cmd_run(args) -> int:
         pos = ", ".join(f"{v:.3f}" for v in c.T_world_cam[:3, 3]) if c.T_world_cam is not None else "-"
         table.add_row(c.name, c.group or "-", c.method, c.status, pos, f"{c.rmse_px:.2f}", escape(c.reason))
     Console().print(table)
-    metrics, ev = Path(args.output) / "metrics.json", evaluator()
     if metrics.exists() and ev is not None:
         ev.print_tables(json.loads(metrics.read_text()), Console())
     print(f"results: {args.output}/ (report.html, cameras.yaml, ego_trajectory.tum, map.ply, layout.json after the "

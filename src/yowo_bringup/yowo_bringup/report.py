@@ -129,6 +129,12 @@ def top_view_png(cameras: list[RegisteredCmc], ego_xy: np.ndarray | None, floors
     return buf.getvalue()
 
 
+def _camera_table(cameras: list[RegisteredCmc]) -> str:
+    return ("<table><tr><th>name</th><th>group</th><th>method</th><th>verdict</th><th>position [m]</th>"
+            "<th>1-sigma pos / rot</th><th>RMSE [px]</th><th>agent obs</th><th>scene obs</th><th>reason</th></tr>"
+            f"{_camera_rows(cameras)}</table>")
+
+
 def _camera_rows(cameras: list[RegisteredCmc]) -> str:
     rows = []
     for c in cameras:
@@ -222,17 +228,16 @@ def _metrics_html(metrics: dict) -> str:
 
 def write_report(path: Path, title: str, cameras: list[RegisteredCmc], ego_xy, floors, metrics: dict | None = None,
                  gt_cameras=None, notes: list[str] | None = None, walls: list[np.ndarray] | None = None,
-                 fits=()) -> None:
-    """`fits`: (AgentFit, (width, height), background RGB or None) per grouped camera."""
+                 fits=(), no_cameras: str = "") -> None:
+    """`fits`: (AgentFit, (width, height), background RGB or None) per grouped camera;
+    `no_cameras`: why the run registered none (an ego-only run), shown instead of the table."""
     png = base64.b64encode(top_view_png(cameras, ego_xy, floors, gt_cameras, walls)).decode()
     doc = f"""<!doctype html><html><head><meta charset="utf-8"><title>YOWO report: {html.escape(title)}</title>
 <style>body{{font-family:sans-serif;margin:2em}} table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:3px 8px;font-size:13px}}</style></head><body>
 <h1>YOWO report</h1><p>{html.escape(title)}</p>
 <img src="data:image/png;base64,{png}" alt="top view">
-<h2>Cameras</h2><table><tr><th>name</th><th>group</th><th>method</th><th>verdict</th><th>position [m]</th>
-<th>1-sigma pos / rot</th><th>RMSE [px]</th><th>agent obs</th><th>scene obs</th><th>reason</th></tr>
-{_camera_rows(cameras)}</table>
+<h2>Cameras</h2>{f"<p>{html.escape(no_cameras)}</p>" if no_cameras else _camera_table(cameras)}
 {"<h2>Per camera: the agent track in its view</h2>" + _panels_html(fits) if fits else ""}
 {"<h2>Metrics against ground truth</h2>" + _metrics_html(metrics) if metrics else ""}
 {"<h2>Notes</h2><ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>" if notes else ""}

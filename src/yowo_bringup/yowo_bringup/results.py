@@ -98,6 +98,13 @@ def write_cameras_yaml(path: Path, cameras: list[RegisteredCmc], groups: list[Ca
     path.write_text(yaml.safe_dump({"frame": "map", "cameras": out}, sort_keys=False))
 
 
+def write_no_cameras_yaml(path: Path, why: str, problems: list[str]) -> None:
+    """cameras.yaml of a run that registered no camera (an ego-only run): says so, why, and
+    what is wrong with each CMC of the recording, instead of leaving the file out."""
+    path.write_text(yaml.safe_dump({"frame": "map", "registered": 0, "note": f"no cameras registered: {why}",
+                                    "cmc_problems": list(problems), "cameras": []}, sort_keys=False))
+
+
 def read_camera_poses(path: Path) -> dict[str, np.ndarray]:
     """The pose of every camera in a cameras.yaml: T_world_camera of a full run, or
     T_group_camera of a CMC-only calibration."""

@@ -26,14 +26,17 @@ STAGE_MODULES = {
     "ego_mapper": "yowo_ego.ego_mapper_node",
     "fusion": "yowo_fusion.fusion_node",
 }
-CMC, FULL = "cmc", "full"
+CMC, FULL, EGO = "cmc", "full", "ego"
+# A group needs two cameras; the CMC-only calibration has nothing to do with fewer.
+MIN_GROUP_CMCS = 2
 
 
 @dataclass
 class RunPlan:
     bag: Path | None                       # None: live operation on camera topics
     out_dir: Path
-    mode: str                              # "cmc": relative calibration only; "full": registered in the map
+    mode: str                              # "cmc": relative calibration only; "full": registered in the map;
+                                           # "ego": the map alone (a recording without usable CMCs)
     cameras: list[str]
     nodes: list[NodeSpec]
     final_stage: str
@@ -43,6 +46,8 @@ class RunPlan:
     local: list[str] = field(default_factory=lambda: ["*"])  # patterns of the nodes this host starts
     config: YowoConfig = field(default_factory=YowoConfig)
     replay_messages: int = 0               # what the replay will publish (0: live)
+    mode_reason: str = ""                  # why the run is in its mode when the user did not choose it
+    cmc_problems: list[str] = field(default_factory=list)   # why each CMC of the recording is not used
 
     @property
     def local_nodes(self) -> list[NodeSpec]:
@@ -80,6 +85,7 @@ class RunOutcome:
     ungrouped: dict[str, str]
     published: dict[str, int]
     received: dict[str, dict[str, int]]
+    mode: str = FULL                       # the plan's (a full run without usable CMCs is an ego run)
 
 
 def _first_present(candidates, present: set[str]) -> str:
@@ -131,10 +137,16 @@ def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, s
         cameras.append(c)
         trackers.append((c, kind, image))
         played += [cmc_info_topic(c)] + [t for t in (keypoints, image) if t]
-    if len(cameras) < 2:
-        raise ValueError(f"{bag}: {len(cameras)} usable CMC(s) with agent keypoints or images; needs at least 2")
+    cmc_problems = [p for p in problems if p.startswith("CMC ")]
+    mode, reason = _mode_for(mode, cameras, inputs.cmc_names, cmc_problems)
+    if mode == CMC and len(cameras) < MIN_GROUP_CMCS:
+        raise ValueError(f"{bag}: {len(cameras)} usable CMC(s) with agent keypoints or images; needs at least "
+                         f"{MIN_GROUP_CMCS}" + (f" ({'; '.join(cmc_problems)})" if cmc_problems else ""))
+    if mode == FULL and len(cameras) < MIN_GROUP_CMCS:
+        problems.append(f"only one usable CMC ({cameras[0]}): a single camera forms no group; it is registered "
+                        "as an isolated camera from the agent track the ego trajectory implies")
     ego = (_first_present(EGO_COLOR, present), _first_present(EGO_DEPTH, present), EGO_INFO)
-    if mode == FULL:
+    if mode in (FULL, EGO):
         played += list(ego)
     nodes, final, outputs = _stage_nodes(mode, trackers, ego)
     nodes.append(NodeSpec("replay", STAGE_MODULES["replay"], {  # last: it waits for the stages' subscriptions
@@ -143,7 +155,19 @@ def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, s
     _stamp_run(nodes, run_id, True, config)
     total = sum(t.count for t in inputs.topics if t.name in played)
     return RunPlan(Path(bag), Path(out_dir), mode, cameras, nodes, final, outputs, problems, run_id, config=config,
-                   replay_messages=total)
+                   replay_messages=total, mode_reason=reason, cmc_problems=cmc_problems)
+
+
+def _mode_for(mode: str, cameras: list[str], found: list[str], cmc_problems: list[str]) -> tuple[str, str]:
+    """The mode a full run takes on its recording, and why when it is not the one asked for.
+    Without a usable CMC the run maps the scene alone (mapping a building before its cameras
+    are known is a normal first step). A single CMC forms no group, but the fusion registers
+    it as an isolated camera from the agent track the ego trajectory implies, so it stays full."""
+    if mode != FULL or cameras:
+        return mode, ""
+    if not found and not cmc_problems:
+        return EGO, "the recording has no CMC topics (/cmc/<name>/...)"
+    return EGO, "no usable CMC: " + "; ".join(cmc_problems or ["none of the recording's CMCs can be used"])
 
 
 def plan_live(cameras: list[str], out_dir, mode: str = FULL, source: str = "keypoints",
@@ -165,10 +189,19 @@ def plan_live(cameras: list[str], out_dir, mode: str = FULL, source: str = "keyp
     return RunPlan(None, Path(out_dir), mode, list(cameras), nodes, final, outputs, run_id=run_id, config=config)
 
 
+# What the ego mapper publishes at the end of the walk (latched), collected by every run with a map.
+EGO_OUTPUTS = {topics.EGO_MAP: "yowo_msgs/msg/EgoMap", topics.EGO_PATH: "nav_msgs/msg/Path",
+               topics.LAYOUT: "yowo_msgs/msg/SceneLayout", topics.MAP_POINTS: "sensor_msgs/msg/PointCloud2"}
+
+
 def _stage_nodes(mode: str, trackers: list[tuple[str, str, str]], ego: tuple[str, str, str]
                  ) -> tuple[list[NodeSpec], str, dict[str, str]]:
     """The stage processes (trackers: (camera, source, image topic)), the final stage and
     the latched outputs the runner collects."""
+    if mode == EGO:             # the map alone: its stage publishes the map, path, cloud and layout
+        return ([NodeSpec("ego_mapper", STAGE_MODULES["ego_mapper"],
+                          {"color_topic": ego[0], "depth_topic": ego[1], "info_topic": ego[2]})], "ego_mapper",
+                dict(EGO_OUTPUTS))
     cameras = [c for c, _, _ in trackers]
     nodes = [NodeSpec(f"keypoint_tracker_{c}", STAGE_MODULES["keypoint_tracker"],
                       {"camera": c, "source": kind, "image_topic": image}) for c, kind, image in trackers]
@@ -181,10 +214,9 @@ def _stage_nodes(mode: str, trackers: list[tuple[str, str, str]], ego: tuple[str
         nodes.append(NodeSpec("fusion", STAGE_MODULES["fusion"], {"cameras": cameras}))
         final = "fusion"
         outputs.update({topics.CMC_POSES: "yowo_msgs/msg/RegisteredCameraArray", topics.TF_STATIC: "tf2_msgs/msg/TFMessage",
-                        topics.LAYOUT_MARKERS: "visualization_msgs/msg/MarkerArray", topics.EGO_MAP: "yowo_msgs/msg/EgoMap",
-                        topics.LAYOUT: "yowo_msgs/msg/SceneLayout", topics.MAP_POINTS: "sensor_msgs/msg/PointCloud2",
+                        topics.LAYOUT_MARKERS: "visualization_msgs/msg/MarkerArray", **EGO_OUTPUTS,
                         topics.REFINED_LAYOUT: "yowo_msgs/msg/SceneLayout",
-                        topics.REFINED_MAP_POINTS: "sensor_msgs/msg/PointCloud2", topics.EGO_PATH: "nav_msgs/msg/Path",
+                        topics.REFINED_MAP_POINTS: "sensor_msgs/msg/PointCloud2",
                         topics.REFINED_EGO_PATH: "nav_msgs/msg/Path", topics.AGENT_FIT: "yowo_msgs/msg/CameraAgentFitArray"})
     return nodes, final, outputs
 
@@ -219,7 +251,7 @@ def write_run_results(plan: RunPlan, outputs: dict, status: dict, replay, second
     if plan.mode == CMC and topics.GROUPS in outputs:
         write_group_calibration(out / "cameras.yaml", groups, ungrouped)
         files.append(out / "cameras.yaml")
-    if plan.mode == FULL:
+    if plan.mode in (FULL, EGO):
         cameras = _write_full_results(plan, outputs, files)
     published = dict(zip(replay.topics, map(int, replay.published_counts))) if replay is not None else {}
     received: dict[str, dict[str, int]] = {}
@@ -227,14 +259,15 @@ def write_run_results(plan: RunPlan, outputs: dict, status: dict, replay, second
         for t, n in zip(msg.input_topics, msg.received_counts):
             received.setdefault(t, {})[stage] = int(n)
     (out / "run_log.yaml").write_text(yaml.safe_dump({
-        "bag": str(plan.bag or "live"), "mode": plan.mode, "seconds": round(seconds, 2), "failure": failure,
+        "bag": str(plan.bag or "live"), "mode": plan.mode, **({"mode_reason": plan.mode_reason} if plan.mode_reason else {}),
+        "seconds": round(seconds, 2), "failure": failure,
         "warnings": plan.warnings, "stages": {s: m.message for s, m in status.items()},
         "replay_published": published, "received": received,
         "replay_resent": int(replay.resent_messages) if replay is not None else 0,
         "replay_error": replay.error if replay is not None else "no replay status",
         **(graph or {})}, sort_keys=False))
     files.append(out / "run_log.yaml")
-    return RunOutcome(files, cameras, ungrouped, published, received)
+    return RunOutcome(files, cameras, ungrouped, published, received, plan.mode)
 
 
 def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list:
@@ -249,12 +282,15 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     from .plugins import evaluator
     from .exports import write_exports
     from .report import wall_segments, write_report
-    from .results import write_cameras_yaml, write_layout_json, write_ply
+    from .results import write_cameras_yaml, write_layout_json, write_no_cameras_yaml, write_ply
 
     out = plan.out_dir
     cameras = registered_from_msg(outputs[topics.CMC_POSES]) if topics.CMC_POSES in outputs else []
     groups = groups_from_msg(outputs[topics.GROUPS])[0] if topics.GROUPS in outputs else []
-    if cameras:
+    if plan.mode == EGO:
+        write_no_cameras_yaml(out / "cameras.yaml", f"ego-only run: {plan.mode_reason}", plan.cmc_problems)
+        files.append(out / "cameras.yaml")
+    elif cameras:
         write_cameras_yaml(out / "cameras.yaml", cameras, groups)
         files.append(out / "cameras.yaml")
         files += write_exports(out / "export", cameras, groups, _export_ego_keyframes(outputs))
@@ -291,6 +327,10 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
             files.append(path)
     final_layout = outputs.get(topics.REFINED_LAYOUT, outputs.get(topics.LAYOUT))
     floors = [points_to_array(p.points)[:, :2] for p in final_layout.floor_polygons] if final_layout else []
+    if plan.mode == EGO and final_layout is not None:
+        # The fusion draws the floor for RViz/Foxglove in a full run; here nobody else does.
+        from yowo_fusion.messages import layout_markers
+        outputs = {**outputs, topics.LAYOUT_MARKERS: layout_markers([], floors, stamp_to_ns(final_layout.header.stamp))}
     import shutil
     result_bag, staging = out / "result.mcap", out / ".result_bag"
     for old in (result_bag, staging):
@@ -315,7 +355,8 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     walls = wall_segments(final_layout.planes) if final_layout else []
     fits = agent_fits_from_msg(outputs[topics.AGENT_FIT]) if topics.AGENT_FIT in outputs else []
     write_report(out / "report.html", str(plan.bag or "live"), cameras, ego_xy, floors, metrics, gt_cams, plan.warnings,
-                 walls, [(f, size, decode_color(bg) if bg is not None else None) for f, size, bg in fits])
+                 walls, [(f, size, decode_color(bg) if bg is not None else None) for f, size, bg in fits],
+                 no_cameras=f"No camera registered (ego-only run): {plan.mode_reason}" if plan.mode == EGO else "")
     files.append(out / "report.html")
     if metrics:
         ev.write_metrics(metrics, out / "metrics.json")

@@ -32,9 +32,12 @@ def evaluate(results_dir, bag) -> dict:
         raise ValueError(f"{bag}: no ground truth (/gt/...) in the recording; nothing to evaluate against")
     out: dict = {}
     cams_file = results_dir / "cameras.yaml"
-    if cams_file.exists() and gt.cameras:
+    doc = yaml.safe_load(cams_file.read_text()) if cams_file.exists() else None
+    if doc is not None and gt.cameras and doc.get("registered") == 0:
+        # An ego-only run registers no camera by design: nothing to measure, but say so.
+        out["cameras"] = {"registered": 0, "not_registered": sorted(gt.cameras), "note": doc.get("note", "")}
+    elif doc is not None and gt.cameras:
         est = read_camera_poses(cams_file)
-        doc = yaml.safe_load(cams_file.read_text())
         groups: dict[str, list[str]] = {}
         for c in doc["cameras"]:
             if c.get("group") and c["name"] in est:
@@ -75,6 +78,8 @@ def print_tables(metrics: dict, console) -> None:
         console.print(t)
         if metrics[key].get("not_registered"):
             console.print(f"not registered: {', '.join(metrics[key]['not_registered'])}")
+    if "cameras" in metrics:
+        console.print(f"{metrics['cameras']['note']}; with ground truth: {', '.join(metrics['cameras']['not_registered'])}")
     if "ego" in metrics:
         console.print(f"ego ATE RMSE: {metrics['ego']['ate_rmse_m']:.4f} m over {metrics['ego']['matched']} poses")
     if "layout" in metrics:
