@@ -70,6 +70,8 @@ def cmd_bench_graph(args) -> int:
 def add_verbs(verbs) -> None:
     from yowo_bringup.cli import add_config_options
 
+    from .tum_import import add_verbs as add_import_verbs
+
     p = verbs.add_parser("bench", help="YOWO and baselines on generated recordings -> BENCHMARKS.md")
     p.add_argument("--preset", nargs="+", default=["small"],
                    help="one or more of tiny, small, standard, large (several: the scale table; large "
@@ -102,3 +104,5 @@ def add_verbs(verbs) -> None:
     p.add_argument("results", help="results directory of yowo run / calibrate-cmc")
     p.add_argument("--bag", required=True, help="the recording, with /gt topics")
     p.set_defaults(func=cmd_eval)
+
+    add_import_verbs(verbs)     # import-tum: it writes ground truth, which only evaluation reads
