@@ -7,6 +7,9 @@ EGO_COLOR = ("/ego/color/image_raw", "/ego/color/image_raw/compressed")
 EGO_DEPTH = ("/ego/depth/image_raw", "/ego/depth/image_raw/compressedDepth")
 EGO_INFO = "/ego/color/camera_info"
 EGO_IMU = "/ego/imu"
+# std_msgs/String, latched: the IMU's Kalibr-style calibration as YAML (imu.yaml's noise
+# densities and random walks, rate, T_cam_imu, timeshift_cam_imu); T_cam_imu is on /tf_static too.
+EGO_IMU_CALIBRATION = "/ego/imu/calibration"
 
 
 def cmc_topic(name: str, relative: str) -> str:
@@ -50,6 +53,9 @@ GT_PREFIX = "/gt/"                          # ground truth: read by evaluation o
 GT_EGO_POSE = "/gt/ego/pose"
 GT_FLOOR = "/gt/layout/floor"
 GT_AGENT_KEYPOINTS = "/gt/agent/keypoints"  # geometry_msgs/PoseArray: poses[k].position = keypoint id k in map
+# sensor_msgs/Imu, one per /ego/imu message (same stamp): angular_velocity / linear_acceleration
+# hold the true gyro / accelerometer biases (measured = true + bias + white noise).
+GT_EGO_IMU_BIAS = "/gt/ego/imu_bias"
 
 
 def parse_gt_cmc_pose_topic(topic: str) -> str | None:

@@ -21,6 +21,7 @@ from yowo_common.rosconv import (array_to_points, depth_to_mm, encode_color_jpeg
 
 from .body import agent_keypoints_3d, agent_mesh
 from .detector import detect
+from .imu import ImuData, bias_message, calibration_messages, imu_message, simulate_imu
 from .presets import CapturePreset, DepthNoise
 from .render import Renderer
 from .rig import Cmc, place_cmc
@@ -41,6 +42,7 @@ class CaptureSummary:
     cmcs: list[Cmc]
     render_seconds: float
     rendered_frames: int
+    imu_samples: int = 0
 
 
 def place_cmcs(scene: Scene, preset: CapturePreset, rng: np.random.Generator) -> list[Cmc]:
@@ -160,11 +162,15 @@ def generate(preset: CapturePreset, seed: int, out_path, progress: Callable[[int
     backgrounds = [render(c.camera, c.T_world_cam) for c in cmcs]
     events = _schedule(walk.duration_s, preset, len(cmcs), rng)
     counts = {"ego": 0, "cmc": 0, "agent": 0}
+    imu = simulate_imu(walk, preset.imu_params, seed, START_NS) if preset.imu else None
     out_path = Path(out_path)
     with BagWriter(out_path) as bag:
         rec = _Recorder(bag, preset)
         _write_static_ground_truth(bag, scene, cmcs, setup.clock_offsets_ns)
+        imu_writer = _ImuWriter(bag, imu, preset) if imu is not None else None
         for n, (stamp, kind, idx) in enumerate(events):
+            if imu_writer:
+                imu_writer.until(stamp)
             t = (stamp - START_NS) / 1e9
             xy, heading, phase = walk.state_at(t)
             if kind == "ego":
@@ -203,8 +209,29 @@ def generate(preset: CapturePreset, seed: int, out_path, progress: Callable[[int
                 counts["agent"] += int(len(det.ids) > 0)
             if progress:
                 progress(n + 1, len(events))
+        if imu_writer:
+            imu_writer.until(None)
     return CaptureSummary(out_path, walk.duration_s, counts["ego"], counts["cmc"], counts["agent"], cmcs,
-                          render_s, rendered)
+                          render_s, rendered, 0 if imu is None else len(imu.stamps_ns))
+
+
+class _ImuWriter:
+    """Writes /ego/imu and /gt/ego/imu_bias interleaved with the frames (time order), after
+    the latched calibration (/tf_static: ego camera -> IMU; /ego/imu/calibration)."""
+
+    def __init__(self, bag: BagWriter, imu: ImuData, preset: CapturePreset):
+        self.bag, self.imu, self.params, self.next = bag, imu, preset.imu_params, 0
+        for topic, msg in calibration_messages(self.params, EGO_FRAME, START_NS).items():
+            bag.write(topic, msg, START_NS, latched=True)
+
+    def until(self, stamp_ns: int | None) -> None:
+        """Every sample stamped at or before stamp_ns (None: all that are left)."""
+        stamps = self.imu.stamps_ns
+        end = len(stamps) if stamp_ns is None else int(np.searchsorted(stamps, stamp_ns, side="right"))
+        for i in range(self.next, end):
+            self.bag.write(topics.EGO_IMU, imu_message(self.imu, i, self.params), int(stamps[i]))
+            self.bag.write(topics.GT_EGO_IMU_BIAS, bias_message(self.imu, i, self.params), int(stamps[i]))
+        self.next = max(self.next, end)
 
 
 def _write_static_ground_truth(bag: BagWriter, scene: Scene, cmcs: list[Cmc], clock_offsets_ns: dict[str, int]

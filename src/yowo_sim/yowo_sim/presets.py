@@ -4,6 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 from .detector import DetectorSpec
+from .imu import ImuParams
 from .rig import CmcSpec
 from .scene import SceneSpec
 from .walk import WalkSpec
@@ -44,6 +45,10 @@ class CapturePreset:
     # behind the ego camera's (the reference), drawn uniformly in [-max, +max] from the
     # seed; its messages carry its own clock (header stamps and log times). 0: synchronised.
     cmc_clock_offset_s: float = 0.0
+    # The ego camera's IMU on /ego/imu (with its calibration and /gt/ego/imu_bias); a
+    # generator of its own, so turning it off changes nothing else of the recording.
+    imu: bool = True
+    imu_params: ImuParams = field(default_factory=ImuParams)
 
 
 PRESETS = {

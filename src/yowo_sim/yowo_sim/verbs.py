@@ -23,6 +23,8 @@ def cmd_simulate(args) -> int:
         overrides["cmc_hz"] = args.cmc_hz
     if args.cmc_clock_offset:
         overrides["cmc_clock_offset_s"] = args.cmc_clock_offset
+    if args.no_imu:
+        overrides["imu"] = False
     preset = get_preset(args.preset, **overrides)
     with Progress() as bar:
         task = bar.add_task(f"simulating '{args.preset}' (seed {args.seed})", total=None)
@@ -37,7 +39,7 @@ def cmd_simulate(args) -> int:
     fps = summary.rendered_frames / max(summary.render_seconds, 1e-9)
     print(f"wrote {summary.path}: {summary.duration_s:.1f} s walk, {summary.ego_frames} ego frames, "
           f"{summary.cmc_frames} CMC frames ({summary.cmc_frames_with_agent} with the agent detected), "
-          f"{len(summary.cmcs)} CMCs; rendering {fps:.1f} frames/s")
+          f"{len(summary.cmcs)} CMCs, {summary.imu_samples} IMU samples; rendering {fps:.1f} frames/s")
     return 0
 
 
@@ -71,6 +73,7 @@ def add_verbs(verbs) -> None:
     p.add_argument("--cmc-hz", type=float, help="CMC rate (default 10)")
     p.add_argument("--cmc-clock-offset", type=float, metavar="S",
                    help="unsynchronised CMC clocks: each off the ego's by up to +-S seconds (default 0)")
+    p.add_argument("--no-imu", action="store_true", help="record no /ego/imu (an RGB-D camera without an IMU)")
     p.add_argument("--preview", metavar="PNG", help="also write a picture: ego frame, CMC frame, top view")
     p.set_defaults(func=cmd_simulate)
 

@@ -2,14 +2,15 @@
 with pauses (the paper's "stationary for a long time" case) and head motion."""
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 import shapely
+from scipy.interpolate import CubicSpline
 from scipy.ndimage import gaussian_filter1d
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
-from scipy.spatial.transform import Rotation
 from shapely.geometry import Point, Polygon
 from shapely.ops import nearest_points
 
@@ -19,6 +20,9 @@ from yowo_common.geometry import se3
 R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 STRIDE_M = 1.4          # one gait cycle (two steps)
 SAMPLE_HZ = 100.0       # resolution of the walk timeline
+BOB_M = 0.015           # vertical head bob amplitude at walking speed
+EYE_BELOW_TOP_M = 0.10  # the ego camera below the head top ...
+EYE_FORWARD_M = 0.10    # ... and in front of it (body x)
 
 
 @dataclass(frozen=True)
@@ -29,6 +33,9 @@ class WalkSpec:
     long_pause_s: float = 0.0       # one extra-long stop (stationary-agent scenario)
     look_around_deg: float = 25.0   # head yaw amplitude while walking
     pitch_down_deg: float = 20.0    # mean head pitch, looking slightly down
+    # Time to reach walking speed from standing, and to stop (a smooth speed profile:
+    # the IMU sees finite accelerations; 0: start and stop at once).
+    ramp_s: float = 0.8
 
 
 @dataclass
@@ -43,37 +50,96 @@ class Walk:
     head_pitch: np.ndarray   # (N,) rad, positive = looking down
     head_roll: np.ndarray    # (N,) rad
     height_m: float
+    bob_m: np.ndarray | None = None   # (N,) vertical head bob of the gait [m] (None: none)
 
     @property
     def duration_s(self) -> float:
         return float(self.t_s[-1])
 
+    @functools.cached_property
+    def _spline(self) -> CubicSpline:
+        """The timeline between its samples: one C2 cubic spline through every channel, so
+        the ego pose has exact velocities and accelerations (what the IMU measures)."""
+        bob = np.zeros_like(self.t_s) if self.bob_m is None else self.bob_m
+        channels = np.column_stack([self.xy, self.heading, self.phase, self.heading + self.head_yaw,
+                                    self.head_pitch, self.head_roll, bob])
+        return CubicSpline(self.t_s, channels, axis=0)
+
     def state_at(self, t: float) -> tuple[np.ndarray, float, float]:
-        """(xy, heading, phase) at time t (linear interpolation; angles unwrapped)."""
-        i = np.clip(np.searchsorted(self.t_s, t) - 1, 0, len(self.t_s) - 2)
-        a = np.clip((t - self.t_s[i]) / (self.t_s[i + 1] - self.t_s[i]), 0.0, 1.0)
-
-        def lerp(v):
-            return (1 - a) * v[i] + a * v[i + 1]
-
-        return lerp(self.xy), float(lerp(self.heading)), float(lerp(self.phase))
+        """(xy, heading, phase) at time t (angles unwrapped)."""
+        v = self._spline(np.clip(t, 0.0, self.duration_s))
+        return v[:2], float(v[2]), float(v[3])
 
     def ego_pose_at(self, t: float) -> np.ndarray:
         """T_world_ego: the head-mounted camera ~10 cm below the head top and in front of it,
         bobbing with the gait."""
-        i = np.clip(np.searchsorted(self.t_s, t) - 1, 0, len(self.t_s) - 2)
-        a = np.clip((t - self.t_s[i]) / (self.t_s[i + 1] - self.t_s[i]), 0.0, 1.0)
+        m = self.ego_motion(np.array([t], dtype=float))
+        return se3(m.R[0], m.p[0])
 
-        def lerp(v):
-            return float((1 - a) * v[i] + a * v[i + 1])
+    def ego_motion(self, t_s: np.ndarray) -> EgoMotion:
+        """The ego camera's pose and its first and second time derivatives at times t_s,
+        analytic from the timeline's spline (ego_pose_at is its zeroth order)."""
+        t = np.clip(np.asarray(t_s, dtype=float), 0.0, self.duration_s)
+        v, dv, ddv = (self._spline(t, k) for k in range(3))
+        R, dR, ddR = _rotation_z(v[:, 4], dv[:, 4], ddv[:, 4])
+        for rot, k in ((_rotation_y, 5), (_rotation_x, 6)):   # intrinsic ZYX: yaw, pitch, roll
+            R, dR, ddR = _jet_product((R, dR, ddR), rot(v[:, k], dv[:, k], ddv[:, k]))
+        eye = np.array([EYE_FORWARD_M, 0.0, 0.0])
+        base = np.column_stack([v[:, 0], v[:, 1], self.height_m - EYE_BELOW_TOP_M + v[:, 7]])
+        dbase = np.column_stack([dv[:, 0], dv[:, 1], dv[:, 7]])
+        ddbase = np.column_stack([ddv[:, 0], ddv[:, 1], ddv[:, 7]])
+        return EgoMotion(t, R @ R_BODY_OPTICAL, dR @ R_BODY_OPTICAL, ddR @ R_BODY_OPTICAL,
+                         base + R @ eye, dbase + dR @ eye, ddbase + ddR @ eye)
 
-        xy, heading, phase = self.state_at(t)
-        yaw = heading + lerp(self.head_yaw)
-        R_world_body = Rotation.from_euler("ZYX", [yaw, lerp(self.head_pitch), lerp(self.head_roll)]).as_matrix()
-        walking = float(np.linalg.norm(self.xy[i + 1] - self.xy[i]) > 1e-6)
-        bob = walking * 0.015 * np.cos(2.0 * phase)
-        eye = np.array([xy[0], xy[1], self.height_m - 0.10 + bob]) + R_world_body @ np.array([0.10, 0.0, 0.0])
-        return se3(R_world_body @ R_BODY_OPTICAL, eye)
+
+@dataclass
+class EgoMotion:
+    """T_world_ego (R, p) at times t and its time derivatives, in the world frame."""
+
+    t_s: np.ndarray     # (n,)
+    R: np.ndarray       # (n, 3, 3) R_world_ego
+    dR: np.ndarray      # (n, 3, 3) dR/dt
+    ddR: np.ndarray     # (n, 3, 3) d2R/dt2
+    p: np.ndarray       # (n, 3) camera centre [m]
+    dp: np.ndarray      # (n, 3) velocity [m/s]
+    ddp: np.ndarray     # (n, 3) acceleration [m/s^2]
+
+    @property
+    def omega_ego(self) -> np.ndarray:
+        """(n, 3) angular velocity in the ego frame [rad/s]: vee(R^T dR/dt)."""
+        W = np.einsum("nji,njk->nik", self.R, self.dR)
+        return np.column_stack([W[:, 2, 1], W[:, 0, 2], W[:, 1, 0]])
+
+
+def _elementary(axis: int, a: np.ndarray, da: np.ndarray, dda: np.ndarray):
+    """Rotation by angle a(t) about a coordinate axis and its first two time derivatives:
+    R = exp(a K), dR = R K da, ddR = R (K K da^2 + K dda)."""
+    c, s = np.cos(a), np.sin(a)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    R = np.zeros((len(a), 3, 3))
+    R[:, axis, axis] = 1.0
+    R[:, i, i], R[:, i, j], R[:, j, i], R[:, j, j] = c, -s, s, c
+    K = np.zeros((3, 3))
+    K[i, j], K[j, i] = -1.0, 1.0
+    RK = R @ K
+    return R, RK * da[:, None, None], RK @ K * (da ** 2)[:, None, None] + RK * dda[:, None, None]
+
+
+def _rotation_x(a, da, dda):
+    return _elementary(0, a, da, dda)
+
+
+def _rotation_y(a, da, dda):
+    return _elementary(1, a, da, dda)
+
+
+def _rotation_z(a, da, dda):
+    return _elementary(2, a, da, dda)
+
+
+def _jet_product(A, B):
+    """(AB, (AB)', (AB)'') from the jets (A, A', A'') and (B, B', B'')."""
+    return A[0] @ B[0], A[1] @ B[0] + A[0] @ B[1], A[2] @ B[0] + 2.0 * A[1] @ B[1] + A[0] @ B[2]
 
 
 class _VisibilityGraph:
@@ -166,19 +232,53 @@ def _rounded(leg: np.ndarray, radius_m: float = 0.35) -> np.ndarray:
     return smooth - (1 - u) * (smooth[0] - dense[0]) - u * (smooth[-1] - dense[-1])
 
 
+def _speed_ramp(u: np.ndarray) -> np.ndarray:
+    """Speed shape 0 -> 1 over u in [0, 1] (smootherstep: zero acceleration and jerk at both ends)."""
+    u = np.clip(u, 0.0, 1.0)
+    return u ** 3 * (10.0 - 15.0 * u + 6.0 * u ** 2)
+
+
+def _ramp_distance(u: np.ndarray) -> np.ndarray:
+    """Integral of _speed_ramp from 0 to u (1/2 at u = 1)."""
+    u = np.clip(u, 0.0, 1.0)
+    return u ** 4 * (2.5 - 3.0 * u + u ** 2)
+
+
+def _leg_profile(length_m: float, spec: WalkSpec, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(distance, speed) along a leg at the samples dt, 2 dt, ..., n dt: from standing to
+    walking speed in spec.ramp_s, cruise, and to standing again, ending exactly at the leg's
+    end; the cruise speed is never above spec.speed_mps."""
+    n = max(int(np.ceil((length_m / spec.speed_mps + spec.ramp_s) / dt - 1e-9)), 1)
+    tau = np.arange(1, n + 1) * dt
+    total = n * dt
+    ramp = min(spec.ramp_s, total / 2.0)
+    v = length_m / (total - ramp)
+    if ramp <= 0.0:
+        return v * tau, np.full(n, v)
+    up, down = tau / ramp, (total - tau) / ramp
+    s = np.where(tau <= ramp, v * ramp * _ramp_distance(up),
+                 np.where(tau >= total - ramp, length_m - v * ramp * _ramp_distance(down), v * (tau - ramp / 2.0)))
+    return s, v * np.minimum(_speed_ramp(up), _speed_ramp(down))
+
+
 def _timeline(corners: np.ndarray, pauses: np.ndarray, spec: WalkSpec, rng: np.random.Generator) -> Walk:
-    """Walk the corner path at constant speed with rounded corners, standing still
-    for pauses[i] seconds at corners[i]; sampled at SAMPLE_HZ."""
+    """Walk the corner path with rounded corners, speeding up from and slowing down to a
+    stand, standing still for pauses[i] seconds at corners[i]; sampled at SAMPLE_HZ."""
     dt = 1.0 / SAMPLE_HZ
-    xy, moving = [corners[:1]], [np.array([False])]
+    xy, moving, speed_frac = [corners[:1]], [np.array([False])], [np.zeros(1)]
     stops = [0] + [i for i in range(1, len(corners)) if pauses[i] > 0 or i == len(corners) - 1]
     for a, b in zip(stops[:-1], stops[1:]):
-        walked = _resample(_rounded(corners[a:b + 1]), spec.speed_mps * dt)[1:]
+        path = _rounded(corners[a:b + 1])
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+        s, v = _leg_profile(float(arc[-1]), spec, dt)
+        walked = np.column_stack([np.interp(s, arc, path[:, k]) for k in range(2)])
         n_pause = int(round(pauses[b] * SAMPLE_HZ))
         xy += [walked, np.repeat(walked[-1:], n_pause, axis=0)]
         moving += [np.ones(len(walked), bool), np.zeros(n_pause, bool)]
+        speed_frac += [v / spec.speed_mps, np.zeros(n_pause)]
     xy = np.vstack(xy)
     moving = np.concatenate(moving)
+    speed_frac = np.concatenate(speed_frac)
     vel = np.gradient(xy, dt, axis=0)
     speed = np.linalg.norm(vel, axis=1)
     heading = np.arctan2(vel[:, 1], vel[:, 0])
@@ -197,4 +297,6 @@ def _timeline(corners: np.ndarray, pauses: np.ndarray, spec: WalkSpec, rng: np.r
     head_yaw = yaw_amp * np.sin(2 * np.pi * f1 * t + rng.uniform(0, 2 * np.pi))
     head_pitch = np.radians(spec.pitch_down_deg) + np.radians(8.0) * np.sin(2 * np.pi * f2 * t)
     head_roll = np.radians(2.0) * np.sin(phase / 2.0) * (1 - standing)
-    return Walk(t, xy, heading, phase, head_yaw, head_pitch, head_roll, spec.agent_height_m)
+    # The bob grows with the speed (no jump of the head when the agent stops or starts).
+    bob = BOB_M * np.cos(2.0 * phase) * speed_frac
+    return Walk(t, xy, heading, phase, head_yaw, head_pitch, head_roll, spec.agent_height_m, bob)
