@@ -197,3 +197,15 @@ def test_kinect_from_the_sequence_name(tmp_path, name, kinect):
 
     (tmp_path / name).mkdir()
     assert camera_for(tmp_path / name)[0] == kinect
+
+
+def test_yowo_bench_keeps_the_tum_section():
+    from yowo_eval.bench_report import keep_sections
+
+    old = ("# BENCHMARKS\n\nold tables\n\n<!-- graph-speed:begin -->\nspeed\n<!-- graph-speed:end -->\n\n"
+           "<!-- tum-rgbd:begin -->\n## TUM\nATE\n<!-- tum-rgbd:end -->\n")
+    new = keep_sections(old, "# BENCHMARKS\n\nnew tables\n")
+    assert "old tables" not in new and new.startswith("# BENCHMARKS\n\nnew tables\n")
+    assert new.count("<!-- tum-rgbd:begin -->\n## TUM\nATE\n<!-- tum-rgbd:end -->") == 1
+    assert new.index("speed") < new.index("## TUM")
+    assert keep_sections("no sections", "fresh") == "fresh"

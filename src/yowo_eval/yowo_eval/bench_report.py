@@ -216,6 +216,25 @@ def markdown(results: dict, command: str, env: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+# Sections of BENCHMARKS.md that other commands write between <!-- NAME:begin/end --> markers
+# (yowo bench-graph: graph-speed; the TUM RGB-D run: tum-rgbd); re-rendering keeps them.
+KEPT_SECTIONS = ("graph-speed", "tum-rgbd")
+
+
+def markers(name: str) -> tuple[str, str]:
+    return f"<!-- {name}:begin -->", f"<!-- {name}:end -->"
+
+
+def keep_sections(old_text: str, new_text: str, names=KEPT_SECTIONS) -> str:
+    """`new_text` with each named section of `old_text` (those it had) at its end, in order."""
+    for name in names:
+        begin, end = markers(name)
+        if begin in old_text and end in old_text.split(begin, 1)[1]:
+            section = begin + old_text.split(begin, 1)[1].split(end, 1)[0] + end + "\n"
+            new_text = new_text.rstrip("\n") + "\n\n" + section
+    return new_text
+
+
 def write_outputs(results: dict, out_dir: Path, markdown_path: Path | None) -> None:
     if "command" in results:     # re-rendered from an earlier run's results.json: keep its provenance
         env, command = results["environment"], results["command"]
@@ -224,9 +243,7 @@ def write_outputs(results: dict, out_dir: Path, markdown_path: Path | None) -> N
         command = "yowo " + " ".join(shlex.quote(a) for a in sys.argv[1:])   # `yowo` or `python -m yowo_bringup.cli`
         results = {**results, "environment": env, "command": command}
         (out_dir / "results.json").write_text(json.dumps(results, indent=1))
-    from .graph_bench import keep_section
-
     text = markdown(results, command, env)
     (out_dir / "BENCHMARKS.md").write_text(text)
-    if markdown_path is not None:       # the graph's speed table (yowo bench-graph) stays
-        markdown_path.write_text(keep_section(markdown_path.read_text() if markdown_path.exists() else "", text))
+    if markdown_path is not None:       # the sections other commands wrote stay
+        markdown_path.write_text(keep_sections(markdown_path.read_text() if markdown_path.exists() else "", text))

@@ -15,7 +15,7 @@ import yaml
 
 from .bench import bag_for
 
-BEGIN, END = "<!-- graph-speed:begin -->", "<!-- graph-speed:end -->"
+BEGIN, END = "<!-- graph-speed:begin -->", "<!-- graph-speed:end -->"   # bench_report.markers("graph-speed")
 
 
 def recording_seconds(bag: Path) -> float:
@@ -89,10 +89,9 @@ def replace_section(markdown_path: Path, section: str) -> None:
 
 def keep_section(old_text: str, new_text: str) -> str:
     """`new_text` with the graph-speed section of `old_text` (when it had one) at its end."""
-    if BEGIN not in old_text or END not in old_text:
-        return new_text
-    section = BEGIN + old_text.split(BEGIN, 1)[1].split(END, 1)[0] + END + "\n"
-    return new_text.rstrip("\n") + "\n\n" + section
+    from .bench_report import keep_sections
+
+    return keep_sections(old_text, new_text, ("graph-speed",))
 
 
 def run_graph_bench(presets: list[str], seeds: list[int], sources: list[str], out_dir: Path,
