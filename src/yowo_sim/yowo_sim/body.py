@@ -1,7 +1,10 @@
-"""The mobile agent's visible body: a walking person made of capsules and a box.
+"""The mobile agent's visible body: a walking person made of ellipsoids, capsules,
+an elliptical torso and box shoes, articulated at the shoulders, elbows, hips and
+knees, with a face, hair and hands, so a human-pose model finds it in ceiling
+camera views (issue #17; docs/pose_model.md).
 
 Proportions follow standard anthropometric fractions of the body height H
-(hip joint at 0.53 H, shoulders at 0.81 H, chin at 0.87 H). The head top is at
+(hip joint at 0.53 H, shoulders at 0.815 H, chin at 0.87 H). The head top is at
 exactly (x, y, H) and the body stands on the floor z = 0, so keypoint 0 (head top)
 and keypoint 1 (ground point under the head) are exact.
 """
@@ -22,6 +25,9 @@ HAIR = (60, 40, 25)
 SHIRT = (250, 110, 20)
 TROUSERS = (35, 60, 150)
 SHOES = (25, 25, 30)
+SKIN_SHADE = (200, 148, 118)  # nose and ears: skin a little darker
+EYES = (35, 25, 25)
+LIPS = (150, 70, 70)
 
 LEG_SWING = 0.15  # foot fore/aft amplitude, fraction of H
 FOOT_LIFT = 0.05  # swing-foot clearance, fraction of H
@@ -41,8 +47,30 @@ class _Pose(NamedTuple):
     hips: tuple[np.ndarray, np.ndarray]  # left, right hip joints
     feet: tuple[np.ndarray, np.ndarray]  # ankle projected onto the sole, left and right
     shoulders: tuple[np.ndarray, np.ndarray]
-    hands: tuple[np.ndarray, np.ndarray]
+    hands: tuple[np.ndarray, np.ndarray]  # wrist joints
     neck: np.ndarray  # middle of the neck
+    elbows: tuple[np.ndarray, np.ndarray]
+    knees: tuple[np.ndarray, np.ndarray]
+    ankles: tuple[np.ndarray, np.ndarray]
+
+
+# Segment lengths, fractions of H (Drillis & Contini / Winter): upper arm, forearm, hand
+# (wrist to fingertips), thigh and shank (hip to ankle 0.49 H standing; a little longer
+# so a foot reaches LEG_SWING forward with a bent knee).
+UPPER_ARM, FOREARM, HAND = 0.186, 0.146, 0.10
+THIGH = SHANK = 0.26
+ANKLE = 0.04  # ankle joint above the sole
+
+
+def _bend(a: np.ndarray, c: np.ndarray, length: float, towards: np.ndarray) -> np.ndarray:
+    """The middle joint of a two-segment limb of equal segments from a to c, bent
+    towards ``towards`` (a knee forward, an elbow forward)."""
+    d = c - a
+    dist = float(np.linalg.norm(d))
+    axis = d / dist
+    side = towards - np.dot(towards, axis) * axis
+    side /= np.linalg.norm(side)
+    return a + 0.5 * d + np.sqrt(max(length**2 - (0.5 * dist) ** 2, 0.0)) * side
 
 
 def _pose(position_xy, heading_rad: float, H: float, phase: float) -> _Pose:
@@ -53,18 +81,28 @@ def _pose(position_xy, heading_rad: float, H: float, phase: float) -> _Pose:
     centre = np.array([float(position_xy[0]), float(position_xy[1]), 0.0])
     up = np.array([0.0, 0.0, 1.0])
     swing = LEG_SWING * H * np.sin(phase)
-    feet, hips, shoulders, hands = [], [], [], []
+    feet, hips, shoulders, hands, elbows, knees, ankles = [], [], [], [], [], [], []
     for side, sign in ((1.0, 1.0), (-1.0, -1.0)):  # left then right
         lift = FOOT_LIFT * H * max(0.0, sign * np.cos(phase))
-        feet.append(centre + side * 0.06 * H * left + sign * swing * forward + lift * up)
-        hips.append(centre + side * 0.055 * H * left + 0.53 * H * up)
-        shoulder = centre + side * 0.145 * H * left + 0.80 * H * up
+        foot = centre + side * 0.06 * H * left + sign * swing * forward + lift * up
+        hip = centre + side * 0.06 * H * left + 0.53 * H * up
+        ankle = foot + ANKLE * H * up
+        feet.append(foot)
+        hips.append(hip)
+        ankles.append(ankle)
+        knees.append(_bend(hip, ankle, THIGH * H, forward))
+        shoulder = centre + side * 0.12 * H * left + 0.815 * H * up
         arm = -sign * ARM_SWING * np.sin(phase)  # arms swing against the legs
-        hand = shoulder + 0.33 * H * (np.sin(arm) * forward - np.cos(arm) * up) + side * 0.02 * H * left
+        # Arms hang a little away from the hips; the elbow bends more as the arm swings forward.
+        out = 0.06 * side * left
+        elbow = shoulder + UPPER_ARM * H * (np.sin(arm) * forward - np.cos(arm) * up + out)
+        fore = arm + 0.25 + 0.4 * max(arm, 0.0)
+        hand = elbow + FOREARM * H * (np.sin(fore) * forward - np.cos(fore) * up + 0.5 * out)
         shoulders.append(shoulder)
+        elbows.append(elbow)
         hands.append(hand)
     return _Pose(forward, left, centre, tuple(hips), tuple(feet), tuple(shoulders), tuple(hands),
-                 centre + 0.845 * H * up)
+                 centre + 0.845 * H * up, tuple(elbows), tuple(knees), tuple(ankles))
 
 
 def _capsule(a: np.ndarray, b: np.ndarray, radius: float, n_around: int = 10, n_cap: int = 3):
@@ -82,19 +120,50 @@ def _capsule(a: np.ndarray, b: np.ndarray, radius: float, n_around: int = 10, n_
         verts.extend(np.column_stack([r * np.cos(theta), r * np.sin(theta), np.full(n_around, z)]))
     verts.append(np.array([0.0, 0.0, length + radius]))
     verts = np.array(verts)
+    R = rotation_aligning([0.0, 0.0, 1.0], b - a) if length > 1e-9 else np.eye(3)
+    return verts @ R.T + a, _ring_triangles(len(rings), n_around)
+
+
+def _ring_triangles(n_rings: int, n_around: int) -> np.ndarray:
+    """Triangles of a closed surface: vertex 0 the bottom pole, then n_rings rings of
+    n_around vertices bottom to top, then the top pole."""
     tris = []
-    top = len(verts) - 1
+    top = 1 + n_rings * n_around
+    last = 1 + (n_rings - 1) * n_around
     for k in range(n_around):
         k1 = (k + 1) % n_around
         tris.append((0, 1 + k1, 1 + k))
-        last = 1 + (len(rings) - 1) * n_around
         tris.append((top, last + k, last + k1))
-        for r in range(len(rings) - 1):
+        for r in range(n_rings - 1):
             lo, hi = 1 + r * n_around, 1 + (r + 1) * n_around
             tris.append((lo + k, lo + k1, hi + k1))
             tris.append((lo + k, hi + k1, hi + k))
-    R = rotation_aligning([0.0, 0.0, 1.0], b - a) if length > 1e-9 else np.eye(3)
-    return verts @ R.T + a, np.array(tris)
+    return np.array(tris)
+
+
+def _ellipsoid(centre: np.ndarray, axes, radii, n_around: int = 16, n_lat: int = 9):
+    """Closed ellipsoid with semi-axes ``radii`` along ``axes`` (unit vectors; the third
+    is the polar one, its poles exactly at centre +- radii[2] * axes[2])."""
+    theta = np.linspace(0.0, 2.0 * np.pi, n_around, endpoint=False)
+    lats = -np.pi / 2 + np.pi * np.arange(1, n_lat) / n_lat
+    local = [np.array([0.0, 0.0, -1.0])]
+    for lat in lats:
+        local.extend(np.column_stack([np.cos(lat) * np.cos(theta), np.cos(lat) * np.sin(theta),
+                                      np.full(n_around, np.sin(lat))]))
+    local.append(np.array([0.0, 0.0, 1.0]))
+    A = np.column_stack(axes) * np.asarray(radii, float)
+    return centre + np.array(local) @ A.T, _ring_triangles(len(lats), n_around)
+
+
+def _loft(rings, forward: np.ndarray, left: np.ndarray, n_around: int = 16):
+    """Closed tube through horizontal elliptical rings (centre, half width along left,
+    half depth along forward), bottom to top, capped at both ends."""
+    theta = np.linspace(0.0, 2.0 * np.pi, n_around, endpoint=False)
+    verts = [rings[0][0]]
+    for c, hw, hd in rings:
+        verts.extend(c + np.outer(hd * np.cos(theta), forward) + np.outer(hw * np.sin(theta), left))
+    verts.append(rings[-1][0])
+    return np.array(verts), _ring_triangles(len(rings), n_around)
 
 
 def _box(centre: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.ndarray], half: tuple[float, float, float]):
@@ -107,12 +176,40 @@ def _box(centre: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.ndarray], ha
     return verts, np.array(tris)
 
 
+# Head: an ellipsoid whose top pole is the head top (H) and chin at 0.87 H; face
+# features on its front (a pose model finds the face first; hair on the crown and the
+# back of the head tells front from back, as on a real person).
+HEAD_RADII = (0.058, 0.05, 0.065)  # front-back, side, vertical; fractions of H
+EYE_Z, EYE_SIDE, NOSE_Z, MOUTH_Z, EAR_Z = 0.94, 0.019, 0.918, 0.896, 0.928
+
+
+def _head_points(p: _Pose, H: float) -> dict[str, np.ndarray]:
+    """Face landmarks on the head's surface (ears at its sides)."""
+    up = np.array([0.0, 0.0, 1.0])
+    c = p.centre + (1.0 - HEAD_RADII[2]) * H * up
+    a, b, r = (x * H for x in HEAD_RADII)
+
+    def front(z, side=0.0):     # the head's surface point at height z, side offset along left
+        dz, dy = z * H - c[2], side * H
+        x = a * np.sqrt(max(1.0 - (dz / r) ** 2 - (dy / b) ** 2, 0.0))
+        return c + x * p.forward + dy * p.left + dz * up
+
+    return {"centre": c, "nose": front(NOSE_Z) + 0.012 * H * p.forward,
+            "left_eye": front(EYE_Z, EYE_SIDE), "right_eye": front(EYE_Z, -EYE_SIDE),
+            "left_ear": c + (EAR_Z * H - c[2]) * up + b * p.left, "right_ear": c + (EAR_Z * H - c[2]) * up - b * p.left,
+            "mouth": front(MOUTH_Z)}
+
+
 def agent_mesh(position_xy, heading_rad: float, height_m: float, phase: float) -> AgentMesh:
     """Body mesh of the agent standing at ``position_xy`` facing ``heading_rad``
-    (from +x towards +y) at gait ``phase`` (rad; one stride per 2 pi)."""
+    (from +x towards +y) at gait ``phase`` (rad; one stride per 2 pi): a person in a
+    short-sleeved shirt, trousers and shoes, with a face, hair, hands, bent knees and
+    elbows, left and right alike (a pose model must tell them apart by the body's
+    shape, as on a real person)."""
     H = float(height_m)
     p = _pose(position_xy, heading_rad, H, phase)
     up = np.array([0.0, 0.0, 1.0])
+    f, lf = p.forward, p.left
     parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
 
     def add(verts, tris, colour_of_tri):
@@ -121,16 +218,47 @@ def agent_mesh(position_xy, heading_rad: float, height_m: float, phase: float) -
     def solid(colour):
         return lambda v, t: np.tile(np.array(colour, np.uint8), (len(t), 1))
 
-    r_head = 0.05 * H
-    v, t = _capsule(p.centre + (0.87 * H + r_head) * up, p.centre + (H - r_head) * up, r_head)
-    # Hair on the crown: the face stays skin-coloured.
-    add(v, t, lambda v, t: np.where((v[t][:, :, 2].mean(axis=1) > 0.95 * H)[:, None], HAIR, SKIN).astype(np.uint8))
-    add(*_capsule(p.centre + 0.80 * H * up, p.centre + 0.89 * H * up, 0.03 * H), solid(SKIN))
-    add(*_box(p.centre + 0.665 * H * up, (p.forward, p.left, up), (0.06 * H, 0.12 * H, 0.145 * H)), solid(SHIRT))
+    head = _head_points(p, H)
+    hc = head["centre"]
+
+    def head_colour(v, t):
+        m = v[t].mean(axis=1) - hc
+        fwd, z = m @ f, m[:, 2]
+        # Hair: the crown, and the back of the head down to the nape.
+        hair = (z > 0.035 * H) | ((fwd < 0.012 * H) & (z > -0.045 * H))
+        return np.where(hair[:, None], HAIR, SKIN).astype(np.uint8)
+
+    add(*_ellipsoid(hc, (f, lf, up), [x * H for x in HEAD_RADII]), head_colour)
+    for side in ("left_eye", "right_eye"):
+        add(*_ellipsoid(head[side] - 0.004 * H * f, (f, lf, up), (0.007 * H, 0.011 * H, 0.006 * H), 8, 4),
+            solid(EYES))
+        brow = head[side] + 0.016 * H * up - 0.004 * H * f
+        add(*_ellipsoid(brow, (f, lf, up), (0.006 * H, 0.014 * H, 0.003 * H), 8, 4), solid(HAIR))
+    add(*_ellipsoid(head["nose"] - 0.01 * H * f + 0.008 * H * up, (f, lf, up), (0.013 * H, 0.009 * H, 0.016 * H), 8, 4),
+        solid(SKIN_SHADE))
+    add(*_ellipsoid(head["mouth"] - 0.004 * H * f, (f, lf, up), (0.006 * H, 0.016 * H, 0.004 * H), 8, 4), solid(LIPS))
+    for side, sign in (("left_ear", 1.0), ("right_ear", -1.0)):
+        add(*_ellipsoid(head[side], (f, lf, up), (0.014 * H, 0.006 * H, 0.02 * H), 8, 4), solid(SKIN_SHADE))
+    add(*_capsule(p.centre + 0.80 * H * up, p.centre + 0.885 * H * up, 0.026 * H), solid(SKIN))
+    # Torso: hips to shoulders in elliptical sections (half width, half depth; Winter).
+    sections = [(0.49, 0.082, 0.058), (0.53, 0.090, 0.062), (0.58, 0.085, 0.058), (0.64, 0.076, 0.054),
+                (0.70, 0.084, 0.058), (0.75, 0.094, 0.060), (0.79, 0.104, 0.056), (0.815, 0.098, 0.050),
+                (0.835, 0.060, 0.040), (0.845, 0.030, 0.028)]
+    v, t = _loft([(p.centre + z * H * up, hw * H, hd * H) for z, hw, hd in sections], f, lf)
+    belt = 0.585 * H
+    add(v, t, lambda v, t: np.where((v[t][:, :, 2].mean(axis=1) > belt)[:, None], SHIRT, TROUSERS).astype(np.uint8))
     for i in range(2):
-        add(*_capsule(p.shoulders[i], p.hands[i], 0.03 * H), solid(SHIRT))
-        add(*_capsule(p.hands[i], p.hands[i], 0.03 * H), solid(SKIN))
-        add(*_capsule(p.hips[i], p.feet[i] + 0.04 * H * up, 0.035 * H), solid(TROUSERS))
+        s, e, w = p.shoulders[i], p.elbows[i], p.hands[i]
+        sleeve = s + 0.6 * (e - s)
+        add(*_capsule(s, sleeve, 0.034 * H), solid(SHIRT))        # short sleeve over the upper arm
+        add(*_capsule(sleeve, e, 0.026 * H), solid(SKIN))
+        add(*_capsule(e, w, 0.021 * H), solid(SKIN))
+        # Hand: a flat mitten from the wrist on along the forearm.
+        d = (w - e) / np.linalg.norm(w - e)
+        add(*_ellipsoid(w + 0.5 * HAND * H * d, (f, lf, d), (0.016 * H, 0.028 * H, 0.5 * HAND * H), 8, 4),
+            solid(SKIN))
+        add(*_capsule(p.hips[i], p.knees[i], 0.043 * H), solid(TROUSERS))
+        add(*_capsule(p.knees[i], p.ankles[i], 0.032 * H), solid(TROUSERS))
         # Shoe: a box whose flat sole is exactly at the foot keypoint's height.
         shoe_centre = p.feet[i] + 0.03 * H * p.forward + 0.02 * H * up
         add(*_box(shoe_centre, (p.forward, p.left, up), (0.075 * H, 0.028 * H, 0.02 * H)), solid(SHOES))
@@ -156,3 +284,19 @@ def agent_keypoints_3d(position_xy, heading_rad: float, height_m: float, phase: 
         PELVIS: p.centre + np.array([0.0, 0.0, 0.53 * H]),
         NECK: p.neck.copy(),
     }
+
+
+# COCO-17 body joints (the order of yowo_cmc.pose_model.MOVENET_JOINTS); person's left / right.
+BODY_JOINTS = ("nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder",
+               "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip",
+               "left_knee", "right_knee", "left_ankle", "right_ankle")
+
+
+def agent_joints_3d(position_xy, heading_rad: float, height_m: float, phase: float) -> np.ndarray:
+    """(17, 3) world positions of the BODY_JOINTS of ``agent_mesh`` for the same arguments:
+    the ground truth a pose model's joints are measured against (evaluation only)."""
+    H = float(height_m)
+    p = _pose(position_xy, heading_rad, H, phase)
+    head = _head_points(p, H)
+    face = [head[n] for n in BODY_JOINTS[:5]]
+    return np.array(face + [j for pair in (p.shoulders, p.elbows, p.hands, p.hips, p.knees, p.ankles) for j in pair])
