@@ -50,14 +50,15 @@ class ImuParams:
     gyro_noise_density: float = 2.44e-4     # rad/s/sqrt(Hz)
     # BMI055 data sheet: accelerometer output noise density 150 ug/sqrt(Hz).
     accel_noise_density: float = 1.47e-3    # m/s^2/sqrt(Hz)
-    # Bias random walks are in no data sheet; Allan-variance results users report for
-    # D435i units span 2.4e-6..1.9e-5 (gyro) and 6.3e-5..8.3e-4 (accel) (librealsense
-    # #7103, ORB_SLAM3 #125, VINS-Mono #472); these are mid-range.
+    # Bias random walks are in no data sheet; what users report for D435i units (Kalibr /
+    # Allan variance) spans 2.4e-6..1.9e-5 (gyro) and 6.3e-5..3e-3 (accel): VINS-Mono
+    # #472 2.4e-6 / 6.3e-5, librealsense #7103 1.7e-5 / 8.3e-4, ORB_SLAM3 #125 1.9e-5 / 3e-3.
+    # These are mid-range.
     gyro_random_walk: float = 1.0e-5        # rad/s^2/sqrt(Hz)
     accel_random_walk: float = 2.5e-4       # m/s^3/sqrt(Hz)
-    # Turn-on bias, drawn per recording (std per axis): the residual after the factory /
-    # rs-imu-calibration, of the order users report (gyro 1e-3..3e-3 rad/s, accel
-    # 0.03..0.4 m/s^2; raw BMI055: +-1 deg/s zero-rate, +-70 mg zero-g offset).
+    # Turn-on bias, drawn per recording (std per axis): of the order of the biases
+    # rs-imu-calibration finds on a D435i (ORB_SLAM3 #125: gyro 0.3e-3..2.8e-3 rad/s,
+    # accel 0.03..0.38 m/s^2); BMI055 typical: +-1 deg/s zero-rate, +-70 mg zero-g offset.
     gyro_bias_std: float = 3.0e-3           # rad/s
     accel_bias_std: float = 0.1             # m/s^2
     gravity_mps2: float = 9.81              # |g|; the world is z up
