@@ -124,8 +124,7 @@ class OfflineResult:
 def process(bag, config: YowoConfig | None = None, source: str = "auto") -> OfflineResult:
     """The whole method on one recording (what `yowo run` computes, with the same tree):
     ego map, CMC groups, collaborative processing."""
-    from yowo_cmc.clock import attach_to_groups, estimate_clock_offsets
-    from yowo_cmc.group_sfm import calibrate_groups
+    from yowo_cmc.pipeline import calibrate_cmcs
     from yowo_ego.recording import map_bag
     from yowo_fusion.pipeline import CmcInput, fuse
 
@@ -136,9 +135,7 @@ def process(bag, config: YowoConfig | None = None, source: str = "auto") -> Offl
     seconds["ego"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     tracks, backgrounds = read_cmc_inputs(bag, source, config.cmc)
-    grouping = calibrate_groups(tracks, config.cmc.sfm)
-    if config.cmc.estimate_clock_offsets:
-        attach_to_groups(grouping.groups, estimate_clock_offsets(tracks, config.cmc.clock, config.cmc.sfm))
+    grouping = calibrate_cmcs(tracks, config.cmc)
     seconds["cmc"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     fusion = fuse(ego_map_data(ego), grouping.groups, grouping.ungrouped,

@@ -45,8 +45,10 @@ def clock_entry(name: str, group: CameraGroupResult | None) -> dict:
         entry["clock_offset_to_group_reference_s"] = {
             "offset_s": round(group.clock_offsets_s[name], 6), "sigma_s": round(group.clock_sigmas_s[name], 6),
             "reference_camera": group.reference,
-            "note": "this camera's clock minus the reference camera's, from the agent's motion; reported, not yet "
-                    "applied to the stamps"}
+            "applied": group.clocks_applied,
+            "note": "this camera's clock minus the reference camera's, from the agent's motion; "
+                    + ("the group was calibrated on stamps corrected by it" if group.clocks_applied
+                       else "reported, not applied to the stamps")}
     return entry
 
 

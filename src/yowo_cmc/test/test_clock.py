@@ -7,7 +7,11 @@ import pytest
 from cmc_synthetic import ceiling_camera, loop_walk, observe
 
 from yowo_cmc.clock import ClockParams, PairOffset, combine, estimate_clock_offsets
-from yowo_cmc.tracks import CameraTracks, KeypointTrack
+from yowo_cmc.config import CmcParams
+from yowo_cmc.group_sfm import calibrate_groups
+from yowo_cmc.pipeline import calibrate_cmcs
+from yowo_common.geometry import inv_se3, rotation_angle_deg
+from yowo_cmc.tracks import CameraTracks, KeypointTrack, interpolate
 
 D = [-0.1, 0.02, 0.0, 0.0, 0.0]
 CAMS = {"a": ceiling_camera(0.3, 0.3, (3.0, 2.5), D=D), "b": ceiling_camera(5.7, 0.4, (3.0, 2.5), z=3.3, D=D),
@@ -114,3 +118,41 @@ def test_simulated_recording_with_unsynchronised_clocks(tmp_path, preset_seed):
     err = errors_ms(est, truth)
     for n, c in est.cameras.items():
         assert abs(err[n]) <= max(3.0, 4 * c.sigma_s * 1e3) and abs(err[n]) < 40.0, (n, err, c)
+
+
+def relative_rotation_errors_deg(grouping) -> dict[str, float]:
+    errors = {}
+    for g in grouping.groups:
+        for n in g.names:
+            T_true = inv_se3(CAMS[g.reference][1]) @ CAMS[n][1]
+            errors[n] = rotation_angle_deg(T_true[:3, :3], g.T_local_cam[n][:3, :3])
+    return errors
+
+
+def test_the_group_sfm_calibrates_on_corrected_stamps_as_if_synchronised():
+    """Offsets up to 1.9 s apart: estimated, applied, refined with the group's geometry;
+    the relative rotations are those of the synchronised recording, the points are on the
+    reference camera's clock."""
+    synced = relative_rotation_errors_deg(calibrate_groups(views({}, sigma_px=1.0)))
+    raw = views(OFFSETS, sigma_px=1.0)
+    grouping = calibrate_cmcs(raw)
+    (g,) = grouping.groups
+    assert sorted(g.names) == sorted(CAMS) and g.clocks_applied
+    for n in CAMS:
+        true = OFFSETS[n] - OFFSETS[g.reference]
+        assert abs(g.clock_offsets_s[n] - true) < max(3e-3, 4 * g.clock_sigmas_s[n]), (n, g.clock_offsets_s, true)
+        assert (g.clock_sigmas_s[n] == 0.0) == (n == g.reference) and g.clock_sigmas_s[n] < 3e-3
+    errors = relative_rotation_errors_deg(grouping)
+    assert all(errors[n] < synced[n] + 0.03 for n in CAMS), (errors, synced)
+    # The points' stamps are the reference camera's: projected into it (its frame is the
+    # group's), they land where its own track was at those stamps.
+    (ref,) = [c for c in raw if c.name == g.reference]
+    for kp_id, track in ref.tracks.items():
+        sel = g.point_ids == kp_id
+        uv, ok = interpolate(track, g.point_stamps_ns[sel], 2 * ref.frame_period_ns)
+        proj, _ = ref.camera.project(g.points[sel])
+        assert ok.sum() > 50 and np.median(np.linalg.norm(proj[ok] - uv[ok], axis=1)) < 2.0, kp_id
+    # Only reported, not applied: the raw stamps pair up wrong instants.
+    reported = calibrate_cmcs(raw, replace(CmcParams(), clock=ClockParams(apply=False)))
+    assert not any(g.clocks_applied for g in reported.groups)
+    assert max(relative_rotation_errors_deg(reported).values(), default=90.0) > 1.0

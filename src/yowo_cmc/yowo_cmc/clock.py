@@ -23,7 +23,7 @@ from scipy.spatial.transform import Rotation
 
 from yowo_common.bundle import robust_sigma
 
-from .group_sfm import RANSAC_SEED, SfmParams, sampson_px, spread_subset
+from .group_sfm import RANSAC_SEED, CameraGroupResult, SfmParams, sampson_px, spread_subset
 from .tracks import CameraTracks, _window, clean_track, noise_scale, segments, undistort_tracks
 
 
@@ -49,6 +49,14 @@ class ClockParams:
     min_sigma_s: float = 1e-5           # floor on a pair's sigma: noise-free pairs would get unbounded weight
     max_residual_sigma: float = 5.0     # a pair this many sigma off the global solution is dropped ...
     min_residual_s: float = 0.005       # ... if it is also this far off (sigmas can be optimistic)
+    apply: bool = True                  # the group SfM runs on stamps corrected by the estimated offsets
+    # Per group, the pairwise offsets are refined in one fit with the group's poses and
+    # agent points (the pairs' epipolar fits each see two cameras only: 10-40 ms off on
+    # the simulator's recordings, a few cm of relative pose).
+    refine: bool = True
+    refine_range_s: float = 0.1         # largest correction of the refinement
+    refine_max_points: int = 3000       # agent points in the fit (evenly spread in time)
+    refine_min_observations: int = 50   # a member's observations the fit needs to refine its offset
 
 
 @dataclass
@@ -364,3 +372,116 @@ def attach_to_groups(groups, estimate: ClockEstimate) -> None:
             if c is not None and c.offset_s is not None and c.reference == ref.reference:
                 g.clock_offsets_s[n] = c.offset_s - ref.offset_s
                 g.clock_sigmas_s[n] = float(np.hypot(c.sigma_s or 0.0, ref.sigma_s or 0.0)) if n != g.reference else 0.0
+
+
+def triangulate_weighted(P: np.ndarray, cam_i: np.ndarray, pt_i: np.ndarray, uv: np.ndarray, weight: np.ndarray,
+                         n_points: int, iterations: int = 2) -> np.ndarray:
+    """Every point from its observations at once: linear (DLT) then Gauss-Newton steps on
+    the weighted reprojection error. P: (C, 3, 4) projection matrices."""
+    Pc = P[cam_i]
+    rows = np.concatenate([uv[:, :1] * Pc[:, 2] - Pc[:, 0], uv[:, 1:] * Pc[:, 2] - Pc[:, 1]]) * np.r_[weight, weight][:, None]
+    rows /= np.linalg.norm(rows, axis=1, keepdims=True)
+    M = np.zeros((n_points, 4, 4))
+    np.add.at(M, np.r_[pt_i, pt_i], rows[:, :, None] * rows[:, None, :])
+    X = np.linalg.eigh(M)[1][:, :, 0]
+    X = X[:, :3] / np.where(np.abs(X[:, 3:]) > 1e-12, X[:, 3:], 1e-12)
+    for _ in range(iterations):
+        h = np.einsum("nij,nj->ni", Pc[:, :, :3], X[pt_i]) + Pc[:, :, 3]
+        r = (h[:, :2] / h[:, 2:] - uv) * weight[:, None]
+        J = (Pc[:, :2, :3] - (h[:, :2] / h[:, 2:])[:, :, None] * Pc[:, 2:, :3]) / h[:, 2:, None] * weight[:, None, None]
+        H, g = np.zeros((n_points, 3, 3)), np.zeros((n_points, 3))
+        np.add.at(H, pt_i, np.einsum("nki,nkj->nij", J, J))
+        np.add.at(g, pt_i, np.einsum("nki,nk->ni", J, r))
+        X = X - np.linalg.solve(H + 1e-9 * np.eye(3), g[:, :, None])[:, :, 0]
+    return X
+
+
+def refine_group_offsets(group: CameraGroupResult, tracks: dict[str, CameraTracks], params: ClockParams,
+                         sfm: SfmParams) -> dict[str, tuple[float, float]]:
+    """Corrections to the members' clocks, each against the group's reference camera: one
+    robust least-squares fit of every member's pose and correction, the agent points
+    triangulated anew at every step (variable projection), each member's observation of
+    a point taken from its track at the point's time plus its correction (second-order
+    Taylor expansion of the track's spline). `tracks`: the members' tracks on the clock of
+    the group's points. Returns name -> (correction [s], sigma [s]) for the members it
+    could refine (the reference's correction is 0 by definition); the sigma is the
+    correction's marginal, scaled like the pairs' for the smoothed tracks."""
+    members = [n for n in group.names if n in tracks]
+    if group.reference not in members or len(group.point_stamps_ns) == 0:
+        return {}
+    origin = int(group.point_stamps_ns.min())
+    t_pts = (group.point_stamps_ns - origin) / 1e9
+    cams = [_Tracks(tracks[n], origin, sfm) for n in members]
+    w = params.refine_range_s
+    cam_i, pt_i, uv0, uv1, uv2 = [], [], [], [], []
+    for ci, c in enumerate(cams):
+        for i in np.unique(group.point_ids):
+            sel = np.flatnonzero(group.point_ids == i)
+            for t0, t1, spline in c.splines.get(int(i), []):
+                inside = sel[(t_pts[sel] - w >= t0) & (t_pts[sel] + w <= t1)]
+                if len(inside):
+                    cam_i.append(np.full(len(inside), ci))
+                    pt_i.append(inside)
+                    uv0 += [spline(t_pts[inside])]
+                    uv1 += [spline(t_pts[inside], 1)]
+                    uv2 += [spline(t_pts[inside], 2)]
+    if not cam_i:
+        return {}
+    cam_i, pt_i = np.concatenate(cam_i), np.concatenate(pt_i)
+    uv0, uv1, uv2 = np.vstack(uv0), np.vstack(uv1), np.vstack(uv2)
+    # Points seen by two members at least, evenly thinned over time (deterministic).
+    pts = np.flatnonzero(np.bincount(pt_i, minlength=len(t_pts)) >= 2)
+    pts = pts[np.argsort(t_pts[pts], kind="stable")]
+    pts = pts[np.linspace(0, len(pts) - 1, min(len(pts), params.refine_max_points)).astype(int)] if len(pts) else pts
+    keep = np.isin(pt_i, pts)
+    cam_i, uv0, uv1, uv2 = cam_i[keep], uv0[keep], uv1[keep], uv2[keep]
+    pt_i = np.searchsorted(pts, pt_i[keep])
+    ref = members.index(group.reference)
+    free = [k for k in range(len(members)) if k != ref]
+    if len(pts) < sfm.min_pnp or any(np.sum(cam_i == k) < params.refine_min_observations for k in free):
+        return {}
+    weight = 1.0 / np.array([group.sigma_px_by_id.get(int(i), sfm.initial_sigma_px)
+                             for i in group.point_ids[pts]])[pt_i]
+    K = np.array([c.camera.K for c in cams])
+    T0 = [np.linalg.inv(group.T_local_cam[n]) for n in members]     # T_cam_local
+    second = members.index(group.initial_pair[1]) if group.initial_pair[1] in members else free[0]
+    baseline = float(np.linalg.norm(group.T_local_cam[members[second]][:3, 3] - group.T_local_cam[members[ref]][:3, 3]))
+
+    def unpack(x):
+        T, d = [t.copy() for t in T0], np.zeros(len(members))
+        for j, k in enumerate(free):
+            T[k][:3, :3] = Rotation.from_rotvec(x[7 * j:7 * j + 3]).as_matrix() @ T0[k][:3, :3]
+            T[k][:3, 3] = T0[k][:3, 3] + x[7 * j + 3:7 * j + 6]
+            d[k] = x[7 * j + 6]
+        return T, d
+
+    def residuals(x):
+        T, d = unpack(x)
+        P = np.einsum("cij,cjk->cik", K, np.array(T)[:, :3, :])
+        dc = d[cam_i][:, None]
+        target = uv0 + dc * uv1 + 0.5 * dc ** 2 * uv2
+        X = triangulate_weighted(P, cam_i, pt_i, target, weight, len(pts))
+        h = np.einsum("nij,nj->ni", P[cam_i][:, :, :3], X[pt_i]) + P[cam_i][:, :, 3]
+        r = (h[:, :2] / h[:, 2:] - target) * weight[:, None]
+        centres = [-T[k][:3, :3].T @ T[k][:3, 3] for k in (second, ref)]
+        # The scale gauge: the initial pair's baseline stays as the group SfM fixed it.
+        gauge = (np.linalg.norm(centres[0] - centres[1]) - baseline) / (1e-4 * baseline)
+        return np.concatenate([r.ravel(), [gauge]])
+
+    x0 = np.zeros(7 * len(free))
+    lo, hi = np.full(len(x0), -np.inf), np.full(len(x0), np.inf)
+    lo[6::7], hi[6::7] = -w, w
+    fit = least_squares(residuals, x0, bounds=(lo, hi), loss="huber", f_scale=1.345, x_scale="jac", method="trf")
+    scale = robust_sigma(fit.fun[:-1].reshape(-1, 2)) ** 2
+    corr = max(c.correlation for c in cams) if params.correlated_sigma else 1.0
+    try:
+        cov = np.linalg.inv(fit.jac.T @ fit.jac) * scale * corr
+    except np.linalg.LinAlgError:
+        return {}
+    out = {}
+    for j, k in enumerate(free):
+        delta = float(fit.x[7 * j + 6])
+        if min(delta + w, w - delta) < 1e-3 * w:
+            continue        # ran to the edge of its range: no clear minimum, keep the pairs' estimate
+        out[members[k]] = (delta, max(float(np.sqrt(max(cov[7 * j + 6, 7 * j + 6], 0.0))), params.min_sigma_s))
+    return out

@@ -19,6 +19,8 @@ class CmcParams:
     pose_min_frames: int = 5
     sfm: SfmParams = field(default_factory=SfmParams)                  # groups, incremental SfM, group BA
     clock: ClockParams = field(default_factory=ClockParams)            # clock offsets from the agent's motion
-    estimate_clock_offsets: bool = True   # reported in cameras.yaml (not yet applied to the stamps)
+    # Clock offsets from the agent's motion: reported in cameras.yaml, and applied to the
+    # stamps (clock.apply) before the group SfM.
+    estimate_clock_offsets: bool = True
     background_period_s: float = 1.0      # recorded images sampled this often for the agent-free background
     max_pending_frames: int = 300         # detector frames that may wait for the camera's CameraInfo

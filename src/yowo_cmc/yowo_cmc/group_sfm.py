@@ -105,6 +105,8 @@ class CameraGroupResult:
     # Estimated clock offsets (yowo_cmc.clock): member's clock - the reference camera's [s].
     clock_offsets_s: dict[str, float] = field(default_factory=dict)
     clock_sigmas_s: dict[str, float] = field(default_factory=dict)
+    # True: calibrated on stamps corrected by them, the points on the reference's clock.
+    clocks_applied: bool = False
 
 
 @dataclass

@@ -11,9 +11,8 @@ from yowo_common.ros.context import spin_node
 from yowo_common.ros.stage import LATCHED, StageNode
 from yowo_common.rosconv import camera_info_to_model
 
-from .clock import attach_to_groups, estimate_clock_offsets
 from .config import CmcParams
-from .group_sfm import calibrate_groups
+from .pipeline import calibrate_cmcs
 from .keypoint_input import TrackAccumulator, frame_from_msg
 from .messages import groups_to_msg
 
@@ -51,9 +50,7 @@ class GroupSfmNode(StageNode):
         usable = [a for a in self.acc.values() if a.camera is not None]
         unusable = {a.name: "no usable CameraInfo" for a in self.acc.values() if a.camera is None}
         tracks = [a.tracks() for a in usable]
-        result = calibrate_groups(tracks, self.params)
-        if self.cmc.estimate_clock_offsets:
-            attach_to_groups(result.groups, estimate_clock_offsets(tracks, self.cmc.clock, self.params))
+        result = calibrate_cmcs(tracks, self.cmc)
         result.ungrouped.update(unusable)
         self.pub.publish(groups_to_msg(result, self.last_stamp))
         lines = [f"{g.group_id}: {', '.join(g.names)} (initial pair {'/'.join(g.initial_pair)}, RMSE "

@@ -22,7 +22,7 @@ def groups_to_msg(result: GroupingResult, stamp_ns: int) -> CameraGroupArray:
             num_observations=[int(g.num_observations[n]) for n in g.names],
             camera_infos=[model_to_camera_info(g.cameras[n]) for n in g.names if n in g.cameras],
             clock_offsets_s=[float(g.clock_offsets_s.get(n, np.nan)) for n in g.names],
-            clock_sigmas_s=[float(g.clock_sigmas_s.get(n, np.nan)) for n in g.names],
+            clock_sigmas_s=[float(g.clock_sigmas_s.get(n, np.nan)) for n in g.names], clocks_applied=g.clocks_applied,
             sigma_keypoint_ids=[int(i) for i in g.sigma_px_by_id], sigma_px=[float(s) for s in g.sigma_px_by_id.values()],
             track_stamps=[ns_to_time(int(s)) for s in g.point_stamps_ns],
             track_keypoint_ids=[int(i) for i in g.point_ids],
@@ -48,5 +48,6 @@ def groups_from_msg(msg: CameraGroupArray) -> tuple[list[CameraGroupResult], dic
             {n: camera_info_to_model(i) for n, i in zip(names, g.camera_infos)} if len(g.camera_infos) == len(names)
             else {},
             {n: float(o) for n, o in zip(names, g.clock_offsets_s) if np.isfinite(o)},
-            {n: float(s) for n, s, o in zip(names, g.clock_sigmas_s, g.clock_offsets_s) if np.isfinite(o)}))
+            {n: float(s) for n, s, o in zip(names, g.clock_sigmas_s, g.clock_offsets_s) if np.isfinite(o)},
+            g.clocks_applied))
     return groups, dict(zip(msg.ungrouped_cameras, msg.ungrouped_reasons))

@@ -39,6 +39,12 @@ class CameraTracks:
     def num_observations(self) -> int:
         return sum(len(t) for t in self.tracks.values())
 
+    def shifted(self, offset_s: float) -> "CameraTracks":
+        """These tracks on a clock `offset_s` behind this camera's own (stamps - offset)."""
+        d = round(offset_s * 1e9)
+        return CameraTracks(self.name, self.camera, {i: KeypointTrack(t.stamps_ns - d, t.uv, t.confidence)
+                                                     for i, t in self.tracks.items()}, self.frame_period_ns)
+
 
 @dataclass(frozen=True)
 class TrackParams:

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from yowo_cmc.group_sfm import calibrate_groups
+from yowo_cmc.pipeline import calibrate_cmcs
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
 
@@ -39,7 +40,7 @@ SCENARIOS = {
     # The CMC issue's acceptance condition: 1-2 px noise and 5 % outliers. Keypoints
     # only, so it is cheap enough to run on every preset, not just the sweep preset.
     "kp_outliers_5pct": {"kp_sigma_px": 1.0, "outlier_rate": 0.05, "every_preset": True},
-    # CMC clocks up to 1 s off the ego clock (yowo_cmc.clock estimates them; not yet applied).
+    # CMC clocks up to 1 s off the ego clock (yowo_cmc.clock estimates and applies them).
     "clock_offsets": {"cmc_clock_offset_s": 1.0},
 }
 # Presets that only feed the speed/scale table: rendering 42 CMC image streams over the
@@ -48,23 +49,24 @@ SCENARIOS = {
 SCALE_ONLY_PRESETS = {"large"}
 
 # Relative calibration methods compared in Table "relative_pose_eval": label ->
-# (keypoint source, calibration(tracks, the tree's SfmParams)). The baselines are
-# labelled reimplementations of the ideas, not the authors' code.
+# (keypoint source, calibration(tracks, the tree's CmcParams)). The baselines are
+# labelled reimplementations of the ideas, not the authors' code, and assume
+# synchronised clocks.
 RELATIVE_METHODS = {
-    "YOWO": ("keypoints", calibrate_groups),
-    "YOWO, image detector": ("images", calibrate_groups),
-    "YOWO, pose model": ("pose", calibrate_groups),
+    "YOWO": ("keypoints", calibrate_cmcs),
+    "YOWO, image detector": ("images", calibrate_cmcs),
+    "YOWO, pose model": ("pose", calibrate_cmcs),
     # Cameras outside the 2-edge-connected groups also pair up along their strongest
     # edge: more cameras calibrated, each pair resting on a single edge.
-    "YOWO, left-over pairs": ("keypoints", lambda tracks, sfm: calibrate_groups(
-        tracks, replace(sfm, pair_leftovers=True))),
+    "YOWO, left-over pairs": ("keypoints", lambda tracks, cmc: calibrate_cmcs(
+        tracks, replace(cmc, sfm=replace(cmc.sfm, pair_leftovers=True)))),
     # E-matrix pair with the most inliers, PnP in order of matches, one BA with one
     # sigma; no overlap scores (neither for ordering nor for the edge rule).
-    "ECCMP-style": ("keypoints", lambda tracks, sfm: calibrate_groups(
-        tracks, replace(sfm, overlap_ordering=False, per_id_sigma=False, min_edge_overlap=0.0))),
+    "ECCMP-style": ("keypoints", lambda tracks, cmc: calibrate_groups(
+        tracks, replace(cmc.sfm, overlap_ordering=False, per_id_sigma=False, min_edge_overlap=0.0))),
     # Factor graph over the person keypoints from a pairwise initialisation with a
     # person-height scale prior (yowo_eval.omecc_style); YOWO's grouping.
-    "OMECC-style": ("keypoints", lambda tracks, sfm: calibrate_groups_omecc(tracks)),
+    "OMECC-style": ("keypoints", lambda tracks, cmc: calibrate_groups_omecc(tracks)),
 }
 
 
@@ -126,7 +128,7 @@ def relative_pose_case(bag: Path, images: bool, baselines: bool = True, config: 
         if source not in tracks or not (baselines or method == "YOWO"):
             continue
         t0 = time.perf_counter()
-        result = calibrate(tracks[source], config.cmc.sfm)
+        result = calibrate(tracks[source], config.cmc)
         seconds = time.perf_counter() - t0
         est = {n: T for g in result.groups for n, T in g.T_local_cam.items()}
         groups = {g.group_id: g.names for g in result.groups}

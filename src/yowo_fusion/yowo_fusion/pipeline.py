@@ -239,7 +239,9 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
             if n not in cmcs:
                 failed[n] = "no keypoints received for this camera"
                 continue
-            ideal, samples = resample(cmcs[n].tracks, g.point_stamps_ns, params.tracks)
+            # The member's stamps onto the clock of the group's points (its reference camera's).
+            ideal, samples = resample(cmcs[n].tracks.shifted(g.clock_offsets_s.get(n, 0.0)), g.point_stamps_ns,
+                                      params.tracks)
             ci = len(names)
             names.append(n)
             cams.append(ideal)

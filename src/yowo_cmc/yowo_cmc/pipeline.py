@@ -1,0 +1,48 @@
+"""The CMC stage on every camera's tracks: clock offsets from the agent's motion
+(yowo_cmc.clock), the group SfM on stamps corrected by them (yowo_cmc.group_sfm), the
+offsets refined per group with its poses and points, and the group SfM once more on the
+refined stamps. What the group SfM node and the offline API both run."""
+from __future__ import annotations
+
+from .clock import attach_to_groups, estimate_clock_offsets, refine_group_offsets
+from .config import CmcParams
+from .group_sfm import GroupingResult, calibrate_groups
+from .tracks import CameraTracks
+
+
+def calibrate_cmcs(tracks: list[CameraTracks], params: CmcParams = CmcParams()) -> GroupingResult:
+    """Groups with relative poses and agent tracks. Each group's points are stamped on
+    its reference camera's clock, and `clock_offsets_s` says how far each member's clock
+    is from it (member's stamp of an instant = reference's + offset)."""
+    if not params.estimate_clock_offsets:
+        return calibrate_groups(tracks, params.sfm)
+    estimate = estimate_clock_offsets(tracks, params.clock, params.sfm)
+    if not params.clock.apply:
+        grouping = calibrate_groups(tracks, params.sfm)
+        attach_to_groups(grouping.groups, estimate)
+        return grouping
+    # Each camera's offset to the reference camera of its co-visibility component
+    # (cameras without an estimate keep their own clock).
+    offsets = {n: c.offset_s for n, c in estimate.cameras.items() if c.offset_s is not None}
+    # Their sigmas, each against the camera its offset was last fitted relative to (0 there).
+    sigmas = {n: c.sigma_s or 0.0 for n, c in estimate.cameras.items() if c.offset_s is not None}
+    grouping = calibrate_groups([t.shifted(offsets.get(t.name, 0.0)) for t in tracks], params.sfm)
+    if params.clock.refine and grouping.groups:
+        shifted = {t.name: t.shifted(offsets.get(t.name, 0.0)) for t in tracks}
+        refined = False
+        for g in grouping.groups:
+            for n, (delta, sigma) in refine_group_offsets(g, shifted, params.clock, params.sfm).items():
+                offsets[n] = offsets.get(n, 0.0) + delta
+                sigmas[n], sigmas[g.reference], refined = sigma, 0.0, True
+        if refined:
+            grouping = calibrate_groups([t.shifted(offsets.get(t.name, 0.0)) for t in tracks], params.sfm)
+    for g in grouping.groups:
+        ref = offsets.get(g.reference, 0.0)
+        # The group's points onto its reference camera's own clock.
+        g.point_stamps_ns = g.point_stamps_ns + round(ref * 1e9)
+        g.clocks_applied = True
+        for n in g.names:
+            g.clock_offsets_s[n] = offsets.get(n, 0.0) - ref
+            g.clock_sigmas_s[n] = 0.0 if n == g.reference else float(
+                (sigmas.get(n, 0.0) ** 2 + sigmas.get(g.reference, 0.0) ** 2) ** 0.5)
+    return grouping
