@@ -118,7 +118,8 @@ def has_cmc_images(bag: Path) -> bool:
 
 def relative_pose_case(bag: Path, images: bool, baselines: bool = True, config: YowoConfig = YowoConfig()) -> dict:
     """Table relative_pose_eval's rows for one recording (YOWO alone without `baselines`)."""
-    gt = read_ground_truth(bag).cameras
+    truth = read_ground_truth(bag)
+    gt = truth.cameras
     tracks = {"keypoints": read_cmc_tracks(bag, "keypoints", config.cmc)}
     if images:
         tracks["images"] = read_cmc_tracks(bag, "images", config.cmc)
@@ -136,6 +137,11 @@ def relative_pose_case(bag: Path, images: bool, baselines: bool = True, config: 
         out[method] = {"summary": asdict(ErrorSummary.of(errs)), "calibrated": len(est), "cameras": len(gt),
                        "seconds": seconds, "errors": {e.name: [e.eps_pos_m, e.eps_rot_deg] for e in errs},
                        "groups": groups}
+        if truth.clock_offsets_s:   # each member's offset to its group's reference against the truth
+            true = truth.clock_offsets_s
+            out[method]["clock_errors_ms"] = {
+                n: 1e3 * (o - (true.get(n, 0.0) - true.get(g.reference, 0.0)))
+                for g in result.groups for n, o in g.clock_offsets_s.items() if n != g.reference}
     return out
 
 

@@ -126,6 +126,27 @@ def markdown(results: dict, command: str, env: dict) -> str:
                 + [f"{_mean(r['seconds'] for r in rs):.1f}"])
     lines += _table(["preset", "scenario", "method", *ERROR_COLUMNS, "calibrated / cameras", "time [s]"], rows)
 
+    clocks = [(k, [c["relative"]["YOWO"] for c in cs if "clock_errors_ms" in c["relative"].get("YOWO", {})])
+              for k, cs in settings.items()]
+    if any(rs for _, rs in clocks):
+        lines += ["", "## CMC clock offsets (YOWO, estimated from the agent's motion and applied)", "",
+                  "Each calibrated camera's offset to its group's reference camera against the simulator's truth; "
+                  "relative pose against the same preset's synchronised (normal) recordings.", ""]
+        rows = []
+        for (p, s), rs in clocks:
+            if not rs:
+                continue
+            err = np.abs([e for r in rs for e in r["clock_errors_ms"].values()])
+            synced = [c["relative"]["YOWO"]["summary"] for c in settings.get((p, "normal"), [])
+                      if "YOWO" in c["relative"]]
+            ratio = (f"{_mean(r['summary']['pos_avg'] for r in rs) / _mean(x['pos_avg'] for x in synced):.2f}"
+                     if synced else "n/a")
+            rows.append([p, s, str(len(err)), f"{np.median(err):.1f}" if len(err) else "n/a",
+                         f"{err.max():.1f}" if len(err) else "n/a", f"{np.mean(err <= 2.0):.2f}" if len(err) else "n/a",
+                         ratio])
+        lines += _table(["preset", "scenario", "cameras", "median |error| [ms]", "max |error| [ms]",
+                         "within 2 ms", "avg eps_pos / synchronised"], rows)
+
     detected = [(k, [c["detector"] for c in cs if "detector" in c]) for k, cs in settings.items()]
     if any(ds for _, ds in detected):
         lines += ["", "## Image detector (model-free, on the rendered CMC images) vs simulator ground truth", "",
