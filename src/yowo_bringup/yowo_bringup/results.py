@@ -32,15 +32,20 @@ def pose_sigma(covariance) -> np.ndarray | None:
     return np.sqrt(np.clip(np.diag(covariance), 0, None))
 
 
-# The clock offset of a CMC against the ego clock is not estimated yet: written as unknown
-# with the assumption the registration made, never as a measured 0.
+# Where the clock offset of a CMC against the ego clock is not estimated, it is written as
+# unknown with the assumption the registration made, never as a measured 0.
 CLOCK_ENTRY = {"clock_offset_s": None, "clock": "assumed synchronised with the ego camera (offset not estimated)"}
 
 
-def clock_entry(name: str, group: CameraGroupResult | None) -> dict:
-    """The clock against the ego camera (not estimated), and against the camera's group
-    reference from the agent's motion (yowo_cmc.clock) where estimated."""
+def clock_entry(name: str, group: CameraGroupResult | None, camera: RegisteredCmc | None = None) -> dict:
+    """The clock against the ego camera (from the fusion, where estimated), and against
+    the camera's group reference from the agent's motion (yowo_cmc.clock)."""
     entry = dict(CLOCK_ENTRY)
+    if camera is not None and camera.clock_offset_s is not None:
+        entry = {"clock_offset_s": round(camera.clock_offset_s, 6), "clock_sigma_s": round(camera.clock_sigma_s, 6),
+                 "clock": f"this camera's clock minus the ego camera's, from {camera.clock_note}; applied"}
+    elif camera is not None and camera.clock_note:
+        entry["clock"] = f"assumed synchronised with the ego camera: {camera.clock_note}"
     if group is not None and name in group.clock_offsets_s:
         entry["clock_offset_to_group_reference_s"] = {
             "offset_s": round(group.clock_offsets_s[name], 6), "sigma_s": round(group.clock_sigmas_s[name], 6),
@@ -92,7 +97,7 @@ def write_cameras_yaml(path: Path, cameras: list[RegisteredCmc], groups: list[Ca
             entry["covariance"] = np.asarray(c.covariance).round(12).tolist() if sig is not None else None
             entry["sigma"] = "unknown (see reason)" if sig is None else {
                 "position_m": sig[:3].round(5).tolist(), "rotation_deg": np.degrees(sig[3:]).round(4).tolist()}
-        entry.update({**intrinsics_entry(c.camera), **clock_entry(c.name, group_by_id.get(c.group)),
+        entry.update({**intrinsics_entry(c.camera), **clock_entry(c.name, group_by_id.get(c.group), c),
                       **keypoint_noise_entry(group_by_id.get(c.group)),
                       "reprojection_rmse_px": round(float(c.rmse_px), 4),
                       "num_agent_observations": int(c.num_agent), "num_scene_observations": int(c.num_scene)})

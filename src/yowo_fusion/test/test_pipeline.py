@@ -10,6 +10,7 @@ from yowo_cmc.group_sfm import calibrate_groups
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import se3
 from yowo_ego.layout import Layout
+from yowo_fusion.alignment import AlignParams
 from yowo_fusion.pipeline import GROUP_SFM, ISOLATED_PNP, OK, WEAK, CmcInput, EgoMapData, FusionParams, fuse
 
 OFFSET = np.array([0.0, -0.10, -0.08])
@@ -124,3 +125,29 @@ def test_unknown_covariance_is_a_weak_verdict_with_the_reason(monkeypatch):
     for c in result.cameras:   # the group's cameras and the isolated one
         assert c.status == WEAK and "covariance unavailable (indeterminate system near variable x0)" in c.reason
         assert c.T_world_cam is not None and np.isnan(c.covariance).all()
+
+
+def test_a_group_whose_clock_runs_ahead_of_the_ego_camera_is_put_on_the_ego_clock():
+    """Every CMC's clock 0.4 s ahead of the ego camera's: the fusion finds the group's
+    offset from its agent track against the ego trajectory, and registers it as well as
+    on synchronised clocks."""
+    cams, tracks, ego = world()
+    ahead = [t.shifted(-0.4) for t in tracks]          # stamps 0.4 s later than the ego's of the same instant
+    grouping = calibrate_groups(ahead)
+    result = fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in ahead}, FusionParams())
+    by_name = {c.name: c for c in result.cameras}
+    for n in ("a1", "a2", "a3"):
+        c = by_name[n]
+        assert c.method == GROUP_SFM and c.status == OK, (n, c.reason)
+        assert abs(c.clock_offset_s - 0.4) < 0.01 and 0 < c.clock_sigma_s < 0.01, (n, c.clock_offset_s, c.clock_sigma_s)
+    errs = {e.name: e for e in registration_errors({n: c.T_world_cam for n, c in by_name.items()},
+                                                   {n: T for n, (_, T) in cams.items()})}
+    for n in ("a1", "a2", "a3"):
+        assert errs[n].eps_pos_m < 0.03 and errs[n].eps_rot_deg < 0.5, errs[n]
+    # Off: the track is matched to the wrong ego poses.
+    off = fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in ahead},
+               FusionParams(align=AlignParams(estimate_clock_offset=False)))
+    off_errs = registration_errors({c.name: c.T_world_cam for c in off.cameras if c.name.startswith("a")},
+                                   {n: T for n, (_, T) in cams.items()})
+    assert not off_errs or max(e.eps_pos_m for e in off_errs) > 0.1, off_errs
+    assert all(c.clock_offset_s is None for c in off.cameras)

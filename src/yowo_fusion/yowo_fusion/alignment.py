@@ -27,6 +27,14 @@ class AlignParams:
     # A group whose track misses the ego trajectory by more than this (weighted RMS, before the
     # head offset is known: ~0.1 m when it fits) has a broken reconstruction, not a bad fit.
     max_rms_m: float = 0.5
+    # The clock offset of a group's reference camera to the ego camera, from the agent's
+    # track against the ego trajectory (real CCTV clocks are not synchronised): searched
+    # over +-max_clock_offset_s, used when its sigma is below max_clock_sigma_s (a straight
+    # walk at constant speed leaves it unobservable: then the clocks are assumed equal).
+    estimate_clock_offset: bool = True
+    max_clock_offset_s: float = 2.5
+    clock_step_s: float = 0.02
+    max_clock_sigma_s: float = 0.05
 
 
 @dataclass
@@ -111,3 +119,62 @@ def align_group(track_stamps_ns: np.ndarray, track_local: np.ndarray, ego_stamps
     weights = rebalanced_weights(labels) if params.rebalance else np.full(len(world), 1.0 / len(world))
     S = umeyama(local, world, weights=weights)
     return Alignment(S, len(world), int(labels.max()) + 1, weights, np.linalg.norm(S.apply(local) - world, axis=1))
+
+
+@dataclass
+class ClockFit:
+    offset_s: float | None      # the group's clock - the ego clock (None: not estimated)
+    sigma_s: float | None
+    reason: str = ""            # why not estimated
+
+
+def estimate_clock_offset(track_stamps_ns: np.ndarray, track_local: np.ndarray, ego_stamps_ns: np.ndarray,
+                          T_world_ego: np.ndarray, params: AlignParams = AlignParams()) -> ClockFit:
+    """The shift of the head-top track's clock against the ego clock at which the track
+    fits the ego trajectory best under one similarity and one head offset (the head top
+    sits behind the ego camera: at walking speed a constant offset along the path looks
+    like a time shift, and only stops and turns tell them apart): the residual over a
+    grid of shifts, then a parabola through the best three; the sigma from its curvature
+    (the residual per coordinate as the noise). Our addition: the paper assumes
+    synchronised clocks."""
+    gap = int(params.max_time_gap_s * 1e9)
+    shifts = np.arange(-params.max_clock_offset_s, params.max_clock_offset_s + 0.5 * params.clock_step_s,
+                       params.clock_step_s)
+
+    def cost(shift_s: float) -> tuple[float, int]:
+        query = track_stamps_ns - round(shift_s * 1e9)
+        centres, ok = interpolate_positions(ego_stamps_ns, T_world_ego[:, :3, 3], query, gap)
+        if ok.sum() < max(10, len(track_stamps_ns) // 2):
+            return np.inf, int(ok.sum())
+        nearest = np.clip(np.searchsorted(ego_stamps_ns, query[ok]), 0, len(ego_stamps_ns) - 1)
+        R, P, local = T_world_ego[nearest, :3, :3], centres[ok], track_local[ok]
+        offset = np.zeros(3)
+        try:
+            for _ in range(4):   # the similarity and the head offset in turn
+                S = umeyama(local, P + R @ offset)
+                offset = np.mean(np.einsum("nji,nj->ni", R, S.apply(local) - P), axis=0)
+        except ValueError:
+            return np.inf, int(ok.sum())
+        return float(np.sum((S.apply(local) - P - R @ offset) ** 2)), int(ok.sum())
+
+    costs = np.array([cost(s)[0] for s in shifts])
+    if not np.isfinite(costs).any():
+        return ClockFit(None, None, "the agent track overlaps the ego recording at no shift")
+    k = int(np.argmin(costs))
+    if k in (0, len(shifts) - 1) or not np.isfinite(costs[k - 1:k + 2]).all():
+        return ClockFit(None, None, f"the best shift is at the edge of +-{params.max_clock_offset_s:g} s")
+    # A parabola through the three costs around the minimum, then once more a tenth as
+    # wide (the cost is a parabola only near its minimum).
+    best = float(shifts[k])
+    for step in (params.clock_step_s, 0.1 * params.clock_step_s):
+        c = np.array([cost(best + d * step)[0] for d in (-1, 0, 1)])
+        curvature = (c[0] - 2 * c[1] + c[2]) / step ** 2
+        if not np.isfinite(curvature) or curvature <= 0:
+            return ClockFit(None, None, "the fit has no clear minimum over the shift")
+        best -= 0.5 * step * (c[2] - c[0]) / (c[0] - 2 * c[1] + c[2])
+    c_best, n = cost(best)
+    sigma = float(np.sqrt(2.0 * (c_best / max(3 * n - 10, 1)) / curvature))
+    if sigma > params.max_clock_sigma_s:
+        return ClockFit(None, sigma, f"not observable from this walk (sigma {sigma:.2f} s > "
+                                     f"{params.max_clock_sigma_s:g} s): clocks assumed equal")
+    return ClockFit(float(best), sigma)

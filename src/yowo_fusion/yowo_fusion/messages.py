@@ -62,7 +62,9 @@ def registered_to_msg(cameras: list[RegisteredCmc], stamp_ns: int) -> Registered
             pose_world_camera=pose, k=[float(v) for v in np.asarray(c.K).reshape(-1)],
             camera_info=model_to_camera_info(c.camera) if c.camera is not None else CameraInfo(),
             reprojection_rmse_px=float(c.rmse_px), num_agent_observations=int(c.num_agent),
-            num_scene_observations=int(c.num_scene)))
+            num_scene_observations=int(c.num_scene),
+            clock_offset_s=float("nan") if c.clock_offset_s is None else float(c.clock_offset_s),
+            clock_sigma_s=float("nan") if c.clock_sigma_s is None else float(c.clock_sigma_s), clock_note=c.clock_note))
     return out
 
 
@@ -141,5 +143,7 @@ def registered_from_msg(msg: RegisteredCameraArray) -> list[RegisteredCmc]:
                                  None if failed else np.asarray(c.pose_world_camera.covariance).reshape(6, 6),
                                  camera_info_to_model(c.camera_info) if c.camera_info.width else None,
                                  c.reprojection_rmse_px,
-                                 c.num_agent_observations, c.num_scene_observations))
+                                 c.num_agent_observations, c.num_scene_observations,
+                                 float(c.clock_offset_s) if np.isfinite(c.clock_offset_s) else None,
+                                 float(c.clock_sigma_s) if np.isfinite(c.clock_sigma_s) else None, c.clock_note))
     return out

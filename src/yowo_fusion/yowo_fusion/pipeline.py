@@ -5,7 +5,7 @@ and a verdict per camera; the ego map's cloud and layout refined with the jointl
 optimised ego poses."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -17,7 +17,7 @@ from yowo_common.geometry import Sim3
 from yowo_ego.layout import Layout, LayoutParams
 from yowo_ego.scene import CloudParams
 
-from .alignment import AlignParams, align_group
+from .alignment import AlignParams, ClockFit, align_group, estimate_clock_offset
 from .isolated import AgentTrack, IsolatedParams, refine_pose, register_by_agent
 from .joint import (UNKNOWN_COVARIANCE, JointParams, JointProblem, covariance_unavailable, ros_covariance,
                     solve_joint, solver_failure)
@@ -63,6 +63,10 @@ class RegisteredCmc:
     rmse_px: float
     num_agent: int
     num_scene: int
+    # The camera's clock - the ego clock [s] and its sigma (None: not estimated, see clock_note).
+    clock_offset_s: float | None = None
+    clock_sigma_s: float | None = None
+    clock_note: str = ""
 
     @property
     def K(self) -> np.ndarray:
@@ -208,6 +212,7 @@ class _GroupedCmcs:
     head_offset: np.ndarray
     alignments: dict[str, Sim3]
     failed: dict[str, str]               # camera -> why it is not among the grouped ones
+    clocks: dict[str, tuple[float | None, float | None, str]]   # camera -> its clock - the ego's, sigma, note
 
 
 def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, str],
@@ -217,6 +222,7 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
     c_idx, p_idx, uv_obs, sig_obs = [], [], [], []
     alignments = {}
     failed: dict[str, str] = dict(ungrouped)
+    groups, ego_shift, clocks = _on_ego_clock(groups, ego, params.align)
     estimates = {}
     for g in groups:
         try:
@@ -239,9 +245,9 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
             if n not in cmcs:
                 failed[n] = "no keypoints received for this camera"
                 continue
-            # The member's stamps onto the clock of the group's points (its reference camera's).
-            ideal, samples = resample(cmcs[n].tracks.shifted(g.clock_offsets_s.get(n, 0.0)), g.point_stamps_ns,
-                                      params.tracks)
+            # The member's stamps onto the clock of the group's points (the ego's).
+            ideal, samples = resample(cmcs[n].tracks.shifted(g.clock_offsets_s.get(n, 0.0) + ego_shift[g.group_id]),
+                                      g.point_stamps_ns, params.tracks)
             ci = len(names)
             names.append(n)
             cams.append(ideal)
@@ -262,7 +268,31 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
     agent_obs = Observations(np.array(c_idx, int), np.array(p_idx, int), np.array(uv_obs).reshape(-1, 2),
                              np.array(sig_obs))
     return _GroupedCmcs(names, cams, T_init, group_of, agent, agent_obs,
-                        np.concatenate(agent_chain or [np.zeros(0, int)]), head_offset, alignments, failed)
+                        np.concatenate(agent_chain or [np.zeros(0, int)]), head_offset, alignments, failed, clocks)
+
+
+def _on_ego_clock(groups: list[CameraGroupResult], ego: EgoMapData, params: AlignParams
+                  ) -> tuple[list[CameraGroupResult], dict[str, float], dict[str, tuple[float | None, float | None, str]]]:
+    """Each group with its track on the ego clock (its reference camera's offset to the
+    ego camera estimated from the agent's track against the ego trajectory; 0 where it is
+    not observable), that offset per group, and each member's clock against the ego's:
+    its offset to the reference plus the reference's."""
+    out, shifts, clocks = [], {}, {}
+    for g in groups:
+        fit = ClockFit(None, None, "not estimated (fusion.align.estimate_clock_offset is off)")
+        if params.estimate_clock_offset:
+            stamps, local, _ = _group_tracks(g, params)
+            fit = estimate_clock_offset(stamps, local, ego.stamps_ns, ego.T_world_ego, params)
+        delta = shifts[g.group_id] = fit.offset_s or 0.0
+        out.append(replace(g, point_stamps_ns=g.point_stamps_ns - round(delta * 1e9)))
+        for n in g.names:
+            if fit.offset_s is None:
+                clocks[n] = (None, None, f"group {g.group_id}'s clock against the ego camera: {fit.reason}")
+            else:
+                clocks[n] = (g.clock_offsets_s.get(n, 0.0) + delta,
+                             float(np.hypot(g.clock_sigmas_s.get(n, 0.0), fit.sigma_s)),
+                             f"group {g.group_id}'s track against the ego trajectory (reference {g.reference})")
+    return out, shifts, clocks
 
 
 def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, str], cmcs: dict[str, CmcInput],
@@ -314,7 +344,7 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
             if jo_failure:
                 status, reason = WEAK, "; ".join(r for r in (jo_failure, reason) if r)
             registered.append(RegisteredCmc(n, group_of[n], GROUP_SFM, status, reason, T_final[i], covs[i],
-                                            raw, rmse, int(own.sum()), scene_count.get(n, 0)))
+                                            raw, rmse, int(own.sum()), scene_count.get(n, 0), *grouped.clocks[n]))
     # Isolated CMCs: the optimised agent track where a group saw the agent, and elsewhere the
     # track implied by the ego trajectory (head top = T_world_ego * o, ground point under it
     # on the floor z = 0) -- an extension: the paper needs a group to have seen the agent.
