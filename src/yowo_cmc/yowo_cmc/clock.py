@@ -154,7 +154,10 @@ class _Pair:
 
 def _coarse_cost(pair: _Pair, delta: float, params: ClockParams, sfm: SfmParams, thr_px: float
                  ) -> tuple[float, np.ndarray | None]:
-    """(mean truncated squared Sampson error / threshold^2, essential matrix) at one shift."""
+    """(truncated squared Sampson error / threshold^2, essential matrix) at one shift,
+    averaged over all of camera a's samples: one without a counterpart in b at this shift
+    costs as much as an outlier. (A mean over the co-visible samples alone favours shifts
+    where few remain: 40 samples of a short stretch fit some essential matrix well.)"""
     uvb, ok, _ = pair.b_at(delta)
     if ok.sum() < params.min_correspondences:
         return np.inf, None
@@ -176,7 +179,7 @@ def _coarse_cost(pair: _Pair, delta: float, params: ClockParams, sfm: SfmParams,
     best = (np.inf, None)
     for k in range(E.shape[0] // 3):     # the 5-point solver may return several
         e = sampson_px(_fundamental(E[3 * k:3 * k + 3], Ka, Kb), pa, pb)
-        cost = float(np.mean(np.minimum(e, thr_px) ** 2)) / thr_px ** 2
+        cost = (float(np.sum(np.minimum(e, thr_px) ** 2)) + (len(ok) - len(e)) * thr_px ** 2) / (len(ok) * thr_px ** 2)
         best = min(best, (cost, E[3 * k:3 * k + 3]), key=lambda c: c[0])
     return best
 
