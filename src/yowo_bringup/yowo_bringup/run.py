@@ -146,9 +146,11 @@ def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, s
         problems.append(f"only one usable CMC ({cameras[0]}): a single camera forms no group; it is registered "
                         "as an isolated camera from the agent track the ego trajectory implies")
     ego = (_first_present(EGO_COLOR, present), _first_present(EGO_DEPTH, present), EGO_INFO)
+    # The IMU helps the ego tracking only with its calibration (extrinsics).
+    imu = topics.EGO_IMU if {topics.EGO_IMU, topics.EGO_IMU_CALIBRATION} <= present else ""
     if mode in (FULL, EGO):
-        played += list(ego)
-    nodes, final, outputs = _stage_nodes(mode, trackers, ego)
+        played += list(ego) + ([topics.EGO_IMU, topics.EGO_IMU_CALIBRATION] if imu else [])
+    nodes, final, outputs = _stage_nodes(mode, trackers, ego, imu)
     nodes.append(NodeSpec("replay", STAGE_MODULES["replay"], {  # last: it waits for the stages' subscriptions
         "bag": str(bag), "topics": played, "wait_for_topics": played, "stages": [n.name for n in nodes]}))
     run_id = run_id or new_run_id()
@@ -194,13 +196,13 @@ EGO_OUTPUTS = {topics.EGO_MAP: "yowo_msgs/msg/EgoMap", topics.EGO_PATH: "nav_msg
                topics.LAYOUT: "yowo_msgs/msg/SceneLayout", topics.MAP_POINTS: "sensor_msgs/msg/PointCloud2"}
 
 
-def _stage_nodes(mode: str, trackers: list[tuple[str, str, str]], ego: tuple[str, str, str]
+def _stage_nodes(mode: str, trackers: list[tuple[str, str, str]], ego: tuple[str, str, str], imu: str = ""
                  ) -> tuple[list[NodeSpec], str, dict[str, str]]:
     """The stage processes (trackers: (camera, source, image topic)), the final stage and
-    the latched outputs the runner collects."""
+    the latched outputs the runner collects. `imu`: the ego IMU's topic ("": none)."""
+    ego_params = {"color_topic": ego[0], "depth_topic": ego[1], "info_topic": ego[2], "imu_topic": imu}
     if mode == EGO:             # the map alone: its stage publishes the map, path, cloud and layout
-        return ([NodeSpec("ego_mapper", STAGE_MODULES["ego_mapper"],
-                          {"color_topic": ego[0], "depth_topic": ego[1], "info_topic": ego[2]})], "ego_mapper",
+        return ([NodeSpec("ego_mapper", STAGE_MODULES["ego_mapper"], ego_params)], "ego_mapper",
                 dict(EGO_OUTPUTS))
     cameras = [c for c, _, _ in trackers]
     nodes = [NodeSpec(f"keypoint_tracker_{c}", STAGE_MODULES["keypoint_tracker"],
@@ -209,8 +211,7 @@ def _stage_nodes(mode: str, trackers: list[tuple[str, str, str]], ego: tuple[str
     final = "group_sfm"
     outputs = {topics.GROUPS: "yowo_msgs/msg/CameraGroupArray"}
     if mode == FULL:
-        nodes.append(NodeSpec("ego_mapper", STAGE_MODULES["ego_mapper"],
-                              {"color_topic": ego[0], "depth_topic": ego[1], "info_topic": ego[2]}))
+        nodes.append(NodeSpec("ego_mapper", STAGE_MODULES["ego_mapper"], ego_params))
         nodes.append(NodeSpec("fusion", STAGE_MODULES["fusion"], {"cameras": cameras}))
         final = "fusion"
         outputs.update({topics.CMC_POSES: "yowo_msgs/msg/RegisteredCameraArray", topics.TF_STATIC: "tf2_msgs/msg/TFMessage",

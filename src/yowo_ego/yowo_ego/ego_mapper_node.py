@@ -1,11 +1,13 @@
-"""ego_mapper_node: the head-mounted RGB-D stream -> frame-to-frame odometry online
-on /yowo/ego/odometry, and at the end of the walk the ego map (EgoMap), the map
-point cloud, the ego path and the scene layout, all latched."""
+"""ego_mapper_node: the head-mounted RGB-D stream (and its IMU, when the plan names
+one) -> frame-to-frame odometry online on /yowo/ego/odometry, and at the end of the
+walk the ego map (EgoMap), the map point cloud, the ego path and the scene layout,
+all latched. With an IMU, each frame waits (``ego.odometry.imu_wait_s`` of stream
+time at most) for the samples covering its stamp: topics arrive in no common order."""
 from __future__ import annotations
 
 from nav_msgs.msg import Odometry, Path
-from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
-from std_msgs.msg import Header
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
+from std_msgs.msg import Header, String
 from yowo_msgs.msg import EgoMap, SceneLayout
 
 from yowo_common import topics
@@ -15,6 +17,7 @@ from yowo_common.rosconv import camera_info_to_model, decode_color, decode_depth
 
 from .ego_messages import cloud_msg, ego_map_msg, layout_msg, path_msg
 from .frames import FrameError, StampPairer
+from .imu import CoverageWait, ImuBuffer, ImuCalibration
 from .pipeline import EgoMapper, EgoParams
 
 MAX_EARLY_FRAMES = 30  # frames kept while waiting for the first CameraInfo
@@ -29,7 +32,15 @@ class EgoMapperNode(StageNode):
         self.color_topic = self.declare_parameter("color_topic", topics.EGO_COLOR[1]).value
         self.depth_topic = self.declare_parameter("depth_topic", topics.EGO_DEPTH[1]).value
         self.info_topic = self.declare_parameter("info_topic", topics.EGO_INFO).value
+        # "": no IMU (the planner names it when the recording has /ego/imu and its calibration).
+        self.imu_topic = self.declare_parameter("imu_topic", "").value
+        self.imu_calibration_topic = self.declare_parameter("imu_calibration_topic",
+                                                            topics.EGO_IMU_CALIBRATION).value
         self.params = self.section(EgoParams, "ego")
+        use_imu = bool(self.imu_topic) and self.params.odometry.use_imu
+        self.imu = ImuBuffer() if use_imu else None
+        self.imu_problem = ""
+        self.wait = CoverageWait(self.imu, int(self.params.odometry.imu_wait_s * 1e9))
         self.mapper: EgoMapper | None = None
         self.info_problem = ""
         self.early: list[tuple[int, object, object]] = []
@@ -42,15 +53,37 @@ class EgoMapperNode(StageNode):
         image_type = lambda t: CompressedImage if t.endswith(("/compressed", "/compressedDepth")) else Image  # noqa: E731
         self.stream_input(CameraInfo, self.info_topic, self.on_info)
         self.stream_input(image_type(self.color_topic), self.color_topic,
-                          lambda m: self.on_pairs(self.pairer.add_color(stamp_to_ns(m.header.stamp), m)))
+                          lambda m: self.on_waiting(self.pairer.add_color(stamp_to_ns(m.header.stamp), m)))
         self.stream_input(image_type(self.depth_topic), self.depth_topic,
-                          lambda m: self.on_pairs(self.pairer.add_depth(stamp_to_ns(m.header.stamp), m)))
+                          lambda m: self.on_waiting(self.pairer.add_depth(stamp_to_ns(m.header.stamp), m)))
+        if self.imu is not None:
+            self.stream_input(Imu, self.imu_topic, self.on_imu)
+            self.stream_input(String, self.imu_calibration_topic, self.on_imu_calibration)
+
+    def on_imu(self, msg: Imu) -> None:
+        v, a = msg.angular_velocity, msg.linear_acceleration
+        self.imu.add(stamp_to_ns(msg.header.stamp), (v.x, v.y, v.z), (a.x, a.y, a.z))
+        self.on_pairs(self.wait.ready())
+
+    def on_imu_calibration(self, msg: String) -> None:
+        if self.imu.calibration is None and not self.imu_problem:
+            try:
+                self.imu.calibration = ImuCalibration.from_yaml(msg.data, self.imu_calibration_topic)
+            except ValueError as exc:
+                self.imu_problem = f"{exc}; the IMU is not used"
+                self.get_logger().error(self.imu_problem)
+                self.wait.imu = None        # nothing to wait for
+        self.on_pairs(self.wait.ready())
+
+    def on_waiting(self, pairs) -> None:
+        """Frame pairs to track once the IMU covers them (at once without an IMU)."""
+        self.on_pairs([r for pair in pairs for r in self.wait.push(pair[0], pair)])
 
     def on_info(self, msg: CameraInfo) -> None:
         if self.mapper is not None or self.info_problem:
             return
         try:
-            self.mapper = EgoMapper(camera_info_to_model(msg), self.params, self.info_topic)
+            self.mapper = EgoMapper(camera_info_to_model(msg), self.params, self.info_topic, self.imu)
         except ValueError as exc:
             self.info_problem = f"{self.info_topic}: {exc}"
             self.get_logger().error(self.info_problem)
@@ -89,6 +122,7 @@ class EgoMapperNode(StageNode):
         return msg
 
     def finalize(self) -> str:
+        self.on_pairs(self.wait.ready(flush=True))
         if self.mapper is None:
             raise ValueError(self.info_problem or f"no usable {self.info_topic} received; no ego map")
         r = self.mapper.finish()
@@ -98,7 +132,13 @@ class EgoMapperNode(StageNode):
         self.pub_layout.publish(layout_msg(r))
         text = (f"{len(r.stamps_ns)} frames, {len(r.keyframe_frames)} keyframes, {len(r.landmarks)} landmarks, "
                 f"{len(r.cloud_points)} cloud points, {len(r.layout.floor_polygons)} floor polygon(s)")
-        return "; ".join([text, *r.warnings])
+        imu = []
+        if self.imu_problem:
+            imu.append(self.imu_problem)
+        if self.wait.released_without:
+            imu.append(f"{self.wait.released_without} frame(s) tracked without the IMU: {self.imu_topic} did not "
+                       f"cover their stamps within {self.params.odometry.imu_wait_s:g} s")
+        return "; ".join([text, *r.warnings, *imu])
 
 
 def main(args=None):

@@ -14,8 +14,16 @@ against the previous frame (which becomes a keyframe), then from a feature guess
 frames and stands on its own where dense odometry cannot refine it. An accepted result is polished by a few point-to-plane iterations
 (removes the photometric term's mm-level bias where geometry allows). When all
 fails the frame starts a new segment (a "break"), joined to the last by a weak
-edge that loop closures may override. IMU input is not used yet: a gyro
-rotation would enter as one more initial guess in ``_attempts``.
+edge that loop closures may override.
+
+With IMU samples (``imu``, ``OdometryParams.use_imu``) the gyro rotation since the
+previous frame, with the constant-velocity translation, is the first initial guess;
+a result whose rotation disagrees with the gyro by more than
+``max_gyro_disagreement_deg`` is implausible; and a frame no visual attempt tracks
+(a bare wall, darkness) is bridged for up to ``max_bridge_s``: the gyro rotation and
+the velocity of the last visual step give its pose, it becomes a keyframe joined by
+an "imu" edge (same segment) and the next frame is tracked against it. Without IMU
+samples every path is the visual one alone.
 """
 from __future__ import annotations
 
@@ -25,13 +33,14 @@ import cv2
 import numpy as np
 import open3d as o3d
 
-from yowo_common.geometry import inv_se3, rotation_angle_deg
+from yowo_common.geometry import inv_se3, rotation_angle_deg, se3
 
 from .features import FeatureExtractor, FeatureParams, pose_from_images
 from .frames import RgbdFrame
+from .imu import ImuBuffer
 
 _odo = o3d.t.pipelines.odometry
-TRACKED, RECOVERED, LOST = "tracked", "recovered", "lost"
+TRACKED, RECOVERED, LOST, IMU_BRIDGED = "tracked", "recovered", "lost", "imu_bridged"
 
 
 @dataclass(frozen=True)
@@ -62,6 +71,17 @@ class OdometryParams:
     # Re-tracking after a fast turn accepts weaker evidence than loop closures:
     # the dense check that follows rejects a wrong guess.
     recovery_features: FeatureParams = FeatureParams(ratio=0.9, pnp_min_inliers=15)
+    # IMU (when the recording has one): gyro rotation as first guess and check, bridging.
+    use_imu: bool = True
+    max_gyro_disagreement_deg: float = 5.0   # between consecutive frames; the gyro drifts ~0.01 deg there
+    max_bridge_s: float = 1.0                # longest stretch of frames bridged by the gyro alone
+    # Uncertainty of a bridged step (its "imu" edge): rotation from the gyro (bias and noise),
+    # translation from the constant velocity of the last visual step (a walk's speed changes).
+    bridge_rotation_sigma_dps: float = 1.0
+    bridge_translation_sigma_mps: float = 0.5
+    gyro_bias_time_constant_s: float = 10.0  # running mean of the bias tracked frames imply
+    # Graph and offline reader: a frame waits this long (stream time) for IMU samples covering it.
+    imu_wait_s: float = 0.5
 
 
 @dataclass
@@ -85,7 +105,7 @@ class OdometryEdge:
     target: int
     T_target_source: np.ndarray
     information: np.ndarray              # 6x6 (Open3D order: rotation, translation)
-    kind: str                            # "odometry" | "loop" | "break"
+    kind: str                            # "odometry" | "loop" | "break" | "imu"
 
 
 @dataclass
@@ -96,7 +116,7 @@ class TrackResult:
     T_kf_cam: np.ndarray
     T_odom_cam: np.ndarray
     fitness: float
-    status: str                          # tracked | recovered | lost
+    status: str                          # tracked | recovered | lost | imu_bridged
     new_keyframe: bool
 
 
@@ -246,11 +266,14 @@ class KeyframeTracker:
     """Streams frames through frame-to-keyframe odometry; collects keyframes and
     the odometry edges between consecutive keyframes."""
 
-    def __init__(self, K: np.ndarray, params: OdometryParams = OdometryParams(), on_keyframe=None):
+    def __init__(self, K: np.ndarray, params: OdometryParams = OdometryParams(), on_keyframe=None,
+                 imu: ImuBuffer | None = None):
         """``on_keyframe(keyframe, edge, gray, depth)`` sees every new keyframe with
         the edge from the previous keyframe (None for the first) and its
-        full-resolution grey image and depth (for feature extraction)."""
+        full-resolution grey image and depth (for feature extraction). ``imu``: the
+        ego IMU's samples (used when ``params.use_imu``), filled as frames arrive."""
         self.params = params
+        self.imu = imu if params.use_imu else None
         self.odometry = RgbdOdometry(K, params)
         self.on_keyframe = on_keyframe
         self.keyframes: list[Keyframe] = []
@@ -262,6 +285,10 @@ class KeyframeTracker:
         self._prev_result: TrackResult | None = None
         self._velocity = np.eye(4)           # T_prev_cur of the last step
         self._features = FeatureExtractor(params.recovery_features)
+        self._gyro: np.ndarray | None = None     # R_prev_cur of the frame being tracked
+        self._velocity_odom = np.zeros(3)        # odom-frame velocity of the last visual step [m/s]
+        self._anchor_ns = 0                      # stamp of the last frame not bridged
+        self.imu_frames = 0                      # frames tracked with a gyro rotation
 
     # --- public -----------------------------------------------------------------
     def track(self, frame: RgbdFrame) -> TrackResult:
@@ -279,22 +306,54 @@ class KeyframeTracker:
             self._velocity = inv_se3(prev.T_odom_cam) @ result.T_odom_cam
         elif result.status == LOST:
             self._velocity = np.eye(4)
+        if self.imu is not None:
+            self._imu_bookkeeping(prev, result)
         self._prev, self._prev_result = level, result
         return result
 
     # --- internals --------------------------------------------------------------
+    def _imu_bookkeeping(self, prev: TrackResult | None, result: TrackResult) -> None:
+        """After a frame with the IMU: the velocity a bridge continues, the bridge's
+        start, and the gyro bias from a densely tracked step."""
+        if result.status == IMU_BRIDGED:
+            return
+        self._anchor_ns = result.stamp_ns
+        if prev is None or result.status == LOST:
+            self._velocity_odom = np.zeros(3)
+            return
+        dt_s = (result.stamp_ns - prev.stamp_ns) * 1e-9
+        self._velocity_odom = (result.T_odom_cam[:3, 3] - prev.T_odom_cam[:3, 3]) / dt_s
+        if result.status == TRACKED and self._gyro is not None:
+            R = prev.T_odom_cam[:3, :3].T @ result.T_odom_cam[:3, :3]
+            self.imu.update_bias(R, prev.stamp_ns, result.stamp_ns, self.params.gyro_bias_time_constant_s)
+
+    def _gyro_rotation(self, t0_ns: int, t1_ns: int) -> np.ndarray | None:
+        """R_prev_cur from the gyro, None without IMU samples covering the interval."""
+        if self.imu is None:
+            return None
+        try:
+            return self.imu.rotation_between(t0_ns, t1_ns)
+        except ValueError:   # not calibrated, or a gap in the samples: vision alone
+            return None
+
     def _plausible(self, T_prev_cur: np.ndarray, dt_s: float) -> bool:
         p = self.params
         dt = max(dt_s, 1e-3)
         return (np.linalg.norm(T_prev_cur[:3, 3]) <= p.max_speed_mps * dt
-                and rotation_angle_deg(np.eye(3), T_prev_cur[:3, :3]) <= p.max_turn_dps * dt)
+                and rotation_angle_deg(np.eye(3), T_prev_cur[:3, :3]) <= p.max_turn_dps * dt
+                and (self._gyro is None
+                     or rotation_angle_deg(self._gyro, T_prev_cur[:3, :3]) <= p.max_gyro_disagreement_deg))
 
     def _attempts(self, level: _Level, ref: _Level, T_ref_prev: np.ndarray, dt_s: float):
-        """The first acceptable T_ref_cur of the method cascades from the
-        constant-velocity and the zero-motion guess: (T, fitness) or None. Also
-        returns the plausible result with the lowest RMSE, for a break edge."""
+        """The first acceptable T_ref_cur of the method cascades from the gyro guess
+        (with the IMU), the constant-velocity and the zero-motion guess: (T, fitness)
+        or None. Also returns the plausible result with the lowest RMSE, for a break
+        edge."""
         odo, fallback = self.odometry, None
-        for init in (T_ref_prev @ self._velocity, T_ref_prev):
+        inits = [T_ref_prev @ self._velocity, T_ref_prev]
+        if self._gyro is not None:
+            inits.insert(0, T_ref_prev @ se3(self._gyro, self._velocity[:3, 3]))
+        for init in inits:
             for cascade in self.params.cascades:
                 T, fit, rmse = odo.register(level.rgbd, ref.rgbd, orthonormalize(init), cascade)
                 if fit < self.params.min_fitness or not self._plausible(inv_se3(T_ref_prev) @ T, dt_s):
@@ -312,6 +371,8 @@ class KeyframeTracker:
         kf = self.keyframes[-1]
         T_kf_prev = inv_se3(kf.T_odom_cam) @ prev_res.T_odom_cam
         status = TRACKED
+        self._gyro = self._gyro_rotation(prev.stamp_ns, level.stamp_ns)
+        self.imu_frames += self._gyro is not None
         best, fallback = self._attempts(level, self._kf, T_kf_prev, dt_s)
         if best is None and prev.frame_index != kf.frame_index:
             # Lost the keyframe (fast turn): the previous frame overlaps more.
@@ -334,6 +395,8 @@ class KeyframeTracker:
                     # walls); the feature pose stands, as a keyframe (fitness 0) whose edge
                     # the multiway registration checks again.
                     best = (guess, 0.0)
+        if best is None and self._gyro is not None and (level.stamp_ns - self._anchor_ns) * 1e-9 <= p.max_bridge_s:
+            return self._bridge(level, prev_res, dt_s)
         if best is None:
             # Break: a new keyframe and segment, joined to the last by a weak edge
             # from the least bad attempt (or the constant-velocity prediction);
@@ -354,15 +417,33 @@ class KeyframeTracker:
                                fitness, status, True)
         return TrackResult(level.frame_index, level.stamp_ns, kf.index, T_kf_cur, T_odom_cam, fitness, status, False)
 
+    def _bridge(self, level: _Level, prev_res: TrackResult, dt_s: float) -> TrackResult:
+        """No visual attempt tracked the frame: its pose from the gyro rotation and the
+        last visual step's velocity, as a keyframe (the previous keyframe's view may be
+        gone when vision returns) joined by an "imu" edge with the bridge's uncertainty."""
+        p = self.params
+        T_odom_cam = se3(prev_res.T_odom_cam[:3, :3] @ self._gyro, prev_res.T_odom_cam[:3, 3]
+                         + self._velocity_odom * dt_s)
+        kf = self.keyframes[-1]
+        sigma_rot = np.radians(p.bridge_rotation_sigma_dps) * dt_s
+        sigma_t = p.bridge_translation_sigma_mps * dt_s
+        info = np.diag([sigma_rot ** -2] * 3 + [sigma_t ** -2] * 3)
+        self._add_keyframe(level, T_odom_cam, kf, inv_se3(kf.T_odom_cam) @ T_odom_cam, info)
+        return TrackResult(level.frame_index, level.stamp_ns, len(self.keyframes) - 1, np.eye(4), T_odom_cam, 0.0,
+                           IMU_BRIDGED, True)
+
     def _add_keyframe(self, level: _Level, T_odom_cam: np.ndarray, previous: Keyframe | None,
-                      T_prev_cur: np.ndarray | None) -> None:
+                      T_prev_cur: np.ndarray | None, imu_information: np.ndarray | None = None) -> None:
+        """``imu_information``: the edge is a gyro bridge's ("imu") with this information."""
         segment = 0 if previous is None else previous.segment + (T_prev_cur is None)
         kf = Keyframe(len(self.keyframes), level.frame_index, level.stamp_ns, T_odom_cam, level.color,
                       level.depth_mm, segment)
         self.keyframes.append(kf)
         edge = None
         if previous is not None:
-            if T_prev_cur is not None:
+            if imu_information is not None:
+                edge = OdometryEdge(kf.index, previous.index, T_prev_cur, imu_information, "imu")
+            elif T_prev_cur is not None:
                 info = self.odometry.information(level.depth_mm, previous.depth_mm, T_prev_cur)
                 edge = OdometryEdge(kf.index, previous.index, T_prev_cur, info, "odometry")
             else:

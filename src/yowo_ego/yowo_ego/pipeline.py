@@ -29,8 +29,9 @@ from yowo_common.geometry import inv_se3, se3, transform_points
 
 from .features import FeatureExtractor, FeatureParams, KeyframeFeatures, backproject
 from .frames import FrameError, Undistorter, make_frame, pinhole
+from .imu import ImuBuffer
 from .layout import KIND_WALL, Layout, LayoutParams, build_layout
-from .odometry import Keyframe, KeyframeTracker, OdometryEdge, OdometryParams, TrackResult
+from .odometry import IMU_BRIDGED, RECOVERED, Keyframe, KeyframeTracker, OdometryEdge, OdometryParams, TrackResult
 from .posegraph import LoopParams, MultiwayRegistration
 from .refine import BundleParams, bundle_adjust
 from .scene import (CloudParams, Rectification, find_floor, fuse_cloud, planar_patches, rectify,
@@ -87,7 +88,10 @@ class EgoMapResult:
 
 
 class EgoMapper:
-    def __init__(self, camera: CameraModel, params: EgoParams = EgoParams(), topic: str = "camera_info"):
+    def __init__(self, camera: CameraModel, params: EgoParams = EgoParams(), topic: str = "camera_info",
+                 imu: ImuBuffer | None = None):
+        """``imu``: the ego IMU's samples, appended by the caller as they arrive (each
+        frame is tracked with the samples up to its stamp; see ``imu.CoverageWait``)."""
         problems = camera.problems()
         if problems:
             raise ValueError(f"{topic}: unusable ego intrinsics: {'; '.join(problems)}")
@@ -101,7 +105,7 @@ class EgoMapper:
         self._extractor = FeatureExtractor(params.features)
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ego_features")
         self._features: list[Future] = []
-        self.tracker = KeyframeTracker(camera.K, params.odometry, on_keyframe=self._on_keyframe)
+        self.tracker = KeyframeTracker(camera.K, params.odometry, on_keyframe=self._on_keyframe, imu=imu)
         self._multiway = MultiwayRegistration(self.tracker.odometry, params.loops)
         self.rejected: dict[str, int] = {}      # problem (topic: what) -> frames
         self.first_rejection: dict[str, str] = {}   # problem -> the first such frame's message
@@ -174,7 +178,10 @@ class EgoMapper:
         keyframes = tr.keyframes
         K = self.ideal.K
         stats.update(keyframes=len(keyframes), breaks=tr.breaks,
-                     recovered=sum(r.status == "recovered" for r in tr.results))
+                     recovered=sum(r.status == RECOVERED for r in tr.results),
+                     imu_bridged=sum(r.status == IMU_BRIDGED for r in tr.results), imu_frames=tr.imu_frames)
+        if tr.imu is not None:
+            stats["imu_samples"] = len(tr.imu)
         if tr.breaks:
             warnings.append(f"odometry lost track {tr.breaks} time(s); segments joined by loop closures or weak "
                             "constant-velocity edges")
@@ -308,10 +315,12 @@ def frames_between_keyframes(results: list[TrackResult], edges: list[OdometryEdg
 
 def map_recording(frames: Iterable[tuple[int, np.ndarray, np.ndarray]], camera: CameraModel,
                   params: EgoParams = EgoParams(), color_topic: str = "colour",
-                  depth_topic: str = "depth") -> EgoMapResult:
+                  depth_topic: str = "depth", imu: ImuBuffer | None = None) -> EgoMapResult:
     """Offline entry: (stamp_ns, RGB uint8, depth metres) in time order. Unusable
-    frames are skipped and reported in the result's warnings."""
-    mapper = EgoMapper(camera, params)
+    frames are skipped and reported in the result's warnings. ``imu``: the ego IMU's
+    samples, complete or filled while ``frames`` is consumed (up to each frame's stamp
+    before the frame is yielded)."""
+    mapper = EgoMapper(camera, params, imu=imu)
     t0 = time.perf_counter()
     for stamp_ns, color, depth in frames:
         try:

@@ -228,7 +228,7 @@ def optimize(keyframes: list[Keyframe], edges: list[OdometryEdge],
         graph.nodes.append(reg.PoseGraphNode(kf.T_odom_cam))
     for e in edges:
         graph.edges.append(reg.PoseGraphEdge(e.source, e.target, e.T_target_source, e.information,
-                                             uncertain=e.kind != "odometry"))
+                                             uncertain=e.kind not in ("odometry", "imu")))
     option = reg.GlobalOptimizationOption(
         max_correspondence_distance=params.max_correspondence_distance_m,
         edge_prune_threshold=params.edge_prune_threshold,

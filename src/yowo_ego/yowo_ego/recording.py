@@ -1,6 +1,6 @@
-"""Ego frames from a rosbag2 recording for the offline entry ``map_recording``
-(bag I/O through yowo_common.ros.bag, which deserialises with rclpy; the
-algorithm modules never import it)."""
+"""Ego frames (and the ego IMU's samples, when recorded) from a rosbag2 recording
+for the offline entry ``map_recording`` (bag I/O through yowo_common.ros.bag, which
+deserialises with rclpy; the algorithm modules never import it)."""
 from __future__ import annotations
 
 import itertools
@@ -14,9 +14,10 @@ import numpy as np
 from yowo_common.camera import CameraModel
 from yowo_common.ros.bag import list_topics, read_messages
 from yowo_common.rosconv import camera_info_to_model, decode_color, decode_depth, stamp_to_ns
-from yowo_common.topics import EGO_COLOR, EGO_DEPTH, EGO_INFO
+from yowo_common.topics import EGO_COLOR, EGO_DEPTH, EGO_IMU, EGO_IMU_CALIBRATION, EGO_INFO
 
 from .frames import StampPairer
+from .imu import CoverageWait, ImuBuffer, ImuCalibration
 from .pipeline import EgoMapResult, EgoParams, map_recording
 
 COLOR_TOPICS, DEPTH_TOPICS, INFO_TOPIC = EGO_COLOR, EGO_DEPTH, EGO_INFO
@@ -27,6 +28,8 @@ class EgoTopics:
     color: str
     depth: str
     info: str = INFO_TOPIC
+    imu: str = ""                 # "" when the recording has no usable IMU
+    imu_calibration: str = ""
 
 
 @dataclass
@@ -36,6 +39,7 @@ class EgoRecording:
     topics: EgoTopics
     camera: CameraModel | None = None
     problems: list[str] = field(default_factory=list)
+    imu: ImuBuffer | None = None  # filled while the frames are read (topics.imu set)
 
 
 def find_ego_topics(bag) -> EgoTopics:
@@ -48,17 +52,24 @@ def find_ego_topics(bag) -> EgoTopics:
         missing.append(INFO_TOPIC)
     if missing:
         raise ValueError(f"{bag}: no ego camera: missing {'; '.join(missing)}")
-    return EgoTopics(color, depth)
+    imu = EGO_IMU in present and EGO_IMU_CALIBRATION in present
+    return EgoTopics(color, depth, imu=EGO_IMU if imu else "", imu_calibration=EGO_IMU_CALIBRATION if imu else "")
 
 
-def read_ego_frames(bag, recording: EgoRecording) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+def read_ego_frames(bag, recording: EgoRecording, imu_wait_s: float = 0.5
+                    ) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
     """(stamp_ns, RGB, depth m) pairs in stamp order; undecodable messages and a
     bad CameraInfo are recorded in ``recording.problems``. Frames arriving before
-    the first CameraInfo are held back until it comes."""
+    the first CameraInfo are held back until it comes. With ``recording.imu``, its
+    samples are appended as they are read and a frame is yielded once they cover its
+    stamp (or ``imu_wait_s`` of frames later without)."""
     t = recording.topics
     pairer = StampPairer()
     pending: list[tuple[int, np.ndarray, np.ndarray]] = []
-    for topic, _, msg in read_messages(bag, [t.color, t.depth, t.info]):
+    imu = recording.imu
+    wait = CoverageWait(imu, int(imu_wait_s * 1e9))
+    wanted = [t.color, t.depth, t.info] + ([t.imu, t.imu_calibration] if imu is not None else [])
+    for topic, _, msg in read_messages(bag, wanted):
         if topic == t.info:
             if recording.camera is None:
                 try:
@@ -68,15 +79,28 @@ def read_ego_frames(bag, recording: EgoRecording) -> Iterator[tuple[int, np.ndar
                     if problem not in recording.problems:
                         recording.problems.append(problem)
             continue
-        stamp = stamp_to_ns(msg.header.stamp)
-        try:
-            image = decode_color(msg) if topic == t.color else decode_depth(msg)
-        except ValueError as exc:
-            recording.problems.append(f"{topic} @ {stamp} ns: {exc}")
-            continue
-        pairs = pairer.add_color(stamp, image) if topic == t.color else pairer.add_depth(stamp, image)
-        for stamp_ns, color, depth in pairs:
-            pending.append((stamp_ns, color, depth))
+        if topic == t.imu:
+            v, a = msg.angular_velocity, msg.linear_acceleration
+            imu.add(stamp_to_ns(msg.header.stamp), (v.x, v.y, v.z), (a.x, a.y, a.z))
+            released = wait.ready()
+        elif topic == t.imu_calibration:
+            if imu.calibration is None and wait.imu is not None:
+                try:
+                    imu.calibration = ImuCalibration.from_yaml(msg.data, topic)
+                except ValueError as exc:
+                    recording.problems.append(f"{exc}; the IMU is not used")
+                    wait.imu = None       # nothing to wait for
+            released = wait.ready()
+        else:
+            stamp = stamp_to_ns(msg.header.stamp)
+            try:
+                image = decode_color(msg) if topic == t.color else decode_depth(msg)
+            except ValueError as exc:
+                recording.problems.append(f"{topic} @ {stamp} ns: {exc}")
+                continue
+            pairs = pairer.add_color(stamp, image) if topic == t.color else pairer.add_depth(stamp, image)
+            released = [r for pair in pairs for r in wait.push(pair[0], pair)]
+        pending.extend(released)
         if recording.camera is not None:
             yield from pending
             pending.clear()
@@ -84,7 +108,10 @@ def read_ego_frames(bag, recording: EgoRecording) -> Iterator[tuple[int, np.ndar
         if not any(p.startswith(t.info) for p in recording.problems):
             recording.problems.append(f"{t.info}: no CameraInfo in the recording")
         return
-    yield from pending
+    yield from pending + wait.ready(flush=True)
+    if wait.released_without:
+        recording.problems.append(f"{wait.released_without} frame(s) tracked without the IMU: {t.imu} did not cover "
+                                  f"their stamps within {imu_wait_s:g} s")
     if pairer.dropped:
         stream, stamp = pairer.first_dropped
         recording.problems.append(f"{pairer.dropped} {t.color} / {t.depth} image(s) without a partner within 5 ms "
@@ -126,14 +153,20 @@ def prefetch(items: Iterator, depth: int = 8) -> Iterator:
 
 
 def map_bag(bag, params: EgoParams = EgoParams()) -> tuple[EgoMapResult, EgoRecording]:
-    """``map_recording`` on a recording's ego frames. Raises ValueError naming the
-    topic when nothing usable exists (no ego topics, no valid CameraInfo, no frames)."""
+    """``map_recording`` on a recording's ego frames, with its IMU (/ego/imu and its
+    calibration) when recorded and ``params.odometry.use_imu``. Raises ValueError naming
+    the topic when nothing usable exists (no ego topics, no valid CameraInfo, no frames)."""
     recording = EgoRecording(find_ego_topics(bag))
-    frames = prefetch(read_ego_frames(bag, recording))
+    if recording.topics.imu and params.odometry.use_imu:
+        recording.imu = ImuBuffer()
+    elif EGO_IMU in {t.name for t in list_topics(bag) if t.count > 0} and not recording.topics.imu:
+        recording.problems.append(f"{EGO_IMU} without {EGO_IMU_CALIBRATION}: the IMU's extrinsics are unknown; "
+                                  "tracking without it")
+    frames = prefetch(read_ego_frames(bag, recording, params.odometry.imu_wait_s))
     first = next(frames, None)
     if first is None:
         raise ValueError(f"{bag}: no usable ego frames: " + ("; ".join(recording.problems) or "none recorded"))
     result = map_recording(itertools.chain([first], frames), recording.camera, params, recording.topics.color,
-                           recording.topics.depth)
+                           recording.topics.depth, recording.imu)
     result.warnings.extend(recording.problems)
     return result, recording

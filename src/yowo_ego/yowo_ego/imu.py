@@ -1,0 +1,235 @@
+"""The ego camera's IMU (/ego/imu) for tracking: its samples, its calibration
+(/ego/imu/calibration, Kalibr-style YAML) and the gyro rotation between two camera
+stamps in the camera frame.
+
+``ImuBuffer.rotation_between`` integrates the gyro (minus the current bias estimate)
+between two stamps: the signal is linear between samples, each piece is integrated at
+its midpoint (scipy ``Rotation``), and the IMU-frame rotation is turned into the
+camera's by T_cam_imu's rotation. The bias starts at zero (a consumer IMU's turn-on
+bias, ~0.2 deg/s, costs 0.2 deg over a 1 s bridge) and follows the visually tracked
+rotations as a running mean (``update_bias``): each tracked step's disagreement with
+the gyro, divided by its duration, is the bias error it implies; the estimate moves by
+that times dt / time_constant (an exponential mean over ``time_constant`` seconds).
+
+Samples are appended as they arrive (by the recording's reader thread or the node)
+and read by the tracker: appends go into a pre-allocated array under a lock, and a
+rotation only ever uses the samples up to the first one at or after its end stamp,
+so it does not depend on how far ahead the appending is once the interval is covered.
+"""
+from __future__ import annotations
+
+import threading
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+import yaml
+from scipy.spatial.transform import Rotation
+
+from yowo_common.topics import EGO_IMU_CALIBRATION
+
+# An implied bias error above this is a visual error, not bias: consumer MEMS gyros
+# (BMI055, BMI088, ICM-42688) specify turn-on offsets of at most 1-3 deg/s.
+MAX_BIAS_ERROR_RADPS = np.radians(2.0)
+
+
+@dataclass(frozen=True)
+class ImuSamples:
+    """IMU samples in the IMU's own frame, stamps strictly increasing."""
+
+    stamps_ns: np.ndarray    # (N,) int64
+    gyro: np.ndarray         # (N, 3) angular velocity [rad/s]
+    accel: np.ndarray        # (N, 3) specific force [m/s^2]
+
+    def __post_init__(self):
+        n = len(self.stamps_ns)
+        if np.shape(self.gyro) != (n, 3) or np.shape(self.accel) != (n, 3):
+            raise ValueError(f"IMU samples: {n} stamps but gyro {np.shape(self.gyro)}, accel "
+                             f"{np.shape(self.accel)} (expected ({n}, 3))")
+        if n > 1 and not np.all(np.diff(self.stamps_ns) > 0):
+            raise ValueError("IMU samples: stamps are not strictly increasing")
+
+
+@dataclass(frozen=True)
+class ImuCalibration:
+    """/ego/imu/calibration: Kalibr's imu.yaml noise model (continuous-time densities) and
+    its camchain-imucam extrinsics. T_cam_imu maps IMU-frame points to the camera's
+    optical frame; timeshift_cam_imu: t_imu = t_cam + shift."""
+
+    T_cam_imu: np.ndarray
+    gyroscope_noise_density: float       # rad/s/sqrt(Hz)
+    gyroscope_random_walk: float         # rad/s^2/sqrt(Hz)
+    accelerometer_noise_density: float   # m/s^2/sqrt(Hz)
+    accelerometer_random_walk: float     # m/s^3/sqrt(Hz)
+    update_rate_hz: float
+    timeshift_cam_imu_s: float = 0.0
+
+    @staticmethod
+    def from_yaml(text: str, topic: str = EGO_IMU_CALIBRATION) -> ImuCalibration:
+        """Parse the calibration text; ValueError naming ``topic`` and the field when it
+        is malformed."""
+        try:
+            doc = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise ValueError(f"{topic}: not YAML: {exc}") from exc
+        if not isinstance(doc, dict):
+            raise ValueError(f"{topic}: expected a YAML mapping, got {type(doc).__name__}")
+        missing = [k for k in ("T_cam_imu", "gyroscope_noise_density", "gyroscope_random_walk",
+                               "accelerometer_noise_density", "accelerometer_random_walk", "update_rate")
+                   if k not in doc]
+        if missing:
+            raise ValueError(f"{topic}: missing {', '.join(missing)}")
+        try:
+            T = np.array(doc["T_cam_imu"], dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{topic}: T_cam_imu is not a 4x4 matrix of numbers: {exc}") from exc
+        if T.shape != (4, 4) or not np.isfinite(T).all():
+            raise ValueError(f"{topic}: T_cam_imu must be a finite 4x4 matrix, got shape {T.shape}")
+        R = T[:3, :3]
+        if (not np.allclose(T[3], (0.0, 0.0, 0.0, 1.0)) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6)
+                or np.linalg.det(R) < 0):
+            raise ValueError(f"{topic}: T_cam_imu is not a rigid transform (rotation block not orthonormal "
+                             "with det +1, or last row not 0 0 0 1)")
+
+        def number(key: str, default=None, positive: bool = False) -> float:
+            value = doc.get(key, default)
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                raise ValueError(f"{topic}: {key} must be a number, got {value!r}") from None
+            if not np.isfinite(value) or value < 0 or (positive and value == 0):
+                raise ValueError(f"{topic}: {key} must be {'> 0' if positive else '>= 0'}, got {value}")
+            return value
+
+        shift = doc.get("timeshift_cam_imu", 0.0)
+        try:
+            shift = float(shift)
+        except (TypeError, ValueError):
+            raise ValueError(f"{topic}: timeshift_cam_imu must be a number, got {shift!r}") from None
+        return ImuCalibration(T, number("gyroscope_noise_density"), number("gyroscope_random_walk"),
+                              number("accelerometer_noise_density"), number("accelerometer_random_walk"),
+                              number("update_rate", positive=True), shift)
+
+
+class ImuBuffer:
+    """The IMU samples of a walk as they arrive, the calibration (None until known) and
+    the running gyro bias estimate (IMU frame, rad/s)."""
+
+    def __init__(self, calibration: ImuCalibration | None = None, capacity: int = 4096):
+        self.calibration = calibration
+        self.bias = np.zeros(3)
+        self.rejected = 0                 # samples not after the previous one (dropped)
+        self._stamps = np.zeros(capacity, dtype=np.int64)
+        self._data = np.zeros((capacity, 6))
+        self._n = 0
+        self._lock = threading.Lock()
+
+    def __len__(self) -> int:
+        return self._n
+
+    def add(self, stamp_ns: int, gyro, accel) -> None:
+        with self._lock:
+            if self._n and stamp_ns <= self._stamps[self._n - 1]:
+                self.rejected += 1
+                return
+            if self._n == len(self._stamps):   # grow: readers keep views of the old arrays
+                self._stamps = np.concatenate([self._stamps, np.zeros_like(self._stamps)])
+                self._data = np.concatenate([self._data, np.zeros_like(self._data)])
+            self._stamps[self._n] = stamp_ns
+            self._data[self._n, :3], self._data[self._n, 3:] = gyro, accel
+            self._n += 1
+
+    def extend(self, samples: ImuSamples) -> None:
+        for s, g, a in zip(samples.stamps_ns, samples.gyro, samples.accel):
+            self.add(int(s), g, a)
+
+    @property
+    def samples(self) -> ImuSamples:
+        stamps, data = self._view()
+        return ImuSamples(stamps.copy(), data[:, :3].copy(), data[:, 3:].copy())
+
+    def _view(self) -> tuple[np.ndarray, np.ndarray]:
+        with self._lock:
+            return self._stamps[:self._n], self._data[:self._n]
+
+    def _imu_ns(self, t_cam_ns: int) -> int:
+        return int(t_cam_ns + round(self.calibration.timeshift_cam_imu_s * 1e9))
+
+    def covers(self, t_cam_ns: int) -> bool:
+        """Calibrated, and a sample at or after camera stamp ``t_cam_ns`` has arrived."""
+        if self.calibration is None:
+            return False
+        stamps, _ = self._view()
+        return len(stamps) > 0 and stamps[-1] >= self._imu_ns(t_cam_ns)
+
+    def _imu_rotation(self, t0_ns: int, t1_ns: int) -> np.ndarray:
+        """R_imu0_imu1 from the bias-corrected gyro between camera stamps t0 < t1."""
+        if self.calibration is None:
+            raise ValueError(f"no IMU calibration ({EGO_IMU_CALIBRATION}) yet")
+        if t1_ns <= t0_ns:
+            raise ValueError(f"IMU rotation: end stamp {t1_ns} ns not after the start {t0_ns} ns")
+        a, b = self._imu_ns(t0_ns), self._imu_ns(t1_ns)
+        stamps, data = self._view()
+        if not len(stamps) or stamps[0] > a or stamps[-1] < b:
+            span = f"{stamps[0]}..{stamps[-1]} ns" if len(stamps) else "none"
+            raise ValueError(f"IMU samples do not cover {a}..{b} ns (have {span})")
+        i0 = int(np.searchsorted(stamps, a, side="right")) - 1     # last sample at or before a
+        i1 = int(np.searchsorted(stamps, b, side="left"))          # first at or after b
+        s = stamps[i0:i1 + 1]
+        knots = np.concatenate([[a], s[(s > a) & (s < b)], [b]])
+        w = np.column_stack([np.interp(knots, s, data[i0:i1 + 1, k]) for k in range(3)])
+        steps = Rotation.from_rotvec((0.5 * (w[1:] + w[:-1]) - self.bias) * (np.diff(knots) * 1e-9)[:, None])
+        R = Rotation.identity()
+        for step in steps:
+            R = R * step
+        return R.as_matrix()
+
+    def rotation_between(self, t0_ns: int, t1_ns: int) -> np.ndarray:
+        """R_cam0_cam1: the camera's rotation from camera stamp t0 to t1 (maps camera-1
+        coordinates to camera-0's), from the gyro with the bias estimate removed.
+        ValueError when uncalibrated or the samples do not cover the interval."""
+        R = self._imu_rotation(t0_ns, t1_ns)
+        R_ci = self.calibration.T_cam_imu[:3, :3]
+        return R_ci @ R @ R_ci.T
+
+    def update_bias(self, R_cam0_cam1: np.ndarray, t0_ns: int, t1_ns: int, time_constant_s: float) -> None:
+        """Move the bias estimate towards what an observed (visually tracked) rotation
+        between t0 and t1 implies; an implied bias error above MAX_BIAS_ERROR_RADPS is
+        taken as a visual error and ignored."""
+        dt = (t1_ns - t0_ns) * 1e-9
+        if dt <= 0 or time_constant_s <= 0:
+            return
+        R_ci = self.calibration.T_cam_imu[:3, :3]
+        R_gyro = self._imu_rotation(t0_ns, t1_ns)
+        R_seen = R_ci.T @ R_cam0_cam1 @ R_ci
+        # R_gyro = R_true exp(b_error dt) to first order: the residual is the bias error's effect.
+        error = Rotation.from_matrix(R_seen.T @ R_gyro).as_rotvec() / dt
+        if np.linalg.norm(error) <= MAX_BIAS_ERROR_RADPS:
+            self.bias = self.bias + error * min(1.0, dt / time_constant_s)
+
+
+class CoverageWait:
+    """Frames held until the IMU covers their stamp: ``push`` a frame, ``ready`` gives
+    those that can be tracked now, in order. A frame goes without the IMU once a frame
+    more than ``max_wait_ns`` newer has arrived (the IMU stalled or ended), or when no
+    IMU is to be waited for (``imu`` None), or on ``flush`` (the end of the stream)."""
+
+    def __init__(self, imu: ImuBuffer | None, max_wait_ns: int):
+        self.imu, self.max_wait_ns = imu, max_wait_ns
+        self._held: deque = deque()
+        self.released_without = 0        # frames that went on before the IMU covered them
+
+    def push(self, stamp_ns: int, item) -> list:
+        self._held.append((stamp_ns, item))
+        return self.ready()
+
+    def ready(self, flush: bool = False) -> list:
+        out = []
+        while self._held:
+            stamp, item = self._held[0]
+            covered = self.imu is None or self.imu.covers(stamp)
+            if not (covered or flush or self._held[-1][0] - stamp > self.max_wait_ns):
+                break
+            self.released_without += not covered
+            out.append(self._held.popleft()[1])
+        return out
