@@ -142,6 +142,15 @@ def test_samples_and_coverage():
     # A frame the IMU never covers goes on once a frame 100 ns newer arrived, or at the end.
     assert wait.push(50, "b") == [] and wait.push(151, "c") == ["b"] and wait.released_without == 1
     assert wait.ready(flush=True) == ["c"] and wait.released_without == 2
+    # Without a bound (the node), only coverage or the end of the stream release a frame.
+    unbounded = CoverageWait(imu, None)
+    assert unbounded.push(13, "d") == [] and unbounded.push(10**12, "e") == []
+    imu.add(20, (0.0, 0.0, 1.0), (0.0, 0.0, 9.8))
+    assert unbounded.ready() == ["d"] and unbounded.ready(flush=True) == ["e"]
+    # No rotation across a gap in the samples (50 ms here).
+    imu.add(20 + 60_000_000, (0.0, 0.0, 1.0), (0.0, 0.0, 9.8))
+    with pytest.raises(ValueError, match="gap of 0.060 s"):
+        imu.rotation_between(15, 30_000_000)
 
 
 def _dark_noise(frame, rng):
@@ -209,9 +218,8 @@ def test_planner_plays_the_imu_when_recorded(tiny_bag, tmp_path):
 
 @pytest.fixture
 def imu_node():
-    """The node told of an IMU; frames wait up to 5 s of stream time for its samples."""
-    rclpy.init(args=["--ros-args", "-p", f"imu_topic:={topics.EGO_IMU}",
-                     "-p", 'config:="{odometry: {imu_wait_s: 5.0}}"'])
+    """The node told of an IMU."""
+    rclpy.init(args=["--ros-args", "-p", f"imu_topic:={topics.EGO_IMU}"])
     n = EgoMapperNode()
     n.published.clear()
     yield n
@@ -220,8 +228,9 @@ def imu_node():
 
 
 def test_node_waits_for_the_imu_covering_each_frame(imu_node, tiny_bag):
-    """Frames that arrive before the IMU samples covering them are held, then tracked with
-    the gyro once the samples (and the calibration) are there."""
+    """Frames that arrive before the IMU samples covering them are held (2 s of them:
+    no bound in stream time, which would depend on the executor's timing), then tracked
+    with the gyro once the samples (and the calibration) are there."""
     node, imu_msgs, calibration, frames = imu_node, [], None, 0
     wanted = [COLOR_TOPICS[1], DEPTH_TOPICS[1], INFO_TOPIC, topics.EGO_IMU, topics.EGO_IMU_CALIBRATION]
     for topic, _, msg in read_messages(tiny_bag, wanted):

@@ -28,6 +28,9 @@ from scipy.spatial.transform import Rotation
 
 from yowo_common.topics import EGO_IMU_CALIBRATION
 
+# Samples further apart than this (or 5 sample periods, if longer) are a gap in the IMU
+# stream: no rotation is integrated across it.
+MAX_GAP_S = 0.05
 # An implied bias error above this is a visual error, not bias: consumer MEMS gyros
 # (BMI055, BMI088, ICM-42688) specify turn-on offsets of at most 1-3 deg/s.
 MAX_BIAS_ERROR_RADPS = np.radians(2.0)
@@ -176,6 +179,9 @@ class ImuBuffer:
         i0 = int(np.searchsorted(stamps, a, side="right")) - 1     # last sample at or before a
         i1 = int(np.searchsorted(stamps, b, side="left"))          # first at or after b
         s = stamps[i0:i1 + 1]
+        gap = max(MAX_GAP_S, 5.0 / self.calibration.update_rate_hz) * 1e9
+        if np.diff(s).max() > gap:
+            raise ValueError(f"IMU samples have a gap of {np.diff(s).max() * 1e-9:.3f} s within {a}..{b} ns")
         knots = np.concatenate([[a], s[(s > a) & (s < b)], [b]])
         w = np.column_stack([np.interp(knots, s, data[i0:i1 + 1, k]) for k in range(3)])
         steps = Rotation.from_rotvec((0.5 * (w[1:] + w[:-1]) - self.bias) * (np.diff(knots) * 1e-9)[:, None])
@@ -210,11 +216,13 @@ class ImuBuffer:
 
 class CoverageWait:
     """Frames held until the IMU covers their stamp: ``push`` a frame, ``ready`` gives
-    those that can be tracked now, in order. A frame goes without the IMU once a frame
-    more than ``max_wait_ns`` newer has arrived (the IMU stalled or ended), or when no
-    IMU is to be waited for (``imu`` None), or on ``flush`` (the end of the stream)."""
+    those that can be tracked now, in order. A frame goes without the IMU when no IMU
+    is to be waited for (``imu`` None), on ``flush`` (the end of the stream), or, with
+    ``max_wait_ns``, once a frame more than that newer has arrived (the IMU stalled or
+    ended). That bound suits a stream in a fixed order (a recording read in log order);
+    where topics arrive in no common order it would depend on timing (None: none)."""
 
-    def __init__(self, imu: ImuBuffer | None, max_wait_ns: int):
+    def __init__(self, imu: ImuBuffer | None, max_wait_ns: int | None):
         self.imu, self.max_wait_ns = imu, max_wait_ns
         self._held: deque = deque()
         self.released_without = 0        # frames that went on before the IMU covered them
@@ -228,7 +236,8 @@ class CoverageWait:
         while self._held:
             stamp, item = self._held[0]
             covered = self.imu is None or self.imu.covers(stamp)
-            if not (covered or flush or self._held[-1][0] - stamp > self.max_wait_ns):
+            late = self.max_wait_ns is not None and self._held[-1][0] - stamp > self.max_wait_ns
+            if not (covered or flush or late):
                 break
             self.released_without += not covered
             out.append(self._held.popleft()[1])

@@ -80,7 +80,8 @@ class OdometryParams:
     bridge_rotation_sigma_dps: float = 1.0
     bridge_translation_sigma_mps: float = 0.5
     gyro_bias_time_constant_s: float = 10.0  # running mean of the bias tracked frames imply
-    # Graph and offline reader: a frame waits this long (stream time) for IMU samples covering it.
+    # Offline reader: a frame waits this long (the recording's time) for IMU samples covering it.
+    # (The graph's node waits until the end of the stream: its topics arrive in no common order.)
     imu_wait_s: float = 0.5
 
 
