@@ -1,7 +1,9 @@
 """Shared fixtures: one synthetic room and its renderer per test session (building
 the textured scene is the slow part)."""
 import pytest
+import rclpy
 
+from yowo_ego.ego_mapper_node import EgoMapperNode
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
 
@@ -34,3 +36,20 @@ def tiny_bag(tmp_path_factory):
     bag = tmp_path_factory.mktemp("ego") / "tiny"
     generate(get_preset("tiny", cmc_images=False), 0, bag)
     return bag
+
+
+@pytest.fixture
+def make_node():
+    """make_node(*ros_args): an EgoMapperNode with those ROS arguments (e.g. "-p",
+    "imu_topic:=/ego/imu"); tests hand it messages through its callbacks, no DDS."""
+    nodes = []
+
+    def make(*ros_args):
+        rclpy.init(args=["--ros-args", *ros_args] if ros_args else None)
+        nodes.append(EgoMapperNode())
+        nodes[-1].published.clear()
+        return nodes[-1]
+    yield make
+    for n in nodes:
+        n.destroy_node()
+    rclpy.try_shutdown()

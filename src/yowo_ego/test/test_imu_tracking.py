@@ -5,7 +5,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-import rclpy
 from scipy.spatial.transform import Rotation
 from std_msgs.msg import String
 
@@ -14,7 +13,6 @@ from yowo_common import topics
 from yowo_common.ros.bag import BagWriter, list_topics, read_messages
 from yowo_common.rosconv import stamp_to_ns
 from yowo_common.trajectory import Trajectory
-from yowo_ego.ego_mapper_node import EgoMapperNode
 from yowo_ego.imu import CoverageWait, ImuBuffer, ImuCalibration, ImuSamples
 from yowo_ego.pipeline import EgoParams, map_recording
 from yowo_ego.recording import (COLOR_TOPICS, DEPTH_TOPICS, INFO_TOPIC, EgoRecording, find_ego_topics, map_bag,
@@ -217,14 +215,9 @@ def test_planner_plays_the_imu_when_recorded(tiny_bag, tmp_path):
 
 
 @pytest.fixture
-def imu_node():
+def imu_node(make_node):
     """The node told of an IMU."""
-    rclpy.init(args=["--ros-args", "-p", f"imu_topic:={topics.EGO_IMU}"])
-    n = EgoMapperNode()
-    n.published.clear()
-    yield n
-    n.destroy_node()
-    rclpy.try_shutdown()
+    return make_node("-p", f"imu_topic:={topics.EGO_IMU}")
 
 
 def test_node_waits_for_the_imu_covering_each_frame(imu_node, tiny_bag):

@@ -1,23 +1,16 @@
 """ego_mapper_node wiring: the recording's ego messages handed to the node's
 callbacks (no DDS needed), then the end-of-stream outputs."""
 import pytest
-import rclpy
 from sensor_msgs.msg import CameraInfo, CompressedImage
 
 from yowo_common.ros.bag import read_messages
 from yowo_common.rosconv import stamp_to_ns
-from yowo_ego.ego_mapper_node import EgoMapperNode
 from yowo_ego.recording import COLOR_TOPICS, DEPTH_TOPICS, INFO_TOPIC
 
 
 @pytest.fixture
-def node():
-    rclpy.init()
-    n = EgoMapperNode()
-    n.published.clear()
-    yield n
-    n.destroy_node()
-    rclpy.try_shutdown()
+def node(make_node):
+    return make_node()
 
 
 def test_node_streams_odometry_and_publishes_the_map(node, tiny_bag):

@@ -73,7 +73,7 @@ class OdometryParams:
     recovery_features: FeatureParams = FeatureParams(ratio=0.9, pnp_min_inliers=15)
     # IMU (when the recording has one): gyro rotation as first guess and check, bridging.
     use_imu: bool = True
-    max_gyro_disagreement_deg: float = 5.0   # between consecutive frames; the gyro drifts ~0.01 deg there
+    max_gyro_disagreement_deg: float = 5.0   # between consecutive frames; the gyro is off ~0.02 deg there
     max_bridge_s: float = 1.0                # longest stretch of frames bridged by the gyro alone
     # Uncertainty of a bridged step (its "imu" edge): rotation from the gyro (bias and noise),
     # translation from the constant velocity of the last visual step (a walk's speed changes).
