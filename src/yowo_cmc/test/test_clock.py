@@ -156,3 +156,23 @@ def test_the_group_sfm_calibrates_on_corrected_stamps_as_if_synchronised():
     reported = calibrate_cmcs(raw, replace(CmcParams(), clock=ClockParams(apply=False)))
     assert not any(g.clocks_applied for g in reported.groups)
     assert max(relative_rotation_errors_deg(reported).values(), default=90.0) > 1.0
+
+
+def test_rooms_walked_one_after_the_other_stay_apart_when_their_clocks_differ():
+    """Room B's cameras run 1.3 s behind room A's. No camera sees both rooms, so their
+    offset is unknown: no pair across the rooms is trusted (the end of one room's walk
+    fits the start of the other's at some shift), and the rooms are not matched."""
+    cams = {"a1": ceiling_camera(0.3, 0.3, (2.5, 2.5)), "a2": ceiling_camera(4.7, 0.3, (2.5, 2.5), z=3.4),
+            "a3": ceiling_camera(2.5, 4.7, (2.5, 2.3)),
+            "b1": ceiling_camera(10.3, 0.3, (12.5, 2.5)), "b2": ceiling_camera(14.7, 4.7, (12.5, 2.5))}
+
+    def walk(t):   # a different loop in each room (a copy of one loop would fit at some shift: a mirror world)
+        return loop_walk((2.5, 2.5), (1.5, 1.2), 10.0)(t) if t < 20 else loop_walk((12.5, 2.5), (1.0, 1.6), 7.0)(t)
+    room = {"a": lambda x: x < 5, "b": lambda x: x > 10}
+    tracks = observe(cams, walk, 40.0, sigma_px=0.7, visible=lambda n, xy: room[n[0]](xy[0]), seed=4,
+                     offsets_s=[0.0, 0.03, 0.05, 0.01, 0.07])
+    grouping = calibrate_cmcs([shifted(t, -1.3 if t.name.startswith("b") else 0.0) for t in tracks])
+    assert sorted(sorted(g.names) for g in grouping.groups) == [["a1", "a2", "a3"], ["b1", "b2"]]
+    est = estimate_clock_offsets([shifted(t, -1.3 if t.name.startswith("b") else 0.0) for t in tracks])
+    assert {c.reference for n, c in est.cameras.items() if n.startswith("a")} != \
+        {c.reference for n, c in est.cameras.items() if n.startswith("b")}

@@ -287,14 +287,32 @@ def covisible_pairs(cams: list[_Tracks], params: ClockParams) -> list[tuple[int,
     return out
 
 
+def _drop_lone_bridges(usable: list[PairOffset]) -> None:
+    """Remove (with the reason) each pair that alone joins two sets of two or more cameras."""
+    G = nx.Graph((p.a, p.b) for p in usable)
+    for a, b in list(nx.bridges(G)):
+        H = G.copy()
+        H.remove_edge(a, b)
+        sizes = len(nx.node_connected_component(H, a)), len(nx.node_connected_component(H, b))
+        if min(sizes) >= 2:
+            p = next(p for p in usable if {p.a, p.b} == {a, b})
+            p.reason = (f"the only pair joining {sizes[0]} cameras to {sizes[1]} others "
+                        "(needs two paths, as in the group SfM)")
+            usable.remove(p)
+
+
 def combine(names: list[str], pairs: list[PairOffset], params: ClockParams) -> dict[str, CameraClock]:
     """One offset per camera from the usable pair offsets: weighted least squares per
     connected component (its first camera fixed at 0); while a pair is more than
-    max_residual_sigma (and min_residual_s) off the solution, the worst is dropped."""
+    max_residual_sigma (and min_residual_s) off the solution, the worst is dropped.
+    A single pair that is all that joins two sets of cameras is not used (as the group
+    SfM will not join them through one camera pair): a stretch of walk seen by cameras of
+    two rooms one after the other fits some shift well enough, at a few dozen samples."""
     index = {n: k for k, n in enumerate(names)}
     usable = [p for p in pairs if p.offset_s is not None and not p.reason]
     out: dict[str, CameraClock] = {}
     while True:
+        _drop_lone_bridges(usable)
         G = nx.Graph()
         G.add_nodes_from(range(len(names)))
         G.add_edges_from((index[p.a], index[p.b]) for p in usable)

@@ -502,12 +502,24 @@ def reconstruct_group(obs: GridObservations, members: list[int], pairs: list[Pai
     return result, sfm.failed
 
 
-def calibrate_groups(cams: list[CameraTracks], params: SfmParams = SfmParams()) -> GroupingResult:
-    """All CMCs -> groups with relative poses + local agent tracks, and the rest with reasons."""
+def calibrate_groups(cams: list[CameraTracks], params: SfmParams = SfmParams(),
+                     clock_components: dict[str, str] | None = None) -> GroupingResult:
+    """All CMCs -> groups with relative poses + local agent tracks, and the rest with reasons.
+    `clock_components`: camera -> the reference of its clock (yowo_cmc.clock); two cameras
+    on different clocks whose offset is unknown are not matched (their stamps do not
+    relate: a room walked after another would pair the end of one with the start of the
+    other)."""
     if not cams:
         return GroupingResult([], {}, [])
     obs = sample_on_grid(cams, params.tracks)
-    pairs = [pair_geometry(obs, a, b, params) for a in range(len(cams)) for b in range(a + 1, len(cams))]
+    clocks = clock_components or {}
+
+    def related(a: int, b: int) -> bool:
+        ca, cb = clocks.get(obs.names[a]), clocks.get(obs.names[b])
+        return ca is None or cb is None or ca == cb
+    pairs = [pair_geometry(obs, a, b, params) if related(a, b) else PairGeometry(a, b, None, np.zeros(0, np.int64),
+                                                                                 np.zeros(0, bool))
+             for a in range(len(cams)) for b in range(a + 1, len(cams))]
     groups, reasons = group_cameras(obs, pairs, params)
     results = []
     for members in groups:

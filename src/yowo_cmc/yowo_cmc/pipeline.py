@@ -26,7 +26,8 @@ def calibrate_cmcs(tracks: list[CameraTracks], params: CmcParams = CmcParams()) 
     offsets = {n: c.offset_s for n, c in estimate.cameras.items() if c.offset_s is not None}
     # Their sigmas, each against the camera its offset was last fitted relative to (0 there).
     sigmas = {n: c.sigma_s or 0.0 for n, c in estimate.cameras.items() if c.offset_s is not None}
-    grouping = calibrate_groups([t.shifted(offsets.get(t.name, 0.0)) for t in tracks], params.sfm)
+    components = {n: c.reference for n, c in estimate.cameras.items() if c.reference is not None}
+    grouping = calibrate_groups([t.shifted(offsets.get(t.name, 0.0)) for t in tracks], params.sfm, components)
     if params.clock.refine and grouping.groups:
         shifted = {t.name: t.shifted(offsets.get(t.name, 0.0)) for t in tracks}
         refined = False
@@ -35,7 +36,8 @@ def calibrate_cmcs(tracks: list[CameraTracks], params: CmcParams = CmcParams()) 
                 offsets[n] = offsets.get(n, 0.0) + delta
                 sigmas[n], sigmas[g.reference], refined = sigma, 0.0, True
         if refined:
-            grouping = calibrate_groups([t.shifted(offsets.get(t.name, 0.0)) for t in tracks], params.sfm)
+            grouping = calibrate_groups([t.shifted(offsets.get(t.name, 0.0)) for t in tracks], params.sfm,
+                                        components)
     for g in grouping.groups:
         ref = offsets.get(g.reference, 0.0)
         # The group's points onto its reference camera's own clock.
