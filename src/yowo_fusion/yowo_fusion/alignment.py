@@ -121,6 +121,9 @@ def align_group(track_stamps_ns: np.ndarray, track_local: np.ndarray, ego_stamps
     return Alignment(S, len(world), int(labels.max()) + 1, weights, np.linalg.norm(S.apply(local) - world, axis=1))
 
 
+MIN_CLOCK_POINTS = 10   # head-top points a group's clock offset needs (beside the 10 unknowns)
+
+
 @dataclass
 class ClockFit:
     offset_s: float | None      # the group's clock - the ego clock (None: not estimated)
@@ -140,11 +143,13 @@ def estimate_clock_offset(track_stamps_ns: np.ndarray, track_local: np.ndarray, 
     gap = int(params.max_time_gap_s * 1e9)
     shifts = np.arange(-params.max_clock_offset_s, params.max_clock_offset_s + 0.5 * params.clock_step_s,
                        params.clock_step_s)
+    if len(track_stamps_ns) < MIN_CLOCK_POINTS:
+        return ClockFit(None, None, f"only {len(track_stamps_ns)} head-top points (needs {MIN_CLOCK_POINTS})")
 
     def cost(shift_s: float) -> tuple[float, int]:
         query = track_stamps_ns - round(shift_s * 1e9)
         centres, ok = interpolate_positions(ego_stamps_ns, T_world_ego[:, :3, 3], query, gap)
-        if ok.sum() < max(10, len(track_stamps_ns) // 2):
+        if ok.sum() < max(MIN_CLOCK_POINTS, len(track_stamps_ns) // 2):
             return np.inf, int(ok.sum())
         nearest = np.clip(np.searchsorted(ego_stamps_ns, query[ok]), 0, len(ego_stamps_ns) - 1)
         R, P, local = T_world_ego[nearest, :3, :3], centres[ok], track_local[ok]
