@@ -146,8 +146,9 @@ def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, s
         problems.append(f"only one usable CMC ({cameras[0]}): a single camera forms no group; it is registered "
                         "as an isolated camera from the agent track the ego trajectory implies")
     ego = (_first_present(EGO_COLOR, present), _first_present(EGO_DEPTH, present), EGO_INFO)
-    # The IMU helps the ego tracking only with its calibration (extrinsics).
-    imu = topics.EGO_IMU if {topics.EGO_IMU, topics.EGO_IMU_CALIBRATION} <= present else ""
+    # The IMU helps the ego tracking only with its calibration (extrinsics), and if it is to be used.
+    imu = topics.EGO_IMU if config.ego.odometry.use_imu and {topics.EGO_IMU, topics.EGO_IMU_CALIBRATION} <= present \
+        else ""
     if mode in (FULL, EGO):
         played += list(ego) + ([topics.EGO_IMU, topics.EGO_IMU_CALIBRATION] if imu else [])
     nodes, final, outputs = _stage_nodes(mode, trackers, ego, imu)

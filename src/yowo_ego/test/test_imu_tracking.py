@@ -8,6 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 from std_msgs.msg import String
 
+from yowo_bringup.config import YowoConfig
 from yowo_bringup.run import EGO, FULL, plan_run
 from yowo_common import topics
 from yowo_common.ros.bag import BagWriter, list_topics, read_messages
@@ -212,6 +213,11 @@ def test_planner_plays_the_imu_when_recorded(tiny_bag, tmp_path):
         assert not any(t.startswith(topics.GT_PREFIX) for t in played)
         assert nodes["ego_mapper"].parameters["imu_topic"] == (topics.EGO_IMU if imu else ""), bag
         assert plan.replay_messages == sum(t.count for t in list_topics(plan.bag) if t.name in played)
+    # Told not to use it, the graph neither plays nor waits for it.
+    off = plan_run(tiny_bag, tmp_path / "out_off", config=YowoConfig(ego=EgoParams(
+        odometry=replace(EgoParams().odometry, use_imu=False))))
+    nodes = {n.name: n for n in off.nodes}
+    assert topics.EGO_IMU not in nodes["replay"].parameters["topics"] and nodes["ego_mapper"].parameters["imu_topic"] == ""
 
 
 @pytest.fixture

@@ -15,6 +15,7 @@ walls cut the region into rooms and a room observed over a good part of its
 bounding box (``room_fill_min``) is completed to that box."""
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import cv2
@@ -158,6 +159,19 @@ def _complete_rooms(occ: np.ndarray, wall_segments: list[np.ndarray], params: La
     return out
 
 
+@contextmanager
+def _one_open3d_thread():
+    """Open3D's RANSAC draws its samples in the threads' order even with a seed: one
+    thread, whoever calls (the fusion rebuilds the layout on all cores: the same cloud
+    gave walls a point apart from call to call). The caller's setting is restored."""
+    before = o3d.utility.get_max_threads()
+    o3d.utility.set_max_threads(1)
+    try:
+        yield
+    finally:
+        o3d.utility.set_max_threads(before)
+
+
 def extract_walls(points: np.ndarray, normals: np.ndarray, params: LayoutParams = LayoutParams()
                   ) -> list[LayoutPlane]:
     """Vertical planes by sequential RANSAC (Open3D ``segment_plane``) on the
@@ -171,7 +185,8 @@ def extract_walls(points: np.ndarray, normals: np.ndarray, params: LayoutParams 
     o3d.utility.random.seed(0)          # the same recording gives the same layout
     while len(idx) >= params.wall_min_points_plane and len(walls) < params.max_walls:
         cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[idx]))
-        plane, inliers = cloud.segment_plane(params.wall_ransac_m, 3, 200)
+        with _one_open3d_thread():
+            plane, inliers = cloud.segment_plane(params.wall_ransac_m, 3, 200)
         inliers = np.asarray(inliers, dtype=int)
         if len(inliers) < params.wall_min_points_plane:
             break
