@@ -44,8 +44,10 @@ def test_ego_only_run_through_the_graph(recordings, ros_env):
     assert cams["registered"] == 0 and cams["cameras"] == [] and "no CMC topics" in cams["note"], cams
     log = yaml.safe_load((out / "run_log.yaml").read_text())
     assert log["mode"] == EGO and log["failure"] == "" and set(log["stages"]) == {"ego_mapper"}
+    # The ego camera's topics and its IMU (the simulator records one), nothing of the CMCs.
     assert set(log["replay_published"]) == {"/ego/color/image_raw/compressed", "/ego/color/camera_info",
-                                            "/ego/depth/image_raw/compressedDepth"}
+                                            "/ego/depth/image_raw/compressedDepth", "/ego/imu",
+                                            "/ego/imu/calibration"}
     assert "No camera registered (ego-only run)" in (out / "report.html").read_text()
     # The trajectory against the simulator's ground truth: the full run on this walk reaches
     # ~7 mm; a broken ego graph is off by decimetres.
