@@ -11,7 +11,7 @@ from yowo_cmc.config import CmcParams
 from yowo_cmc.group_sfm import calibrate_groups
 from yowo_cmc.pipeline import calibrate_cmcs
 from yowo_common.geometry import inv_se3, rotation_angle_deg
-from yowo_cmc.tracks import CameraTracks, KeypointTrack, interpolate
+from yowo_cmc.tracks import interpolate
 
 D = [-0.1, 0.02, 0.0, 0.0, 0.0]
 CAMS = {"a": ceiling_camera(0.3, 0.3, (3.0, 2.5), D=D), "b": ceiling_camera(5.7, 0.4, (3.0, 2.5), z=3.3, D=D),
@@ -21,17 +21,11 @@ OFFSETS = {"a": 0.0, "b": 0.437, "c": -0.9132, "d": 1.0}
 PHASES = [0.0, 0.031, 0.067, 0.05]      # the cameras' frames are not simultaneous either
 
 
-def shifted(cam: CameraTracks, offset_s: float) -> CameraTracks:
-    """The camera's tracks stamped by a clock running offset_s ahead."""
-    d = int(round(offset_s * 1e9))
-    return CameraTracks(cam.name, cam.camera, {i: KeypointTrack(t.stamps_ns + d, t.uv, t.confidence)
-                                               for i, t in cam.tracks.items()}, cam.frame_period_ns)
-
-
 def views(offsets, sigma_px=0.0, seed=0, cams=CAMS, walk=None, visible=None):
     tracks = observe(cams, walk or loop_walk((3.0, 2.5), (2.0, 1.5)), 40.0, offsets_s=PHASES[:len(cams)],
                      sigma_px=sigma_px, seed=seed, visible=visible)
-    return [shifted(c, offsets.get(c.name, 0.0)) for c in tracks]
+    # Each camera's clock runs its offset ahead: its stamps are later by as much.
+    return [c.shifted(-offsets.get(c.name, 0.0)) for c in tracks]
 
 
 def errors_ms(est, truth):
@@ -171,8 +165,9 @@ def test_rooms_walked_one_after_the_other_stay_apart_when_their_clocks_differ():
     room = {"a": lambda x: x < 5, "b": lambda x: x > 10}
     tracks = observe(cams, walk, 40.0, sigma_px=0.7, visible=lambda n, xy: room[n[0]](xy[0]), seed=4,
                      offsets_s=[0.0, 0.03, 0.05, 0.01, 0.07])
-    grouping = calibrate_cmcs([shifted(t, -1.3 if t.name.startswith("b") else 0.0) for t in tracks])
+    behind = [t.shifted(1.3 if t.name.startswith("b") else 0.0) for t in tracks]
+    grouping = calibrate_cmcs(behind)
     assert sorted(sorted(g.names) for g in grouping.groups) == [["a1", "a2", "a3"], ["b1", "b2"]]
-    est = estimate_clock_offsets([shifted(t, -1.3 if t.name.startswith("b") else 0.0) for t in tracks])
+    est = estimate_clock_offsets(behind)
     assert {c.reference for n, c in est.cameras.items() if n.startswith("a")} != \
         {c.reference for n, c in est.cameras.items() if n.startswith("b")}

@@ -27,9 +27,10 @@ def calibrate_cmcs(tracks: list[CameraTracks], params: CmcParams = CmcParams()) 
     # Their sigmas, each against the camera its offset was last fitted relative to (0 there).
     sigmas = {n: c.sigma_s or 0.0 for n, c in estimate.cameras.items() if c.offset_s is not None}
     components = {n: c.reference for n, c in estimate.cameras.items() if c.reference is not None}
-    grouping = calibrate_groups([t.shifted(offsets.get(t.name, 0.0)) for t in tracks], params.sfm, components)
+    corrected = [t.shifted(offsets.get(t.name, 0.0)) for t in tracks]
+    grouping = calibrate_groups(corrected, params.sfm, components)
     if params.clock.refine and grouping.groups:
-        shifted = {t.name: t.shifted(offsets.get(t.name, 0.0)) for t in tracks}
+        shifted = {t.name: t for t in corrected}
         refined = False
         for g in grouping.groups:
             for n, (delta, sigma) in refine_group_offsets(g, shifted, params.clock, params.sfm).items():
