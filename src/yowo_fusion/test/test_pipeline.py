@@ -10,7 +10,7 @@ from yowo_cmc.group_sfm import calibrate_groups
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import se3
 from yowo_ego.layout import Layout
-from yowo_fusion.alignment import AlignParams
+from yowo_fusion.alignment import AlignParams, estimate_clock_offset
 from yowo_fusion.pipeline import GROUP_SFM, ISOLATED_PNP, OK, WEAK, CmcInput, EgoMapData, FusionParams, fuse
 
 OFFSET = np.array([0.0, -0.10, -0.08])
@@ -151,3 +151,13 @@ def test_a_group_whose_clock_runs_ahead_of_the_ego_camera_is_put_on_the_ego_cloc
                                    {n: T for n, (_, T) in cams.items()})
     assert not off_errs or max(e.eps_pos_m for e in off_errs) > 0.1, off_errs
     assert all(c.clock_offset_s is None for c in off.cameras)
+
+
+def test_a_group_track_too_short_for_its_clock_offset_says_so():
+    _, _, ego = world()
+    stamps = ego.stamps_ns[:9]
+    fit = estimate_clock_offset(stamps, ego.T_world_ego[:9, :3, 3], ego.stamps_ns, ego.T_world_ego)
+    assert fit.offset_s is None and fit.reason == "only 9 head-top points (needs 10)"
+    far = estimate_clock_offset(ego.stamps_ns[:50] + 10**11, ego.T_world_ego[:50, :3, 3], ego.stamps_ns,
+                                ego.T_world_ego)
+    assert far.offset_s is None and "overlaps the ego recording at no shift" in far.reason
