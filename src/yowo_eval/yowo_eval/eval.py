@@ -47,7 +47,10 @@ def evaluate(results_dir, bag) -> dict:
             out["registration"] = {"summary": asdict(ErrorSummary.of(errs)), "cameras": [asdict(e) for e in errs],
                                    "not_registered": sorted(set(gt.cameras) - set(est))}
         rel, _ = relative_pose_errors(est, gt.cameras, groups)
-        out["relative"] = {"summary": asdict(ErrorSummary.of(rel)), "cameras": [asdict(e) for e in rel]}
+        if rel:  # no group of two or more cameras: no relative pose to measure (not a table of NaN)
+            out["relative"] = {"summary": asdict(ErrorSummary.of(rel)), "cameras": [asdict(e) for e in rel]}
+        else:
+            out["relative_note"] = "no group of two or more calibrated cameras: no relative pose to evaluate"
     traj = results_dir / "ego_trajectory.tum"
     if traj.exists() and gt.ego is not None:
         a = ate(read_tum(traj), gt.ego)
@@ -78,6 +81,8 @@ def print_tables(metrics: dict, console) -> None:
         console.print(t)
         if metrics[key].get("not_registered"):
             console.print(f"not registered: {', '.join(metrics[key]['not_registered'])}")
+    if "relative_note" in metrics:
+        console.print(metrics["relative_note"])
     if "cameras" in metrics:
         console.print(f"{metrics['cameras']['note']}; with ground truth: {', '.join(metrics['cameras']['not_registered'])}")
     if "ego" in metrics:
