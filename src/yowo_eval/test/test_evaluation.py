@@ -4,7 +4,8 @@ from scipy.spatial.transform import Rotation
 
 from yowo_common.geometry import Sim3, look_at, se3
 from yowo_common.trajectory import Trajectory, read_tum, write_tum
-from yowo_eval.evaluation import ErrorSummary, ate, layout_iou, registration_errors, relative_pose_errors
+from yowo_eval.evaluation import (ErrorSummary, PoseError, ate, layout_iou, mean_baseline_m, registration_errors,
+                                  relative_errors_of_baseline, relative_pose_errors)
 
 
 def rig(n=4):
@@ -48,6 +49,16 @@ def make_traj(n=200, seed=0):
     rots = Rotation.from_euler("zyx", np.column_stack([t / 3, 0.1 * np.sin(t), 0.05 * rng.normal(size=n)]))
     T = np.array([se3(R, p) for R, p in zip(rots.as_matrix(), pos)])
     return Trajectory((1_700_000_000 * 10**9 + (t * 1e9).astype(np.int64)), T)
+
+
+def test_relative_errors_as_percent_of_each_groups_mean_baseline():
+    gt = {"a": se3(np.eye(3), [0, 0, 0]), "b": se3(np.eye(3), [3, 0, 0]), "c": se3(np.eye(3), [0, 4, 0]),
+          "d": se3(np.eye(3), [10, 0, 0]), "e": se3(np.eye(3), [10, 1, 0])}
+    assert mean_baseline_m([gt[n] for n in "abc"]) == pytest.approx(4.0)          # (3 + 4 + 5) / 3
+    errs = [PoseError("a", 0.04, 1.0), PoseError("c", 0.08, 2.0), PoseError("e", 0.05, 0.5)]
+    pct = {e.name: e for e in relative_errors_of_baseline(errs, gt, {"g0": ["a", "b", "c"], "g1": ["d", "e"]})}
+    assert pct["a"].eps_pos_m == pytest.approx(1.0) and pct["c"].eps_pos_m == pytest.approx(2.0)
+    assert pct["e"].eps_pos_m == pytest.approx(5.0) and pct["c"].eps_rot_deg == 2.0
 
 
 def test_ate_zero_under_rigid_motion_and_known_offset(tmp_path):

@@ -11,7 +11,8 @@ import yaml
 from yowo_bringup.results import read_camera_poses, read_floor_polygons
 from yowo_common.trajectory import read_tum
 
-from .evaluation import ErrorSummary, ate, layout_iou, registration_errors, relative_pose_errors
+from .evaluation import (ErrorSummary, ate, layout_iou, registration_errors, relative_errors_of_baseline,
+                         relative_pose_errors)
 from .ground_truth import read_ground_truth
 
 
@@ -49,6 +50,8 @@ def evaluate(results_dir, bag) -> dict:
         rel, _ = relative_pose_errors(est, gt.cameras, groups)
         if rel:  # no group of two or more cameras: no relative pose to measure (not a table of NaN)
             out["relative"] = {"summary": asdict(ErrorSummary.of(rel)), "cameras": [asdict(e) for e in rel]}
+            pct = ErrorSummary.of(relative_errors_of_baseline(rel, gt.cameras, groups))
+            out["relative"]["pos_pct_of_mean_baseline"] = {k: getattr(pct, f"pos_{k}") for k in ("avg", "min", "max")}
         else:
             out["relative_note"] = "no group of two or more calibrated cameras: no relative pose to evaluate"
     traj = results_dir / "ego_trajectory.tum"
@@ -78,6 +81,9 @@ def print_tables(metrics: dict, console) -> None:
         # Units in brackets are rich markup unless escaped.
         t.add_row(escape("eps_pos [m]"), *(f"{s[f'pos_{k}']:.4f}" for k in ("avg", "min", "max")))
         t.add_row(escape("eps_rot [deg]"), *(f"{s[f'rot_{k}']:.3f}" for k in ("avg", "min", "max")))
+        if "pos_pct_of_mean_baseline" in metrics[key]:
+            t.add_row("eps_pos, % of mean baseline", *(f"{metrics[key]['pos_pct_of_mean_baseline'][k]:.2f}"
+                                                       for k in ("avg", "min", "max")))
         console.print(t)
         if metrics[key].get("not_registered"):
             console.print(f"not registered: {', '.join(metrics[key]['not_registered'])}")

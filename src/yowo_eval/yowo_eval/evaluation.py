@@ -77,6 +77,23 @@ def relative_pose_errors(est: dict[str, np.ndarray], gt: dict[str, np.ndarray],
     return errors, alignments
 
 
+def mean_baseline_m(poses: list[np.ndarray]) -> float:
+    """Mean distance between the centres of every pair of cameras."""
+    c = np.array([T[:3, 3] for T in poses])
+    d = np.linalg.norm(c[:, None] - c[None], axis=2)[np.triu_indices(len(c), 1)]
+    return float(d.mean()) if len(d) else float("nan")
+
+
+def relative_errors_of_baseline(errors: list[PoseError], gt: dict[str, np.ndarray],
+                                groups: dict[str, list[str]]) -> list[PoseError]:
+    """relative_pose_errors' position errors as a percentage of the mean baseline of the
+    camera's group in ground truth (the scale-free measure real recordings are compared
+    by: their rigs span 2-20 m); rotations as they are."""
+    group_of = {n: g for g, names in groups.items() for n in names}
+    base = {g: mean_baseline_m([gt[n] for n in names if n in gt]) for g, names in groups.items()}
+    return [PoseError(e.name, 100.0 * e.eps_pos_m / base[group_of[e.name]], e.eps_rot_deg) for e in errors]
+
+
 def map_frame_from_first_pose(T_world_first_cam: np.ndarray) -> np.ndarray:
     """T_map_world of YOWO's map convention (yowo_ego): origin on the floor (z = 0 of
     `world`) under the first ego camera, x along that camera's viewing direction

@@ -70,6 +70,7 @@ def cmd_bench_graph(args) -> int:
 def add_verbs(verbs) -> None:
     from yowo_bringup.cli import add_config_options
 
+    from .multiview_import import add_verbs as add_multiview_verbs
     from .tum_import import add_verbs as add_import_verbs
 
     p = verbs.add_parser("bench", help="YOWO and baselines on generated recordings -> BENCHMARKS.md")
@@ -106,3 +107,4 @@ def add_verbs(verbs) -> None:
     p.set_defaults(func=cmd_eval)
 
     add_import_verbs(verbs)     # import-tum: it writes ground truth, which only evaluation reads
+    add_multiview_verbs(verbs)  # import-multiview: likewise (the reference calibration)

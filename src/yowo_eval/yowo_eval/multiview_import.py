@@ -1,0 +1,457 @@
+"""`yowo import-multiview`: a real multi-camera recording of a person -- per-camera 2D
+keypoints (OpenPose JSON, as Pose2Sim keeps them in pose/<cam>_json/) and a reference
+calibration (Pose2Sim's Calib*.toml: K, distortion, rvec/tvec) -- optionally with the
+cameras' videos, -> a rosbag2 MCAP recording in YOWO's contract: per CMC CameraInfo,
+AgentKeypoints (ids as in yowo_cmc.pose_model: 0 head top and 1 ground point derived by
+its code, body joints 2+) and, with --videos, the frames as JPEG CompressedImage; the
+reference poses on /gt/cmc/<name>/pose for the evaluation only (hence in yowo_eval).
+
+Pose2Sim pairs calibration cameras, keypoint folders and videos by sorted order; so does
+this importer (and prints the pairing)."""
+from __future__ import annotations
+
+import json
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+START_NS = 1_000_000_000_000_000_000     # the recording's first frame (any fixed instant)
+GT_FRAME = "map"                         # the reference calibration's world frame, as it came
+
+COCO_17 = ("nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder",
+           "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip",
+           "left_knee", "right_knee", "left_ankle", "right_ankle")
+_FEET = ("left_big_toe", "left_small_toe", "left_heel", "right_big_toe", "right_small_toe", "right_heel")
+# Each detector's joints in its own output order (OpenPose's output docs; Pose2Sim's skeletons.py).
+FORMATS = {
+    "BODY_25B": COCO_17 + ("neck", "head_top") + _FEET,
+    "BODY_25": ("nose", "neck", "right_shoulder", "right_elbow", "right_wrist", "left_shoulder", "left_elbow",
+                "left_wrist", "mid_hip", "right_hip", "right_knee", "right_ankle", "left_hip", "left_knee",
+                "left_ankle", "right_eye", "left_eye", "right_ear", "left_ear") + _FEET,
+    "COCO_18": ("nose", "neck", "right_shoulder", "right_elbow", "right_wrist", "left_shoulder", "left_elbow",
+                "left_wrist", "right_hip", "right_knee", "right_ankle", "left_hip", "left_knee", "left_ankle",
+                "right_eye", "left_eye", "right_ear", "left_ear"),
+    "COCO_17": COCO_17,
+    "HALPE_26": COCO_17 + ("head_top", "neck", "mid_hip", "left_big_toe", "right_big_toe", "left_small_toe",
+                           "right_small_toe", "left_heel", "right_heel"),
+}
+# Joints beyond COCO's 17, after them (the COCO 17 take MoveNet's ids 2-18, so a recording's
+# ids mean what the pose model's do).
+EXTRA_JOINTS = ("neck", "head_top", "mid_hip") + _FEET
+BLAZEPOSE = "BLAZEPOSE"     # mediapipe's 33 landmarks: the pose model's own BlazePose ids
+
+
+def joint_ids(fmt: str) -> dict[str, int]:
+    """Keypoint id of every joint name of a format (the table in README's importer section)."""
+    from yowo_cmc.pose_model import BLAZEPOSE_JOINTS, ID_OFFSET
+
+    names = BLAZEPOSE_JOINTS if fmt == BLAZEPOSE else COCO_17 + EXTRA_JOINTS
+    return {n: i + ID_OFFSET for i, n in enumerate(names)}
+
+
+def format_joints(fmt: str) -> tuple[str, ...]:
+    from yowo_cmc.pose_model import BLAZEPOSE_JOINTS
+
+    return BLAZEPOSE_JOINTS if fmt == BLAZEPOSE else FORMATS[fmt]
+
+
+class MultiviewImportError(ValueError):
+    """Bad input, with the file named; the CLI prints it without a traceback."""
+
+
+# --- reference calibration ----------------------------------------------------------------
+@dataclass
+class ReferenceCamera:
+    name: str
+    camera: object               # yowo_common.camera.CameraModel
+    T_world_cam: np.ndarray
+
+
+def _matrix(value, shape, where: str) -> np.ndarray:
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise MultiviewImportError(f"{where}: not numbers: {value!r}") from None
+    if a.size != math.prod(shape) or not np.isfinite(a).all():
+        raise MultiviewImportError(f"{where}: expected {math.prod(shape)} finite numbers, got {value!r}")
+    return a.reshape(shape)
+
+
+def read_pose2sim_calibration(path) -> list[ReferenceCamera]:
+    """Pose2Sim's calibration TOML: one table per camera with size [w, h], matrix (K),
+    distortions (k1 k2 p1 p2; fisheye: k1..k4), rotation (Rodrigues vector, world ->
+    camera), translation (m, world -> camera), fisheye; other tables (metadata) ignored.
+    Cameras in sorted table order."""
+    import cv2
+
+    from yowo_common.camera import EQUIDISTANT, PLUMB_BOB, CameraModel
+    from yowo_common.geometry import inv_se3, se3
+
+    path = Path(path)
+    if not path.is_file():
+        raise MultiviewImportError(f"{path}: no such calibration file")
+    try:
+        doc = tomllib.loads(path.read_text(errors="replace"))
+    except tomllib.TOMLDecodeError as exc:
+        raise MultiviewImportError(f"{path}: not a TOML file ({exc})") from None
+    out = []
+    for key in sorted(doc):
+        table = doc[key]
+        if not isinstance(table, dict) or "matrix" not in table:
+            continue
+        where = f"{path} [{key}]"
+        missing = [k for k in ("size", "matrix", "distortions", "rotation", "translation") if k not in table]
+        if missing:
+            raise MultiviewImportError(f"{where}: missing {', '.join(missing)}")
+        w, h = _matrix(table["size"], (2,), f"{where} size")
+        K = _matrix(table["matrix"], (3, 3), f"{where} matrix")
+        D = np.asarray(_matrix(table["distortions"], (len(table["distortions"]),), f"{where} distortions"))
+        rvec = _matrix(table["rotation"], (3,), f"{where} rotation")
+        tvec = _matrix(table["translation"], (3,), f"{where} translation")
+        fisheye = bool(table.get("fisheye", False))
+        cam = CameraModel(int(round(w)), int(round(h)), K, D, EQUIDISTANT if fisheye else PLUMB_BOB)
+        problems = cam.problems()
+        if problems:
+            raise MultiviewImportError(f"{where}: {'; '.join(problems)}")
+        name = re.sub(r"[^A-Za-z0-9_]", "_", str(table.get("name", key)))
+        out.append(ReferenceCamera(name, cam, inv_se3(se3(cv2.Rodrigues(rvec)[0], tvec))))
+    if len(out) < 2:
+        raise MultiviewImportError(f"{path}: holds {len(out)} camera table(s) (name, size, matrix, distortions, "
+                                   "rotation, translation); a multi-camera calibration needs two or more")
+    return out
+
+
+# --- keypoints ----------------------------------------------------------------------------
+_FRAME_NUMBER = re.compile(r"(\d+)(?:_keypoints)?\.json$")
+
+
+def frame_files(folder: Path) -> list[tuple[int, Path]]:
+    """(frame index, file) of an OpenPose JSON folder: the index is the last number of the
+    file name (cam01.0007.json, cam01_000000000007_keypoints.json)."""
+    out = []
+    for f in sorted(folder.glob("*.json")):
+        m = _FRAME_NUMBER.search(f.name)
+        if not m:
+            raise MultiviewImportError(f"{f}: no frame number in the file name")
+        out.append((int(m.group(1)), f))
+    if not out:
+        raise MultiviewImportError(f"{folder}: holds no .json keypoint files")
+    if len({i for i, _ in out}) != len(out):
+        raise MultiviewImportError(f"{folder}: two files carry the same frame number")
+    return sorted(out)
+
+
+def read_people(path: Path, fmt: str) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Every person of an OpenPose JSON frame: (uv (J, 2), confidence (J,)) in the format's
+    joint order; a joint OpenPose did not find (confidence 0) has confidence 0."""
+    try:
+        doc = json.loads(path.read_text(errors="replace"))
+    except json.JSONDecodeError as exc:
+        raise MultiviewImportError(f"{path}: not JSON ({exc})") from None
+    people = doc.get("people") if isinstance(doc, dict) else None
+    if not isinstance(people, list):
+        raise MultiviewImportError(f"{path}: no 'people' list (not an OpenPose keypoint file)")
+    n = len(format_joints(fmt))
+    out = []
+    for k, p in enumerate(people):
+        flat = p.get("pose_keypoints_2d") if isinstance(p, dict) else None
+        try:
+            a = np.asarray(flat, dtype=float).reshape(-1, 3)
+        except (TypeError, ValueError):
+            raise MultiviewImportError(f"{path}: person {k}: pose_keypoints_2d is not a list of x, y, c") from None
+        if len(a) != n:
+            raise MultiviewImportError(f"{path}: person {k} has {len(a)} joints; {fmt} has {n} "
+                                       f"(choose the format with --keypoint-format: {', '.join(all_formats())})")
+        conf = np.where(np.isfinite(a).all(axis=1), np.clip(a[:, 2], 0.0, 1.0), 0.0)
+        out.append((a[:, :2], conf))
+    return out
+
+
+def all_formats() -> tuple[str, ...]:
+    return (*FORMATS, BLAZEPOSE)
+
+
+def person_pose(uv: np.ndarray, conf: np.ndarray, fmt: str, width: int, height: int):
+    """One detected person as the pose model's PersonPose: ids 0 and 1 derived by the pose
+    model's own rules (head_top, ground_point; a big toe stands for BlazePose's foot index),
+    joints outside the image at confidence 0 as there, the box over the confident joints."""
+    from yowo_cmc.pose_model import GROUND, HEAD_TOP, PersonPose, PoseModelParams, ground_point, head_top
+
+    p = PoseModelParams()
+    names = format_joints(fmt)
+    conf = conf.copy()
+    outside = (uv[:, 0] < -0.5) | (uv[:, 0] > width - 0.5) | (uv[:, 1] < -0.5) | (uv[:, 1] > height - 0.5)
+    conf[outside] = 0.0
+    joints = dict(zip(names, zip(uv, conf)))
+    for side in ("left", "right"):
+        if f"{side}_big_toe" in joints:
+            joints[f"{side}_foot_index"] = joints[f"{side}_big_toe"]
+    top = head_top(joints, p.joint_score)
+    ground = ground_point(joints, p.joint_score, p.ankle_to_ground)
+    table = joint_ids(fmt)
+    ids = np.array([HEAD_TOP, GROUND] + [table[n] for n in names if n in table], dtype=int)
+    keep = [i for i, n in enumerate(names) if n in table]
+    all_uv = np.vstack([top[:2], ground[:2], uv[keep]])
+    all_conf = np.concatenate([[top[2], ground[2]], conf[keep]])
+    seen = conf > 0
+    score = float(conf[seen].mean()) if seen.any() else 0.0
+    pts = uv[seen] if seen.any() else uv
+    box = np.concatenate([pts.min(axis=0), pts.max(axis=0)])
+    return PersonPose(score, box, ids, all_uv, all_conf)
+
+
+@dataclass
+class AgentTracker:
+    """The agent among several people per frame, as the pose source keeps it
+    (yowo_cmc.pose_model.pick_agent: the best-scored person to start, then the one nearest
+    the agent's last box centre within max_jump of the image diagonal; lost after
+    lost_after frames without it). Counts the others."""
+
+    diagonal_px: float
+    max_jump: float = 0.15
+    lost_after: int = 10
+    others: int = 0
+    _previous: np.ndarray | None = field(default=None, repr=False)
+    _missed: int = 0
+
+    def pick(self, people):
+        from yowo_cmc.pose_model import pick_agent
+
+        people = sorted(people, key=lambda p: -p.score)
+        agent = pick_agent(people, self._previous, self.max_jump * self.diagonal_px)
+        if agent is None:
+            self._missed += 1
+            if self._missed >= self.lost_after:
+                self._previous = None
+            return None
+        self.others += len(people) - 1
+        self._previous, self._missed = (agent.box[:2] + agent.box[2:]) / 2, 0
+        return agent
+
+
+# --- the session folder -------------------------------------------------------------------
+@dataclass
+class Session:
+    calibration: Path
+    cameras: list[ReferenceCamera]
+    keypoint_dirs: list[Path]
+    videos: list[Path]
+    fps: float | None
+
+
+def _find_calibration(folder: Path) -> Path:
+    found = sorted(folder.glob("Calib*.toml")) + sorted(folder.glob("calibration/Calib*.toml"))
+    if not found:
+        raise MultiviewImportError(f"{folder}: no Calib*.toml in it or in calibration/ (give --calibration)")
+    return found[0]
+
+
+def _frame_rate(folder: Path) -> float | None:
+    """Pose2Sim's Config.toml [project] frame_rate when it is a number."""
+    cfg = folder / "Config.toml"
+    if not cfg.is_file():
+        return None
+    try:
+        rate = tomllib.loads(cfg.read_text(errors="replace")).get("project", {}).get("frame_rate")
+    except tomllib.TOMLDecodeError:
+        return None
+    return float(rate) if isinstance(rate, (int, float)) and rate > 0 else None
+
+
+def read_session(folder, calibration=None, videos: bool = False, fps: float | None = None) -> Session:
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise MultiviewImportError(f"{folder}: no such folder")
+    calib = Path(calibration) if calibration else _find_calibration(folder)
+    cams = read_pose2sim_calibration(calib)
+    kp_dirs = sorted(d for d in (folder / "pose").glob("*_json") if d.is_dir()) if (folder / "pose").is_dir() else []
+    vids = sorted(p for p in (folder / "videos").iterdir() if p.suffix.lower() in (".mp4", ".avi", ".mov", ".mkv")) \
+        if (folder / "videos").is_dir() else []
+    rate = fps or _frame_rate(folder) or (_Video(vids[0]).fps if vids else None)
+    vids = vids if videos else []
+    if not kp_dirs and not vids:
+        raise MultiviewImportError(f"{folder}: no keypoints (pose/<camera>_json/ folders)"
+                                   + (" and no videos (videos/*.mp4)" if videos else "; add --videos to import "
+                                      "the videos/ instead"))
+    for what, items in (("keypoint folders in pose/", kp_dirs), ("videos in videos/", vids)):
+        if items and len(items) != len(cams):
+            raise MultiviewImportError(f"{folder}: {len(items)} {what} but {len(cams)} cameras in {calib} "
+                                       "(they are paired in sorted order)")
+    if videos and not vids:
+        raise MultiviewImportError(f"{folder}: --videos, but no videos/*.mp4 (or .avi, .mov, .mkv)")
+    return Session(calib, cams, kp_dirs, vids, rate)
+
+
+@dataclass
+class CameraSummary:
+    name: str
+    keypoints_from: str | None
+    video_from: str | None
+    frames: int = 0
+    with_agent: int = 0
+    others: int = 0
+
+
+@dataclass
+class ImportSummary:
+    bag: Path
+    fps: float
+    cameras: list[CameraSummary]
+
+
+class _Video:
+    """Frames of one video (RGB), by index, read in order."""
+
+    def __init__(self, path: Path):
+        import cv2
+
+        self.path, self.cap = path, cv2.VideoCapture(str(path))
+        if not self.cap.isOpened():
+            raise MultiviewImportError(f"{path}: not a video OpenCV can read")
+        self.fps = float(self.cap.get(cv2.CAP_PROP_FPS)) or None
+        self.count = int(self.cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        self.next = 0
+
+    def frame(self, index: int) -> np.ndarray | None:
+        import cv2
+
+        while self.next <= index:
+            ok, bgr = self.cap.read()
+            self.next += 1
+            if not ok:
+                return None
+            if self.next - 1 == index:
+                return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+        return None
+
+    def close(self) -> None:
+        self.cap.release()
+
+
+def import_multiview(folder, bag, calibration=None, keypoint_format: str = "BODY_25B", videos: bool = False,
+                     fps: float | None = None, max_frames: int | None = None, jpeg_quality: int = 90,
+                     progress=None) -> ImportSummary:
+    """Write the session as a recording. Frame i of every camera is stamped START_NS + i / fps
+    (the cameras of these recordings are synchronised; the frame numbers say which images
+    belong together). CameraInfo per frame (with --videos at the video's size, which may
+    differ from the calibration's by the codec's padding: K stays); AgentKeypoints per
+    keypoint frame (empty: nobody recognised); the reference poses latched on /gt/."""
+    from geometry_msgs.msg import PoseStamped
+    from std_msgs.msg import Header
+    from yowo_msgs.msg import AgentKeypoints, Keypoint2D
+
+    from yowo_common import topics
+    from yowo_common.camera import CameraModel
+    from yowo_common.ros.bag import BagError, BagWriter
+    from yowo_common.rosconv import encode_color_jpeg, matrix_to_pose, model_to_camera_info, ns_to_time
+
+    if keypoint_format not in all_formats():
+        raise MultiviewImportError(f"unknown keypoint format '{keypoint_format}' ({', '.join(all_formats())})")
+    s = read_session(folder, calibration, videos, fps)
+    streams = [_Video(v) for v in s.videos]
+    rate = s.fps
+    if not rate:
+        raise MultiviewImportError(f"{folder}: no frame rate (Config.toml [project] frame_rate, or the "
+                                   "videos'); "
+                                   "give --fps")
+    bag = Path(bag)
+    if bag.exists():
+        raise MultiviewImportError(f"{bag}: already exists; refusing to overwrite a recording")
+    summaries = []
+    try:
+        with BagWriter(bag) as out:
+            header0 = Header(stamp=ns_to_time(START_NS), frame_id=GT_FRAME)
+            for ref in s.cameras:
+                out.write(topics.gt_cmc_pose_topic(ref.name), PoseStamped(header=header0,
+                          pose=matrix_to_pose(ref.T_world_cam)), START_NS, latched=True)
+            for k, ref in enumerate(s.cameras):
+                kp_dir = s.keypoint_dirs[k] if s.keypoint_dirs else None
+                video = streams[k] if streams else None
+                summary = CameraSummary(ref.name, kp_dir.name if kp_dir else None,
+                                        video.path.name if video else None)
+                files = dict(frame_files(kp_dir)) if kp_dir else {}
+                indices = sorted(files) if files else list(range(video.count))
+                if video:
+                    indices = sorted(set(indices) | set(range(video.count)))
+                indices = indices[:max_frames] if max_frames else indices
+                cam = ref.camera
+                tracker = AgentTracker(math.hypot(cam.width, cam.height))
+                for n, i in enumerate(indices):
+                    stamp = START_NS + round(i / rate * 1e9)
+                    header = Header(stamp=ns_to_time(stamp), frame_id=f"{ref.name}_optical_frame")
+                    if video:
+                        rgb = video.frame(i)
+                        if rgb is None:
+                            if i in files:
+                                raise MultiviewImportError(f"{video.path}: ends before frame {i}, which "
+                                                           f"{files[i]} has keypoints for")
+                            continue
+                        if (rgb.shape[1], rgb.shape[0]) != (cam.width, cam.height):
+                            cam = CameraModel(rgb.shape[1], rgb.shape[0], cam.K, cam.D, cam.distortion_model)
+                        out.write(topics.cmc_image_topics(ref.name)[1], encode_color_jpeg(rgb, header, jpeg_quality),
+                                  stamp)
+                    out.write(topics.cmc_info_topic(ref.name), model_to_camera_info(cam, header), stamp)
+                    summary.frames += 1
+                    if i in files:
+                        people = [person_pose(uv, c, keypoint_format, cam.width, cam.height)
+                                  for uv, c in read_people(files[i], keypoint_format)]
+                        agent = tracker.pick(people)
+                        kps = [] if agent is None else [
+                            Keypoint2D(id=int(kid), x=float(u), y=float(v), confidence=float(c))
+                            for kid, (u, v), c in zip(agent.ids, agent.uv, agent.confidence) if c > 0]
+                        summary.with_agent += int(bool(kps))
+                        out.write(topics.cmc_keypoints_topic(ref.name), AgentKeypoints(
+                            header=header, camera_name=ref.name, keypoints=kps), stamp)
+                    if progress:
+                        progress(k + n / max(len(indices), 1), len(s.cameras))
+                summary.others = tracker.others
+                summaries.append(summary)
+    except BagError as exc:
+        raise MultiviewImportError(str(exc)) from None
+    except MultiviewImportError:
+        import shutil
+
+        shutil.rmtree(bag, ignore_errors=True)      # no half recording left behind
+        raise
+    finally:
+        for v in streams:
+            v.close()
+    return ImportSummary(bag, rate, summaries)
+
+
+def cmd_import_multiview(args) -> int:
+    from rich.progress import Progress
+
+    with Progress(transient=True) as bar:
+        task = bar.add_task("importing", total=None)
+        s = import_multiview(args.session, args.output, args.calibration, args.keypoint_format, args.videos,
+                             args.fps, args.max_frames,
+                             progress=lambda done, total: bar.update(task, completed=done, total=total))
+    print(f"wrote {s.bag}: {len(s.cameras)} cameras at {s.fps:g} frames/s, reference poses on /gt/cmc/<name>/pose")
+    for c in s.cameras:
+        src = ", ".join(x for x in (c.keypoints_from and f"keypoints {c.keypoints_from}",
+                                    c.video_from and f"video {c.video_from}") if x)
+        print(f"  {c.name}: {src}; {c.frames} frames, the agent in {c.with_agent}"
+              + (f", {c.others} other people ignored" if c.others else ""))
+    print(f"next: yowo calibrate-cmc {s.bag} -o RESULTS" + ("  (--cmc-source pose: the pose model on the video)"
+                                                           if args.videos else "")
+          + f", then yowo eval RESULTS --bag {s.bag}")
+    return 0
+
+
+def add_verbs(verbs) -> None:
+    p = verbs.add_parser("import-multiview", help="convert a multi-camera recording of a person (OpenPose JSON "
+                                                  "keypoints, Pose2Sim calibration TOML, videos) into a recording")
+    p.add_argument("session", help="the folder: pose/<camera>_json/*.json, Calib*.toml (or calibration/), videos/")
+    p.add_argument("-o", "--output", required=True, help="the rosbag2 (MCAP) recording to write")
+    p.add_argument("--calibration", help="the reference calibration TOML (default: Calib*.toml in the folder)")
+    p.add_argument("--keypoint-format", default="BODY_25B", choices=all_formats(),
+                   help="the joints of pose_keypoints_2d (Pose2Sim's pose_model)")
+    p.add_argument("--videos", action="store_true", help="also import videos/* as the CMC images (JPEG)")
+    p.add_argument("--fps", type=float, help="frame rate (default: Config.toml's frame_rate, else the videos')")
+    p.add_argument("--max-frames", type=int, help="import only the first N frames of each camera")
+    p.set_defaults(func=cmd_import_multiview)
