@@ -67,7 +67,7 @@ def _execute(args, mode: str):
     progress = console_progress(f"{args.verb} {plan.run_id}")
     try:
         return execute(plan, timeout_s=args.timeout, network=network, linger_s=getattr(args, "linger", 0.0),
-                       progress=progress)
+                       progress=progress, profile_dir=Path(args.profile) if args.profile else None)
     except RunFailed as exc:
         failure = exc
     finally:
@@ -174,6 +174,9 @@ def _add_graph_options(p) -> None:
     p.add_argument("--max-restarts", type=int,
                    help="restart a node that dies up to this many times (it is sent what it missed): "
                         "supervisor.max_restarts")
+    p.add_argument("--profile", metavar="DIR",
+                   help="record every node process with py-spy into DIR (<node>.txt, collapsed stacks for "
+                        "flamegraph.pl or speedscope) and summarise each node's top functions in DIR/summary.md")
 
 
 def add_config_options(p) -> None:

@@ -26,6 +26,9 @@ __all__ = ["ConfigError", "YowoConfig", "SupervisorParams", "load_config", "sect
 @dataclass(frozen=True)
 class SupervisorParams:
     max_restarts: int = 2                 # per node; a node that dies more often ends the run
+    profile_rate_hz: int = 50             # py-spy samples per second of each node (yowo run --profile)
+    # Added to the niceness of the stages that read no recorded or live topic (group SfM, fusion).
+    downstream_niceness: int = 5
 
 
 @dataclass(frozen=True)

@@ -32,6 +32,7 @@ from yowo_common.ros.bag import BagError, list_topics, message_class, read_raw, 
 from yowo_common.config import describe_changes, load
 from yowo_common.ros.context import ros_context
 from yowo_common.ros.stage import LATCHED, RunFilter
+from yowo_common.ros.timing import NodeTiming
 from yowo_common.rosconv import ns_to_time
 
 from .replay import Pacer, ReplayParams, select_topics
@@ -43,6 +44,9 @@ FASTDDS_PROFILE = Path(__file__).parent / "config" / "replay_fastdds.xml"
 class ReplayNode(Node):
     def __init__(self):
         super().__init__("replay")
+        # Start-up (until playing) and the time flow control held it back, per topic.
+        self.timing = NodeTiming()
+        self.stats_file = self.declare_parameter("stats_file", "").value
         self.bag = self.declare_parameter("bag", "").value
         p = load(ReplayParams, self.declare_parameter("config", "").value, where="replay")
         self.get_logger().info(f"configuration: {describe_changes(p, 'replay')}")
@@ -184,9 +188,11 @@ class ReplayNode(Node):
 
     def _wait_acked(self, topic: str) -> None:
         pub = self.pubs[topic]
+        t0 = time.monotonic()
         if pub.get_subscription_count() and not pub.wait_for_all_acked(Duration(seconds=self.ack_timeout_s)):
             self.get_logger().error(f"{topic}: a subscriber did not acknowledge within "
                                     f"{self.ack_timeout_s:.0f} s; continuing")
+        self.timing.add_seconds(f"ack_wait {topic}", time.monotonic() - t0)
         self.unacked[topic] = 0
 
     def run(self) -> int:
@@ -204,6 +210,7 @@ class ReplayNode(Node):
             if t.name in played:
                 self.pubs[t.name] = self.create_publisher(message_class(t.msgtype), t.name, self._qos(t.latched))
         self._wait_for_subscribers()
+        self.timing.mark("playing")
         if self.recovered:
             self.get_logger().warning(self.recovered)
         pacer = Pacer(self.rate)
@@ -235,6 +242,9 @@ class ReplayNode(Node):
         for topic in [t for t, n in self.unacked.items() if n]:
             self._wait_acked(topic)
         self.state = ReplayStatus.STATE_FINISHED
+        self.timing.mark("played")
+        if self.stats_file:
+            self.timing.write(self.stats_file)
         self._status()
         total = sum(self.counts.values())
         self.get_logger().info(f"finished: {total} messages published"

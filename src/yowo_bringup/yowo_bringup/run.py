@@ -26,6 +26,9 @@ STAGE_MODULES = {
     "ego_mapper": "yowo_ego.ego_mapper_node",
     "fusion": "yowo_fusion.fusion_node",
 }
+# Stages that read only other stages' outputs: they accumulate while the recording plays
+# and compute at its end, so they are off the start-up's critical path (see _stamp_run).
+DOWNSTREAM = (STAGE_MODULES["group_sfm"], STAGE_MODULES["fusion"])
 CMC, FULL, EGO = "cmc", "full", "ego"
 # A group needs two cameras; the CMC-only calibration has nothing to do with fewer.
 MIN_GROUP_CMCS = 2
@@ -70,8 +73,13 @@ def new_run_id() -> str:
 
 def _stamp_run(nodes: list[NodeSpec], run_id: str, replayed: bool, config: YowoConfig) -> None:
     """Every node's run id and section of the configuration tree; `replayed`: the stages'
-    inputs come from a replay, which re-sends them to a restarted stage (live, nobody can)."""
+    inputs come from a replay, which re-sends them to a restarted stage (live, nobody can).
+    The downstream stages run at a lower priority: their imports at start-up then leave the
+    cores to the replay and its readers, whose start the replay waits for, and at the end
+    the ego mapper (the longest stage) goes first."""
     for spec in nodes:
+        if spec.module in DOWNSTREAM:
+            spec.niceness = config.supervisor.downstream_niceness
         spec.parameters["run_id"] = run_id
         spec.parameters["config"] = section_yaml(config, spec.name)
         if spec.name != "replay":
@@ -152,8 +160,11 @@ def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, s
     if mode in (FULL, EGO):
         played += list(ego) + ([topics.EGO_IMU, topics.EGO_IMU_CALIBRATION] if imu else [])
     nodes, final, outputs = _stage_nodes(mode, trackers, ego, imu)
+    # The replay waits for the stages that read its topics (the others match late: their
+    # inputs are durable), not for the slowest process of the graph to start.
+    readers = [n.name for n in nodes if n.module not in DOWNSTREAM]
     nodes.append(NodeSpec("replay", STAGE_MODULES["replay"], {  # last: it waits for the stages' subscriptions
-        "bag": str(bag), "topics": played, "wait_for_topics": played, "stages": [n.name for n in nodes]}))
+        "bag": str(bag), "topics": played, "wait_for_topics": played, "stages": readers}))
     run_id = run_id or new_run_id()
     _stamp_run(nodes, run_id, True, config)
     total = sum(t.count for t in inputs.topics if t.name in played)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import time
+from pathlib import Path
 
 import rclpy
 import yaml
@@ -14,12 +15,14 @@ from yowo_common.ros.bag import message_class
 from yowo_common.ros.context import ros_context
 from yowo_common import topics
 from yowo_common.ros.stage import LATCHED, RunFilter
+from yowo_common.ros.timing import relative_to
 
 from .config import params_document
 from .isolation import PRIVATE, GraphNetwork, graph_network
+from .profiling import summary_markdown
 from .progress import DONE, FAILED, RUNNING, WAITING, ProgressLines, RunProgress
 from .run import RunOutcome, RunPlan, write_run_results
-from .supervisor import Supervisor, write_params_file
+from .supervisor import Supervisor, stats_path, write_params_file
 
 # After the final stage finished, time for the latched outputs to arrive: a stage that
 # succeeded published them all (a loaded machine took > 2 s to deliver the map clouds);
@@ -93,13 +96,14 @@ class RunMonitor(Node):
 
 
 def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphNetwork | None = None,
-            linger_s: float = 0.0, progress=None) -> RunOutcome:
+            linger_s: float = 0.0, progress=None, profile_dir: Path | None = None) -> RunOutcome:
     """Run the graph (the plan's local nodes; the others run on other hosts) and write the
     results directory. Raises RunFailed with the reason (after writing whatever partial
     results exist). `network`: the run's DDS domain (a private one by default);
     `linger_s`: after a successful run, keep the graph up this long with the results
     written (late /tf_static subscribers); `progress`: called with a RunProgress several
-    times a second (default: a line every 5 s through `log`)."""
+    times a second (default: a line every 5 s through `log`); `profile_dir`: a py-spy
+    recording of every node process there and summary.md, their top functions."""
     progress = progress or ProgressLines(log)
     network = network or graph_network(PRIVATE)
     (plan.out_dir / "logs").mkdir(parents=True, exist_ok=True)
@@ -108,9 +112,10 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
     (plan.out_dir / "params.yaml").write_text(yaml.safe_dump(params_document(
         plan.config, {n.name: {k: v for k, v in n.parameters.items() if k != "config"} for n in plan.nodes}),
         sort_keys=False))
-    sup = Supervisor(plan.out_dir / "logs", network.env, params_file)
+    sup = Supervisor(plan.out_dir / "logs", network.env, params_file, profile_dir,
+                     plan.config.supervisor.profile_rate_hz)
     stages = [n.name for n in plan.nodes if n.name != "replay"]
-    t0 = time.monotonic()
+    t0, t0_wall = time.monotonic(), time.time()
     failure, outcome, notes = "", None, set()
     saved_env = {k: os.environ.get(k) for k in DDS_ENV}
     os.environ.update({k: network.env[k] for k in DDS_ENV if k in network.env})  # this process's own node
@@ -124,7 +129,9 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
                           "stray_status_messages": monitor.strays()},
                 "restarts": {p.spec.name: p.exits for p in sup.procs if p.exits},
                 # Sampled once a second from /proc: the last second of a node is not counted.
-                "resources": {p.spec.name: p.resources() for p in sup.procs}}
+                "resources": {p.spec.name: p.resources() for p in sup.procs},
+                # Seconds since the run started; queue waits and handling per input topic.
+                "timing": node_timing(sup, t0_wall)}
     try:
         with ros_context([]):
             monitor = RunMonitor(stages, plan.outputs, plan.run_id)
@@ -173,6 +180,9 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
                 outputs, status, replay, graph = dict(monitor.outputs), dict(monitor.status), monitor.replay, graph_log()
                 monitor.destroy_node()
                 sup.stop()
+                if profile_dir is not None:
+                    (Path(profile_dir) / "summary.md").write_text(
+                        summary_markdown(profile_dir, plan.config.supervisor.profile_rate_hz))
     finally:
         for k, v in saved_env.items():
             if v is None:
@@ -185,6 +195,17 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
     if failure:
         raise RunFailed(failure)
     return outcome
+
+
+def node_timing(sup: Supervisor, t0_wall: float) -> dict:
+    """What each node process of this host wrote about its timing (its last incarnation's)."""
+    timing = {}
+    for p in sup.procs:
+        path = stats_path(sup.log_dir, p.spec.name, p.incarnation)
+        if path.exists():
+            timing[p.spec.name] = {"spawned_s": round(p.usage[-1].spawned - t0_wall, 2),
+                                   **relative_to(yaml.safe_load(path.read_text()), t0_wall)}
+    return timing
 
 
 def _restart_dead(sup: Supervisor, max_restarts: int, log) -> str:

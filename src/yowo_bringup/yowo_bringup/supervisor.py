@@ -13,12 +13,15 @@ from pathlib import Path
 
 import yaml
 
+from .profiling import NodeProfiler
+
 
 @dataclass
 class NodeSpec:
     name: str                      # node (and stage) name
     module: str                    # python module with main(), e.g. "yowo_cmc.group_sfm_node"
     parameters: dict = field(default_factory=dict)
+    niceness: int = 0              # added to the supervisor's own (a lower priority)
 
 
 @dataclass
@@ -29,6 +32,7 @@ class Usage:
     cpu_s: float = 0.0            # user + system
     peak_rss_mb: float = 0.0      # VmHWM
     started: float = field(default_factory=time.monotonic)
+    spawned: float = field(default_factory=time.time)     # wall clock, as the nodes' timing files
     last_seen: float = 0.0
 
     @staticmethod
@@ -86,13 +90,25 @@ def write_params_file(specs: list[NodeSpec], path: Path) -> None:
     path.write_text(yaml.dump(doc, Dumper=_NoAliasDumper, sort_keys=False))
 
 
+def stats_path(log_dir: Path, name: str, incarnation: int) -> Path:
+    """Where a node process writes its timing (yowo_common.ros.timing)."""
+    return Path(log_dir) / (f"{name}.stats.yaml" if not incarnation else f"{name}.{incarnation}.stats.yaml")
+
+
 class Supervisor:
-    def __init__(self, log_dir: Path, env: dict | None = None, params_file: Path | None = None):
+    """`profile_dir`: record every node process with py-spy there (`profile_rate_hz`)."""
+
+    def __init__(self, log_dir: Path, env: dict | None = None, params_file: Path | None = None,
+                 profile_dir: Path | None = None, profile_rate_hz: int = 50):
         self.log_dir = Path(log_dir)
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.env = dict(os.environ if env is None else env)
         self.params_file = params_file
         self.procs: list[NodeProcess] = []
+        self.profile_dir, self.profile_rate_hz = profile_dir, profile_rate_hz
+        self.profilers: list[NodeProfiler] = []
+        if profile_dir is not None:
+            Path(profile_dir).mkdir(parents=True, exist_ok=True)
 
     def _popen(self, spec: NodeSpec, incarnation: int, mode: str) -> subprocess.Popen:
         cmd = [sys.executable, "-m", spec.module, "--ros-args", "-r", f"__node:={spec.name}"]
@@ -100,6 +116,9 @@ class Supervisor:
             cmd += ["--params-file", str(self.params_file)]
         if incarnation:
             cmd += ["-p", f"incarnation:={incarnation}"]
+        cmd += ["-p", f"stats_file:={stats_path(self.log_dir, spec.name, incarnation)}"]
+        if spec.niceness:           # nice execs the node: the same process, every thread of it
+            cmd = ["nice", "-n", str(spec.niceness)] + cmd
         with open(self.log_dir / f"{spec.name}.log", mode) as log:
             if incarnation:
                 log.write(f"--- [yowo supervisor] restarted (incarnation {incarnation}) ---\n")
@@ -107,6 +126,10 @@ class Supervisor:
             popen = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=self.env,
                                      start_new_session=True)  # our own Ctrl-C handling stops them in order
         (self.log_dir / f"{spec.name}.pid").write_text(f"{popen.pid}\n")  # for users and tests
+        if self.profile_dir is not None:
+            stem = spec.name if not incarnation else f"{spec.name}.{incarnation}"
+            self.profilers.append(NodeProfiler(popen.pid, Path(self.profile_dir) / f"{stem}.txt",
+                                               self.profile_rate_hz))
         return popen
 
     def start(self, spec: NodeSpec) -> NodeProcess:
@@ -142,4 +165,6 @@ class Supervisor:
                 time.sleep(0.05)
             alive = [p for p in alive if p.popen.poll() is None]
             if not alive:
-                return
+                break
+        for profiler in self.profilers:      # each writes its recording once its node has ended
+            profiler.wait(timeout_s)

@@ -27,3 +27,34 @@ def test_the_section_is_replaced_in_place_and_survives_a_rerender(tmp_path):
     rerendered = keep_section(text, "# BENCHMARKS\n\nnew tables\n")
     assert "new tables" in rerendered and "old tables" not in rerendered and "| 0.45 |" in rerendered
     assert rerendered.index(BEGIN) < rerendered.index(END)
+
+
+TOPIC = {"messages": 10, "queue_wait_ms": {"p50": 1.0, "p95": 2.0, "max": 3.0}, "handling_s": 0.5}
+TIMING = {"ego_mapper": {"spawned_s": 0.1, "created_s": 3.0, "finalize_start_s": 40.0, "finalize_end_s": 52.5,
+                         "topics": {"/a": {**TOPIC, "first_s": 9.0, "last_s": 38.0},
+                                    "/b": {**TOPIC, "queue_wait_ms": {"p50": 1, "p95": 900.0, "max": 950.0},
+                                           "first_s": 9.1, "last_s": 39.0}}},
+          "replay": {"spawned_s": 0.2, "created_s": 2.0, "playing_s": 8.9, "played_s": 37.0,
+                     "seconds": {"ack_wait /a": 1.5, "ack_wait /b": 2.0}, "topics": {}}}
+
+
+def test_the_timeline_says_when_each_stage_worked_and_how_long_inputs_waited():
+    md = speed_markdown([{**CASE, "timing": TIMING}], "c")
+    ego = next(line for line in md.splitlines() if "| ego_mapper |" in line)
+    # Worst topic's p95 wait, callbacks summed over topics, finalisation's length.
+    assert "| 0.1 / 3.0 | 9.0 / 39.0 | 12.5 | 52.5 | 900 | 1.0 |" in ego, ego
+    replay = next(line for line in md.splitlines() if "| replay |" in line)
+    assert "playing 8.9 / done 37.0" in replay and "held back 3.5 s" in replay
+
+
+def test_hand_written_notes_inside_the_section_survive_a_new_table(tmp_path):
+    from yowo_eval.graph_bench import NOTES_BEGIN, NOTES_END
+
+    doc = tmp_path / "BENCHMARKS.md"
+    replace_section(doc, speed_markdown([CASE], "first"))
+    text = doc.read_text().replace(END, f"{NOTES_BEGIN}\nthe profile says X\n{NOTES_END}\n{END}")
+    doc.write_text(text + "after\n")
+    replace_section(doc, speed_markdown([{**CASE, "ratio": 0.45}], "second"))
+    text = doc.read_text()
+    assert "the profile says X" in text and "| 0.45 |" in text and "first" not in text and text.endswith("after\n")
+    assert text.index(BEGIN) < text.index(NOTES_BEGIN) < text.index(END)

@@ -41,6 +41,7 @@ def graph_case(bag: Path, out: Path, source: str, extra: list[str], timeout_s: f
     reg = metrics.get("registration", {}).get("summary", {})
     return {"bag": bag.name, "source": source, "exit": r.returncode, "recording_s": recording, "wall_s": wall,
             "ratio": wall / recording if recording > 0 else float("nan"), "resources": log.get("resources", {}),
+            "timing": log.get("timing", {}),
             "registration_pos_avg_m": reg.get("pos_avg"), "registration_rot_avg_deg": reg.get("rot_avg"),
             "ego_ate_m": metrics.get("ego", {}).get("ate_rmse_m"),
             "error": "" if r.returncode == 0 else (r.stderr or r.stdout)[-500:]}
@@ -73,15 +74,61 @@ def speed_markdown(cases: list[dict], command: str) -> str:
         status = f"{c['ratio']:.2f}" if c["exit"] == 0 else f"failed (exit {c['exit']})"
         lines.append(f"| {c['bag']} | {c['source']} | {status} | {c['wall_s']:.0f} | {c['recording_s']:.0f} | {reg} "
                      f"| {ate} | {'<br>'.join(cells)} |")
-    return "\n".join(lines + ["", END, ""])
+    return "\n".join(lines + [""] + timeline_markdown(cases) + [END, ""])
+
+
+def _max(values) -> float:
+    return max((v for v in values if v is not None), default=float("nan"))
+
+
+def _min(values) -> float:
+    return min((v for v in values if v is not None), default=float("nan"))
+
+
+def timeline_markdown(cases: list[dict]) -> list[str]:
+    """Where each case's wall time went: per stage (trackers: the latest of any camera) when
+    its process was started and had imported (node created), its earliest and latest input,
+    its finalisation, the p95 of the time its inputs waited in its queue (worst topic) and the
+    seconds in its input callbacks; the replay's start of playing, end, and the seconds it
+    was held back by flow control (unacknowledged messages: a stage behind)."""
+    lines = ["Where the wall time goes (seconds since `yowo run` started the graph; run_log.yaml `timing`):", "",
+             "| recording | source | stage | started / created | inputs from / to | finalize [s] | finished "
+             "| queue wait p95 [ms] | in callbacks [s] |", "|---|---|---|---|---|---|---|---|---|"]
+    for c in cases:
+        stages: dict[str, list[dict]] = {}
+        for name, t in c.get("timing", {}).items():
+            stages.setdefault(_stage(name), []).append(t)
+        for name, ts in stages.items():
+            topics = [s for t in ts for s in t["topics"].values()]
+            created = f"{_max(t.get('spawned_s') for t in ts):.1f} / {_max(t.get('created_s') for t in ts):.1f}"
+            if name == "replay":
+                held = sum(v for t in ts for k, v in t.get("seconds", {}).items() if k.startswith("ack_wait"))
+                lines.append(f"| {c['bag']} | {c['source']} | replay | {created} | playing {_max(t.get('playing_s') for t in ts):.1f}"
+                             f" / done {_max(t.get('played_s') for t in ts):.1f} | - | - | held back {held:.1f} s | - |")
+                continue
+            fin = _max((t.get("finalize_end_s") or 0) - (t.get("finalize_start_s") or 0) for t in ts)
+            lines.append(
+                f"| {c['bag']} | {c['source']} | {name} | {created} | {_min(s['first_s'] for s in topics):.1f} / "
+                f"{_max(s['last_s'] for s in topics):.1f} | {fin:.1f} | {_max(t.get('finalize_end_s') for t in ts):.1f} "
+                f"| {_max(s['queue_wait_ms']['p95'] for s in topics):.0f} "
+                f"| {_max(sum(s['handling_s'] for s in t['topics'].values()) for t in ts):.1f} |")
+    return lines + [""]
+
+
+# Hand-written notes inside the section (the profile and what it shows), kept when it is rendered again.
+NOTES_BEGIN, NOTES_END = "<!-- graph-speed-notes:begin -->", "<!-- graph-speed-notes:end -->"
 
 
 def replace_section(markdown_path: Path, section: str) -> None:
-    """Put the section into a markdown file, replacing an earlier one."""
+    """Put the section into a markdown file, replacing an earlier one (its notes stay)."""
     text = markdown_path.read_text() if markdown_path.exists() else ""
     if BEGIN in text and END in text:
         head, rest = text.split(BEGIN, 1)
-        text = head + section.rstrip("\n") + rest.split(END, 1)[1]
+        old, tail = rest.split(END, 1)
+        if NOTES_BEGIN in old and NOTES_END in old:
+            notes = NOTES_BEGIN + old.split(NOTES_BEGIN, 1)[1].split(NOTES_END, 1)[0] + NOTES_END + "\n\n"
+            section = section.replace(END, notes + END)
+        text = head + section.rstrip("\n") + tail
     else:
         text = text.rstrip("\n") + "\n\n" + section
     markdown_path.write_text(text)

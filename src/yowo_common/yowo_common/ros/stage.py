@@ -3,6 +3,7 @@
 message it announced has arrived (so no stage computes on a partial stream)."""
 from __future__ import annotations
 
+import time
 import traceback
 from collections import Counter
 
@@ -14,6 +15,7 @@ from yowo_msgs.msg import ReplayStatus, StageStatus
 from .. import topics
 from ..config import describe_changes, load
 from ..streams import StreamCompletion
+from .timing import NodeTiming
 
 REPLAY = "replay"
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -46,6 +48,9 @@ class StageNode(Node):
 
     def __init__(self, name: str):
         super().__init__(name)
+        self.timing = NodeTiming()
+        # Where to write self.timing once finalised ("": nowhere; the supervisor names one).
+        self._stats_file = self.declare_parameter("stats_file", "").value
         self.stage = self.get_name()  # a launcher may rename the node (one tracker per camera)
         # Isolation: statuses of other runs are counted and ignored. Incarnation: how often
         # the supervisor restarted this stage (upstream statuses and the replay re-send what
@@ -66,6 +71,7 @@ class StageNode(Node):
         self._status_pub = self.create_publisher(StageStatus, topics.status(self.stage), LATCHED)
         self._watched: set[str] = set()
         self._finalized = False
+        self._announced = False
         self.create_timer(0.2, self._check)
         self.create_timer(2.0, lambda: self.publish_status(StageStatus.STATE_RUNNING) if not self._finalized else None)
 
@@ -96,10 +102,12 @@ class StageNode(Node):
                     return
                 seen.add(stamp)
             self.completion.on_received(topic)
+            started = time.time_ns()
             try:
                 callback(msg)
             except Exception as exc:  # a bad message must not kill the stage; it is reported
                 self.get_logger().error(f"{topic}: {exc}\n{traceback.format_exc(limit=3)}")
+            self.timing.received(topic, info, started, time.time_ns())
         sub = self.create_subscription(msg_type, topic, counted, qos)
         if upstream == REPLAY:
             self._replay_readers.append(sub)
@@ -146,20 +154,32 @@ class StageNode(Node):
 
     # --- lifecycle ----------------------------------------------------------------
     def _check(self) -> None:
+        if not self._announced:     # the first tick: wired (the replay waits for this status)
+            self._announced = True
+            self.publish_status(StageStatus.STATE_RUNNING)
         if self._finalized or not self.completion.inputs or not self.completion.complete:
             return
         self._finalized = True
+        self.timing.mark("finalize_start")
         try:
             summary = self.finalize() or ""
         except Exception as exc:
             self.get_logger().error(f"{self.stage} failed: {exc}\n{traceback.format_exc()}")
+            self._write_timing()
             self.publish_status(StageStatus.STATE_FAILED, str(exc))
             return
+        self._write_timing()
         self.publish_status(StageStatus.STATE_FINISHED, summary)
         self.get_logger().info(f"{self.stage} finished. {summary}")
 
     def finalize(self) -> str | None:
         raise NotImplementedError
+
+    def _write_timing(self) -> None:
+        """Before the final status: the supervisor reads the file once the run is over."""
+        self.timing.mark("finalize_end")
+        if self._stats_file:
+            self.timing.write(self._stats_file)
 
     def publish_status(self, state: int, message: str = "") -> None:
         c = self.completion
