@@ -20,11 +20,12 @@ from __future__ import annotations
 
 import threading
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+import gtsam
 import numpy as np
 import yaml
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 
 from yowo_common.topics import EGO_IMU_CALIBRATION
 
@@ -165,12 +166,14 @@ class ImuBuffer:
         stamps, _ = self._view()
         return len(stamps) > 0 and stamps[-1] >= self._imu_ns(t_cam_ns)
 
-    def _imu_rotation(self, t0_ns: int, t1_ns: int) -> np.ndarray:
-        """R_imu0_imu1 from the bias-corrected gyro between camera stamps t0 < t1."""
+    def _interval(self, t0_ns: int, t1_ns: int) -> tuple[np.ndarray, np.ndarray]:
+        """(knots [ns], IMU stamps: t0, the samples strictly between, t1; the signal
+        (gyro, accel) (n, 6) at the knots, linear between samples) between camera
+        stamps t0 < t1. ValueError when uncalibrated, not covered or across a gap."""
         if self.calibration is None:
             raise ValueError(f"no IMU calibration ({EGO_IMU_CALIBRATION}) yet")
         if t1_ns <= t0_ns:
-            raise ValueError(f"IMU rotation: end stamp {t1_ns} ns not after the start {t0_ns} ns")
+            raise ValueError(f"IMU interval: end stamp {t1_ns} ns not after the start {t0_ns} ns")
         a, b = self._imu_ns(t0_ns), self._imu_ns(t1_ns)
         stamps, data = self._view()
         if not len(stamps) or stamps[0] > a or stamps[-1] < b:
@@ -183,12 +186,40 @@ class ImuBuffer:
         if np.diff(s).max() > gap:
             raise ValueError(f"IMU samples have a gap of {np.diff(s).max() * 1e-9:.3f} s within {a}..{b} ns")
         knots = np.concatenate([[a], s[(s > a) & (s < b)], [b]])
-        w = np.column_stack([np.interp(knots, s, data[i0:i1 + 1, k]) for k in range(3)])
+        return knots, np.column_stack([np.interp(knots, s, data[i0:i1 + 1, k]) for k in range(6)])
+
+    def _imu_rotation(self, t0_ns: int, t1_ns: int) -> np.ndarray:
+        """R_imu0_imu1 from the bias-corrected gyro between camera stamps t0 < t1."""
+        knots, signal = self._interval(t0_ns, t1_ns)
+        w = signal[:, :3]
         steps = Rotation.from_rotvec((0.5 * (w[1:] + w[:-1]) - self.bias) * (np.diff(knots) * 1e-9)[:, None])
         R = Rotation.identity()
         for step in steps:
             R = R * step
         return R.as_matrix()
+
+    def preintegrate(self, t0_ns: int, t1_ns: int, params: gtsam.PreintegrationCombinedParams,
+                     bias: gtsam.imuBias.ConstantBias) -> gtsam.PreintegratedCombinedMeasurements:
+        """GTSAM's combined preintegration between camera stamps t0 < t1 of the motion
+        of the camera's origin, in the IMU's orientation (``params``' body_P_sensor is
+        T_cam_imu's rotation alone): the specific force is moved along the lever arm r
+        (IMU -> camera) by alpha x r + omega x (omega x r) here, as GTSAM corrects the
+        centripetal term only and a head turn's angular acceleration (~50 rad/s^2 over
+        a 2 cm arm: 1 m/s^2) is not negligible. Each piece between knots enters at its
+        midpoint value. ValueError as ``rotation_between``."""
+        knots, signal = self._interval(t0_ns, t1_ns)
+        t = knots * 1e-9
+        w, f = signal[:, :3], signal[:, 3:]
+        alpha = np.gradient(w, t - t[0], axis=0) if len(t) > 2 else np.zeros_like(w)
+        T = self.calibration.T_cam_imu
+        r = -T[:3, :3].T @ T[:3, 3]
+        f = f + np.cross(alpha, r) + np.cross(w, np.cross(w, r))
+        mid_w, mid_f = 0.5 * (w[1:] + w[:-1]), 0.5 * (f[1:] + f[:-1])
+        pim = gtsam.PreintegratedCombinedMeasurements(params, bias)
+        for wi, fi, dt in zip(mid_w, mid_f, np.diff(t)):
+            if dt > 0:
+                pim.integrateMeasurement(fi, wi, dt)
+        return pim
 
     def rotation_between(self, t0_ns: int, t1_ns: int) -> np.ndarray:
         """R_cam0_cam1: the camera's rotation from camera stamp t0 to t1 (maps camera-1
@@ -242,3 +273,81 @@ class CoverageWait:
             self.released_without += not covered
             out.append(self._held.popleft()[1])
         return out
+
+
+@dataclass(frozen=True)
+class InertialParams:
+    """The IMU beyond tracking: its factors in the ego bundle adjustment and the
+    gravity check of the floor rectification (used when the recording has an IMU and
+    ``OdometryParams.use_imu``)."""
+
+    bundle_factors: bool = True          # CombinedImuFactor between consecutive keyframes
+    gravity_mps2: float = 9.81
+    # Bias priors at each chain's first keyframe: consumer MEMS turn-on offsets (BMI055/
+    # BMI088, ICM-42688: accelerometer <= 20-60 mg, gyro <= 1-3 deg/s; the tracker's running
+    # gyro estimate is the prior's mean).
+    accel_bias_prior_mps2: float = 0.3
+    gyro_bias_prior_radps: float = 0.01
+    integration_sigma: float = 1e-4      # preintegration's position integration noise (GTSAM's term)
+    # The map may tilt this much (a loose prior) in the bundle adjustment for the IMU's gravity.
+    tilt_prior_deg: float = 5.0
+    # The floor rectification's vertical and the accelerometer's gravity further apart than
+    # this: said in the run's warnings (the floor plane or the IMU calibration is wrong).
+    max_gravity_disagreement_deg: float = 2.0
+
+
+@dataclass
+class InertialTerms:
+    """Preintegrated IMU between consecutive keyframes, for the bundle adjustment."""
+
+    between: dict[int, gtsam.PreintegratedCombinedMeasurements]  # i -> from keyframe i to i + 1
+    stamps_s: np.ndarray                 # (K,) keyframe stamps
+    bias: gtsam.imuBias.ConstantBias     # initial estimate and prior mean (IMU frame)
+    bias_prior: gtsam.noiseModel.Base
+    up_odom: np.ndarray                  # gravity's opposite in the factors' frame (unit)
+    tilt_prior_deg: float
+    skipped: list[int] = field(default_factory=list)  # intervals the samples do not cover
+
+
+def up_from_accelerometer(imu: ImuBuffer, stamps_ns: np.ndarray, T_odom_cam: np.ndarray) -> np.ndarray:
+    """The up direction in the odometry frame from the accelerometer: the specific
+    force rotated into the odometry frame by the (interpolated) camera poses and
+    averaged over the walk is gravity's opposite, plus the change of velocity over
+    the walk divided by its duration (cm/s over a minute: negligible)."""
+    cal = imu.calibration
+    samples = imu.samples
+    t_imu = stamps_ns + round(cal.timeshift_cam_imu_s * 1e9)
+    inside = (samples.stamps_ns >= t_imu[0]) & (samples.stamps_ns <= t_imu[-1])
+    if inside.sum() < 2 or len(stamps_ns) < 2:
+        raise ValueError("the IMU samples do not overlap the ego frames")
+    R = Slerp((t_imu - t_imu[0]) * 1e-9, Rotation.from_matrix(T_odom_cam[:, :3, :3]))(
+        (samples.stamps_ns[inside] - t_imu[0]) * 1e-9)
+    f = R.apply(samples.accel[inside] @ cal.T_cam_imu[:3, :3].T).mean(axis=0)
+    return f / np.linalg.norm(f)
+
+
+def keyframe_preintegration(imu: ImuBuffer, stamps_ns: np.ndarray, up_odom: np.ndarray,
+                            params: InertialParams = InertialParams()) -> InertialTerms:
+    """GTSAM combined preintegration between each pair of consecutive keyframes, with
+    the calibration's noise densities (Kalibr's are GTSAM's continuous-time ones), the
+    IMU's orientation in the camera frame (the BA's body; the lever arm is applied in
+    ``ImuBuffer.preintegrate``) and gravity along -``up_odom``."""
+    cal = imu.calibration
+    pim_params = gtsam.PreintegrationCombinedParams(-params.gravity_mps2 * np.asarray(up_odom, float))
+    pim_params.setGyroscopeCovariance(cal.gyroscope_noise_density ** 2 * np.eye(3))
+    pim_params.setAccelerometerCovariance(cal.accelerometer_noise_density ** 2 * np.eye(3))
+    pim_params.setBiasOmegaCovariance(cal.gyroscope_random_walk ** 2 * np.eye(3))
+    pim_params.setBiasAccCovariance(cal.accelerometer_random_walk ** 2 * np.eye(3))
+    pim_params.setIntegrationCovariance(params.integration_sigma ** 2 * np.eye(3))
+    pim_params.setBodyPSensor(gtsam.Pose3(gtsam.Rot3(cal.T_cam_imu[:3, :3]), np.zeros(3)))
+    bias = gtsam.imuBias.ConstantBias(np.zeros(3), imu.bias)
+    between, skipped = {}, []
+    for i in range(len(stamps_ns) - 1):
+        try:
+            between[i] = imu.preintegrate(int(stamps_ns[i]), int(stamps_ns[i + 1]), pim_params, bias)
+        except ValueError:
+            skipped.append(i)
+    prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([params.accel_bias_prior_mps2] * 3
+                                                      + [params.gyro_bias_prior_radps] * 3))
+    return InertialTerms(between, np.asarray(stamps_ns) * 1e-9, bias, prior, np.asarray(up_odom, float),
+                         params.tilt_prior_deg, skipped)

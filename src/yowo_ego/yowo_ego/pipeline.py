@@ -29,7 +29,7 @@ from yowo_common.geometry import inv_se3, se3, transform_points
 
 from .features import FeatureExtractor, FeatureParams, KeyframeFeatures, backproject
 from .frames import FrameError, Undistorter, make_frame, pinhole
-from .imu import ImuBuffer
+from .imu import ImuBuffer, InertialParams, InertialTerms, keyframe_preintegration, up_from_accelerometer
 from .layout import KIND_WALL, Layout, LayoutParams, build_layout
 from .odometry import IMU_BRIDGED, RECOVERED, Keyframe, KeyframeTracker, OdometryEdge, OdometryParams, TrackResult
 from .posegraph import LoopParams, MultiwayRegistration
@@ -51,6 +51,7 @@ class EgoParams:
     bundle: BundleParams = BundleParams()
     cloud: CloudParams = CloudParams()
     layout: LayoutParams = LayoutParams()
+    inertial: InertialParams = InertialParams()
     bundle_adjustment: bool = True       # False: stop after multiway registration (ablation)
     # Open3D's parallel reductions (dense odometry, information matrices) sum in a
     # varying order: runs differ by micrometres per frame, which keyframe and loop
@@ -195,10 +196,11 @@ class EgoMapper:
                      loops_kept=mw.loops_kept)
         T_kf = mw.T_odom_kf
 
-        T_bundle, scene_map = T_kf, _SceneMap.empty()
+        T_bundle, scene_map, inertial_up = T_kf, _SceneMap.empty(), None
         if p.bundle_adjustment:
             t0 = time.perf_counter()
-            T_bundle, scene_map = self._refine(mw, features, T_kf, stats, warnings)
+            inertial = self._inertial_terms(T_kf, stats, warnings) if p.inertial.bundle_factors else None
+            T_bundle, scene_map, inertial_up = self._refine(mw, features, T_kf, stats, warnings, inertial)
             stats["bundle_s"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
@@ -215,6 +217,8 @@ class EgoMapper:
             support = 0
         rect = rectify(n, c, T_bundle[0], support)
         W = rect.T_world_odom
+        if self._imu_usable():
+            self._check_gravity(W, T_bundle, inertial_up, stats, warnings)
         stats.update(cloud_s=time.perf_counter() - t0, cloud_points=len(points), patches=len(patches),
                      floor_points=support, camera_height_m=rect.camera_height_m)
 
@@ -241,10 +245,56 @@ class EgoMapper:
             transform_points(W, m.landmarks) if len(m.landmarks) else m.landmarks, m.descriptors, m.obs_keyframe,
             m.obs_landmark, raw_uv, points_w, colors, layout, rect, trajectories, stats, warnings)
 
+    def _imu_usable(self) -> bool:
+        imu = self.tracker.imu
+        return imu is not None and imu.calibration is not None and len(imu) >= 2
+
+    def _odom_frames(self, T_kf: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """(stamps, odometry-frame poses) of every frame given keyframe poses."""
+        tr = self.tracker
+        return (np.array([r.stamp_ns for r in tr.results], dtype=np.int64),
+                frames_between_keyframes(tr.results, tr.edges, tr.keyframes, T_kf))
+
+    def _inertial_terms(self, T_kf: list[np.ndarray], stats: dict, warnings: list[str]) -> InertialTerms | None:
+        """The IMU between consecutive keyframes, gravity along the accelerometer's
+        mean over the multiway trajectory; None without a usable IMU."""
+        if not self._imu_usable():
+            return None
+        try:
+            up = up_from_accelerometer(self.tracker.imu, *self._odom_frames(T_kf))
+        except ValueError as exc:
+            warnings.append(f"IMU not used in the bundle adjustment: {exc}")
+            return None
+        terms = keyframe_preintegration(self.tracker.imu, np.array([k.stamp_ns for k in self.tracker.keyframes]),
+                                        up, self.params.inertial)
+        stats.update(imu_factors=len(terms.between), imu_intervals_skipped=len(terms.skipped))
+        return terms
+
+    def _check_gravity(self, W: np.ndarray, T_bundle: list[np.ndarray], up: np.ndarray | None, stats: dict,
+                       warnings: list[str]) -> None:
+        """The rectified vertical (the floor's normal) against the IMU's gravity: the
+        bundle adjustment's (``up``, its IMU factors' frame: accelerometer bias
+        estimated) or else the accelerometer's mean over the final trajectory."""
+        if up is None:
+            try:
+                up = up_from_accelerometer(self.tracker.imu, *self._odom_frames(T_bundle))
+            except ValueError as exc:
+                warnings.append(f"no gravity check of the floor rectification: {exc}")
+                return
+        angle = float(np.degrees(np.arccos(np.clip(W[2, :3] @ up, -1.0, 1.0))))
+        stats["gravity_imu_angle_deg"] = angle
+        limit = self.params.inertial.max_gravity_disagreement_deg
+        if angle > limit:
+            warnings.append(f"the floor rectification's vertical is {angle:.1f} deg from the IMU's gravity (> {limit:g} "
+                            "deg): the floor plane found may be wrong, or the IMU calibration (T_cam_imu)")
+
     def _refine(self, mw, features: list[KeyframeFeatures], T_kf: list[np.ndarray], stats: dict,
-                warnings: list[str]) -> tuple[list[np.ndarray], "_SceneMap"]:
+                warnings: list[str], inertial: InertialTerms | None = None
+                ) -> tuple[list[np.ndarray], "_SceneMap", np.ndarray | None]:
         """Visual refinement: filtered matches of every registered keyframe pair ->
-        tracks -> bundle adjustment. Returns the refined keyframe poses and the map."""
+        tracks -> bundle adjustment (with the pose graph's edges and ``inertial``).
+        Returns the refined keyframe poses, the map and the up direction of the IMU
+        factors' gravity (None when none entered)."""
         p, K = self.params, self.ideal.K
         accepted, n_matches, n_epi, n_depth = [], 0, 0, 0
         for pair in mw.pairs:
@@ -260,8 +310,8 @@ class EgoMapper:
         stats.update(matches=n_matches, epipolar_rejected=n_epi, depth_rejected=n_depth, tracks=tracks.count)
         if tracks.count < MIN_TRACKS:
             warnings.append(f"only {tracks.count} feature tracks survived the filters; bundle adjustment skipped")
-            return T_kf, _SceneMap.empty()
-        ba = bundle_adjust(tracks, features, T_kf, self.ideal, p.bundle)
+            return T_kf, _SceneMap.empty(), None
+        ba = bundle_adjust(tracks, features, T_kf, self.ideal, p.bundle, mw.edges, inertial)
         # Landmarks that kept at least two observations after outlier removal.
         counts = np.bincount(ba.obs.point, minlength=len(ba.landmarks))
         keep = counts >= 2
@@ -269,9 +319,14 @@ class EgoMapper:
         sel = keep[ba.obs.point]
         stats.update(landmarks=int(keep.sum()), observations=int(sel.sum()), bundle_rmse_px=ba.rmse_px,
                      bundle_sigma_px=ba.sigma_px, bundle_dropped=ba.dropped, bundle_iterations=ba.iterations)
-        return ba.T_world_kf, _SceneMap(ba.landmarks[keep], np.clip(np.round(ba.descriptors[keep]), 0, 255)
-                                        .astype(np.uint8), ba.obs.camera[sel], remap[ba.obs.point[sel]],
-                                        ba.obs.uv[sel])
+        if ba.biases:
+            b = np.array(list(ba.biases.values()))
+            stats.update(imu_accel_bias_mps2=float(np.linalg.norm(b[:, :3], axis=1).mean()),
+                         imu_gyro_bias_dps=float(np.degrees(np.linalg.norm(b[:, 3:], axis=1).mean())))
+        return (ba.T_world_kf, _SceneMap(ba.landmarks[keep], np.clip(np.round(ba.descriptors[keep]), 0, 255)
+                                         .astype(np.uint8), ba.obs.camera[sel], remap[ba.obs.point[sel]],
+                                         ba.obs.uv[sel]),
+                inertial.up_odom if inertial is not None and inertial.between else None)
 
 
 @dataclass

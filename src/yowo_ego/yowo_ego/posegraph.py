@@ -85,6 +85,7 @@ class MultiwayResult:
     loops_refined: int             # of those, refined densely
     loops_kept: int                # after the line process pruned the inconsistent ones
     pairs: list[PairMatches]       # every matched keyframe pair (consecutive and loops)
+    edges: list[OdometryEdge]      # the graph's edges the optimisation kept (tracking, IMU, break, loop)
 
 
 def loop_candidates_of(b: int, T_odom_kf: list[np.ndarray], params: LoopParams = LoopParams()) -> list[int]:
@@ -220,9 +221,10 @@ def chain_poses(n: int, edges: list[OdometryEdge]) -> list[np.ndarray]:
 
 
 def optimize(keyframes: list[Keyframe], edges: list[OdometryEdge],
-             params: LoopParams = LoopParams()) -> tuple[list[np.ndarray], int]:
+             params: LoopParams = LoopParams()) -> tuple[list[np.ndarray], list[OdometryEdge]]:
     """Global pose-graph optimisation (Open3D, Levenberg-Marquardt with line
-    process on loop edges). Returns T_odom_kf and the number of loop edges kept."""
+    process on loop edges). Returns T_odom_kf and the edges kept (the line
+    process prunes uncertain ones)."""
     graph = reg.PoseGraph()
     for kf in keyframes:
         graph.nodes.append(reg.PoseGraphNode(kf.T_odom_cam))
@@ -236,7 +238,10 @@ def optimize(keyframes: list[Keyframe], edges: list[OdometryEdge],
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         reg.global_optimization(graph, reg.GlobalOptimizationLevenbergMarquardt(),
                                 reg.GlobalOptimizationConvergenceCriteria(), option)
-    kept = sum(1 for e in graph.edges if e.uncertain)
+    # Pruning keeps the order; a tracking break's edge and a loop may join the same pair.
+    remaining = iter(edges)
+    kept = [next(e for e in remaining if (e.source, e.target) == (g.source_node_id, g.target_node_id))
+            for g in graph.edges]
     return [orthonormalize(np.asarray(n.pose)) for n in graph.nodes], kept
 
 
@@ -310,6 +315,6 @@ class MultiwayRegistration:
         nodes = [Keyframe(k.index, k.frame_index, k.stamp_ns, T, k.color, k.depth_mm, k.segment)
                  for k, T in zip(self.keyframes, T_init)]
         T, kept = optimize(nodes, self.edges + self._loops, p)
-        return MultiwayResult(T, self._corrected, len(self._tried), self._verified, len(self._loops), kept,
-                              self._pairs)
+        return MultiwayResult(T, self._corrected, len(self._tried), self._verified, len(self._loops),
+                              sum(e.kind not in ("odometry", "imu") for e in kept), self._pairs, kept)
 

@@ -6,14 +6,22 @@ landmark (sigma from the structured-light noise model): it keeps the metric
 scale of the RGB-D map and acts as the depth prior on landmarks without tying
 them to the (drifting) initial poses as a world-frame prior would. The first
 keyframe is held fixed (gauge). Two rounds: the pixel sigma is re-estimated
-from the residuals (MAD) and gross outliers are dropped between them."""
+from the residuals (MAD) and gross outliers are dropped between them.
+
+The pose graph's edges (dense tracking, IMU bridges, tracking breaks, the loops the
+line process kept) enter as Huber-robust between factors with their information:
+without them a keyframe that sees few features (a bare wall) hangs on a handful of
+projections, and a few wrong matches moved such keyframes by metres (texture_poor).
+With the IMU (``InertialTerms``), consecutive keyframes are joined by GTSAM's
+CombinedImuFactor (preintegrated gyro and accelerometer) with a velocity and a
+bias per keyframe."""
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import L, X
+from gtsam.symbol_shorthand import B, L, V, X
 
 from yowo_common.bundle import (FIXED_SIGMA, Observations, add_projection_factors, optimize, pose3,
                                 reprojection_residuals, robust_sigma)
@@ -21,6 +29,8 @@ from yowo_common.camera import CameraModel
 from yowo_common.geometry import transform_points
 
 from .features import KeyframeFeatures, backproject
+from .imu import InertialTerms
+from .odometry import OdometryEdge
 from .tracks import Tracks
 
 
@@ -34,6 +44,11 @@ class BundleParams:
     rounds: int = 2
     outlier_k: float = 5.0               # observations beyond k sigma are dropped between rounds
     min_track_length: int = 2
+    # The pose graph's edges as between factors; their Open3D information counts each
+    # depth correspondence as 1 m of noise, i.e. a few mm / 0.1 deg per tracking edge.
+    pose_graph_factors: bool = True
+    edge_information_scale: float = 1.0
+    edge_huber_k: float = 1.345          # on the whitened edge error: a wrong edge yields to the features
 
 
 @dataclass
@@ -48,6 +63,8 @@ class BundleOutput:
     final_error: float
     iterations: int
     dropped: int                         # observations removed as outliers
+    velocities: dict[int, np.ndarray]    # keyframe -> world velocity [m/s] (IMU factors only)
+    biases: dict[int, np.ndarray]        # keyframe -> (accelerometer, gyro) bias, IMU frame (IMU factors only)
 
 
 def depth_sigma(z: np.ndarray, params: BundleParams) -> np.ndarray:
@@ -84,9 +101,62 @@ def landmarks_from_tracks(tracks: Tracks, features: list[KeyframeFeatures], T_wo
     return new_id[trk[sel]], points, kf[sel], feat[sel], uv[sel], depth[sel]
 
 
+def edge_factor(edge: OdometryEdge, params: BundleParams) -> gtsam.BetweenFactorPose3:
+    """A pose-graph edge as a GTSAM between factor. Open3D's information is for a
+    perturbation of T_target_source on the left (in the target's frame), GTSAM's
+    between error is on the right: info = Ad_T^T info_left Ad_T."""
+    T = pose3(edge.T_target_source)
+    Ad = T.AdjointMap()
+    info = Ad.T @ (edge.information * params.edge_information_scale) @ Ad
+    model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(params.edge_huber_k),
+                                           gtsam.noiseModel.Gaussian.Information(0.5 * (info + info.T)))
+    return gtsam.BetweenFactorPose3(X(edge.target), X(edge.source), T, model)
+
+
+def gauge_model(T0: np.ndarray, inertial: InertialTerms | None) -> gtsam.noiseModel.Base:
+    """The first keyframe's prior: fixed; with IMU factors free to tilt (about the axes
+    across gravity) so that the accelerometer, whose bias the factors estimate, sets
+    the vertical rather than the initial guess of gravity (their mean specific force,
+    off by the accelerometer bias: ~0.5 deg)."""
+    if inertial is None or not inertial.between:
+        return gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)
+    u = np.asarray(inertial.up_odom, float)
+    tilt = np.radians(inertial.tilt_prior_deg)
+    rot_nav = tilt ** 2 * (np.eye(3) - np.outer(u, u)) + FIXED_SIGMA ** 2 * np.outer(u, u)
+    R = T0[:3, :3]            # tangent perturbations are in the keyframe's frame
+    cov = np.zeros((6, 6))
+    cov[:3, :3] = R.T @ rot_nav @ R
+    cov[3:, 3:] = FIXED_SIGMA ** 2 * np.eye(3)
+    return gtsam.noiseModel.Gaussian.Covariance(cov)
+
+
+def add_inertial(graph, values, T_world_kf: list[np.ndarray], inertial: InertialTerms, previous=None) -> None:
+    """CombinedImuFactor between each pair of consecutive keyframes the IMU covers;
+    velocities start from the keyframe positions' differences, biases from the
+    terms' estimate (or ``previous`` values), with a prior where each chain starts."""
+    nodes = sorted({i for i in inertial.between} | {i + 1 for i in inertial.between})
+    t = inertial.stamps_s
+    for i in nodes:
+        lo, hi = (i - 1 if i - 1 in nodes else i), (i + 1 if i + 1 in nodes else i)
+        v = (T_world_kf[hi][:3, 3] - T_world_kf[lo][:3, 3]) / max(t[hi] - t[lo], 1e-3)
+        if previous is not None and previous.exists(V(i)):
+            values.insert(V(i), previous.atVector(V(i)))
+            values.insert(B(i), previous.atConstantBias(B(i)))
+        else:
+            values.insert(V(i), v)
+            values.insert(B(i), inertial.bias)
+        if i - 1 not in inertial.between:
+            graph.add(gtsam.PriorFactorConstantBias(B(i), inertial.bias, inertial.bias_prior))
+    for i, pim in inertial.between.items():
+        graph.add(gtsam.CombinedImuFactor(X(i), V(i), X(i + 1), V(i + 1), B(i), B(i + 1), pim))
+
+
 def bundle_adjust(tracks: Tracks, features: list[KeyframeFeatures], T_world_kf: list[np.ndarray],
-                  camera: CameraModel, params: BundleParams = BundleParams()) -> BundleOutput:
-    """Refine keyframe poses and landmarks; `camera` is the undistorted pinhole."""
+                  camera: CameraModel, params: BundleParams = BundleParams(),
+                  edges: list[OdometryEdge] = (), inertial: InertialTerms | None = None) -> BundleOutput:
+    """Refine keyframe poses and landmarks; `camera` is the undistorted pinhole.
+    ``edges``: the pose graph's (with ``params.pose_graph_factors``); ``inertial``:
+    preintegrated IMU between consecutive keyframes."""
     K = camera.K
     lm, points, kf, feat, uv, depth = landmarks_from_tracks(tracks, features, T_world_kf, K, params)
     descriptors = np.zeros((len(points), 128), np.float32)
@@ -101,6 +171,7 @@ def bundle_adjust(tracks: Tracks, features: list[KeyframeFeatures], T_world_kf: 
     sigma, dropped, keep = params.sigma_px, 0, np.ones(len(kf), bool)
     initial_error = final_error = 0.0
     iterations = 0
+    result = None
     for rnd in range(params.rounds):
         if rnd > 0:
             res = reprojection_residuals(cameras, T, P, obs)
@@ -112,7 +183,7 @@ def bundle_adjust(tracks: Tracks, features: list[KeyframeFeatures], T_world_kf: 
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         for i, Ti in enumerate(T):
             values.insert(X(i), pose3(Ti))
-        graph.add(gtsam.PriorFactorPose3(X(0), pose3(T[0]), gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)))
+        graph.add(gtsam.PriorFactorPose3(X(0), pose3(T[0]), gauge_model(T[0], inertial)))
         for j in np.unique(current.point):
             values.insert(L(int(j)), gtsam.Point3(*P[j]))
         add_projection_factors(graph, current, cameras, X, L, params.huber_k)
@@ -124,6 +195,11 @@ def bundle_adjust(tracks: Tracks, features: list[KeyframeFeatures], T_world_kf: 
                   for s in np.unique(sigmas)}
         for c, j, r, s in zip(obs.camera[has], obs.point[has], ranges[has], sigmas):
             graph.add(gtsam.RangeFactor3D(X(int(c)), L(int(j)), float(r), models[s]))
+        if params.pose_graph_factors:
+            for e in edges:
+                graph.add(edge_factor(e, params))
+        if inertial is not None and inertial.between:
+            add_inertial(graph, values, T, inertial, result)
         result, e0, e1, its = optimize(graph, values, params.max_iterations)
         if rnd == 0:
             initial_error = e0
@@ -135,4 +211,11 @@ def bundle_adjust(tracks: Tracks, features: list[KeyframeFeatures], T_world_kf: 
     res = reprojection_residuals(cameras, T, P, obs)[keep]
     rmse = float(np.sqrt(np.nanmean(np.sum(res**2, axis=1)))) if len(res) else float("nan")
     final_obs = Observations(obs.camera[keep], obs.point[keep], obs.uv[keep], np.full(int(keep.sum()), sigma))
-    return BundleOutput(T, P, descriptors, final_obs, rmse, sigma, initial_error, final_error, iterations, dropped)
+    velocities, biases = {}, {}
+    if inertial is not None and result is not None:
+        for i in sorted({i for i in inertial.between} | {i + 1 for i in inertial.between}):
+            velocities[i] = np.asarray(result.atVector(V(i)))
+            b = result.atConstantBias(B(i))
+            biases[i] = np.concatenate([b.accelerometer(), b.gyroscope()])
+    return BundleOutput(T, P, descriptors, final_obs, rmse, sigma, initial_error, final_error, iterations, dropped,
+                        velocities, biases)

@@ -10,7 +10,7 @@ IoU, gravity error and processing speed.
   alignment; yaw and position do not enter).
 - Speed: ego frames / wall-clock seconds for decoding and the whole stage.
 
-    python -m yowo_eval.ego_bench BAG [BAG ...]
+    python -m yowo_eval.ego_bench [--no-imu] BAG [BAG ...]
 """
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -74,10 +75,14 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m yowo_eval.ego_bench", description=__doc__.split("\n\n")[0])
     parser.add_argument("bags", nargs="+")
     parser.add_argument("--json", help="write all metrics to this file")
+    parser.add_argument("--no-imu", action="store_true", help="track without the recording's IMU (ablation)")
     args = parser.parse_args(argv)
+    params = EgoParams()
+    if args.no_imu:
+        params = replace(params, odometry=replace(params.odometry, use_imu=False))
     rows = {}
     for bag in args.bags:
-        m = bench_bag(bag)
+        m = bench_bag(bag, params)
         rows[bag] = m
         print(f"{bag}: ATE odometry {m['ate_odometry_m']:.3f} m, multiway {m['ate_multiway_m']:.3f} m, "
               f"BA {m.get('ate_bundle_m', float('nan')):.3f} m; layout IoU {m['layout_iou']:.3f}; gravity "
