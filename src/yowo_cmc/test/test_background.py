@@ -16,3 +16,15 @@ def test_median_removes_a_moving_agent_and_memory_stays_bounded():
             bg.add(stamp, frame)
     assert len(bg.frames) <= 21 and bg.count >= 30
     np.testing.assert_array_equal(bg.image(), scene)
+
+
+def test_the_background_is_the_per_pixel_median_of_the_samples():
+    rng = np.random.default_rng(1)
+    for n in (7, 8):                 # odd and even counts (the mean of the middle two, truncated)
+        bg = BackgroundSampler(period_s=1.0)
+        frames = [rng.integers(0, 256, (6, 5, 3), dtype=np.uint8) for _ in range(n)]
+        for k, f in enumerate(frames):
+            bg.add(k * 1_000_000_000, f)
+        expected = np.array([[[int(np.median([f[y, x, c] for f in frames])) for c in range(3)] for x in range(5)]
+                             for y in range(6)], dtype=np.uint8)
+        np.testing.assert_array_equal(bg.image(), expected)
