@@ -68,6 +68,7 @@ def write_session(root, frames: int = 3, video: bool = False):
                 people.append({"person_id": [-1], "pose_keypoints_2d": [round(float(v), 4) for v in flat]})
             if f:
                 people.reverse()
+                people.append({"person_id": [-1], "pose_keypoints_2d": []})   # OpenPose: a body not estimated
             (d / f"{cam}.{f:04d}.json").write_text(json.dumps({"version": 1.3, "people": people}))
     if video:
         (root / "videos").mkdir()

@@ -7,7 +7,18 @@ its code, body joints 2+) and, with --videos, the frames as JPEG CompressedImage
 reference poses on /gt/cmc/<name>/pose for the evaluation only (hence in yowo_eval).
 
 Pose2Sim pairs calibration cameras, keypoint folders and videos by sorted order; so does
-this importer (and prints the pairing)."""
+this importer (and prints the pairing).
+
+The Pose2Sim demo recording (github perfanalytics/pose2sim, BSD-3-Clause; its keypoints and
+converted calibration are in the repository's history, not its newest tree):
+
+    G="git --git-dir=<fetched pose2sim>"; T=Pose2Sim/Demo/S00_Demo_Session
+    $G archive a948c20~1 $T/S00_P00_SingleParticipant/S00_P00_T01_BalancingTrial | tar x --strip-components=5
+    $G show bea4835~1:$T/S00_Calibration/Calib_qualisys.toml > Calib_qualisys.toml
+    yowo import-multiview . --calibration Calib_qualisys.toml -o p2s_kp             # keypoints
+    yowo import-multiview . --calibration Calib_qualisys.toml --videos -o p2s_video # + videos
+"""
+
 from __future__ import annotations
 
 import json
@@ -163,6 +174,8 @@ def read_people(path: Path, fmt: str) -> list[tuple[np.ndarray, np.ndarray]]:
             a = np.asarray(flat, dtype=float).reshape(-1, 3)
         except (TypeError, ValueError):
             raise MultiviewImportError(f"{path}: person {k}: pose_keypoints_2d is not a list of x, y, c") from None
+        if len(a) == 0:         # OpenPose writes a person whose body was not estimated with no joints
+            continue
         if len(a) != n:
             raise MultiviewImportError(f"{path}: person {k} has {len(a)} joints; {fmt} has {n} "
                                        f"(choose the format with --keypoint-format: {', '.join(all_formats())})")
