@@ -161,3 +161,43 @@ def test_a_group_track_too_short_for_its_clock_offset_says_so():
     far = estimate_clock_offset(ego.stamps_ns[:50] + 10**11, ego.T_world_ego[:50, :3, 3], ego.stamps_ns,
                                 ego.T_world_ego)
     assert far.offset_s is None and "overlaps the ego recording at no shift" in far.reason
+
+
+def broken_ego(ego: EgoMapData, t_break_s: float, lost_s: float, jump: np.ndarray) -> EgoMapData:
+    """The ego map lost track for lost_s at t_break_s (no frames) and resumed moved by the
+    rigid `jump` about the break point."""
+    t = (ego.stamps_ns - ego.stamps_ns[0]) / 1e9
+    keep = (t < t_break_s) | (t >= t_break_s + lost_s)
+    at = int(np.argmax(t >= t_break_s + lost_s))
+    pivot = se3(np.eye(3), ego.T_world_ego[at][:3, 3])
+    J = pivot @ jump @ np.linalg.inv(pivot)
+    T = np.array([P if tt < t_break_s else J @ P for tt, P in zip(t, ego.T_world_ego)])
+    return EgoMapData(ego.camera, ego.stamps_ns[keep], T[keep], ego.landmarks, ego.descriptor_type, ego.descriptors,
+                      ego.obs_pose, ego.obs_landmark, ego.obs_uv, ego.cloud_points, ego.cloud_colors, ego.layout)
+
+
+@pytest.mark.parametrize("jump_m, jump_deg", [(0.3, 6.0), (1.5, 40.0)])
+def test_broken_ego_map_is_repaired_or_blamed_never_ok(jump_m, jump_deg):
+    """The ego map lost track in room A for 0.6 s and resumed off. A moderate jump: the
+    group fits, the joint optimisation puts the rest of the ego map back with the agent
+    track (room A and room B's isolated camera within centimetres), and no camera is ok:
+    each rests on the broken stretch. A large jump: the group cannot be aligned, and the
+    reason blames the ego map's gap, not the self-consistent group."""
+    cams, tracks, ego = world()
+    truth = ego
+    ego = broken_ego(ego, 10.0, 0.6, se3(Rotation.from_euler("z", jump_deg, degrees=True).as_matrix(),
+                                         [jump_m, 0.0, 0.0]))
+    grouping = calibrate_groups(tracks)
+    result = fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks})
+    by_name = {c.name: c for c in result.cameras}
+    assert all(c.status != OK for c in result.cameras), [(c.name, c.status, c.reason) for c in result.cameras]
+    if jump_m < 1:
+        assert all(by_name[n].method == GROUP_SFM and "1 gap(s)" in by_name[n].reason for n in ("a1", "a2", "a3"))
+        errs = registration_errors({n: c.T_world_cam for n, c in by_name.items()}, {n: T for n, (_, T) in cams.items()})
+        assert all(e.eps_pos_m < 0.05 for e in errs), [(e.name, e.eps_pos_m) for e in errs]
+        after = np.isin(truth.stamps_ns, ego.stamps_ns)
+        err = np.linalg.norm(result.T_world_ego[:, :3, 3] - truth.T_world_ego[after, :3, 3], axis=1)
+        assert err.max() < 0.05, err.max()
+    else:
+        for n in ("a1", "a2", "a3"):
+            assert "the ego map is at fault" in by_name[n].reason and "1 gap(s)" in by_name[n].reason, by_name[n].reason

@@ -6,23 +6,31 @@
 - a2e (eq. f_e2e): the agent's head top against the ego camera. The paper treats the
   camera/head-top offset as noise; here the head is rigid, so the head top is
   T_world_ego(t) * o with one unknown offset o (in the ego camera frame) estimated
-  jointly. The factor is linearised at the initial estimate (LinearContainerFactor
-  around a JacobianFactor) because Python custom factors are too slow at this size;
+  jointly: an auxiliary point Q_k, the head top in its anchor's frame, is exactly linear
+  in o (a JacobianFactor), and the built-in ReferenceFrameFactor ties it through the
+  anchor pose to the agent point (Huber): nonlinear in the pose, so the agent track can
+  turn a piece of the ego map by degrees, not only nudge it;
 - kin (eq. f_kin): constant-velocity second difference of the head-top track and
   constant top-to-bottom vector between successive frames, both linear (exact); our
   addition: that vector is vertical (the ground point is under the head top).
 Ego poses: only anchor frames are variables: the keyframes (they carry the ego
 observations) and a frame at least every max_anchor_gap_s, chained by the ego map's
-relative poses (millimetres between keyframes). Every other frame is the ego map's
-tracked motion from its nearest anchor: the a2e factor predicts its head top through
-that fixed relative pose, and after the solve it takes the anchors' corrections
-(T_new T_old^-1) interpolated in time. Free per-frame poses would follow each a2e
-residual (head-top triangulation noise and the head's bob, centimetres) and lose the
-ego map's millimetre frame-to-frame accuracy.
-Gauge: the ego map fixes the world: a tight prior on the first ego pose, priors on
-every anchor pose (the ego map's own estimate) and depth-derived priors on the landmarks
-(scale). The agent's ground points get a prior on the floor plane z = 0 (the ego
-map's floor), which also observes the vertical part of the head offset."""
+relative poses (Huber): millimetres between keyframes where the ego map tracked well,
+ego_weak_between_sigma where it did not (JointProblem.ego_weak_frames: a tracking break,
+a stretch of keyframes with almost no landmarks). There the agent track seen by the CMC
+groups holds the pieces together (agent anchoring): a drifting or broken ego map is
+repaired, not only the CMCs fitted to it. Every other frame is the ego map's tracked
+motion from its nearest anchor: the a2e factor predicts its head top through that fixed
+relative pose, and after the solve it takes the anchors' corrections (T_new T_old^-1)
+interpolated in time. Free per-frame poses would follow each a2e residual (head-top
+triangulation noise and the head's bob, centimetres) and lose the ego map's millimetre
+frame-to-frame accuracy.
+Gauge: the ego map's first pose (a tight prior), its chain of relative poses and the
+landmarks' depth-derived positions relative to the keyframe that first saw them (scale;
+relative, so a piece of the map moves with its landmarks). No prior holds an anchor to
+the ego map's absolute estimate: that would hold a broken piece where the ego map put
+it. The agent's ground points get a prior on the floor plane z = 0 (the ego map's
+floor), which also observes the vertical part of the head offset."""
 from __future__ import annotations
 
 import re
@@ -30,12 +38,12 @@ from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import A, C, D, L, O, X
+from gtsam.symbol_shorthand import A, C, D, H, L, M, O, Q, X
 
 from yowo_common.bundle import (FIXED_SIGMA, Observations, add_projection_factors, optimize, pose3,
                                 reprojection_residuals)
 from yowo_common.camera import CameraModel
-from yowo_common.geometry import inv_se3, skew
+from yowo_common.geometry import inv_se3
 
 TOP, BOTTOM = 0, 1
 UNKNOWN_COVARIANCE = np.full((6, 6), np.nan)   # a pose whose covariance could not be computed
@@ -47,8 +55,13 @@ class JointParams:
     huber_k: float = 1.345
     ego_sigma_px: float = 1.0
     landmark_prior_sigma_m: float = 0.05     # depth-derived position of each ego landmark
-    ego_prior_sigma: tuple[float, float] = (0.02, 0.05)  # (rad, m) the ego map's own pose estimate
     ego_between_sigma: tuple[float, float] = (0.001, 0.002)  # (rad, m) its motion between consecutive anchors
+    # (rad, m) an anchor step over a frame the ego map does not vouch for (JointProblem.ego_weak_frames):
+    # a break joined by a guess, or tracking on next to no landmarks.
+    ego_weak_between_sigma: tuple[float, float] = (0.2, 0.5)
+    # Huber threshold of the chain's whitened 6-DoF residual: above the ~sqrt(6) of a good
+    # step, so the chain is Gaussian where the ego map holds and gives way at a break it missed.
+    ego_between_huber_k: float = 5.0
     floor_sigma_m: float = 0.03              # the agent's ground point lies on the floor z = 0
     a2e_sigma_m: float = 0.05                # head-top vs predicted head top (offset model residual)
     kin_accel_sigma_m: float = 0.05          # per grid step, second difference of the head top
@@ -76,6 +89,8 @@ class JointProblem:
     cmc_agent_obs: Observations              # camera = CMC index, point = agent point index
     head_offset: np.ndarray = field(default_factory=lambda: np.array([0.0, -0.1, -0.05]))  # o, ego frame
     agent_chain: np.ndarray | None = None    # (K,) track id (CMC group) of each agent point; None: one track
+    # (F,) True where the ego map's motion from the previous frame is unreliable; None: nowhere
+    ego_weak_frames: np.ndarray | None = None
 
 
 @dataclass
@@ -158,22 +173,21 @@ def _linear(keys_and_blocks, b, sigma, values) -> gtsam.LinearContainerFactor:
 def solve_joint(p: JointProblem, params: JointParams = JointParams()) -> JointResult:
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
-    anchors = anchor_frames(p.ego_stamps_ns, p.ego_obs.camera, params.max_anchor_gap_s)
-    ego_prior = gtsam.noiseModel.Diagonal.Sigmas(np.repeat(params.ego_prior_sigma, 3))
-    ego_between = gtsam.noiseModel.Diagonal.Sigmas(np.repeat(params.ego_between_sigma, 3))
+    # Both ends of a weak step are anchors: the frames beside it must not take a share of
+    # the other side's correction.
+    weak = np.flatnonzero(p.ego_weak_frames) if p.ego_weak_frames is not None else np.zeros(0, int)
+    anchors = anchor_frames(p.ego_stamps_ns, np.concatenate([p.ego_obs.camera, weak, weak - 1]),
+                            params.max_anchor_gap_s)
     T_ego0 = np.asarray(p.T_world_ego)
     for f in anchors:
         values.insert(X(f), pose3(T_ego0[f]))
-        graph.add(gtsam.PriorFactorPose3(X(f), pose3(T_ego0[f]), ego_prior))
-    for f0, f1 in zip(anchors[:-1], anchors[1:]):
-        graph.add(gtsam.BetweenFactorPose3(X(f0), X(f1), pose3(inv_se3(T_ego0[f0]) @ T_ego0[f1]), ego_between))
+    _add_ego_chain(graph, p, params, anchors)
     graph.add(gtsam.PriorFactorPose3(X(int(anchors[0])), pose3(p.T_world_ego[anchors[0]]),
                                      gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)))
     lm_used = np.union1d(p.ego_obs.point, p.cmc_scene_obs.point).astype(int)
-    prior = gtsam.noiseModel.Isotropic.Sigma(3, params.landmark_prior_sigma_m)
     for j in lm_used:
         values.insert(L(j), gtsam.Point3(*p.landmarks[j]))
-        graph.add(gtsam.PriorFactorPoint3(L(j), gtsam.Point3(*p.landmarks[j]), prior))
+    _add_landmark_priors(graph, values, p, params, lm_used)
     for i, T in enumerate(p.T_world_cmc):
         values.insert(C(i), pose3(T))
     for k, P in enumerate(p.agent_points):
@@ -228,11 +242,44 @@ def _chains(p: JointProblem) -> np.ndarray:
     return np.zeros(len(p.agent_ids), int) if p.agent_chain is None else np.asarray(p.agent_chain)
 
 
+def _add_ego_chain(graph, p: JointProblem, params: JointParams, anchors: np.ndarray) -> None:
+    """The ego map's relative pose between consecutive anchors (Huber), loose where a frame
+    between them is one the ego map does not vouch for."""
+    T = np.asarray(p.T_world_ego)
+    weak = np.zeros(len(T), bool) if p.ego_weak_frames is None else np.asarray(p.ego_weak_frames, bool)
+    huber = gtsam.noiseModel.mEstimator.Huber.Create(params.ego_between_huber_k)
+    models = [gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Diagonal.Sigmas(np.repeat(sigma, 3)))
+              for sigma in (params.ego_between_sigma, params.ego_weak_between_sigma)]
+    for f0, f1 in zip(anchors[:-1], anchors[1:]):
+        graph.add(gtsam.BetweenFactorPose3(X(int(f0)), X(int(f1)), pose3(inv_se3(T[f0]) @ T[f1]),
+                                           models[int(weak[f0 + 1:f1 + 1].any())]))
+
+
+def _add_landmark_priors(graph, values, p: JointProblem, params: JointParams, landmarks: np.ndarray) -> None:
+    """Each ego landmark's depth-derived position in the frame of the first keyframe that
+    saw it (M_j, held there; ReferenceFrameFactor to the world point L_j): it moves with its
+    piece of the ego map. A landmark only CMCs matched keeps an absolute prior."""
+    T = np.asarray(p.T_world_ego)
+    first = np.full(len(p.landmarks), -1)
+    order = np.argsort(p.ego_obs.camera, kind="stable")[::-1]   # the earliest frame written last
+    first[p.ego_obs.point[order]] = p.ego_obs.camera[order]
+    noise = gtsam.noiseModel.Isotropic.Sigma(3, params.landmark_prior_sigma_m)
+    held = gtsam.noiseModel.Isotropic.Sigma(3, FIXED_SIGMA)
+    for j in landmarks:
+        f = int(first[j])
+        if f < 0:
+            graph.add(gtsam.PriorFactorPoint3(L(int(j)), gtsam.Point3(*p.landmarks[j]), noise))
+            continue
+        local = gtsam.Point3(*(T[f][:3, :3].T @ (p.landmarks[j] - T[f][:3, 3])))
+        values.insert(M(int(j)), local)
+        graph.add(gtsam.PriorFactorPoint3(M(int(j)), local, held))
+        graph.add(gtsam.ReferenceFrameFactorPoint3Pose3(M(int(j)), X(f), L(int(j)), noise))
+
+
 def _add_a2e(graph, values, p: JointProblem, params: JointParams, anchors: np.ndarray) -> None:
-    """Head top A_k = T_a (T_a^-1 T_f o + (interpolated - frame f's position)), f the frame
-    nearest to the agent point's stamp and a the anchor nearest to f, both relative poses
-    from the ego map (a JacobianFactor takes three keys: anchor pose, offset, point),
-    linearised at the initial values.
+    """Head top A_k = T_a Q_k, Q_k = T_a^-1 T_f o + (interpolated - frame f's position) in
+    the anchor's frame, f the frame nearest to the agent point's stamp and a the anchor
+    nearest to f, both relative poses from the ego map.
     A ground point whose group lost the head top at that stamp is tied horizontally to the
     predicted head top (it stands under it, up to the gait's sway): without it a group that
     tracked mostly the feet (noisy keypoints) keeps only the floor's z and slides and turns
@@ -241,33 +288,42 @@ def _add_a2e(graph, values, p: JointProblem, params: JointParams, anchors: np.nd
     tops = set(zip(chain[p.agent_ids == TOP].tolist(), p.agent_stamps_ns[p.agent_ids == TOP].tolist()))
     bottom = np.flatnonzero(p.agent_ids == BOTTOM)
     lone = bottom[[(int(chain[k]), int(p.agent_stamps_ns[k])) not in tops for k in bottom]].astype(int)
-    I3 = np.eye(3)
-    for members, rows, sigma in ((np.flatnonzero(p.agent_ids == TOP), I3, params.a2e_sigma_m),
-                                 (lone, I3[:2], float(np.hypot(params.a2e_sigma_m, params.upright_sigma_m)))):
-        _add_head_top_factors(graph, values, p, params, anchors, members, rows, sigma)
+    _add_head_top_factors(graph, values, p, params, anchors, np.flatnonzero(p.agent_ids == TOP), False,
+                          params.a2e_sigma_m)
+    _add_head_top_factors(graph, values, p, params, anchors, lone, True,
+                          float(np.hypot(params.a2e_sigma_m, params.upright_sigma_m)))
 
 
 def _add_head_top_factors(graph, values, p: JointProblem, params: JointParams, anchors: np.ndarray,
-                          members: np.ndarray, rows: np.ndarray, sigma: float) -> None:
-    """rows @ (A_k - predicted head top) ~ N(0, sigma) for the agent points in members."""
+                          members: np.ndarray, lone: bool, sigma: float) -> None:
+    """A_k ~ T_a Q_k (Huber, sigma) for the agent points in members; for lone ground points
+    only horizontally, through the predicted head top H_k = T_a Q_k."""
     left, right, a, ok = interpolation_pairs(p.ego_stamps_ns, p.agent_stamps_ns[members],
                                              int(params.max_a2e_gap_s * 1e9))
     o = p.head_offset
     T = np.asarray(p.T_world_ego)
     nearest = nearest_anchor(p.ego_stamps_ns, anchors)
+    model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(params.huber_k),
+                                           gtsam.noiseModel.Isotropic.Sigma(3, sigma))
+    I3 = np.eye(3)
     for k, f0, f1, w in zip(members[ok], left[ok], right[ok], a[ok]):
-        f = int(f1 if w >= 0.5 else f0)
+        k, f = int(k), int(f1 if w >= 0.5 else f0)
         g = int(nearest[f])
         Ra, ta = T[g][:3, :3], T[g][:3, 3]
         between = (1 - w) * T[f0][:3, 3] + w * T[f1][:3, 3] - T[f][:3, 3]
-        # The head top in the anchor's frame, and the offset's direction there.
         R_rel = Ra.T @ T[f][:3, :3]
-        q = R_rel @ o + Ra.T @ (T[f][:3, 3] + between - ta)
-        predicted = Ra @ q + ta
-        # d(R q + t) / d[w, v] for a right perturbation T Exp([w, v]): [-R [q]x, R]
-        blocks = [(X(g), rows @ np.hstack([-Ra @ skew(q), Ra])), (O(0), rows @ Ra @ R_rel), (A(int(k)), -rows)]
-        # error(delta) = predicted + J delta - A0 (A's own delta is in J): b = A0 - predicted.
-        graph.add(_linear(blocks, rows @ (p.agent_points[k] - predicted), sigma, values))
+        c = Ra.T @ (T[f][:3, 3] + between - ta)
+        values.insert(Q(k), gtsam.Point3(*(R_rel @ o + c)))
+        # Q_k - R_rel o = c: linear in the offset, exact.
+        graph.add(_linear([(Q(k), I3), (O(0), -R_rel)], np.zeros(3), FIXED_SIGMA * 1e3, values))
+        if not lone:
+            graph.add(gtsam.ReferenceFrameFactorPoint3Pose3(Q(k), X(g), A(k), model))
+            continue
+        predicted = Ra @ (R_rel @ o + c) + ta
+        values.insert(H(k), gtsam.Point3(*predicted))
+        graph.add(gtsam.ReferenceFrameFactorPoint3Pose3(Q(k), X(g), H(k), model))
+        graph.add(_linear([(A(k), I3[:2]), (H(k), -I3[:2])], (predicted - p.agent_points[k])[:2],
+                          FIXED_SIGMA * 1e3, values))
 
 
 def _add_kinematics(graph, values, p: JointProblem, params: JointParams) -> None:

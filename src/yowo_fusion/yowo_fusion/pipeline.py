@@ -17,7 +17,7 @@ from yowo_common.geometry import Sim3
 from yowo_ego.layout import Layout, LayoutParams
 from yowo_ego.scene import CloudParams
 
-from .alignment import AlignParams, ClockFit, align_group, estimate_clock_offset
+from .alignment import AlignParams, ClockFit, align_group, estimate_clock_offset, interpolate_positions
 from .isolated import AgentTrack, IsolatedParams, refine_pose, register_by_agent
 from .joint import (UNKNOWN_COVARIANCE, JointParams, JointProblem, covariance_unavailable, ros_covariance,
                     solve_joint, solver_failure)
@@ -97,6 +97,17 @@ class FusionParams:
     layout: LayoutParams = LayoutParams()
     ok_rmse_px: float = 3.0
     ok_position_sigma_m: float = 0.10
+    # Where the ego map is not to be trusted (weak_ego_frames): frames tracked from a keyframe
+    # with fewer landmark observations than this (its BA had next to nothing: bare walls, dark)...
+    weak_keyframe_landmarks: int = 20
+    # ...or after a gap in its frames longer than this (lost track, rejected frames).
+    weak_frame_gap_s: float = 0.3
+    # A camera whose registration rests on a stretch of the ego map with more weak frames
+    # than this share is never ok (nor one whose stretch holds a gap).
+    ok_weak_share: float = 0.2
+    # After the joint optimisation, a group's head-top track and the head top the ego
+    # trajectory predicts differ by more than this (RMS): one of the two is wrong.
+    ok_track_rms_m: float = 0.10
 
 
 @dataclass
@@ -148,7 +159,7 @@ def head_offset_estimate(group: CameraGroupResult, ego: EgoMapData, params: Alig
     al = align_group(stamps, local, ego.stamps_ns, ego.T_world_ego[:, :3, 3], params, *ground)
     if al.rms_m > params.max_rms_m:
         raise ValueError(f"its agent track does not fit the ego trajectory (RMS {al.rms_m:.2f} m > "
-                         f"{params.max_rms_m:g} m): the group's reconstruction is degenerate")
+                         f"{params.max_rms_m:g} m)")
     return _head_offset(_on_floor(al.sim3_world_local, group), stamps, local, ego,
                         int(params.max_time_gap_s * 1e9)), al.num_clusters
 
@@ -170,6 +181,84 @@ def weighted_median(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
         cum = np.cumsum(weights[order])
         out.append(column[order][np.searchsorted(cum, 0.5 * cum[-1])])
     return np.array(out)
+
+
+def weak_ego_frames(ego: EgoMapData, params: FusionParams) -> tuple[np.ndarray, np.ndarray]:
+    """(weak, gap), each (F,): frame f's motion from frame f-1 is not to be trusted (weak:
+    tracked from a keyframe with fewer than weak_keyframe_landmarks landmark observations,
+    or after a gap), and gap: more than weak_frame_gap_s after frame f-1 (the ego map lost
+    track or rejected frames there; what joins the two sides is a guess). A map without
+    any landmark observations (a trajectory alone) is judged by its gaps only."""
+    n = len(ego.stamps_ns)
+    gap = np.zeros(n, bool)
+    gap[1:] = np.diff(ego.stamps_ns) > params.weak_frame_gap_s * 1e9
+    weak = gap.copy()
+    counts = np.bincount(ego.obs_pose.astype(int), minlength=n)[:n]
+    keyframes = np.flatnonzero(counts)
+    if len(keyframes):
+        last = np.searchsorted(keyframes, np.arange(n), side="right") - 1
+        weak |= np.where(last >= 0, counts[keyframes[np.maximum(last, 0)]], 0) < params.weak_keyframe_landmarks
+    weak[0] = False
+    return weak, gap
+
+
+@dataclass
+class EgoStretch:
+    """The ego map along the stretch of the walk (first to last frame) a camera's
+    registration rests on: its share of weak frames, and the gaps from the map's first
+    frame (the world's origin) to the stretch's end: the stretch's place in the world rests
+    on every join before it."""
+
+    frames: int
+    weak_share: float
+    gaps: int
+
+    def broken(self, params: FusionParams) -> bool:
+        return self.gaps > 0 or self.weak_share > params.ok_weak_share
+
+    def describe(self) -> str:
+        parts = [f"{100 * self.weak_share:.0f} % of its {self.frames} frames tracked from keyframes with next to "
+                 "no landmarks"] if self.weak_share >= 0.005 else []
+        if self.gaps:
+            parts.append(f"{self.gaps} gap(s) where it lost track, up to the stretch's end")
+        return ", ".join(parts) or f"its {self.frames} frames well tracked"
+
+
+def ego_stretch(ego: EgoMapData, weak: tuple[np.ndarray, np.ndarray], stamps_ns: np.ndarray,
+                max_gap_s: float) -> EgoStretch:
+    """The ego frames between the first and last of `stamps_ns` that fall in the recording."""
+    f = np.clip(np.searchsorted(ego.stamps_ns, stamps_ns), 0, len(ego.stamps_ns) - 1)
+    f = f[np.abs(ego.stamps_ns[f] - stamps_ns) <= max_gap_s * 1e9]
+    if not len(f):
+        return EgoStretch(0, 0.0, 0)
+    lo, hi = int(f.min()), int(f.max())
+    return EgoStretch(hi - lo + 1, float(weak[0][lo + 1:hi + 1].mean()) if hi > lo else 0.0,
+                      int(weak[1][:hi + 1].sum()))
+
+
+def blame(group: CameraGroupResult, stretch: EgoStretch, params: FusionParams) -> str:
+    """Which of the two is wrong when a group's agent track and the ego trajectory disagree:
+    the group's own reprojection residuals against the ego map's tracking along the
+    stretch the group saw."""
+    worst = max(group.rmse_px.values(), default=float("nan"))
+    consistent = bool(np.isfinite(worst) and worst <= params.ok_rmse_px)
+    if not consistent:
+        return f"the group's reconstruction is at fault (its reprojection RMSE reaches {worst:.2f} px)"
+    own = f"the group is self-consistent (reprojection RMSE <= {worst:.2f} px)"
+    if stretch.broken(params):
+        return f"the ego map is at fault ({stretch.describe()}); {own}"
+    return f"undecided: {own} and the ego map tracked that stretch well ({stretch.describe()})"
+
+
+def head_top_rms(agent: AgentTrack, chain: np.ndarray, c: int, ego_stamps_ns: np.ndarray, T_world_ego: np.ndarray,
+                 head_offset: np.ndarray, max_gap_s: float) -> float:
+    """RMS distance between a group's head-top points and the head top the ego trajectory
+    predicts at their stamps."""
+    sel = (chain == c) & (agent.ids == 0)
+    heads = np.einsum("nij,j->ni", T_world_ego[:, :3, :3], head_offset) + T_world_ego[:, :3, 3]
+    predicted, ok = interpolate_positions(ego_stamps_ns, heads, agent.stamps_ns[sel], int(max_gap_s * 1e9))
+    d = np.linalg.norm(agent.points[sel][ok] - predicted[ok], axis=1)
+    return float(np.sqrt(np.mean(d ** 2))) if len(d) else float("nan")
 
 
 def _verdict(rmse: float, cov: np.ndarray, params: FusionParams, cov_failure: str = "") -> tuple[str, str]:
@@ -213,14 +302,16 @@ class _GroupedCmcs:
     alignments: dict[str, Sim3]
     failed: dict[str, str]               # camera -> why it is not among the grouped ones
     clocks: dict[str, tuple[float | None, float | None, str]]   # camera -> its clock - the ego's, sigma, note
+    chains: dict[str, tuple[int, CameraGroupResult]]   # group -> its agent_chain value and the group (ego clock)
 
 
 def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, str],
-                   cmcs: dict[str, CmcInput], params: FusionParams) -> _GroupedCmcs:
+                   cmcs: dict[str, CmcInput], params: FusionParams, weak: tuple[np.ndarray, np.ndarray]
+                   ) -> _GroupedCmcs:
     names, cams, T_init, group_of = [], [], [], {}
     agent_pts, agent_ns, agent_ids, agent_chain = [], [], [], []
     c_idx, p_idx, uv_obs, sig_obs = [], [], [], []
-    alignments = {}
+    alignments, chains = {}, {}
     failed: dict[str, str] = dict(ungrouped)
     groups, ego_shift, clocks = _on_ego_clock(groups, ego, params.align)
     estimates = {}
@@ -228,13 +319,16 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
         try:
             estimates[g.group_id] = head_offset_estimate(g, ego, params.align)
         except ValueError as exc:
-            failed.update({n: f"group {g.group_id} could not be aligned to the ego trajectory: {exc}" for n in g.names})
+            stretch = ego_stretch(ego, weak, g.point_stamps_ns, params.align.max_time_gap_s)
+            failed.update({n: f"group {g.group_id} could not be aligned to the ego trajectory: {exc}: "
+                              f"{blame(g, stretch, params)}" for n in g.names})
     head_offset = weighted_median(np.array([o for o, _ in estimates.values()]),
                                   np.array([w for _, w in estimates.values()], float)) if estimates else np.zeros(3)
     for gi, g in enumerate(groups):
         if g.group_id not in estimates:
             continue
         S = alignments[g.group_id] = align_to_world(g, ego, params.align, head_offset)
+        chains[g.group_id] = (gi, g)
         base = sum(len(p) for p in agent_pts)
         agent_pts.append(S.apply(g.points))
         agent_ns.append(g.point_stamps_ns)
@@ -268,7 +362,8 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
     agent_obs = Observations(np.array(c_idx, int), np.array(p_idx, int), np.array(uv_obs).reshape(-1, 2),
                              np.array(sig_obs))
     return _GroupedCmcs(names, cams, T_init, group_of, agent, agent_obs,
-                        np.concatenate(agent_chain or [np.zeros(0, int)]), head_offset, alignments, failed, clocks)
+                        np.concatenate(agent_chain or [np.zeros(0, int)]), head_offset, alignments, failed, clocks,
+                        chains)
 
 
 def _on_ego_clock(groups: list[CameraGroupResult], ego: EgoMapData, params: AlignParams
@@ -300,7 +395,8 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
     ideal_ego = CameraModel(ego.camera.width, ego.camera.height, ego.camera.K)
     ego_obs = Observations(ego.obs_pose.astype(int), ego.obs_landmark.astype(int),
                            ego.camera.undistort_pixels(ego.obs_uv), np.full(len(ego.obs_pose), params.joint.ego_sigma_px))
-    grouped = _gather_groups(ego, groups, ungrouped, cmcs, params)
+    weak = weak_ego_frames(ego, params)
+    grouped = _gather_groups(ego, groups, ungrouped, cmcs, params, weak)
     names, cams, T_init, group_of = grouped.names, grouped.cams, grouped.T_init, grouped.group_of
     agent, agent_obs, head_offset = grouped.agent, grouped.agent_obs, grouped.head_offset
     scene_obs, scene_count = _scene_observations(names, cams, T_init, cmcs, ego, params)
@@ -311,7 +407,7 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
     if names:
         problem = JointProblem(ideal_ego, ego.stamps_ns, list(ego.T_world_ego), ego.landmarks, ego_obs, cams, T_init,
                                scene_obs, agent.points, agent.stamps_ns, agent.ids, agent_obs, head_offset,
-                               grouped.agent_chain)
+                               grouped.agent_chain, weak[0])
         res, jo_failure = None, ""
         if params.joint_optimisation:
             try:
@@ -341,8 +437,10 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
                                  raw.distort_pixels(agent_obs.uv[own] - agent_res[own])))
             rmse = _rmse(agent_res[own])
             status, reason = _verdict(rmse, covs[i], params, cov_failures[i])
-            if jo_failure:
-                status, reason = WEAK, "; ".join(r for r in (jo_failure, reason) if r)
+            distrust = [jo_failure] + _group_distrust(grouped.chains[group_of[n]], agent, grouped.agent_chain, ego,
+                                                      T_ego, head_offset, weak, params)
+            if any(distrust):
+                status, reason = WEAK, "; ".join(r for r in distrust + [reason] if r)
             registered.append(RegisteredCmc(n, group_of[n], GROUP_SFM, status, reason, T_final[i], covs[i],
                                             raw, rmse, int(own.sum()), scene_count.get(n, 0), *grouped.clocks[n]))
     # Isolated CMCs: the optimised agent track where a group saw the agent, and elsewhere the
@@ -350,9 +448,28 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
     # on the floor z = 0) -- an extension: the paper needs a group to have seen the agent.
     track = merge_tracks(agent, ego_agent_track(T_ego, ego.stamps_ns, head_offset), params.isolated.max_gap_s)
     for n, why in sorted(grouped.failed.items()):
-        registered.append(_register_isolated(n, why, cmcs.get(n), track, ego, landmarks, params))
+        registered.append(_register_isolated(n, why, cmcs.get(n), track, ego, landmarks, params, weak))
     return FusionResult(sorted(registered, key=lambda r: r.name), T_ego, landmarks, agent, head_offset, cloud,
                         ego.cloud_colors, layout, grouped.alignments, fits)
+
+
+def _group_distrust(chain: tuple[int, CameraGroupResult], agent: AgentTrack, agent_chain: np.ndarray,
+                    ego: EgoMapData, T_world_ego: np.ndarray, head_offset: np.ndarray,
+                    weak: tuple[np.ndarray, np.ndarray], params: FusionParams) -> list[str]:
+    """Why a grouped camera is not ok whatever its residuals: its group's track still
+    disagrees with the (optimised) ego trajectory, or the ego map along the stretch the
+    group saw is known to be weak."""
+    c, group = chain
+    stretch = ego_stretch(ego, weak, group.point_stamps_ns, params.align.max_time_gap_s)
+    rms = head_top_rms(agent, agent_chain, c, ego.stamps_ns, T_world_ego, head_offset, params.align.max_time_gap_s)
+    out = []
+    if np.isfinite(rms) and rms > params.ok_track_rms_m:
+        out.append(f"group {group.group_id}'s agent track and the ego trajectory disagree (head-top RMS {rms:.2f} m > "
+                   f"{params.ok_track_rms_m:g} m): {blame(group, stretch, params)}")
+    elif stretch.broken(params):
+        out.append(f"the ego map along the stretch group {group.group_id} saw is weak ({stretch.describe()}); "
+                   f"the agent track holds it (head-top RMS {rms:.2f} m)")
+    return out
 
 
 def ego_agent_track(T_world_ego: np.ndarray, stamps_ns: np.ndarray, head_offset: np.ndarray) -> AgentTrack:
@@ -398,7 +515,8 @@ def _scene_observations(names, cams, T_init, cmcs, ego: EgoMapData, params: Fusi
 
 
 def _register_isolated(name: str, why: str, cmc: CmcInput | None, agent: AgentTrack, ego: EgoMapData,
-                       landmarks: np.ndarray, params: FusionParams) -> RegisteredCmc:
+                       landmarks: np.ndarray, params: FusionParams, weak: tuple[np.ndarray, np.ndarray]
+                       ) -> RegisteredCmc:
     if cmc is None:
         return RegisteredCmc(name, "", NONE, FAILED, why, None, None, None, float("nan"), 0, 0)
     pnp, reason = register_by_agent(cmc.tracks, agent, params.isolated)
@@ -418,5 +536,11 @@ def _register_isolated(name: str, why: str, cmc: CmcInput | None, agent: AgentTr
     rmse = _rmse(uv - proj)
     cov, cov_failure = _covariance(pnp.camera, T, P, uv, max(rmse, 0.5))
     status, reason = _verdict(rmse, cov, params, cov_failure)
+    # Its 3D points are the agent track, wherever no group saw it the ego trajectory's own.
+    stamps = np.concatenate([t.stamps_ns for t in cmc.tracks.tracks.values()] or [np.zeros(0, np.int64)])
+    stretch = ego_stretch(ego, weak, stamps, params.isolated.max_gap_s)
+    if stretch.broken(params):
+        status, reason = WEAK, "; ".join(r for r in (f"the ego map along the stretch it saw is weak "
+                                                      f"({stretch.describe()})", reason) if r)
     return RegisteredCmc(name, "", ISOLATED_PNP, status, "; ".join(r for r in (f"isolated: {why}", reason) if r),
                          T, cov, cmc.tracks.camera, rmse, n_agent, n_scene)
