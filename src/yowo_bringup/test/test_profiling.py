@@ -35,11 +35,11 @@ def test_py_spy_records_a_process_from_its_start_and_summarises_it(tmp_path):
     top = top_functions(stacks)
     own = dict(top["own"])
     burn = next(f for f in own if f.startswith("burn "))
-    # The loop is where the CPU went; the sleep is idle (not sampled).
+    # The loop is where the time went; the sleep is idle (not sampled).
     assert own[burn] > 0.6 * top["samples"], top
     assert not any(f.startswith("idle ") for f in own)
     text = summary_markdown(tmp_path, 100)
-    assert "## burner:" in text and "`burn (" in text
+    assert "## burner: " in text and " s not idle" in text and "`burn (" in text
 
 
 def test_collapsed_stacks_phases_and_project_functions(tmp_path):

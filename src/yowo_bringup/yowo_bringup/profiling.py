@@ -103,15 +103,17 @@ def _share(rows: list[tuple[str, int]], samples: int) -> list[str]:
 
 
 def summary_markdown(profile_dir: Path, rate_hz: int, n: int = 10) -> str:
-    """Per node: CPU-busy samples (s), the share of imports and of rclpy, and its top
-    functions, own and cumulative (project functions)."""
-    lines = [f"# Profile of the graph's nodes (py-spy, {rate_hz} Hz, CPU-busy samples only)", ""]
+    """Per node: its samples (s), the share of imports and of rclpy, and its top functions,
+    own and cumulative (project functions)."""
+    lines = [f"# Profile of the graph's nodes (py-spy, {rate_hz} Hz)", "",
+             "Samples where the node was not idle: running, or ready to run and waiting for a core (on a "
+             "loaded machine more than its CPU seconds). Shares are of these samples.", ""]
     for path in sorted(Path(profile_dir).glob("*.txt")):
         top = top_functions(read_collapsed(path), n)
         samples = top["samples"]
         if not samples:
             continue
-        lines += [f"## {path.stem}: {samples / rate_hz:.1f} s sampled", "",
+        lines += [f"## {path.stem}: {samples / rate_hz:.1f} s not idle", "",
                   "; ".join(f"{phase} {100 * c / samples:.0f} %" for phase, c in top["phases"]), "",
                   "| own | cumulative (yowo functions) |", "|---|---|"]
         own, cumulative = _share(top["own"], samples), _share(top["cumulative"], samples)

@@ -445,7 +445,8 @@ class AgentDetector:
     def _start_background(self) -> list[AgentDetection]:
         def decode(jpeg):
             return cv2.cvtColor(cv2.imdecode(jpeg, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
-        self._model = np.median(np.stack([decode(self._held[i][1]) for i in self._samples]), axis=0) \
+        # Samples along the last axis: the median's partition runs over contiguous memory (the same values).
+        self._model = np.median(np.stack([decode(self._held[i][1]) for i in self._samples], axis=-1), axis=-1) \
             .astype(np.float32)
         self._model_u8 = np.round(self._model).astype(np.uint8)
         held, self._held, self._samples = self._held, [], []
