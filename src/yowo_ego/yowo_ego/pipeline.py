@@ -180,7 +180,8 @@ class EgoMapper:
         K = self.ideal.K
         stats.update(keyframes=len(keyframes), breaks=tr.breaks,
                      recovered=sum(r.status == RECOVERED for r in tr.results),
-                     imu_bridged=sum(r.status == IMU_BRIDGED for r in tr.results), imu_frames=tr.imu_frames)
+                     imu_bridged=sum(r.status == IMU_BRIDGED for r in tr.results), imu_frames=tr.imu_frames,
+                     degenerate_frames=tr.degenerate_frames)
         if tr.imu is not None:
             stats["imu_samples"] = len(tr.imu)
         if tr.breaks:
