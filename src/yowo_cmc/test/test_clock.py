@@ -171,3 +171,18 @@ def test_rooms_walked_one_after_the_other_stay_apart_when_their_clocks_differ():
     est = estimate_clock_offsets(behind)
     assert {c.reference for n, c in est.cameras.items() if n.startswith("a")} != \
         {c.reference for n, c in est.cameras.items() if n.startswith("b")}
+
+
+def test_offsets_within_their_noise_of_zero_are_not_applied():
+    """Synchronised cameras: the estimated offsets are noise (a fraction of a millisecond
+    here; a frame period on a real recording of a person barely moving), so the group SfM
+    runs on the stamps as recorded, exactly as without the clock stage."""
+    raw = views({}, sigma_px=1.0, seed=5)
+    grouping = calibrate_cmcs(raw)
+    (g,) = grouping.groups
+    assert all(g.clock_offsets_s[n] == 0.0 for n in CAMS) and all(0 < g.clock_sigmas_s[n] < 3e-3
+                                                                  for n in CAMS if n != g.reference)
+    (synced,) = calibrate_groups(raw).groups
+    assert all(np.array_equal(g.T_local_cam[n], synced.T_local_cam[n]) for n in CAMS)
+    (applied,) = calibrate_cmcs(raw, replace(CmcParams(), clock=ClockParams(min_significance=0.0))).groups
+    assert any(applied.clock_offsets_s[n] != 0.0 for n in CAMS)

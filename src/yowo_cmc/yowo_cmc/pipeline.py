@@ -1,5 +1,6 @@
 """The CMC stage on every camera's tracks: clock offsets from the agent's motion
-(yowo_cmc.clock), the group SfM on stamps corrected by them (yowo_cmc.group_sfm), the
+(yowo_cmc.clock), the group SfM on stamps corrected by them (yowo_cmc.group_sfm; an offset
+within clock.min_significance sigma of 0 is not applied), the
 offsets refined per group with its poses and points, and the group SfM once more on the
 refined stamps. What the group SfM node and the offline API both run."""
 from __future__ import annotations
@@ -8,6 +9,11 @@ from .clock import attach_to_groups, estimate_clock_offsets, refine_group_offset
 from .config import CmcParams
 from .group_sfm import GroupingResult, calibrate_groups
 from .tracks import CameraTracks
+
+
+def significant(offsets: dict[str, float], sigmas: dict[str, float], k: float) -> dict[str, float]:
+    """The offsets, those within k sigma of 0 set to 0."""
+    return {n: o if abs(o) > k * sigmas.get(n, 0.0) else 0.0 for n, o in offsets.items()}
 
 
 def calibrate_cmcs(tracks: list[CameraTracks], params: CmcParams = CmcParams()) -> GroupingResult:
@@ -27,16 +33,18 @@ def calibrate_cmcs(tracks: list[CameraTracks], params: CmcParams = CmcParams()) 
     # Their sigmas, each against the camera its offset was last fitted relative to (0 there).
     sigmas = {n: c.sigma_s or 0.0 for n, c in estimate.cameras.items() if c.offset_s is not None}
     components = {n: c.reference for n, c in estimate.cameras.items() if c.reference is not None}
+    offsets = significant(offsets, sigmas, params.clock.min_significance)
     corrected = [t.shifted(offsets.get(t.name, 0.0)) for t in tracks]
     grouping = calibrate_groups(corrected, params.sfm, components)
     if params.clock.refine and grouping.groups:
         shifted = {t.name: t for t in corrected}
-        refined = False
+        applied = dict(offsets)
         for g in grouping.groups:
             for n, (delta, sigma) in refine_group_offsets(g, shifted, params.clock, params.sfm).items():
                 offsets[n] = offsets.get(n, 0.0) + delta
-                sigmas[n], sigmas[g.reference], refined = sigma, 0.0, True
-        if refined:
+                sigmas[n], sigmas[g.reference] = sigma, 0.0
+        offsets = significant(offsets, sigmas, params.clock.min_significance)
+        if offsets != applied:
             grouping = calibrate_groups([t.shifted(offsets.get(t.name, 0.0)) for t in tracks], params.sfm,
                                         components)
     for g in grouping.groups:
