@@ -518,10 +518,11 @@ class AgentDetector:
 
     def _shadow(self, rgb: np.ndarray, cand: np.ndarray) -> np.ndarray:
         """Candidate pixels that are a uniformly darker copy of the background."""
-        f = rgb[cand].astype(np.float32)
-        b = self._model[cand]
-        ratio = (f * b).sum(axis=1) / np.maximum((b * b).sum(axis=1), 1.0)
-        chroma = np.linalg.norm(f - ratio[:, None] * b, axis=1)
+        # Per channel (no (N, 3) temporaries; the same float32 operations in the same order).
+        (f0, f1, f2), (b0, b1, b2) = rgb[cand].astype(np.float32).T, self._model[cand].T
+        ratio = (f0 * b0 + f1 * b1 + f2 * b2) / np.maximum(b0 * b0 + b1 * b1 + b2 * b2, 1.0)
+        d0, d1, d2 = f0 - ratio * b0, f1 - ratio * b1, f2 - ratio * b2
+        chroma = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         lo, hi = self.p.shadow_ratio
         return (ratio >= lo) & (ratio < hi) & (chroma < self.p.shadow_chroma)
 
