@@ -54,3 +54,14 @@ def test_collapsed_stacks_phases_and_project_functions(tmp_path):
     # One entry per function (lines merged); module bodies are not project functions.
     assert top["own"][0] == ("heavy (yowo_x/alg.py)", 5)
     assert dict(top["cumulative"]) == {"heavy (yowo_x/alg.py)": 5, "cb (yowo_x/n.py)": 5}
+
+
+def test_a_process_py_spy_cannot_record_is_said(tmp_path):
+    sleeper = subprocess.Popen(["sleep", "30"])          # no Python interpreter in it
+    try:
+        profiler = NodeProfiler(sleeper.pid, tmp_path / "sleeper.txt", 50, give_up_s=1.0)
+        profiler.wait(20)
+        assert profiler.error.startswith(f"py-spy could not record pid {sleeper.pid}: "), profiler.error
+    finally:
+        sleeper.kill()
+        sleeper.wait()

@@ -44,6 +44,9 @@ def _execute(args, mode: str):
     from .run_node import RunFailed, execute
 
     config = config_from_args(args)
+    if args.profile:
+        from .profiling import py_spy
+        py_spy()                              # not installed: said before anything starts
     if args.verb == "live":
         plan = plan_live(args.cameras, args.output, mode=mode, source=args.cmc_source, image_topic=args.image_topic,
                          ego_topics=(args.ego_color, args.ego_depth, args.ego_info), config=config,

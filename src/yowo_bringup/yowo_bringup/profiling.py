@@ -27,8 +27,8 @@ def py_spy() -> str:
 class NodeProfiler:
     """py-spy recording one process into `path` (it ends when the process ends)."""
 
-    def __init__(self, pid: int, path: Path, rate_hz: int):
-        self.pid, self.path, self.rate_hz = pid, Path(path), rate_hz
+    def __init__(self, pid: int, path: Path, rate_hz: int, give_up_s: float = ATTACH_GIVE_UP_S):
+        self.pid, self.path, self.rate_hz, self.give_up_s = pid, Path(path), rate_hz, give_up_s
         self.cmd = [py_spy(), "record", "--pid", str(pid), "--format", "raw", "-o", str(self.path),
                     "--rate", str(rate_hz), "--nonblocking"]     # never pauses the node: its timing stays
         self.error = ""
@@ -38,15 +38,16 @@ class NodeProfiler:
         self._thread.start()
 
     def _attach(self) -> None:
-        give_up = time.monotonic() + ATTACH_GIVE_UP_S
+        give_up = time.monotonic() + self.give_up_s
         log = self.path.with_suffix(".log")
         while not self._stopped.is_set():
             with open(log, "w") as out:
                 self._proc = subprocess.Popen(self.cmd, stdout=out, stderr=subprocess.STDOUT)
             if self._proc.wait() == 0 or not Path(f"/proc/{self.pid}").exists():
                 return
-            if time.monotonic() > give_up:
-                self.error = log.read_text(errors="replace").strip().splitlines()[0]
+            if time.monotonic() > give_up:   # e.g. no permission to trace (kernel.yama.ptrace_scope)
+                said = log.read_text(errors="replace").strip().splitlines()
+                self.error = f"py-spy could not record pid {self.pid}: {said[0] if said else 'no message'}"
                 return
             time.sleep(ATTACH_RETRY_S)
 

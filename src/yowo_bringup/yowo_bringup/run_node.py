@@ -183,6 +183,9 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
                 if profile_dir is not None:
                     (Path(profile_dir) / "summary.md").write_text(
                         summary_markdown(profile_dir, plan.config.supervisor.profile_rate_hz))
+                    for profiler in sup.profilers:
+                        if profiler.error:
+                            log(f"warning: --profile: {profiler.error}")
     finally:
         for k, v in saved_env.items():
             if v is None:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import yaml
 
-from .profiling import NodeProfiler
+from .profiling import NodeProfiler, py_spy
 
 
 @dataclass
@@ -108,6 +108,7 @@ class Supervisor:
         self.profile_dir, self.profile_rate_hz = profile_dir, profile_rate_hz
         self.profilers: list[NodeProfiler] = []
         if profile_dir is not None:
+            py_spy()                    # says so before any node starts when it is not installed
             Path(profile_dir).mkdir(parents=True, exist_ok=True)
 
     def _popen(self, spec: NodeSpec, incarnation: int, mode: str) -> subprocess.Popen:
