@@ -70,7 +70,7 @@ class JointParams:
     max_a2e_gap_s: float = 0.2               # ego poses further apart than this are not interpolated
     max_anchor_gap_s: float = 0.5            # frames without ego observations: an anchor at least this often
     estimate_head_offset: bool = True        # False: the paper's model, head top = ego camera centre
-    iterations: int = 50
+    iterations: int = 200                    # a broken ego map put back takes ~100 (LM stops when converged)
 
 
 @dataclass

@@ -108,6 +108,11 @@ class FusionParams:
     # After the joint optimisation, a group's head-top track and the head top the ego
     # trajectory predicts differ by more than this (RMS): one of the two is wrong.
     ok_track_rms_m: float = 0.10
+    # A self-consistent group that does not fit a broken ego map as a whole is aligned on
+    # the stretch of this many seconds of its walk that fits best (one piece of the map),
+    # and the joint optimisation fits the other pieces to its track; 0: such a group's
+    # cameras are registered one by one.
+    rescue_window_s: float = 6.0
 
 
 @dataclass
@@ -236,18 +241,38 @@ def ego_stretch(ego: EgoMapData, weak: tuple[np.ndarray, np.ndarray], stamps_ns:
                       int(weak[1][:hi + 1].sum()))
 
 
-def blame(group: CameraGroupResult, stretch: EgoStretch, params: FusionParams) -> str:
+def blame(group: CameraGroupResult, stretch: EgoStretch, params: FusionParams) -> tuple[bool, str]:
     """Which of the two is wrong when a group's agent track and the ego trajectory disagree:
     the group's own reprojection residuals against the ego map's tracking along the
-    stretch the group saw."""
+    stretch the group saw. (the ego map is at fault, why)"""
     worst = max(group.rmse_px.values(), default=float("nan"))
     consistent = bool(np.isfinite(worst) and worst <= params.ok_rmse_px)
     if not consistent:
-        return f"the group's reconstruction is at fault (its reprojection RMSE reaches {worst:.2f} px)"
+        return False, f"the group's reconstruction is at fault (its reprojection RMSE reaches {worst:.2f} px)"
     own = f"the group is self-consistent (reprojection RMSE <= {worst:.2f} px)"
     if stretch.broken(params):
-        return f"the ego map is at fault ({stretch.describe()}); {own}"
-    return f"undecided: {own} and the ego map tracked that stretch well ({stretch.describe()})"
+        return True, f"the ego map is at fault ({stretch.describe()}); {own}"
+    return False, f"undecided: {own} and the ego map tracked that stretch well ({stretch.describe()})"
+
+
+def window_alignment(group: CameraGroupResult, ego: EgoMapData, params: AlignParams, window_s: float):
+    """The group's alignment on the window_s of its walk that fits the ego trajectory best
+    (where the ego map broke: one of its pieces), or None."""
+    stamps, local, (g_ns, g_local) = _group_tracks(group, params)
+    best, span = None, int(window_s * 1e9)
+    if not len(stamps):
+        return None
+    for t0 in range(int(stamps.min()), max(int(stamps.max()) - span, int(stamps.min())) + 1, 10**9):
+        sel = (stamps >= t0) & (stamps < t0 + span)
+        ground = (None, None) if g_ns is None else (g_ns[(g_ns >= t0) & (g_ns < t0 + span)],
+                                                    g_local[(g_ns >= t0) & (g_ns < t0 + span)])
+        try:
+            al = align_group(stamps[sel], local[sel], ego.stamps_ns, ego.T_world_ego[:, :3, 3], params, *ground)
+        except ValueError:
+            continue
+        if best is None or al.rms_m < best.rms_m:
+            best = al
+    return best
 
 
 def head_top_rms(agent: AgentTrack, chain: np.ndarray, c: int, ego_stamps_ns: np.ndarray, T_world_ego: np.ndarray,
@@ -314,20 +339,26 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
     alignments, chains = {}, {}
     failed: dict[str, str] = dict(ungrouped)
     groups, ego_shift, clocks = _on_ego_clock(groups, ego, params.align)
-    estimates = {}
+    estimates, rescued = {}, {}
     for g in groups:
         try:
             estimates[g.group_id] = head_offset_estimate(g, ego, params.align)
         except ValueError as exc:
-            stretch = ego_stretch(ego, weak, g.point_stamps_ns, params.align.max_time_gap_s)
-            failed.update({n: f"group {g.group_id} could not be aligned to the ego trajectory: {exc}: "
-                              f"{blame(g, stretch, params)}" for n in g.names})
+            ego_fault, why = blame(g, ego_stretch(ego, weak, g.point_stamps_ns, params.align.max_time_gap_s), params)
+            al = window_alignment(g, ego, params.align, params.rescue_window_s) \
+                if ego_fault and params.rescue_window_s > 0 else None
+            if al is not None and al.rms_m <= params.ok_track_rms_m:
+                rescued[g.group_id] = _on_floor(al.sim3_world_local, g)
+                continue
+            failed.update({n: f"group {g.group_id} could not be aligned to the ego trajectory: {exc}: {why}"
+                           for n in g.names})
     head_offset = weighted_median(np.array([o for o, _ in estimates.values()]),
                                   np.array([w for _, w in estimates.values()], float)) if estimates else np.zeros(3)
     for gi, g in enumerate(groups):
-        if g.group_id not in estimates:
+        if g.group_id not in estimates and g.group_id not in rescued:
             continue
-        S = alignments[g.group_id] = align_to_world(g, ego, params.align, head_offset)
+        S = alignments[g.group_id] = rescued[g.group_id] if g.group_id in rescued else \
+            align_to_world(g, ego, params.align, head_offset)
         chains[g.group_id] = (gi, g)
         base = sum(len(p) for p in agent_pts)
         agent_pts.append(S.apply(g.points))
@@ -414,6 +445,10 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
                 res = solve_joint(problem, params.joint)
             except RuntimeError as exc:  # GTSAM gave up on the system: keep the aligned poses
                 jo_failure = f"joint optimisation failed ({solver_failure(exc)}): pose without JO"
+            if res is not None:
+                jo_failure = _diverged(names, res.cmc_agent_residuals,
+                                       reprojection_residuals(cams, T_init, agent.points, agent_obs), agent_obs, params)
+                res = None if jo_failure else res
         if res is not None:
             T_ego, landmarks, T_final = np.array(res.T_world_ego), res.landmarks, res.T_world_cmc
             agent = AgentTrack(agent.stamps_ns, agent.ids, res.agent_points)
@@ -453,6 +488,19 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
                         ego.cloud_colors, layout, grouped.alignments, fits)
 
 
+def _diverged(names: list[str], after: np.ndarray, before: np.ndarray, obs: Observations, params: FusionParams
+              ) -> str:
+    """Why the joint optimisation's result is rejected: a camera's agent reprojection RMSE
+    above ok_rmse_px and worse than before it (on a badly broken ego map it can end in a
+    minimum where the group no longer fits its own views), or ''."""
+    for c in np.unique(obs.camera):
+        a, b = _rmse(after[obs.camera == c]), _rmse(before[obs.camera == c])
+        if not np.isfinite(a) or (a > params.ok_rmse_px and a > max(2.0 * b, b + 1.0)):
+            return (f"joint optimisation diverged ({names[c]}'s agent reprojection RMSE {a:.1f} px, {b:.1f} px "
+                    "before it): pose without JO")
+    return ""
+
+
 def _group_distrust(chain: tuple[int, CameraGroupResult], agent: AgentTrack, agent_chain: np.ndarray,
                     ego: EgoMapData, T_world_ego: np.ndarray, head_offset: np.ndarray,
                     weak: tuple[np.ndarray, np.ndarray], params: FusionParams) -> list[str]:
@@ -465,7 +513,7 @@ def _group_distrust(chain: tuple[int, CameraGroupResult], agent: AgentTrack, age
     out = []
     if np.isfinite(rms) and rms > params.ok_track_rms_m:
         out.append(f"group {group.group_id}'s agent track and the ego trajectory disagree (head-top RMS {rms:.2f} m > "
-                   f"{params.ok_track_rms_m:g} m): {blame(group, stretch, params)}")
+                   f"{params.ok_track_rms_m:g} m): {blame(group, stretch, params)[1]}")
     elif stretch.broken(params):
         out.append(f"the ego map along the stretch group {group.group_id} saw is weak ({stretch.describe()}); "
                    f"the agent track holds it (head-top RMS {rms:.2f} m)")
