@@ -448,7 +448,8 @@ def cmd_import_multiview(args) -> int:
     for c in s.cameras:
         src = ", ".join(x for x in (c.keypoints_from and f"keypoints {c.keypoints_from}",
                                     c.video_from and f"video {c.video_from}") if x)
-        print(f"  {c.name}: {src}; {c.frames} frames, the agent in {c.with_agent}"
+        print(f"  {c.name}: {src}; {c.frames} frames"
+              + (f", the agent in {c.with_agent}" if c.keypoints_from else "")
               + (f", {c.others} other people ignored" if c.others else ""))
     print(f"next: yowo calibrate-cmc {s.bag} -o RESULTS" + ("  (--cmc-source pose: the pose model on the video)"
                                                            if args.videos else "")
