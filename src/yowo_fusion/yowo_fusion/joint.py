@@ -34,7 +34,7 @@ floor), which also observes the vertical part of the head offset."""
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
@@ -62,6 +62,9 @@ class JointParams:
     # Huber threshold of the chain's whitened 6-DoF residual: above the ~sqrt(6) of a good
     # step, so the chain is Gaussian where the ego map holds and gives way at a break it missed.
     ego_between_huber_k: float = 5.0
+    # A chain step the solution leaves this many sigmas off the ego map's is a break the ego
+    # map did not flag: solved again with it weak (and reported in JointResult.ego_breaks).
+    ego_break_sigmas: float = 20.0
     floor_sigma_m: float = 0.03              # the agent's ground point lies on the floor z = 0
     a2e_sigma_m: float = 0.05                # head-top vs predicted head top (offset model residual)
     kin_accel_sigma_m: float = 0.05          # per grid step, second difference of the head top
@@ -107,6 +110,7 @@ class JointResult:
     final_error: float
     anchors: np.ndarray                      # frame indices optimised (the rest followed them)
     covariance_failure: str = ""             # why cmc_covariances are NaN (unknown): an indeterminate system
+    ego_breaks: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # frames of unflagged breaks found
 
 
 def interpolation_pairs(ego_ns: np.ndarray, query_ns: np.ndarray, max_gap_ns: int):
@@ -171,6 +175,36 @@ def _linear(keys_and_blocks, b, sigma, values) -> gtsam.LinearContainerFactor:
 
 
 def solve_joint(p: JointProblem, params: JointParams = JointParams()) -> JointResult:
+    """The joint solution; where it found breaks the ego map did not flag, the solution
+    with those steps weak."""
+    res = _solve(p, params)
+    if not len(res.ego_breaks):
+        return res
+    weak = np.zeros(len(p.T_world_ego), bool) if p.ego_weak_frames is None else np.array(p.ego_weak_frames, bool)
+    weak[res.ego_breaks] = True
+    again = _solve(replace(p, ego_weak_frames=weak), params)
+    again.ego_breaks = np.union1d(res.ego_breaks, again.ego_breaks)
+    return again
+
+
+def _broken_steps(p: JointProblem, params: JointParams, anchors: np.ndarray, result) -> np.ndarray:
+    """The frames of the chain steps (not weak already) the solution leaves more than
+    ego_break_sigmas off the ego map's relative pose."""
+    T = np.asarray(p.T_world_ego)
+    weak = np.zeros(len(T), bool) if p.ego_weak_frames is None else np.asarray(p.ego_weak_frames, bool)
+    sigma = np.repeat(params.ego_between_sigma, 3)
+    out = []
+    for f0, f1 in zip(anchors[:-1], anchors[1:]):
+        if weak[f0 + 1:f1 + 1].any():
+            continue
+        step = result.atPose3(X(int(f0))).between(result.atPose3(X(int(f1))))
+        if np.linalg.norm(gtsam.Pose3.Logmap(pose3(inv_se3(T[f0]) @ T[f1]).between(step)) / sigma) \
+                > params.ego_break_sigmas:
+            out += range(f0 + 1, f1 + 1)
+    return np.array(out, int)
+
+
+def _solve(p: JointProblem, params: JointParams) -> JointResult:
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     # Both ends of a weak step are anchors: the frames beside it must not take a share of
@@ -225,7 +259,7 @@ def solve_joint(p: JointProblem, params: JointParams = JointParams()) -> JointRe
     return JointResult(T_ego, landmarks, T_cmc, agent, np.asarray(result.atPoint3(O(0))), covs,
                        reprojection_residuals(p.cmc_cameras, T_cmc, agent, p.cmc_agent_obs),
                        reprojection_residuals(p.cmc_cameras, T_cmc, landmarks, p.cmc_scene_obs),
-                       initial_error, final_error, anchors, failure)
+                       initial_error, final_error, anchors, failure, _broken_steps(p, params, anchors, result))
 
 
 def solver_failure(exc: RuntimeError) -> str:

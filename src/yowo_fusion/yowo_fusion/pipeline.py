@@ -225,7 +225,8 @@ class EgoStretch:
         parts = [f"{100 * self.weak_share:.0f} % of its {self.frames} frames tracked from keyframes with next to "
                  "no landmarks"] if self.weak_share >= 0.005 else []
         if self.gaps:
-            parts.append(f"{self.gaps} gap(s) where it lost track, up to the stretch's end")
+            parts.append(f"{self.gaps} break(s) up to the stretch's end (gaps in its frames, steps the joint "
+                         "optimisation found broken)")
         return ", ".join(parts) or f"its {self.frames} frames well tracked"
 
 
@@ -241,18 +242,23 @@ def ego_stretch(ego: EgoMapData, weak: tuple[np.ndarray, np.ndarray], stamps_ns:
                       int(weak[1][:hi + 1].sum()))
 
 
-def blame(group: CameraGroupResult, stretch: EgoStretch, params: FusionParams) -> tuple[bool, str]:
+EGO_MAP, GROUP, UNDECIDED = "ego map", "group", "undecided"
+
+
+def blame(group: CameraGroupResult, stretch: EgoStretch, params: FusionParams) -> tuple[str, str]:
     """Which of the two is wrong when a group's agent track and the ego trajectory disagree:
     the group's own reprojection residuals against the ego map's tracking along the
-    stretch the group saw. (the ego map is at fault, why)"""
+    stretch the group saw. (EGO_MAP, GROUP or UNDECIDED, why)"""
     worst = max(group.rmse_px.values(), default=float("nan"))
-    consistent = bool(np.isfinite(worst) and worst <= params.ok_rmse_px)
-    if not consistent:
-        return False, f"the group's reconstruction is at fault (its reprojection RMSE reaches {worst:.2f} px)"
+    if not (np.isfinite(worst) and worst <= params.ok_rmse_px):
+        return GROUP, f"the group's reconstruction is at fault (its reprojection RMSE reaches {worst:.2f} px)"
     own = f"the group is self-consistent (reprojection RMSE <= {worst:.2f} px)"
     if stretch.broken(params):
-        return True, f"the ego map is at fault ({stretch.describe()}); {own}"
-    return False, f"undecided: {own} and the ego map tracked that stretch well ({stretch.describe()})"
+        return EGO_MAP, f"the ego map is at fault ({stretch.describe()}); {own}"
+    # The ego map can break without a sign in what it publishes (a lost track joined by a
+    # guessed step): a self-consistent group against it is not to be trusted either way.
+    return UNDECIDED, (f"undecided: {own} and the ego map shows no weak tracking there ({stretch.describe()}), "
+                       "though it may have broken unseen")
 
 
 def window_alignment(group: CameraGroupResult, ego: EgoMapData, params: AlignParams, window_s: float):
@@ -328,6 +334,7 @@ class _GroupedCmcs:
     failed: dict[str, str]               # camera -> why it is not among the grouped ones
     clocks: dict[str, tuple[float | None, float | None, str]]   # camera -> its clock - the ego's, sigma, note
     chains: dict[str, tuple[int, CameraGroupResult]]   # group -> its agent_chain value and the group (ego clock)
+    disputed: set[str]                   # cameras of a self-consistent group the ego stage's trajectory contradicts
 
 
 def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, str],
@@ -339,19 +346,21 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
     alignments, chains = {}, {}
     failed: dict[str, str] = dict(ungrouped)
     groups, ego_shift, clocks = _on_ego_clock(groups, ego, params.align)
-    estimates, rescued = {}, {}
+    estimates, rescued, distrusted = {}, {}, set()
     for g in groups:
         try:
             estimates[g.group_id] = head_offset_estimate(g, ego, params.align)
         except ValueError as exc:
-            ego_fault, why = blame(g, ego_stretch(ego, weak, g.point_stamps_ns, params.align.max_time_gap_s), params)
+            fault, why = blame(g, ego_stretch(ego, weak, g.point_stamps_ns, params.align.max_time_gap_s), params)
             al = window_alignment(g, ego, params.align, params.rescue_window_s) \
-                if ego_fault and params.rescue_window_s > 0 else None
+                if fault != GROUP and params.rescue_window_s > 0 else None
             if al is not None and al.rms_m <= params.ok_track_rms_m:
                 rescued[g.group_id] = _on_floor(al.sim3_world_local, g)
+                distrusted.update(g.names)
                 continue
             failed.update({n: f"group {g.group_id} could not be aligned to the ego trajectory: {exc}: {why}"
                            for n in g.names})
+            distrusted.update(g.names if fault != GROUP else [])
     head_offset = weighted_median(np.array([o for o, _ in estimates.values()]),
                                   np.array([w for _, w in estimates.values()], float)) if estimates else np.zeros(3)
     for gi, g in enumerate(groups):
@@ -394,7 +403,7 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
                              np.array(sig_obs))
     return _GroupedCmcs(names, cams, T_init, group_of, agent, agent_obs,
                         np.concatenate(agent_chain or [np.zeros(0, int)]), head_offset, alignments, failed, clocks,
-                        chains)
+                        chains, distrusted)
 
 
 def _on_ego_clock(groups: list[CameraGroupResult], ego: EgoMapData, params: AlignParams
@@ -450,6 +459,9 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
                                        reprojection_residuals(cams, T_init, agent.points, agent_obs), agent_obs, params)
                 res = None if jo_failure else res
         if res is not None:
+            # Breaks the joint optimisation found are breaks of the ego map like its gaps.
+            found = np.isin(np.arange(len(ego.stamps_ns)), res.ego_breaks)
+            weak = (weak[0] | found, weak[1] | found)
             T_ego, landmarks, T_final = np.array(res.T_world_ego), res.landmarks, res.T_world_cmc
             agent = AgentTrack(agent.stamps_ns, agent.ids, res.agent_points)
             head_offset, covs = res.head_offset, res.cmc_covariances
@@ -473,7 +485,7 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
             rmse = _rmse(agent_res[own])
             status, reason = _verdict(rmse, covs[i], params, cov_failures[i])
             distrust = [jo_failure] + _group_distrust(grouped.chains[group_of[n]], agent, grouped.agent_chain, ego,
-                                                      T_ego, head_offset, weak, params)
+                                                      T_ego, head_offset, weak, params, n in grouped.disputed)
             if any(distrust):
                 status, reason = WEAK, "; ".join(r for r in distrust + [reason] if r)
             registered.append(RegisteredCmc(n, group_of[n], GROUP_SFM, status, reason, T_final[i], covs[i],
@@ -483,7 +495,8 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
     # on the floor z = 0) -- an extension: the paper needs a group to have seen the agent.
     track = merge_tracks(agent, ego_agent_track(T_ego, ego.stamps_ns, head_offset), params.isolated.max_gap_s)
     for n, why in sorted(grouped.failed.items()):
-        registered.append(_register_isolated(n, why, cmcs.get(n), track, ego, landmarks, params, weak))
+        registered.append(_register_isolated(n, why, cmcs.get(n), track, ego, landmarks, params, weak,
+                                             n in grouped.disputed))
     return FusionResult(sorted(registered, key=lambda r: r.name), T_ego, landmarks, agent, head_offset, cloud,
                         ego.cloud_colors, layout, grouped.alignments, fits)
 
@@ -503,10 +516,11 @@ def _diverged(names: list[str], after: np.ndarray, before: np.ndarray, obs: Obse
 
 def _group_distrust(chain: tuple[int, CameraGroupResult], agent: AgentTrack, agent_chain: np.ndarray,
                     ego: EgoMapData, T_world_ego: np.ndarray, head_offset: np.ndarray,
-                    weak: tuple[np.ndarray, np.ndarray], params: FusionParams) -> list[str]:
+                    weak: tuple[np.ndarray, np.ndarray], params: FusionParams, rescued: bool) -> list[str]:
     """Why a grouped camera is not ok whatever its residuals: its group's track still
-    disagrees with the (optimised) ego trajectory, or the ego map along the stretch the
-    group saw is known to be weak."""
+    disagrees with the (optimised) ego trajectory, the ego map along the stretch the group
+    saw is known to be weak, or it broke there (rescued: the group fitted the ego map as
+    the ego stage made it only on its best window)."""
     c, group = chain
     stretch = ego_stretch(ego, weak, group.point_stamps_ns, params.align.max_time_gap_s)
     rms = head_top_rms(agent, agent_chain, c, ego.stamps_ns, T_world_ego, head_offset, params.align.max_time_gap_s)
@@ -517,6 +531,10 @@ def _group_distrust(chain: tuple[int, CameraGroupResult], agent: AgentTrack, age
     elif stretch.broken(params):
         out.append(f"the ego map along the stretch group {group.group_id} saw is weak ({stretch.describe()}); "
                    f"the agent track holds it (head-top RMS {rms:.2f} m)")
+    elif rescued:
+        out.append(f"the ego map broke along the stretch group {group.group_id} saw (the self-consistent group fitted "
+                   f"it on its best {params.rescue_window_s:g} s only); the joint optimisation re-fitted the ego map to "
+                   f"the agent track (head-top RMS {rms:.2f} m)")
     return out
 
 
@@ -563,8 +581,10 @@ def _scene_observations(names, cams, T_init, cmcs, ego: EgoMapData, params: Fusi
 
 
 def _register_isolated(name: str, why: str, cmc: CmcInput | None, agent: AgentTrack, ego: EgoMapData,
-                       landmarks: np.ndarray, params: FusionParams, weak: tuple[np.ndarray, np.ndarray]
-                       ) -> RegisteredCmc:
+                       landmarks: np.ndarray, params: FusionParams, weak: tuple[np.ndarray, np.ndarray],
+                       disputed: bool = False) -> RegisteredCmc:
+    """disputed: the camera's self-consistent group contradicts the ego trajectory its
+    registration now rests on (never ok)."""
     if cmc is None:
         return RegisteredCmc(name, "", NONE, FAILED, why, None, None, None, float("nan"), 0, 0)
     pnp, reason = register_by_agent(cmc.tracks, agent, params.isolated)
@@ -590,5 +610,7 @@ def _register_isolated(name: str, why: str, cmc: CmcInput | None, agent: AgentTr
     if stretch.broken(params):
         status, reason = WEAK, "; ".join(r for r in (f"the ego map along the stretch it saw is weak "
                                                       f"({stretch.describe()})", reason) if r)
+    elif disputed:
+        status = WEAK
     return RegisteredCmc(name, "", ISOLATED_PNP, status, "; ".join(r for r in (f"isolated: {why}", reason) if r),
                          T, cov, cmc.tracks.camera, rmse, n_agent, n_scene)
