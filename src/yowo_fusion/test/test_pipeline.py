@@ -11,7 +11,8 @@ from yowo_common.camera import CameraModel
 from yowo_common.geometry import se3
 from yowo_ego.layout import Layout
 from yowo_fusion.alignment import AlignParams, estimate_clock_offset
-from yowo_fusion.pipeline import GROUP_SFM, ISOLATED_PNP, OK, WEAK, CmcInput, EgoMapData, FusionParams, fuse
+from yowo_fusion.pipeline import (GROUP_SFM, ISOLATED_PNP, OK, WEAK, CmcInput, EgoMapData, FusionParams, fuse,
+                                 weak_ego_frames)
 
 OFFSET = np.array([0.0, -0.10, -0.08])
 ROOM_A = np.array([[0.0, 0.0], [6.0, 0.0], [6.0, 5.0], [0.0, 5.0]])
@@ -235,3 +236,21 @@ def test_unseen_break_in_the_ego_map_is_repaired_and_never_ok():
     for c in alone.cameras:
         if c.name != "b1":
             assert c.method == ISOLATED_PNP and c.status == WEAK and "undecided" in c.reason, (c.name, c.reason)
+
+
+def test_weak_ego_frames_from_landmark_support_and_gaps():
+    """Frames tracked from a keyframe with few landmark observations are weak, and so is the
+    frame after a gap in the frames (also a break); a map without observations is judged by
+    its gaps alone."""
+    _, _, ego = world()
+    stamps = ego.stamps_ns[:40].copy()
+    stamps[30:] += 10**9                                  # 1 s without frames before frame 30
+    obs_pose = np.repeat([0, 10, 20], [50, 5, 30])        # keyframes 0 and 20 well supported, 10 not
+    sparse = EgoMapData(ego.camera, stamps, ego.T_world_ego[:40], np.zeros((85, 3)), "SIFT",
+                        np.zeros((85, 128), np.uint8), obs_pose, np.arange(85), np.zeros((85, 2)))
+    weak, gap = weak_ego_frames(sparse, FusionParams())
+    assert np.flatnonzero(weak).tolist() == list(range(10, 20)) + [30]
+    assert np.flatnonzero(gap).tolist() == [30]
+    bare = EgoMapData(ego.camera, stamps, ego.T_world_ego[:40], np.zeros((0, 3)), "SIFT", np.zeros((0, 128), np.uint8),
+                      np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)))
+    assert np.flatnonzero(weak_ego_frames(bare, FusionParams())[0]).tolist() == [30]
