@@ -28,7 +28,9 @@ class SupervisorParams:
     max_restarts: int = 2                 # per node; a node that dies more often ends the run
     profile_rate_hz: int = 50             # py-spy samples per second of each node (yowo run --profile)
     # Added to the niceness of the stages that read no recorded or live topic (group SfM, fusion).
-    downstream_niceness: int = 5
+    # 0 by default: on a machine busy with other jobs a lowered stage also discovers its peers
+    # late (DDS runs in its threads), and its statuses count fewer strays of other runs.
+    downstream_niceness: int = 0
 
 
 @dataclass(frozen=True)

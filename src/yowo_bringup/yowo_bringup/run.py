@@ -74,9 +74,9 @@ def new_run_id() -> str:
 def _stamp_run(nodes: list[NodeSpec], run_id: str, replayed: bool, config: YowoConfig) -> None:
     """Every node's run id and section of the configuration tree; `replayed`: the stages'
     inputs come from a replay, which re-sends them to a restarted stage (live, nobody can).
-    The downstream stages run at a lower priority: their imports at start-up then leave the
-    cores to the replay and its readers, whose start the replay waits for, and at the end
-    the ego mapper (the longest stage) goes first."""
+    The downstream stages may run at a lower priority (supervisor.downstream_niceness): their
+    imports at start-up then leave the cores to the replay and its readers, whose start the
+    replay waits for, and at the end the ego mapper (the longest stage) goes first."""
     for spec in nodes:
         if spec.module in DOWNSTREAM:
             spec.niceness = config.supervisor.downstream_niceness
