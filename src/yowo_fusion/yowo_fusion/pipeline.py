@@ -113,6 +113,12 @@ class FusionParams:
     # and the joint optimisation fits the other pieces to its track; 0: such a group's
     # cameras are registered one by one.
     rescue_window_s: float = 6.0
+    # A joint solution that freed breaks the ego map did not flag is kept only if every
+    # group's head-top track fits it within this (RMS): a map bent where no agent track
+    # holds it leaves ~0.5 m (small symmetric s0 without IMU: cameras 0.28 -> 1.3 m off);
+    # the frames beside a repaired break can stay off by more than ok_track_rms_m (test
+    # world, 1.5 m / 40 deg break: 0.24 m, cameras within 5 cm).
+    max_unexplained_track_rms_m: float = 0.3
 
 
 @dataclass
@@ -457,6 +463,7 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
             if res is not None:
                 jo_failure = _diverged(names, res.cmc_agent_residuals,
                                        reprojection_residuals(cams, T_init, agent.points, agent_obs), agent_obs, params)
+                jo_failure = jo_failure or _unexplained_breaks(res, grouped, ego, params)
                 res = None if jo_failure else res
         if res is not None:
             # Breaks the joint optimisation found are breaks of the ego map like its gaps.
@@ -511,6 +518,22 @@ def _diverged(names: list[str], after: np.ndarray, before: np.ndarray, obs: Obse
         if not np.isfinite(a) or (a > params.ok_rmse_px and a > max(2.0 * b, b + 1.0)):
             return (f"joint optimisation diverged ({names[c]}'s agent reprojection RMSE {a:.1f} px, {b:.1f} px "
                     "before it): pose without JO")
+    return ""
+
+
+def _unexplained_breaks(res, grouped: _GroupedCmcs, ego: EgoMapData, params: FusionParams) -> str:
+    """Why a solution that freed breaks the ego map did not flag is rejected: a group's agent
+    track still disagrees with it (the freed map bent where no agent track holds it), or ''."""
+    if not len(res.ego_breaks):
+        return ""
+    agent = AgentTrack(grouped.agent.stamps_ns, grouped.agent.ids, res.agent_points)
+    for gid, (c, _) in sorted(grouped.chains.items()):
+        rms = head_top_rms(agent, grouped.agent_chain, c, ego.stamps_ns, np.asarray(res.T_world_ego), res.head_offset,
+                           params.align.max_time_gap_s)
+        if np.isfinite(rms) and rms > params.max_unexplained_track_rms_m:
+            return (f"the joint optimisation found {len(res.ego_breaks)} unflagged break step(s) in the ego map that "
+                    f"the agent tracks do not explain (group {gid}'s head-top RMS {rms:.2f} m > "
+                    f"{params.max_unexplained_track_rms_m:g} m after it): pose without JO")
     return ""
 
 
