@@ -152,10 +152,8 @@ def test_the_group_sfm_calibrates_on_corrected_stamps_as_if_synchronised():
     assert max(relative_rotation_errors_deg(reported).values(), default=90.0) > 1.0
 
 
-def test_rooms_walked_one_after_the_other_stay_apart_when_their_clocks_differ():
-    """Room B's cameras run 1.3 s behind room A's. No camera sees both rooms, so their
-    offset is unknown: no pair across the rooms is trusted (the end of one room's walk
-    fits the start of the other's at some shift), and the rooms are not matched."""
+def rooms_one_after_the_other():
+    """Three cameras in room A, two in room B, whose clocks run 1.3 s behind A's."""
     cams = {"a1": ceiling_camera(0.3, 0.3, (2.5, 2.5)), "a2": ceiling_camera(4.7, 0.3, (2.5, 2.5), z=3.4),
             "a3": ceiling_camera(2.5, 4.7, (2.5, 2.3)),
             "b1": ceiling_camera(10.3, 0.3, (12.5, 2.5)), "b2": ceiling_camera(14.7, 4.7, (12.5, 2.5))}
@@ -165,7 +163,14 @@ def test_rooms_walked_one_after_the_other_stay_apart_when_their_clocks_differ():
     room = {"a": lambda x: x < 5, "b": lambda x: x > 10}
     tracks = observe(cams, walk, 40.0, sigma_px=0.7, visible=lambda n, xy: room[n[0]](xy[0]), seed=4,
                      offsets_s=[0.0, 0.03, 0.05, 0.01, 0.07])
-    behind = [t.shifted(1.3 if t.name.startswith("b") else 0.0) for t in tracks]
+    return [t.shifted(1.3 if t.name.startswith("b") else 0.0) for t in tracks]
+
+
+def test_rooms_walked_one_after_the_other_stay_apart_when_their_clocks_differ():
+    """Room B's cameras run 1.3 s behind room A's. No camera sees both rooms, so their
+    offset is unknown: no pair across the rooms is trusted (the end of one room's walk
+    fits the start of the other's at some shift), and the rooms are not matched."""
+    behind = rooms_one_after_the_other()
     grouping = calibrate_cmcs(behind)
     assert sorted(sorted(g.names) for g in grouping.groups) == [["a1", "a2", "a3"], ["b1", "b2"]]
     est = estimate_clock_offsets(behind)
@@ -186,3 +191,18 @@ def test_offsets_within_their_noise_of_zero_are_not_applied():
     assert all(np.array_equal(g.T_local_cam[n], synced.T_local_cam[n]) for n in CAMS)
     (applied,) = calibrate_cmcs(raw, replace(CmcParams(), clock=ClockParams(min_significance=0.0))).groups
     assert any(applied.clock_offsets_s[n] != 0.0 for n in CAMS)
+
+
+@pytest.mark.parametrize("case", ["noisy", "rooms"])
+def test_the_coarse_to_fine_search_keeps_the_minimum_of_the_full_search(case):
+    """The cheap first pass (ClockParams.search_*) leaves the full cost to a few windows:
+    every pair ends where the full cost at every shift of the grid takes it (the same
+    offsets, the same reasons), also across rooms walked one after the other, where the
+    wrong shifts that fit some stretch of the walk are what the search must rank right."""
+    raw = views(OFFSETS, sigma_px=1.0, seed=1) if case == "noisy" else rooms_one_after_the_other()
+    full = estimate_clock_offsets(raw, ClockParams(search_candidates=0))
+    fast = estimate_clock_offsets(raw)
+    assert len(fast.pairs) == len(full.pairs) >= 6
+    for p, q in zip(fast.pairs, full.pairs):
+        assert (p.a, p.b, p.offset_s, p.sigma_s, p.reason) == (q.a, q.b, q.offset_s, q.sigma_s, q.reason)
+    assert any(p.offset_s is not None for p in fast.pairs)
