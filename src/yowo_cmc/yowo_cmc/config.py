@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .group_sfm import SfmParams
+from .params import SfmParams
 from .clock import ClockParams
 from .image_detector import DetectorParams
 from .pose_model import PoseModelParams

@@ -5,10 +5,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import savgol_coeffs, savgol_filter
 
-from yowo_common.bundle import robust_sigma
 from yowo_common.camera import CameraModel
+
+from .params import TrackParams
+
+# scipy.signal and yowo_common.bundle (gtsam) are imported where tracks are smoothed: the
+# keypoint trackers build tracks (keypoint_input) but never smooth them, and these two
+# imports were most of a tracker's start-up.
 
 
 @dataclass
@@ -46,26 +50,6 @@ class CameraTracks:
                                                      for i, t in self.tracks.items()}, self.frame_period_ns)
 
 
-@dataclass(frozen=True)
-class TrackParams:
-    window_s: float = 0.7           # Savitzky-Golay window
-    polyorder: int = 2
-    gap_factor: float = 2.5         # a gap longer than this many frame periods splits a segment
-    gate_px: float = 8.0            # residual to the smoothed track above which a sample is dropped
-    min_confidence: float = 0.1
-    # Our addition (the paper's CMC BA has no detection confidence): a sample rated below
-    # this fraction of its track's full confidence (90th percentile; not the median, as
-    # most of a track can be weak) is a weaker kind of detection (the image detector's
-    # ground point from the feet alone: 0.3x a full one); the bundle adjustment scales its
-    # sigma by full confidence / its confidence.
-    weak_confidence_ratio: float = 0.5
-    # The pixel thresholds here and in SfmParams were tuned on detections whose best
-    # keypoint id has ~1 px noise (estimated 0.9-1.9 px by noise_px). A camera whose best id
-    # is noisier than this has them scaled by the ratio (noise_scale); never below 1.
-    nominal_noise_px: float = 1.5
-    min_noise_samples: int = 20     # residuals needed for a track's noise estimate
-
-
 def segments(stamps_ns: np.ndarray, max_gap_ns: int) -> list[slice]:
     """Contiguous runs of samples with no gap longer than max_gap_ns."""
     if len(stamps_ns) == 0:
@@ -76,6 +60,7 @@ def segments(stamps_ns: np.ndarray, max_gap_ns: int) -> list[slice]:
 
 
 def _savgol(uv: np.ndarray, window: int, polyorder: int) -> np.ndarray:
+    from scipy.signal import savgol_filter
     n = len(uv)
     w = min(window, n if n % 2 else n - 1)
     if w <= polyorder:
@@ -93,6 +78,10 @@ def noise_px(track: KeypointTrack, period_ns: int, params: TrackParams) -> float
     centre weight (the fit follows each sample's own noise by c0). Outliers are dropped
     first against the median pre-filtered fit: in the plain fit one outlier shifts a
     whole window of residuals. nan if too few samples."""
+    from scipy.signal import savgol_coeffs, savgol_filter
+
+    from yowo_common.bundle import robust_sigma
+
     track = track.subset(track.confidence >= params.min_confidence)
     window = _window(period_ns, params)
     max_gap = int(params.gap_factor * period_ns)
