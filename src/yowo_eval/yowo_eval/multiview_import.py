@@ -437,13 +437,11 @@ def import_multiview(folder, bag, calibration=None, keypoint_format: str = "BODY
 
 
 def cmd_import_multiview(args) -> int:
-    from rich.progress import Progress
+    from .progress import with_progress
 
-    with Progress(transient=True) as bar:
-        task = bar.add_task("importing", total=None)
-        s = import_multiview(args.session, args.output, args.calibration, args.keypoint_format, args.videos,
-                             args.fps, args.max_frames,
-                             progress=lambda done, total: bar.update(task, completed=done, total=total))
+    s = with_progress(lambda progress: import_multiview(args.session, args.output, args.calibration,
+                                                        args.keypoint_format, args.videos, args.fps,
+                                                        args.max_frames, progress=progress))
     print(f"wrote {s.bag}: {len(s.cameras)} cameras at {s.fps:g} frames/s, reference poses on /gt/cmc/<name>/pose")
     for c in s.cameras:
         src = ", ".join(x for x in (c.keypoints_from and f"keypoints {c.keypoints_from}",

@@ -246,13 +246,11 @@ def import_tum(folder, bag, camera: str = "auto", intrinsics=None, distortion=No
 
 
 def cmd_import_tum(args) -> int:
-    from rich.progress import Progress
+    from .progress import with_progress
 
-    with Progress(transient=True) as bar:
-        task = bar.add_task("importing", total=None)
-        s = import_tum(args.sequence, args.output, args.camera, args.intrinsics, args.distortion,
-                       args.max_difference, args.max_frames,
-                       progress=lambda done, total: bar.update(task, completed=done, total=total))
+    s = with_progress(lambda progress: import_tum(args.sequence, args.output, args.camera, args.intrinsics,
+                                                  args.distortion, args.max_difference, args.max_frames,
+                                                  progress=progress))
     print(f"wrote {s.bag}: {s.frames} colour/depth pairs over {s.duration_s:.1f} s (camera {s.camera}; "
           f"{s.rgb_unmatched} colour and {s.depth_unmatched} depth images without a partner within "
           f"{args.max_difference} s left out), {s.gt_poses} ground-truth poses on /gt/ego/pose")
