@@ -274,7 +274,8 @@ def write_run_results(plan: RunPlan, outputs: dict, status: dict, replay, second
     (out / "run_log.yaml").write_text(yaml.safe_dump({
         "bag": str(plan.bag or "live"), "mode": plan.mode, **({"mode_reason": plan.mode_reason} if plan.mode_reason else {}),
         "seconds": round(seconds, 2), "failure": failure,
-        "warnings": plan.warnings, "stages": {s: m.message for s, m in status.items()},
+        "warnings": plan.warnings, "stages": {s: status[s].message if s in status else "no status received"
+                   for s in [n.name for n in plan.nodes if n.name != "replay"]},
         "replay_published": published, "received": received,
         "replay_resent": int(replay.resent_messages) if replay is not None else 0,
         "replay_error": replay.error if replay is not None else "no replay status",

@@ -24,10 +24,11 @@ from .progress import DONE, FAILED, RUNNING, WAITING, ProgressLines, RunProgress
 from .run import RunOutcome, RunPlan, write_run_results
 from .supervisor import Supervisor, stats_path, write_params_file
 
-# After the final stage finished, time for the latched outputs to arrive: a stage that
-# succeeded published them all (a loaded machine took > 2 s to deliver the map clouds);
-# after a failure some never come.
-GRACE_S = {"done": 30.0, "failed": 2.0}
+# After the final stage finished, time for the latched outputs and every stage's last status
+# to arrive: a stage that succeeded published them all (a loaded machine took > 2 s to
+# deliver the map clouds, and a tracker's last status came after the group SfM's failure);
+# after a failure some outputs never come.
+GRACE_S = {"done": 30.0, "failed": 10.0}
 # What decides which DDS graph a process joins.
 DDS_ENV = ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS")
 
@@ -155,8 +156,9 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
                         finished_at = time.monotonic()
                     grace = GRACE_S["failed" if final is not None and final.state == StageStatus.STATE_FAILED
                                     else "done"]
-                    if finished_at is not None and (all(t in monitor.outputs for t in plan.outputs)
-                                                    or time.monotonic() - finished_at > grace):
+                    settled = final is not None and all(monitor.finished(s) for s in stages) and (
+                        final.state == StageStatus.STATE_FAILED or all(t in monitor.outputs for t in plan.outputs))
+                    if finished_at is not None and (settled or time.monotonic() - finished_at > grace):
                         if final.state == StageStatus.STATE_FAILED:
                             failure = f"stage '{plan.final_stage}' failed: {final.message}"
                         break
