@@ -128,10 +128,6 @@ def test_unknown_covariance_is_a_weak_verdict_with_the_reason(monkeypatch):
         assert c.T_world_cam is not None and np.isnan(c.covariance).all()
 
 
-@pytest.mark.xfail(strict=True, reason="the ego-clock fit (alignment.estimate_clock_offset) finds 'no clear minimum' "
-                   "since the group SfM's per-id sigmas settle over 4 rounds (614feca): the points move by "
-                   "< 0.1 mm but the cost at the 2 ms parabola step is not smooth (nearest ego orientation); "
-                   "keeping the 20 ms parabola there fixes this case but moved b1 of the test above by 0.26 m")
 def test_a_group_whose_clock_runs_ahead_of_the_ego_camera_is_put_on_the_ego_clock():
     """Every CMC's clock 0.4 s ahead of the ego camera's: the fusion finds the group's
     offset from its agent track against the ego trajectory, and registers it as well as

@@ -8,6 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
@@ -30,11 +31,13 @@ class AlignParams:
     # The clock offset of a group's reference camera to the ego camera, from the agent's
     # track against the ego trajectory (real CCTV clocks are not synchronised): searched
     # over +-max_clock_offset_s, used when its sigma is below max_clock_sigma_s (a straight
-    # walk at constant speed leaves it unobservable: then the clocks are assumed equal).
+    # walk at constant speed leaves it unobservable: then the clocks are assumed equal), and
+    # applied only beyond min_clock_significance sigma of 0 (as cmc.clock.min_significance).
     estimate_clock_offset: bool = True
     max_clock_offset_s: float = 2.5
     clock_step_s: float = 0.02
     max_clock_sigma_s: float = 0.05
+    min_clock_significance: float = 3.0
 
 
 @dataclass
@@ -137,22 +140,29 @@ def estimate_clock_offset(track_stamps_ns: np.ndarray, track_local: np.ndarray, 
     fits the ego trajectory best under one similarity and one head offset (the head top
     sits behind the ego camera: at walking speed a constant offset along the path looks
     like a time shift, and only stops and turns tell them apart): the residual over a
-    grid of shifts, then a parabola through the best three; the sigma from its curvature
-    (the residual per coordinate as the noise). Our addition: the paper assumes
-    synchronised clocks."""
+    grid of shifts, then a least-squares parabola through nine costs around the best;
+    the sigma from its curvature (the residual per coordinate as the noise). Our
+    addition: the paper assumes synchronised clocks."""
     gap = int(params.max_time_gap_s * 1e9)
-    shifts = np.arange(-params.max_clock_offset_s, params.max_clock_offset_s + 0.5 * params.clock_step_s,
-                       params.clock_step_s)
+    step = params.clock_step_s
+    shifts = np.arange(-params.max_clock_offset_s, params.max_clock_offset_s + 0.5 * step, step)
     if len(track_stamps_ns) < MIN_CLOCK_POINTS:
         return ClockFit(None, None, f"only {len(track_stamps_ns)} head-top points (needs {MIN_CLOCK_POINTS})")
+    ego_t = (ego_stamps_ns - ego_stamps_ns[0]) / 1e9
+    orientations = Slerp(ego_t, Rotation.from_matrix(T_world_ego[:, :3, :3]))
 
-    def cost(shift_s: float) -> tuple[float, int]:
+    def covered(shift_s: float) -> tuple[np.ndarray, np.ndarray]:
         query = track_stamps_ns - round(shift_s * 1e9)
-        centres, ok = interpolate_positions(ego_stamps_ns, T_world_ego[:, :3, 3], query, gap)
+        return interpolate_positions(ego_stamps_ns, T_world_ego[:, :3, 3], query, gap)
+
+    def cost(shift_s: float, use: np.ndarray | None = None) -> tuple[float, int]:
+        centres, ok = covered(shift_s)
+        if use is not None:
+            ok = use
         if ok.sum() < max(MIN_CLOCK_POINTS, len(track_stamps_ns) // 2):
             return np.inf, int(ok.sum())
-        nearest = np.clip(np.searchsorted(ego_stamps_ns, query[ok]), 0, len(ego_stamps_ns) - 1)
-        R, P, local = T_world_ego[nearest, :3, :3], centres[ok], track_local[ok]
+        t = np.clip((track_stamps_ns[ok] - round(shift_s * 1e9) - ego_stamps_ns[0]) / 1e9, ego_t[0], ego_t[-1])
+        R, P, local = orientations(t).as_matrix(), centres[ok], track_local[ok]
         offset = np.zeros(3)
         try:
             for _ in range(4):   # the similarity and the head offset in turn
@@ -168,16 +178,21 @@ def estimate_clock_offset(track_stamps_ns: np.ndarray, track_local: np.ndarray, 
     k = int(np.argmin(costs))
     if k in (0, len(shifts) - 1) or not np.isfinite(costs[k - 1:k + 2]).all():
         return ClockFit(None, None, f"the best shift is at the edge of +-{params.max_clock_offset_s:g} s")
-    # A parabola through the three costs around the minimum, then once more a tenth as
-    # wide (the cost is a parabola only near its minimum).
-    best = float(shifts[k])
-    for step in (params.clock_step_s, 0.1 * params.clock_step_s):
-        c = np.array([cost(best + d * step)[0] for d in (-1, 0, 1)])
-        curvature = (c[0] - 2 * c[1] + c[2]) / step ** 2
-        if not np.isfinite(curvature) or curvature <= 0:
-            return ClockFit(None, None, "the fit has no clear minimum over the shift")
-        best -= 0.5 * step * (c[2] - c[0]) / (c[0] - 2 * c[1] + c[2])
-    c_best, n = cost(best)
+    # The fine fit on one point set (the points the ego trajectory covers over the whole
+    # bracket) and slerped orientations, so the cost moves smoothly with the shift; nine
+    # costs and not three, because where the CMC and ego frames share one rate the linear
+    # interpolation kinks all residuals at the same shifts.
+    use = covered(shifts[k] - step)[1] & covered(shifts[k])[1] & covered(shifts[k] + step)[1]
+    near = shifts[k] + np.linspace(-step, step, 9)
+    c = np.array([cost(s, use)[0] for s in near])
+    if not np.isfinite(c).all():
+        return ClockFit(None, None, "the fit has no clear minimum over the shift")
+    a, b, _ = np.polyfit(near - shifts[k], c, 2)
+    if a <= 0 or abs(b / (2 * a)) > step:
+        return ClockFit(None, None, "the fit has no clear minimum over the shift")
+    best = float(shifts[k] - b / (2 * a))
+    curvature = 2 * a
+    c_best, n = cost(best, use)
     sigma = float(np.sqrt(2.0 * (c_best / max(3 * n - 10, 1)) / curvature))
     if sigma > params.max_clock_sigma_s:
         return ClockFit(None, sigma, f"not observable from this walk (sigma {sigma:.2f} s > "

@@ -424,15 +424,19 @@ def _on_ego_clock(groups: list[CameraGroupResult], ego: EgoMapData, params: Alig
         if params.estimate_clock_offset:
             stamps, local, _ = _group_tracks(g, params)
             fit = estimate_clock_offset(stamps, local, ego.stamps_ns, ego.T_world_ego, params)
-        delta = shifts[g.group_id] = fit.offset_s or 0.0
+        applied = fit.offset_s is not None and abs(fit.offset_s) > params.min_clock_significance * fit.sigma_s
+        delta = shifts[g.group_id] = fit.offset_s if applied else 0.0
         out.append(replace(g, point_stamps_ns=g.point_stamps_ns - round(delta * 1e9)))
+        note = f"group {g.group_id}'s track against the ego trajectory (reference {g.reference})"
+        if fit.offset_s is not None and not applied:
+            note += (f": {1e3 * fit.offset_s:+.1f} +- {1e3 * fit.sigma_s:.1f} ms is within "
+                     f"{params.min_clock_significance:g} sigma of 0, so the clocks are taken as equal")
         for n in g.names:
             if fit.offset_s is None:
                 clocks[n] = (None, None, f"group {g.group_id}'s clock against the ego camera: {fit.reason}")
             else:
                 clocks[n] = (g.clock_offsets_s.get(n, 0.0) + delta,
-                             float(np.hypot(g.clock_sigmas_s.get(n, 0.0), fit.sigma_s)),
-                             f"group {g.group_id}'s track against the ego trajectory (reference {g.reference})")
+                             float(np.hypot(g.clock_sigmas_s.get(n, 0.0), fit.sigma_s)), note)
     return out, shifts, clocks
 
 
