@@ -4,7 +4,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -101,7 +100,5 @@ def test_the_tracker_modules_import_no_sfm_library():
         assert heavy_imports(module) == [], module
 
 
-@pytest.mark.xfail(strict=True, reason="ClockParams is still defined in yowo_cmc.clock (scipy, networkx, group_sfm), "
-                   "which the configuration tree imports; once it lives in yowo_cmc.params, drop this mark")
 def test_the_keypoint_tracker_node_imports_no_sfm_library():
     assert heavy_imports("yowo_cmc.keypoint_tracker_node") == []

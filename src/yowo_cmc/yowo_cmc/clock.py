@@ -25,57 +25,8 @@ from scipy.spatial.transform import Rotation
 from yowo_common.bundle import robust_sigma
 
 from .group_sfm import RANSAC_SEED, CameraGroupResult, SfmParams, sampson_px, spread_subset
+from .params import ClockParams
 from .tracks import CameraTracks, _window, clean_track, noise_scale, segments, undistort_tracks
-
-
-@dataclass(frozen=True)
-class ClockParams:
-    # Search range of a pair's offset |clock b - clock a|: twice the largest |offset| of one
-    # camera (+-1 s each: pairs up to 2 s apart), with a margin.
-    max_offset_s: float = 2.5
-    coarse_step_frames: float = 0.5     # coarse grid step, in frame periods of the faster camera
-    min_correspondences: int = 40       # co-visible samples (all keypoint ids) a pair needs at a shift
-    coarse_points: int = 150            # correspondences (spatially spread) per essential-matrix fit
-    # RANSAC iterations per fit: at a wrong shift most correspondences are outliers and
-    # the fit would run to OpenCV's 1000; near the right one it stops far sooner.
-    coarse_iterations: int = 300
-    # Coarse to fine: first a cheap fit (search_iterations, search_points) every
-    # search_step_frames, then the full cost on the coarse grid only within one search step of
-    # the search_candidates best of those shifts (the best, then the next best more than a
-    # search step from those picked, ...). The cheap cost ranks shifts as the full one does
-    # (the same average over all of camera a's samples, so rooms walked one after the other
-    # still cost their unmatched samples) but is noisier: on the simulator's recordings and
-    # the synthetic views the true minimum was among its best 3. Pose2Sim's demo (60 fps):
-    # 601 full fits per pair before, 301 cheap + <= 25 full now (23 -> 7.7 s CPU).
-    # 0: the full cost at every shift.
-    search_candidates: int = 5
-    search_step_frames: float = 1.0     # in frame periods of the faster camera (a multiple of coarse_step_frames)
-    search_iterations: int = 50
-    search_points: int = 60
-    truncate_px: float = 3.0            # coarse cost: Sampson error truncated here (x the pair's noise scale)
-    huber_px: float = 1.0               # refinement: Huber loss scale (x the pair's noise scale)
-    # A pair's sigma from the curvature assumes independent residuals, with their spread;
-    # the tracks are Savitzky-Golay smoothed, which shrinks the residuals by sqrt(c0) (the
-    # filter's centre weight) but not the slow noise a shift is fitted to: the sigma is
-    # scaled by 1 / sqrt(c0).
-    correlated_sigma: bool = True
-    max_pair_sigma_s: float = 0.02      # pair estimates less certain are not used (agent barely moving)
-    min_sigma_s: float = 1e-5           # floor on a pair's sigma: noise-free pairs would get unbounded weight
-    max_residual_sigma: float = 5.0     # a pair this many sigma off the global solution is dropped ...
-    min_residual_s: float = 0.005       # ... if it is also this far off (sigmas can be optimistic)
-    apply: bool = True                  # the group SfM runs on stamps corrected by the estimated offsets
-    # ... those farther than this many sigma from 0: one within its noise of 0 is kept at 0
-    # (synchronised cameras stay on their stamps; applying noise cost accuracy: Pose2Sim's
-    # demo, pose model, offsets 3-17 ms at sigma 8-12 ms: 2.29 % of the mean baseline applied,
-    # 1.88 % at 0).
-    min_significance: float = 3.0
-    # Per group, the pairwise offsets are refined in one fit with the group's poses and
-    # agent points (the pairs' epipolar fits each see two cameras only: 10-40 ms off on
-    # the simulator's recordings, a few cm of relative pose).
-    refine: bool = True
-    refine_range_s: float = 0.1         # largest correction of the refinement
-    refine_max_points: int = 3000       # agent points in the fit (evenly spread in time)
-    refine_min_observations: int = 50   # a member's observations the fit needs to refine its offset
 
 
 @dataclass

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .params import SfmParams
-from .clock import ClockParams
+from .params import ClockParams, SfmParams
 from .image_detector import DetectorParams
 from .pose_model import PoseModelParams
 
