@@ -238,8 +238,9 @@ def markdown(results: dict, command: str, env: dict) -> str:
 
 
 # Sections of BENCHMARKS.md that other commands write between <!-- NAME:begin/end --> markers
-# (yowo bench-graph: graph-speed; the TUM RGB-D run: tum-rgbd); re-rendering keeps them.
-KEPT_SECTIONS = ("graph-speed", "tum-rgbd")
+# (yowo bench-graph: graph-speed; the TUM RGB-D run: tum-rgbd; real multi-camera recordings
+# of people: real-multiview); re-rendering keeps them.
+KEPT_SECTIONS = ("graph-speed", "tum-rgbd", "real-multiview")
 
 
 def markers(name: str) -> tuple[str, str]:
