@@ -53,6 +53,11 @@ class RunPlan:
     cmc_problems: list[str] = field(default_factory=list)   # why each CMC of the recording is not used
 
     @property
+    def stages(self) -> list[str]:
+        """The names of the nodes that report a stage status (every node but the replay)."""
+        return [n.name for n in self.nodes if n.name != "replay"]
+
+    @property
     def local_nodes(self) -> list[NodeSpec]:
         return [n for n in self.nodes if any(fnmatch.fnmatchcase(n.name, p) for p in self.local)]
 
@@ -274,8 +279,7 @@ def write_run_results(plan: RunPlan, outputs: dict, status: dict, replay, second
     (out / "run_log.yaml").write_text(yaml.safe_dump({
         "bag": str(plan.bag or "live"), "mode": plan.mode, **({"mode_reason": plan.mode_reason} if plan.mode_reason else {}),
         "seconds": round(seconds, 2), "failure": failure,
-        "warnings": plan.warnings, "stages": {s: status[s].message if s in status else "no status received"
-                   for s in [n.name for n in plan.nodes if n.name != "replay"]},
+        "warnings": plan.warnings, "stages": {s: status[s].message if s in status else "no status received" for s in plan.stages},
         "replay_published": published, "received": received,
         "replay_resent": int(replay.resent_messages) if replay is not None else 0,
         "replay_error": replay.error if replay is not None else "no replay status",

@@ -115,7 +115,7 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
         sort_keys=False))
     sup = Supervisor(plan.out_dir / "logs", network.env, params_file, profile_dir,
                      plan.config.supervisor.profile_rate_hz)
-    stages = [n.name for n in plan.nodes if n.name != "replay"]
+    stages = plan.stages
     t0, t0_wall = time.monotonic(), time.time()
     failure, outcome, notes = "", None, set()
     saved_env = {k: os.environ.get(k) for k in DDS_ENV}

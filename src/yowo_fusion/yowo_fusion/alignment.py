@@ -151,17 +151,18 @@ def estimate_clock_offset(track_stamps_ns: np.ndarray, track_local: np.ndarray, 
     ego_t = (ego_stamps_ns - ego_stamps_ns[0]) / 1e9
     orientations = Slerp(ego_t, Rotation.from_matrix(T_world_ego[:, :3, :3]))
 
-    def covered(shift_s: float) -> tuple[np.ndarray, np.ndarray]:
+    def covered(shift_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The track's stamps on the ego clock, the ego positions there, which are valid."""
         query = track_stamps_ns - round(shift_s * 1e9)
-        return interpolate_positions(ego_stamps_ns, T_world_ego[:, :3, 3], query, gap)
+        return (query, *interpolate_positions(ego_stamps_ns, T_world_ego[:, :3, 3], query, gap))
 
     def cost(shift_s: float, use: np.ndarray | None = None) -> tuple[float, int]:
-        centres, ok = covered(shift_s)
+        query, centres, ok = covered(shift_s)
         if use is not None:
             ok = use
         if ok.sum() < max(MIN_CLOCK_POINTS, len(track_stamps_ns) // 2):
             return np.inf, int(ok.sum())
-        t = np.clip((track_stamps_ns[ok] - round(shift_s * 1e9) - ego_stamps_ns[0]) / 1e9, ego_t[0], ego_t[-1])
+        t = np.clip((query[ok] - ego_stamps_ns[0]) / 1e9, ego_t[0], ego_t[-1])
         R, P, local = orientations(t).as_matrix(), centres[ok], track_local[ok]
         offset = np.zeros(3)
         try:
@@ -182,7 +183,7 @@ def estimate_clock_offset(track_stamps_ns: np.ndarray, track_local: np.ndarray, 
     # bracket) and slerped orientations, so the cost moves smoothly with the shift; nine
     # costs and not three, because where the CMC and ego frames share one rate the linear
     # interpolation kinks all residuals at the same shifts.
-    use = covered(shifts[k] - step)[1] & covered(shifts[k])[1] & covered(shifts[k] + step)[1]
+    use = covered(shifts[k] - step)[2] & covered(shifts[k])[2] & covered(shifts[k] + step)[2]
     near = shifts[k] + np.linspace(-step, step, 9)
     c = np.array([cost(s, use)[0] for s in near])
     if not np.isfinite(c).all():
