@@ -15,12 +15,21 @@ rate (a pair is swapped when the crossed assignment is nearer the truth).
     .venv/bin/yowo simulate --preset small --seed 0 -o bags/small_s0
     .venv/bin/python docs/pose_model_bench.py sim bags/small_s0 --preset small --seed 0
 
+multiview: the pose-model source on a real multi-camera recording with a reference
+calibration (yowo import-multiview ... --videos): each keypoint id seen by >= 3 cameras
+in one frame is triangulated with the reference poses and intrinsics, and its
+reprojection residual per camera measures the keypoint noise without the group SfM
+(--recorded: the recording's own keypoints instead, e.g. OpenPose's).
+
+    .venv/bin/python docs/pose_model_bench.py multiview p2s_vid [--set refine_crop=false]
+
 The true body joints come from rebuilding the recording's walk from its preset and seed
 (yowo_sim.capture.build_capture); the script checks them against the recording's
 /gt/agent/keypoints first.
 """
 import argparse
 import collections
+import dataclasses
 import importlib.util
 import json
 import pathlib
@@ -38,8 +47,10 @@ def photos():
     spec = importlib.util.spec_from_file_location("marks", ROOT / "src/yowo_cmc/test/test_pose_model.py")
     marks = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(marks)
-    for model in ("movenet", "blazepose"):
-        det = PoseDetector(PoseModelParams(model=model))
+    for model, params in (("movenet", PoseModelParams()),
+                          ("movenet-whole-frame", PoseModelParams(refine_crop=False)),
+                          ("blazepose", PoseModelParams(model="blazepose"))):
+        det = PoseDetector(params)
         errors = []
         for image, people in marks.MARKS.items():
             rgb = marks.photo(image)
@@ -59,12 +70,15 @@ def photos():
         frame = cv2.resize(marks.photo("bus")[230:840], (640, 480), interpolation=cv2.INTER_AREA)
         for _ in range(5):
             det.detect(frame)
+        # As PoseKeypointSource runs it: the whole frame, then (refine_crop) the agent's crop.
         n, t0 = 50, time.perf_counter()
         for _ in range(n):
-            det.detect(frame)
+            people = det.detect(frame, refine=False)
+            det.refine(frame, people[0])
         dt = (time.perf_counter() - t0) / n
         print(f"{model}: 640x480, 1 thread: {1000 * dt:.1f} ms per frame, {1 / dt:.1f} frames/s "
-              f"({len(det.detect(frame))} persons)")
+              f"({len(det.detect(frame))} persons"
+              + ("; the agent refined on its crop)" if params.refine_crop and params.model == "movenet" else ")"))
 
 
 # --- sim ---------------------------------------------------------------------------------------
@@ -135,8 +149,8 @@ def run_source(bag, params: PoseModelParams):
             sources[name] = PoseKeypointSource(name, params)
             detect = sources[name].detector.detect
 
-            def counting(rgb, detect=detect, name=name):   # records what the model found, unchanged
-                people = detect(rgb)
+            def counting(rgb, detect=detect, name=name, **kw):   # records what the model found, unchanged
+                people = detect(rgb, **kw)
                 persons[name][stamp] = len(people)
                 return people
             sources[name].detector.detect = counting
@@ -153,7 +167,8 @@ def run_source(bag, params: PoseModelParams):
 
 def sim(args):
     gt = truth(args.bag, args.preset, args.seed)
-    emitted, persons, sources, dt = run_source(args.bag, PoseModelParams(lr_resolve=not args.model_labels))
+    changes = _changes(args.set) | ({"lr_resolve": False} if args.model_labels else {})
+    emitted, persons, sources, dt = run_source(args.bag, dataclasses.replace(PoseModelParams(), **changes))
     ids = np.arange(len(NAMES))
     err = collections.defaultdict(list)       # id -> errors [px]
     rel = collections.defaultdict(list)       # id -> errors / person height in the image
@@ -193,7 +208,7 @@ def sim(args):
                          swap_rate=cam_swaps[0] / max(cam_swaps[1], 1), pairs=cam_swaps[1],
                          gross_rate=gross[0] / max(gross[1], 1), keypoints=gross[1],
                          summary=sources[name].summary() if name in sources else "no images"))
-    print(f"{args.bag}: {1000 * dt:.1f} ms per image (model + source)\n")
+    print(f"{args.bag}: pose model {changes or 'defaults'}: {1000 * dt:.1f} ms per image (model + source)\n")
     print("| camera | images | agent in view | model found a person | agent emitted (rate) | emitted, agent not in"
           " view | L/R swapped pairs | keypoints > 15 % of height off |")
     print("|---|---|---|---|---|---|---|---|")
@@ -221,6 +236,96 @@ def sim(args):
         pathlib.Path(args.json).write_text(json.dumps(dict(bag=str(args.bag), cameras=cams, joints=joints), indent=1))
 
 
+# --- multiview ---------------------------------------------------------------------------------
+def _changes(pairs) -> dict:
+    """KEY=VALUE strings -> PoseModelParams fields, typed as their defaults."""
+    out = {}
+    for kv in pairs:
+        k, v = kv.split("=", 1)
+        kind = type(getattr(PoseModelParams(), k))
+        out[k] = v.lower() in ("1", "true", "yes") if kind is bool else kind(v)
+    return out
+
+
+def multiview(args):
+    from yowo_common.ros.bag import read_messages
+    from yowo_common.rosconv import camera_info_to_model, decode_color, pose_to_matrix, stamp_to_ns
+    from yowo_common.topics import parse_cmc_topic, parse_gt_cmc_pose_topic
+    from yowo_cmc.keypoint_input import frame_from_msg
+
+    changes = _changes(args.set)
+    params = dataclasses.replace(PoseModelParams(), **changes)
+    poses, models, sources, frames = {}, {}, {}, collections.defaultdict(dict)
+    for topic, _, msg in read_messages(args.bag):
+        if parse_gt_cmc_pose_topic(topic):
+            poses[parse_gt_cmc_pose_topic(topic)] = pose_to_matrix(msg.pose)
+            continue
+        name, kind = parse_cmc_topic(topic) or ("", "")
+        if kind == "camera_info":
+            models.setdefault(name, camera_info_to_model(msg))
+        elif kind == "agent_keypoints" and args.recorded:
+            f = frame_from_msg(msg)
+            frames[name][f.stamp_ns] = f
+        elif kind.startswith("image") and not args.recorded:
+            source = sources.setdefault(name, PoseKeypointSource(name, params))
+            for f in source.push(stamp_to_ns(msg.header.stamp), decode_color(msg))[0]:
+                frames[name][f.stamp_ns] = f
+    for name, source in sources.items():
+        for f in source.flush():
+            frames[name][f.stamp_ns] = f
+    names = sorted(frames)
+    P = {n: models[n].K @ np.linalg.inv(poses[n])[:3] for n in names}   # ideal pinhole projections
+    res = collections.defaultdict(list)          # camera -> residuals [px]
+    per_id = collections.defaultdict(list)
+    for stamp in sorted(set().union(*(frames[n] for n in names))):
+        obs = collections.defaultdict(dict)      # id -> camera -> raw uv
+        for n in names:
+            f = frames[n].get(stamp)
+            if f is not None:
+                for k, uv, c in zip(f.ids, f.uv, f.confidence):
+                    if c >= params.min_keypoint_score:
+                        obs[int(k)][n] = uv
+        for k, seen in obs.items():
+            if len(seen) < 3:
+                continue
+            rows = []
+            for n, uv in seen.items():
+                x = models[n].undistort_pixels(uv)[0]
+                rows += [x[0] * P[n][2] - P[n][0], x[1] * P[n][2] - P[n][1]]
+            X = np.linalg.svd(np.array(rows))[2][-1]
+            X = X[:3] / X[3]
+            for n, uv in seen.items():
+                got, ok = models[n].project_world(poses[n], X[None])
+                if ok[0]:
+                    e = float(np.hypot(*(got[0] - uv)))
+                    res[n].append(e)
+                    per_id[k].append(e)
+    # Reference-free: the frame-to-frame jitter. The person moves little between frames (60 fps), so
+    # the second difference of a keypoint's track is its noise: sigma ~ |x0 - 2 x1 + x2| / sqrt(6).
+    jitter = collections.defaultdict(list)
+    for n in names:
+        stamps = sorted(frames[n])
+        period = np.median(np.diff(stamps)) if len(stamps) > 1 else 0
+        for s0, s1, s2 in zip(stamps, stamps[1:], stamps[2:]):
+            if abs(s2 - s0 - 2 * period) > 0.5 * period:
+                continue
+            at = [{int(k): uv for k, uv, c in zip(f.ids, f.uv, f.confidence) if c >= params.min_keypoint_score}
+                  for f in (frames[n][s0], frames[n][s1], frames[n][s2])]
+            for k in set(at[0]) & set(at[1]) & set(at[2]):
+                jitter[n].append(float(np.hypot(*(at[0][k] - 2 * at[1][k] + at[2][k]))) / np.sqrt(6))
+    what = "recorded keypoints" if args.recorded else f"pose model {changes or 'defaults'}"
+    print(f"{args.bag}: {what}; residual of each keypoint to its reference-calibration triangulation (>= 3 views)")
+    print("and (jitter) each keypoint's noise from its track's second difference over 3 consecutive frames")
+    print("| camera | keypoints | residual median px | p75 px | p90 px | jitter median px |")
+    print("|---|---|---|---|---|---|")
+    for n in names + ["all"]:
+        e = np.array(sum(res.values(), []) if n == "all" else res[n])
+        j = np.array(sum(jitter.values(), []) if n == "all" else jitter[n])
+        print(f"| {n} | {len(e)} | {np.median(e):.1f} | {np.percentile(e, 75):.1f} | {np.percentile(e, 90):.1f} | "
+              f"{np.median(j):.2f} |")
+    print("per id, median px: " + ", ".join(f"{k}: {np.median(v):.1f}" for k, v in sorted(per_id.items())))
+
+
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="what")
@@ -231,5 +336,10 @@ if __name__ == "__main__":
     s.add_argument("--seed", type=int, required=True)
     s.add_argument("--json", help="write the numbers here too")
     s.add_argument("--model-labels", action="store_true", help="the model's own left/right (lr_resolve off)")
+    s.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a PoseModelParams field")
+    m = sub.add_parser("multiview", help="a real multi-camera recording against its reference calibration")
+    m.add_argument("bag")
+    m.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a PoseModelParams field")
+    m.add_argument("--recorded", action="store_true", help="the recording's keypoints, not the pose model's")
     a = ap.parse_args()
-    sim(a) if a.what == "sim" else photos()
+    {"sim": sim, "multiview": multiview}.get(a.what, lambda _: photos())(a)

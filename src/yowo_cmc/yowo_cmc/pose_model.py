@@ -73,6 +73,21 @@ class PoseModelParams:
     input_size: int = 256             # movenet: long side of the network input (multiple of 32; 256 is
     #                                   the model's training size, larger finds smaller persons, slower)
     min_person_score: float = 0.2     # persons below this score are dropped
+    # Top-down refinement (movenet): the whole-frame pass sees a small person in a big frame at a few
+    # pixels per joint (Pose2Sim's 1080x1920 videos: ~110 px tall in the 256 input), so each person
+    # found is passed through the model again on a square crop around its box, resized to input_size
+    # (the person ~200 px tall there, whatever the frame size). Measured (docs/pose_model.md): hand-marked
+    # photos median 1.2 -> 0.9 % of the height; simulator ankles 6.5 -> 2.1 px, head top 11 -> 6.6 px
+    # (shoulders 11 -> 14 px); 640x480 on one core 41 -> 17 frames/s.
+    refine_crop: bool = True          # movenet: the second pass on each person's crop (PoseKeypointSource:
+    #                                   on the agent only, one more pass per image)
+    refine_margin: float = 1.3        # the box times this fits in the crop (the whole-frame box can be
+    #                                   short of a limb; the crop must hold the whole person)
+    refine_aspect: float = 1.0        # the crop's short side / long side (1: square; 0.5 halves the crop
+    #                                   pass's cost, but on Pose2Sim gave 3.3 % against the square's 1.4 %)
+    refine_max_zoom: float = 1.0      # the crop is never magnified more than this (a small person's crop
+    #                                   grows instead): upsampling adds no detail, and the model's
+    #                                   confidences drop on the blurred input (320x240: hips 0.6 -> 0.3)
     max_persons: int = 6              # blazepose: landmark passes per image (movenet: always <= 6)
     detector_score: float = 0.5       # blazepose: person detector score threshold (MediaPipe's)
     nms_iou: float = 0.3              # blazepose: overlapping person detections merged above this IoU
@@ -165,42 +180,91 @@ class PoseDetector:
         self.params = params
         self.joints = JOINTS[params.model]
         self._net = _interpreter(params.model, params.threads)
+        self._shapes = {}    # interpreter -> its input's (height, width)
+        self._crop_nets = {}  # refine: an interpreter per crop input shape (portrait, landscape)
         if params.model == "blazepose":
             self._net.allocate_tensors()
             self._det = _interpreter("blazepose_detector", params.threads)
             self._det.allocate_tensors()
             self._anchors = _ssd_anchors()
-        self._shape = None
 
     @property
     def ids(self) -> np.ndarray:
         return np.arange(len(self.joints) + ID_OFFSET)
 
-    def detect(self, rgb: np.ndarray) -> list[PersonPose]:
+    def detect(self, rgb: np.ndarray, refine: bool = True) -> list[PersonPose]:
+        """Every person, best score first; with `refine_crop` (and `refine`) each one
+        refined on its own crop (`refine`)."""
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise ValueError(f"pose model: expected an RGB uint8 image (H, W, 3), got {rgb.dtype} {rgb.shape}")
         raw = self._movenet(rgb) if self.params.model == "movenet" else self._blazepose(rgb)
         h, w = rgb.shape[:2]
         people = [self._person(score, box, uv, conf, w, h) for score, box, uv, conf in raw
                   if score >= self.params.min_person_score]
+        if refine:
+            people = [self.refine(rgb, p) for p in people]
         return sorted(people, key=lambda p: -p.score)
 
+    def refine(self, rgb: np.ndarray, person: PersonPose) -> PersonPose:
+        """Top-down second pass (movenet with `refine_crop`; else `person` as it is): the
+        model on a crop around the person's box, centred on it, its long side along the
+        box's, `refine_aspect` short-to-long, the box x `refine_margin` fitted inside
+        (larger for a small person: magnified at most `refine_max_zoom`), zero-padded
+        where it leaves the image, resized so its long side is `input_size`.
+        The crop's person whose box overlaps the given one most (IoU >= 0.3) replaces its
+        joints and box, mapped back to image pixels. The score stays the whole-frame
+        pass's (the crop's is of a person filling the input, not comparable). No
+        overlapping person in the crop: `person` unchanged."""
+        p = self.params
+        if p.model != "movenet" or not p.refine_crop:
+            return person
+        box = person.box
+        bw, bh = max(float(box[2] - box[0]), 1.0), max(float(box[3] - box[1]), 1.0)
+        long_in, short_in = p.input_size, max(32, round(p.input_size * p.refine_aspect / 32) * 32)
+        # Input (height, width): a fixed shape per orientation (a new shape costs a re-allocation).
+        hi, wi = (long_in, short_in) if bh >= bw else (short_in, long_in)
+        scale = min(hi / (p.refine_margin * bh), wi / (p.refine_margin * bw), p.refine_max_zoom)
+        ch = max(8, round(hi / scale))
+        cw = max(8, round(ch * wi / hi))
+        # Integer pixel offsets: the crop's pixel (i, j) is the image's (x0 + i, y0 + j).
+        x0 = round((box[0] + box[2]) / 2 - (cw - 1) / 2)
+        y0 = round((box[1] + box[3]) / 2 - (ch - 1) / 2)
+        h, w = rgb.shape[:2]
+        xa, ya, xb, yb = max(x0, 0), max(y0, 0), min(x0 + cw, w), min(y0 + ch, h)
+        if xb <= xa or yb <= ya:
+            return person
+        crop = np.zeros((ch, cw, 3), np.uint8)
+        crop[ya - y0:yb - y0, xa - x0:xb - x0] = rgb[ya:yb, xa:xb]
+        net = self._crop_nets.get((hi, wi))
+        if net is None:
+            net = self._crop_nets[(hi, wi)] = _interpreter(p.model, p.threads)
+        shift = np.array([x0, y0, x0, y0], float)
+        best, best_iou = None, 0.3
+        for _, cbox, uv, conf in self._movenet(crop, net):
+            iou = _iou(cbox + shift, box)
+            if iou >= best_iou:
+                best, best_iou = (cbox + shift, uv + shift[:2], conf), iou
+        if best is None:
+            return person
+        return self._person(person.score, best[0], best[1], best[2], w, h)
+
     # --- MoveNet MultiPose: one pass, letterboxed to multiples of 32 -------------------------
-    def _movenet(self, rgb: np.ndarray):
+    def _movenet(self, rgb: np.ndarray, net=None):
+        net = self._net if net is None else net
         h, w = rgb.shape[:2]
         scale = self.params.input_size / max(h, w)
         rw, rh = max(1, round(w * scale)), max(1, round(h * scale))
         th, tw = -(-rh // 32) * 32, -(-rw // 32) * 32   # the model takes any size in multiples of 32
         canvas = np.zeros((1, th, tw, 3), np.uint8)
         canvas[0, :rh, :rw] = cv2.resize(rgb, (rw, rh), interpolation=cv2.INTER_AREA)
-        if self._shape != (th, tw):
-            index = self._net.get_input_details()[0]["index"]
-            self._net.resize_tensor_input(index, [1, th, tw, 3])
-            self._net.allocate_tensors()
-            self._shape = (th, tw)
-        self._net.set_tensor(self._net.get_input_details()[0]["index"], canvas)
-        self._net.invoke()
-        rows = self._net.get_tensor(self._net.get_output_details()[0]["index"])[0]
+        if self._shapes.get(id(net)) != (th, tw):
+            index = net.get_input_details()[0]["index"]
+            net.resize_tensor_input(index, [1, th, tw, 3])
+            net.allocate_tensors()
+            self._shapes[id(net)] = (th, tw)
+        net.set_tensor(net.get_input_details()[0]["index"], canvas)
+        net.invoke()
+        rows = net.get_tensor(net.get_output_details()[0]["index"])[0]
         # Normalised to the padded input; the resize maps pixel edges to edges.
         sx, sy = tw / rw * w, th / rh * h
         out = []
@@ -286,6 +350,16 @@ class PoseDetector:
         all_uv = np.vstack([top[:2], ground[:2], uv])
         all_conf = np.concatenate([[top[2], ground[2]], np.clip(conf, 0.0, 1.0)])
         return PersonPose(score, np.asarray(box, float), ids, all_uv, all_conf)
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    """Intersection over union of two boxes (x_min, y_min, x_max, y_max)."""
+    iw = min(a[2], b[2]) - max(a[0], b[0])
+    ih = min(a[3], b[3]) - max(a[1], b[1])
+    if iw <= 0 or ih <= 0:
+        return 0.0
+    inter = iw * ih
+    return float(inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter))
 
 
 def _box(uv: np.ndarray, conf: np.ndarray, min_conf: float) -> np.ndarray:
@@ -534,8 +608,10 @@ class PoseKeypointSource:
     def push(self, stamp_ns: int, rgb: np.ndarray) -> tuple[list[KeypointFrame], bool]:
         """(frames to publish, whether the model saw the agent in this image)."""
         self.images += 1
-        people = self.detector.detect(rgb)
+        people = self.detector.detect(rgb, refine=False)   # the crop pass on the agent only (its cost)
         agent = pick_agent(people, self._previous, self.max_jump * math.hypot(*rgb.shape[:2]))
+        if agent is not None:
+            agent = self.detector.refine(rgb, agent)
         if agent is None:
             self._missed += 1
             if self._missed >= self.lost_after and self._previous is not None:   # lost: the next best
