@@ -124,7 +124,7 @@ def align_group(track_stamps_ns: np.ndarray, track_local: np.ndarray, ego_stamps
     return Alignment(S, len(world), int(labels.max()) + 1, weights, np.linalg.norm(S.apply(local) - world, axis=1))
 
 
-MIN_CLOCK_POINTS = 10   # head-top points a group's clock offset needs (beside the 10 unknowns)
+MIN_CLOCK_POINTS = 10   # head-top and ground points a group's clock offset needs (beside the 10 unknowns)
 
 
 @dataclass
@@ -135,43 +135,61 @@ class ClockFit:
 
 
 def estimate_clock_offset(track_stamps_ns: np.ndarray, track_local: np.ndarray, ego_stamps_ns: np.ndarray,
-                          T_world_ego: np.ndarray, params: AlignParams = AlignParams()) -> ClockFit:
-    """The shift of the head-top track's clock against the ego clock at which the track
+                          T_world_ego: np.ndarray, params: AlignParams = AlignParams(),
+                          ground_stamps_ns: np.ndarray | None = None, ground_local: np.ndarray | None = None
+                          ) -> ClockFit:
+    """The shift of the agent track's clock against the ego clock at which the track
     fits the ego trajectory best under one similarity and one head offset (the head top
     sits behind the ego camera: at walking speed a constant offset along the path looks
     like a time shift, and only stops and turns tell them apart): the residual over a
     grid of shifts, then a least-squares parabola through nine costs around the best;
-    the sigma from its curvature (the residual per coordinate as the noise). Our
+    the sigma from its curvature (the residual per coordinate as the noise). Ground
+    points, when given, count as in align_group: on the floor (z = 0) under the head top
+    (a group whose cameras rarely see the head top together still sees the feet). Our
     addition: the paper assumes synchronised clocks."""
     gap = int(params.max_time_gap_s * 1e9)
     step = params.clock_step_s
     shifts = np.arange(-params.max_clock_offset_s, params.max_clock_offset_s + 0.5 * step, step)
-    if len(track_stamps_ns) < MIN_CLOCK_POINTS:
-        return ClockFit(None, None, f"only {len(track_stamps_ns)} head-top points (needs {MIN_CLOCK_POINTS})")
+    if ground_stamps_ns is None:
+        ground_stamps_ns, ground_local = np.zeros(0, np.int64), np.zeros((0, 3))
+    stamps = np.concatenate([track_stamps_ns, ground_stamps_ns])
+    local_all = np.vstack([track_local.reshape(-1, 3), ground_local.reshape(-1, 3)])
+    on_floor = np.r_[np.zeros(len(track_stamps_ns), bool), np.ones(len(ground_stamps_ns), bool)]
+    if len(stamps) < MIN_CLOCK_POINTS:
+        return ClockFit(None, None, f"only {len(track_stamps_ns)} head-top and {len(ground_stamps_ns)} ground "
+                                    f"points (needs {MIN_CLOCK_POINTS})")
     ego_t = (ego_stamps_ns - ego_stamps_ns[0]) / 1e9
     orientations = Slerp(ego_t, Rotation.from_matrix(T_world_ego[:, :3, :3]))
 
     def covered(shift_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The track's stamps on the ego clock, the ego positions there, which are valid."""
-        query = track_stamps_ns - round(shift_s * 1e9)
+        query = stamps - round(shift_s * 1e9)
         return (query, *interpolate_positions(ego_stamps_ns, T_world_ego[:, :3, 3], query, gap))
 
     def cost(shift_s: float, use: np.ndarray | None = None) -> tuple[float, int]:
         query, centres, ok = covered(shift_s)
         if use is not None:
             ok = use
-        if ok.sum() < max(MIN_CLOCK_POINTS, len(track_stamps_ns) // 2):
+        if ok.sum() < max(MIN_CLOCK_POINTS, len(stamps) // 2):
             return np.inf, int(ok.sum())
         t = np.clip((query[ok] - ego_stamps_ns[0]) / 1e9, ego_t[0], ego_t[-1])
-        R, P, local = orientations(t).as_matrix(), centres[ok], track_local[ok]
+        R, P, local, floor = orientations(t).as_matrix(), centres[ok], local_all[ok], on_floor[ok]
+        # Rows of the residual that the head offset moves: all three of a head top, the
+        # horizontal two of a ground point (its height is the floor's).
+        rows = np.ones((len(P), 3), bool)
+        rows[floor, 2] = False
         offset = np.zeros(3)
         try:
             for _ in range(4):   # the similarity and the head offset in turn
-                S = umeyama(local, P + R @ offset)
-                offset = np.mean(np.einsum("nji,nj->ni", R, S.apply(local) - P), axis=0)
+                target = P + R @ offset
+                target[floor, 2] = 0.0
+                S = umeyama(local, target)
+                offset = np.linalg.lstsq(R[rows], (S.apply(local) - P)[rows], rcond=None)[0]
         except ValueError:
             return np.inf, int(ok.sum())
-        return float(np.sum((S.apply(local) - P - R @ offset) ** 2)), int(ok.sum())
+        target = P + R @ offset
+        target[floor, 2] = 0.0
+        return float(np.sum((S.apply(local) - target) ** 2)), int(ok.sum())
 
     costs = np.array([cost(s)[0] for s in shifts])
     if not np.isfinite(costs).any():

@@ -422,8 +422,8 @@ def _on_ego_clock(groups: list[CameraGroupResult], ego: EgoMapData, params: Alig
     for g in groups:
         fit = ClockFit(None, None, "not estimated (fusion.align.estimate_clock_offset is off)")
         if params.estimate_clock_offset:
-            stamps, local, _ = _group_tracks(g, params)
-            fit = estimate_clock_offset(stamps, local, ego.stamps_ns, ego.T_world_ego, params)
+            stamps, local, ground = _group_tracks(g, params)
+            fit = estimate_clock_offset(stamps, local, ego.stamps_ns, ego.T_world_ego, params, *ground)
         applied = fit.offset_s is not None and abs(fit.offset_s) > params.min_clock_significance * fit.sigma_s
         delta = shifts[g.group_id] = fit.offset_s if applied else 0.0
         out.append(replace(g, point_stamps_ns=g.point_stamps_ns - round(delta * 1e9)))
