@@ -40,10 +40,13 @@ def calibrate_cmcs(tracks: list[CameraTracks], params: CmcParams = CmcParams()) 
         shifted = {t.name: t for t in corrected}
         applied = dict(offsets)
         for g in grouping.groups:
+            ref = applied.get(g.reference, 0.0)
             for n, (delta, sigma) in refine_group_offsets(g, shifted, params.clock, params.sfm).items():
-                offsets[n] = offsets.get(n, 0.0) + delta
+                # The refined sigma is against the group's reference, so that is the clock a
+                # member within its noise stays on (not the clock estimate's reference camera).
+                relative = applied.get(n, 0.0) + delta - ref
+                offsets[n] = ref + (relative if abs(relative) > params.clock.min_significance * sigma else 0.0)
                 sigmas[n], sigmas[g.reference] = sigma, 0.0
-        offsets = significant(offsets, sigmas, params.clock.min_significance)
         if offsets != applied:
             grouping = calibrate_groups([t.shifted(offsets.get(t.name, 0.0)) for t in tracks], params.sfm,
                                         components)
