@@ -17,7 +17,9 @@ class ReplayParams:
     wait_timeout_s: float = 30.0         # for the stages' subscriptions before playing
     publish_clock: bool = True           # /clock at the recording's time
     exclude_prefixes: tuple[str, ...] = (GT_PREFIX,)   # never played (ground truth)
-    linger_s: float = 1.0                # after the end: late joiners still get the latched status
+    # After every stage is done: late joiners still get the latched final status (under load
+    # the run monitor matched it only after the 1 s this was: the run log lost its counts).
+    linger_s: float = 5.0
 
 
 @dataclass

@@ -156,7 +156,11 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
                         finished_at = time.monotonic()
                     grace = GRACE_S["failed" if final is not None and final.state == StageStatus.STATE_FAILED
                                     else "done"]
-                    settled = final is not None and all(monitor.finished(s) for s in stages) and (
+                    # The replay's final status too (the run log's counts): on a loaded machine it
+                    # reached the stages but not yet this node when they had all finished.
+                    replayed = plan.bag is None or (monitor.replay is not None
+                                                    and monitor.replay.state == ReplayStatus.STATE_FINISHED)
+                    settled = final is not None and replayed and all(monitor.finished(s) for s in stages) and (
                         final.state == StageStatus.STATE_FAILED or all(t in monitor.outputs for t in plan.outputs))
                     if finished_at is not None and (settled or time.monotonic() - finished_at > grace):
                         if final.state == StageStatus.STATE_FAILED:
