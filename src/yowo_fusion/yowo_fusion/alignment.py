@@ -178,18 +178,18 @@ def estimate_clock_offset(track_stamps_ns: np.ndarray, track_local: np.ndarray, 
         # horizontal two of a ground point (its height is the floor's).
         rows = np.ones((len(P), 3), bool)
         rows[floor, 2] = False
+
+        def targets(offset: np.ndarray) -> np.ndarray:   # head tops, and ground points on the floor
+            return np.where(rows, P + R @ offset, 0.0)
+
         offset = np.zeros(3)
         try:
             for _ in range(4):   # the similarity and the head offset in turn
-                target = P + R @ offset
-                target[floor, 2] = 0.0
-                S = umeyama(local, target)
+                S = umeyama(local, targets(offset))
                 offset = np.linalg.lstsq(R[rows], (S.apply(local) - P)[rows], rcond=None)[0]
         except ValueError:
             return np.inf, int(ok.sum())
-        target = P + R @ offset
-        target[floor, 2] = 0.0
-        return float(np.sum((S.apply(local) - target) ** 2)), int(ok.sum())
+        return float(np.sum((S.apply(local) - targets(offset)) ** 2)), int(ok.sum())
 
     costs = np.array([cost(s)[0] for s in shifts])
     if not np.isfinite(costs).any():
