@@ -1,4 +1,6 @@
 """Smoke tests on the real middleware (Fast DDS, separate processes)."""
+import os
+import signal
 import time
 
 import numpy as np
@@ -8,6 +10,7 @@ from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
 from yowo_common.camera import CameraModel
 from yowo_common.ros.bag import BagWriter, read_messages
+from yowo_common.ros.context import FLUSH_S
 from yowo_common.rosconv import encode_raw, message_fields, model_to_camera_info, ns_to_time
 
 N = 200
@@ -61,3 +64,38 @@ def test_bag_roundtrip_field_by_field(tmp_path):
         assert (t_a, s_a, type(m_a)) == (t_b, s_b, type(m_b))
         assert message_fields(m_a) == message_fields(m_b)
     assert isinstance(got[0][2], (Image, CameraInfo, AgentKeypoints))
+
+
+def test_a_stopped_node_first_delivers_what_it_published(tmp_path, start_script):
+    """Ctrl-C on a node right after its last publish (the supervisor stopping a stage that
+    just finished): it stays up until its reader acknowledged the message, then ends."""
+    go = tmp_path / "go"
+    sub = start_script("flush_on_stop.py", "sub", 60)
+    pub = start_script("flush_on_stop.py", "pub", go)
+    assert sub.stdout.readline().strip() == "matched"
+    os.kill(sub.pid, signal.SIGSTOP)   # matched, but cannot acknowledge anything now
+    try:
+        go.touch()
+        assert pub.stdout.readline().strip() == "published"
+        pub.send_signal(signal.SIGINT)
+        time.sleep(1.5)
+        assert pub.poll() is None, "the publisher ended before its reader acknowledged the message"
+    finally:
+        os.kill(sub.pid, signal.SIGCONT)
+    out, err = sub.communicate(timeout=30)
+    assert sub.returncode == 0 and out.splitlines()[-1] == "final status", err
+    pub.communicate(timeout=FLUSH_S + 5)
+    assert pub.returncode == 0
+
+
+def test_a_stopped_node_with_everything_delivered_ends_at_once(tmp_path, start_script):
+    go = tmp_path / "go"
+    go.touch()
+    sub = start_script("flush_on_stop.py", "sub", 60)
+    pub = start_script("flush_on_stop.py", "pub", go)
+    assert pub.stdout.readline().strip() == "published"
+    out, err = sub.communicate(timeout=30)
+    assert out.splitlines()[-1] == "final status", err
+    pub.send_signal(signal.SIGINT)
+    pub.communicate(timeout=FLUSH_S / 2)
+    assert pub.returncode == 0
