@@ -1,9 +1,12 @@
 """Shared fixtures: one synthetic room and its renderer per test session (building
 the textured scene is the slow part)."""
+import numpy as np
 import pytest
 import rclpy
 
 from yowo_ego.ego_mapper_node import EgoMapperNode
+from yowo_ego.imu import ImuBuffer
+from yowo_ego.recording import EgoRecording, find_ego_topics, read_ego_frames
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
 
@@ -36,6 +39,31 @@ def tiny_bag(tmp_path_factory):
     bag = tmp_path_factory.mktemp("ego") / "tiny"
     generate(get_preset("tiny", cmc_images=False), 0, bag)
     return bag
+
+
+def dark_noise(frame, rng):
+    """What a depth camera facing a bare wall in darkness delivers: dim sensor noise in
+    8 px blocks (enough for the input check, nothing to match) and depth on 10 % of the
+    pixels at random ranges, new every frame."""
+    stamp, color, depth = frame
+    h, w = depth.shape
+    noise = rng.integers(0, 40, (h // 8, w // 8, 1), dtype=np.uint8)
+    color = np.ascontiguousarray(np.repeat(np.repeat(noise, 8, 0), 8, 1).repeat(3, 2))
+    depth = np.full((h, w), np.nan, np.float32)
+    some = rng.random((h, w)) < 0.1
+    depth[some] = rng.uniform(0.5, 4.0, int(some.sum()))
+    return stamp, color, depth
+
+
+@pytest.fixture(scope="session")
+def dark_walk(tiny_bag):
+    """(recording with its IMU samples, frames, the dark frames' indices) of the tiny walk
+    with frames 60-67 (0.53 s) replaced by `dark_noise`: nothing to track there."""
+    recording = EgoRecording(find_ego_topics(tiny_bag))
+    recording.imu = ImuBuffer()
+    frames = list(read_ego_frames(tiny_bag, recording))
+    rng, dark = np.random.default_rng(0), range(60, 68)
+    return recording, [dark_noise(f, rng) if i in dark else f for i, f in enumerate(frames)], dark
 
 
 @pytest.fixture

@@ -184,17 +184,17 @@ class EgoMapper:
                      degenerate_frames=tr.degenerate_frames)
         if tr.imu is not None:
             stats["imu_samples"] = len(tr.imu)
-        if tr.breaks:
-            warnings.append(f"odometry lost track {tr.breaks} time(s); segments joined by loop closures or weak "
-                            "constant-velocity edges")
         T_odometry = [k.T_odom_cam for k in keyframes]
 
         t0 = time.perf_counter()
         mw = self._multiway.finish()
+        if tr.breaks:
+            warnings.append(f"odometry lost track {tr.breaks} time(s); {mw.relocalised} segment(s) relocalised by "
+                            "place recognition, the others joined by loop closures or weak constant-velocity edges")
         stats.update(multiway_s=time.perf_counter() - t0, edges_corrected=mw.edges_corrected,
                      loops_tried=mw.loops_tried,
                      loops_verified=mw.loops_verified, loops_refined=mw.loops_refined,
-                     loops_kept=mw.loops_kept)
+                     loops_kept=mw.loops_kept, relocalised=mw.relocalised, loops_retrieved=mw.loops_retrieved)
         T_kf = mw.T_odom_kf
 
         T_bundle, scene_map, inertial_up = T_kf, _SceneMap.empty(), None

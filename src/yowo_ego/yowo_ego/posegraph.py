@@ -11,6 +11,11 @@ registration [Choi et al. 2015]), as an Open3D pose graph:
   odometry places close together and looking the same way, verified by SIFT +
   PnP RANSAC and refined densely from the PnP estimate (as Choi et al. refine
   every loop: PnP is off by centimetres on wide-baseline loops);
+- relocalisation: a segment that starts after a tracking break is joined to the
+  walk by the earlier keyframes that look most like its keyframes (place
+  recognition, ``retrieval``), verified and refined as a loop; its break edge then
+  takes the pose that loop implies. Once joined, each keyframe's best look-alike
+  further away than the pose-based search reaches is tried as a loop too;
 - Open3D's global optimisation (Levenberg-Marquardt with a line process on the
   loop edges, which prunes the ones inconsistent with the rest).
 
@@ -27,6 +32,7 @@ from yowo_common.geometry import inv_se3, rotation_angle_deg
 
 from .features import FeatureParams, KeyframeFeatures, PnpResult, match, relative_pose, support
 from .odometry import Keyframe, OdometryEdge, RgbdOdometry, o3d_rgbd, orthonormalize
+from .retrieval import PlaceIndex, RetrievalParams
 
 reg = o3d.pipelines.registration
 
@@ -60,6 +66,7 @@ class LoopParams:
     # A pair whose matches are too few for the default check is retried with
     # looser matching (the support comparison still guards the result).
     retry_features: FeatureParams = FeatureParams(ratio=0.9, pnp_min_inliers=15)
+    retrieval: RetrievalParams = RetrievalParams()
     # Open3D global optimisation.
     max_correspondence_distance_m: float = 0.05
     edge_prune_threshold: float = 0.25
@@ -84,6 +91,8 @@ class MultiwayResult:
     loops_verified: int            # by SIFT + PnP
     loops_refined: int             # of those, refined densely
     loops_kept: int                # after the line process pruned the inconsistent ones
+    relocalised: int               # segments joined to the walk by place recognition
+    loops_retrieved: int           # loop edges between keyframes found by place recognition
     pairs: list[PairMatches]       # every matched keyframe pair (consecutive and loops)
     edges: list[OdometryEdge]      # the graph's edges the optimisation kept (tracking, IMU, break, loop)
 
@@ -265,6 +274,9 @@ class MultiwayRegistration:
         self._loops: list[OdometryEdge] = []
         self._tried: set[tuple[int, int]] = set()
         self._corrected = self._verified = 0
+        self.places = PlaceIndex(params.retrieval)
+        self._joined = {0}                           # segments tied to the walk's first keyframe
+        self._relocalised = self._retrieved = 0
 
     def add(self, keyframe: Keyframe, features: KeyframeFeatures, edge: OdometryEdge | None) -> None:
         """``edge``: the tracking edge to the previous keyframe (None for the first)."""
@@ -273,6 +285,7 @@ class MultiwayRegistration:
             raise ValueError(f"keyframe {b} added out of order (have {len(self.keyframes)})")
         self.keyframes.append(keyframe)
         self.features.append(features)
+        self.places.add(features.descriptors)
         if edge is None:
             self._chain.append(np.eye(4))
             return
@@ -284,10 +297,63 @@ class MultiwayRegistration:
         self._checked.append(pair.pnp is not None)
         self._corrected += replaced
         self._chain.append(orthonormalize(self._chain[a] @ edge.T_target_source))
+        if edge.kind != "break" and self.keyframes[a].segment in self._joined:
+            self._joined.add(keyframe.segment)      # the break's edge was verified after all
         for a in loop_candidates_of(b, self._chain, self.params):
             self._try_loop(a, b)
+        if self.params.retrieval.enabled:
+            self._retrieve(b)
 
-    def _try_loop(self, a: int, b: int) -> None:
+    def _retrieve(self, b: int) -> None:
+        """Loops found by appearance: for a keyframe of a segment not yet joined, among
+        the joined segments' keyframes (the first verified one relocalises the segment);
+        else among the joined keyframes the pose-based search leaves out."""
+        r, segment = self.params.retrieval, self.keyframes[b].segment
+        joined = segment in self._joined
+        last = b - self.params.min_separation if joined else b - 1
+        allowed = [a for a in range(last + 1) if self.keyframes[a].segment in self._joined
+                   and (a, b) not in self._tried]
+        for a, _ in self.places.query(b, allowed)[:r.loop_candidates if joined else r.relocalisation_candidates]:
+            edge = self._try_loop(a, b)
+            if edge is None:
+                continue
+            if segment not in self._joined:
+                T_s0 = self._relocalised_start(edge)
+                if T_s0 is None:            # a look-alike place (a symmetric room)
+                    self._loops.remove(edge)
+                    continue
+                self._relocalise(segment, T_s0)
+            self._retrieved += 1
+
+    def _relocalised_start(self, loop: OdometryEdge) -> np.ndarray | None:
+        """The pose of the first keyframe of the loop's newer keyframe's segment that the
+        loop implies; None when the walk could not have got there from its last joined
+        keyframe in the time between them (faster than the odometry's `max_speed_mps`)."""
+        b, a = loop.source, loop.target
+        segment = self.keyframes[b].segment
+        s0 = next(k.index for k in self.keyframes if k.segment == segment)
+        T_s0 = self._chain[a] @ loop.T_target_source @ inv_se3(self._chain[b]) @ self._chain[s0]
+        last = max(k.index for k in self.keyframes[:s0] if k.segment in self._joined)
+        dt_s = (self.keyframes[s0].stamp_ns - self.keyframes[last].stamp_ns) * 1e-9
+        reachable = np.linalg.norm(T_s0[:3, 3] - self._chain[last][:3, 3]) <= self.odometry.params.max_speed_mps * dt_s
+        return T_s0 if reachable else None
+
+    def _relocalise(self, segment: int, T_s0: np.ndarray) -> None:
+        """Join a segment to the walk at the pose of its first keyframe: when that one's
+        edge is a break (not one verified to a segment not joined either), the break edge
+        takes that pose; the chained poses follow."""
+        s0 = next(k.index for k in self.keyframes if k.segment == segment)
+        self._joined.add(segment)
+        self._relocalised += 1
+        brk = self.edges[s0 - 1]
+        if brk.kind != "break":
+            return
+        self.edges[s0 - 1] = OdometryEdge(brk.source, brk.target, orthonormalize(inv_se3(self._chain[s0 - 1]) @ T_s0),
+                                          brk.information, brk.kind)
+        for k in range(s0, len(self.keyframes)):
+            self._chain[k] = orthonormalize(self._chain[k - 1] @ self.edges[k - 1].T_target_source)
+
+    def _try_loop(self, a: int, b: int) -> OdometryEdge | None:
         """Verify a loop candidate by SIFT + PnP and refine it densely (Choi et
         al. refine every loop: PnP is off by centimetres on wide-baseline loops
         and too coarse for the information matrix a dense edge carries). A loop
@@ -296,12 +362,13 @@ class MultiwayRegistration:
         self._tried.add((a, b))
         pair = match_pair(self.features[a], self.features[b], a, b, self.odometry.K_full, self.params.features)
         if pair.pnp is None:
-            return
+            return None
         self._verified += 1
         self._pairs.append(pair)
         edge = dense_edge(pair, self.keyframes[a], self.keyframes[b], self.odometry, self.params, "loop")
         if edge is not None:
             self._loops.append(edge)
+        return edge
 
     def finish(self) -> MultiwayResult:
         p = self.params
@@ -316,5 +383,6 @@ class MultiwayRegistration:
                  for k, T in zip(self.keyframes, T_init)]
         T, kept = optimize(nodes, self.edges + self._loops, p)
         return MultiwayResult(T, self._corrected, len(self._tried), self._verified, len(self._loops),
-                              sum(e.kind not in ("odometry", "imu") for e in kept), self._pairs, kept)
+                              sum(e.kind not in ("odometry", "imu") for e in kept), self._relocalised,
+                              self._retrieved, self._pairs, kept)
 

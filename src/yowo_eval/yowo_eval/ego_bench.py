@@ -10,7 +10,7 @@ IoU, gravity error and processing speed.
   alignment; yaw and position do not enter).
 - Speed: ego frames / wall-clock seconds for decoding and the whole stage.
 
-    python -m yowo_eval.ego_bench [--no-imu] BAG [BAG ...]
+    python -m yowo_eval.ego_bench [--no-imu] [--no-relocalisation] BAG [BAG ...]
 """
 from __future__ import annotations
 
@@ -76,16 +76,21 @@ def main(argv=None) -> int:
     parser.add_argument("bags", nargs="+")
     parser.add_argument("--json", help="write all metrics to this file")
     parser.add_argument("--no-imu", action="store_true", help="track without the recording's IMU (ablation)")
+    parser.add_argument("--no-relocalisation", action="store_true",
+                        help="no place recognition: segments after a break joined as before (ablation)")
     args = parser.parse_args(argv)
     params = EgoParams()
     if args.no_imu:
         params = replace(params, odometry=replace(params.odometry, use_imu=False))
+    if args.no_relocalisation:
+        params = replace(params, loops=replace(params.loops, retrieval=replace(params.loops.retrieval, enabled=False)))
     rows = {}
     for bag in args.bags:
         m = bench_bag(bag, params)
         rows[bag] = m
         print(f"{bag}: ATE odometry {m['ate_odometry_m']:.3f} m, multiway {m['ate_multiway_m']:.3f} m, "
-              f"BA {m.get('ate_bundle_m', float('nan')):.3f} m; layout IoU {m['layout_iou']:.3f}; gravity "
+              f"BA {m.get('ate_bundle_m', float('nan')):.3f} m; breaks {m['stat_breaks']:.0f}, relocalised "
+              f"{m['stat_relocalised']:.0f}, loops by appearance {m['stat_loops_retrieved']:.0f}; layout IoU {m['layout_iou']:.3f}; gravity "
               f"{m['gravity_error_deg']:.3f} deg; {m['fps']:.1f} frames/s ({m['time_ratio']:.2f} x real time, "
               f"cpu {m['cpu_s']:.0f} s)", flush=True)
     if args.json:

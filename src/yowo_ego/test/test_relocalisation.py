@@ -1,0 +1,80 @@
+"""Relocalisation by place recognition (yowo_ego.retrieval): after a stretch that vision
+cannot track, the new segment is joined to the keyframes before it by what it sees, not
+by a constant-velocity guess; and the place index itself."""
+from dataclasses import replace
+
+import numpy as np
+
+from yowo_common.geometry import inv_se3, rotation_angle_deg
+from yowo_common.trajectory import Trajectory
+from yowo_ego.pipeline import EgoParams, map_recording
+from yowo_ego.retrieval import PlaceIndex, RetrievalParams
+from yowo_eval.evaluation import associate, ate
+from yowo_eval.ground_truth import read_ground_truth
+
+
+def _with_retrieval(enabled: bool) -> EgoParams:
+    p = EgoParams()
+    return replace(p, loops=replace(p.loops, retrieval=replace(p.loops.retrieval, enabled=enabled)))
+
+
+def _across_the_gap(result, gt, dark: range) -> tuple[float, float]:
+    """Error [m, deg] of the pose of the first keyframe after the dark stretch relative
+    to the last one before it."""
+    frames = result.keyframe_frames
+    before = int(np.flatnonzero(frames < dark.start)[-1])
+    after = int(np.flatnonzero(frames >= dark.stop)[0])
+    i_est, i_ref = associate(result.keyframe_stamps_ns[[before, after]], gt.stamps_ns, 1_000_000)
+    assert list(i_est) == [0, 1]
+    T_est = inv_se3(result.T_world_kf[before]) @ result.T_world_kf[after]
+    T_ref = inv_se3(gt.T_world_cam[i_ref[0]]) @ gt.T_world_cam[i_ref[1]]
+    return float(np.linalg.norm(T_est[:3, 3] - T_ref[:3, 3])), rotation_angle_deg(T_est[:3, :3], T_ref[:3, :3])
+
+
+def test_a_segment_after_a_lost_track_is_relocalised_against_the_keyframes_before(dark_walk, tiny_bag):
+    recording, frames, dark = dark_walk
+    gt = read_ground_truth(tiny_bag).ego
+    runs = {on: map_recording(frames, recording.camera, _with_retrieval(on)) for on in (True, False)}   # no IMU
+    for r in runs.values():
+        assert r.stats["breaks"] >= 8           # every dark frame starts a segment
+    relocalised, guessed = runs[True], runs[False]
+    assert relocalised.stats["relocalised"] >= 1 and guessed.stats["relocalised"] == 0
+    # Measured: 1.3 mm / 0.06 deg and ATE 0.009 m relocalised; 31 mm / 21.6 deg and ATE 0.12 m
+    # from the constant-velocity guess (the loop closures around the breaks do not reach back).
+    err_m, err_deg = _across_the_gap(relocalised, gt, dark)
+    assert err_m < 0.01 and err_deg < 0.3
+    assert _across_the_gap(guessed, gt, dark)[1] > 5.0
+    assert ate(Trajectory(relocalised.stamps_ns, relocalised.T_world_cam), gt).rmse_m < 0.02
+    assert ate(Trajectory(guessed.stamps_ns, guessed.T_world_cam), gt).rmse_m > 0.05
+
+
+def _views(rng, places: int, words: int = 64, per_view: int = 300) -> list[np.ndarray]:
+    """Descriptors of `places` places seen twice each: a place is a set of word centres,
+    a view of it draws noisy descriptors around a random subset of them."""
+    centres = rng.random((words, 128)).astype(np.float32) * 100
+    place_words = [rng.choice(words, 20, replace=False) for _ in range(places)]
+    return [centres[rng.choice(place_words[p], per_view)] + rng.normal(0, 2, (per_view, 128)).astype(np.float32)
+            for _ in range(2) for p in range(places)]
+
+
+def test_place_index_ranks_the_other_view_of_the_same_place_first():
+    rng = np.random.default_rng(3)
+    places = 12
+    views = _views(rng, places)
+    index = PlaceIndex(RetrievalParams(words=64, vocabulary_keyframes=places))
+    for v in views:
+        index.add(v)
+    assert len(index) == 2 * places and index.codebook is not None
+    for p in range(places):
+        ranked = index.query(places + p, range(places))
+        assert ranked[0][0] == p and ranked[0][1] > 0.5
+        if len(ranked) > 1:
+            assert ranked[1][1] < ranked[0][1] - 0.2
+
+
+def test_place_index_without_enough_descriptors_proposes_nothing():
+    index = PlaceIndex(RetrievalParams(words=64, vocabulary_keyframes=4))
+    index.add(np.zeros((0, 128), np.float32))
+    index.add(np.ones((10, 128), np.float32))
+    assert index.query(1, [0]) == []
+    assert index.query(1, []) == []
