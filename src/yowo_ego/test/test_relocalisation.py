@@ -4,10 +4,12 @@ by a constant-velocity guess; and the place index itself."""
 from dataclasses import replace
 
 import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
 
-from yowo_common.geometry import inv_se3, rotation_angle_deg
+from yowo_common.geometry import inv_se3, look_at, rotation_angle_deg, se3
 from yowo_common.trajectory import Trajectory
-from yowo_ego.pipeline import EgoParams, map_recording
+from yowo_ego.pipeline import EgoMapper, EgoParams, map_recording
 from yowo_ego.retrieval import PlaceIndex, RetrievalParams
 from yowo_eval.evaluation import associate, ate
 from yowo_eval.ground_truth import read_ground_truth
@@ -46,6 +48,30 @@ def test_a_segment_after_a_lost_track_is_relocalised_against_the_keyframes_befor
     assert _across_the_gap(guessed, gt, dark)[1] > 5.0
     assert ate(Trajectory(relocalised.stamps_ns, relocalised.T_world_cam), gt).rmse_m < 0.02
     assert ate(Trajectory(guessed.stamps_ns, guessed.T_world_cam), gt).rmse_m > 0.05
+
+
+def _move(euler_deg, t):
+    return se3(Rotation.from_euler("xyz", euler_deg, degrees=True).as_matrix(), t)
+
+
+@pytest.mark.parametrize("frame_ns, relocalised", [(1_000_000_000, 1), (66_666_667, 0)])
+def test_relocalisation_only_where_the_walk_could_have_got_to(renderer, ego_camera, frame_ns, relocalised):
+    """0.7 m sideways, a look away (lost), then back at the start (lost again): with a
+    second between frames the last segment is relocalised at the start; at 15 Hz the walk
+    could not have come back 0.65 m in 0.13 s (more than `max_speed_mps`), so the same
+    view is taken for a look-alike place and relocalises nothing (the loops around the
+    breaks still join it at the end)."""
+    T0 = look_at((0.8, 0.9, 1.6), (3.5, 3.2, 0.7))
+    poses = [T0 @ _move([0, 0, 0], [0.1 * i, 0, 0]) for i in range(8)]
+    poses += [T0 @ _move([0, 150, 0], [0.7, 0, 0]), T0 @ _move([0, 5, 0], [0.05, 0, 0.05])]
+    mapper = EgoMapper(ego_camera)
+    for i, T in enumerate(poses):
+        view = renderer.render(ego_camera, T)
+        mapper.add(i * frame_ns, view.rgb, view.depth)
+    result = mapper.finish()
+    assert result.stats["breaks"] == 2 and result.stats["relocalised"] == relocalised
+    T_est = inv_se3(result.T_world_kf[0]) @ result.T_world_kf[-1]
+    assert np.linalg.norm(T_est[:3, 3] - (inv_se3(poses[0]) @ poses[-1])[:3, 3]) < 0.01
 
 
 def _views(rng, places: int, words: int = 64, per_view: int = 300) -> list[np.ndarray]:
