@@ -66,6 +66,11 @@ class LoopParams:
     # A pair whose matches are too few for the default check is retried with
     # looser matching (the support comparison still guards the result).
     retry_features: FeatureParams = FeatureParams(ratio=0.9, pnp_min_inliers=15)
+    # A tracking edge with the gyro's rotation (the IMU) is not replaced by an estimate whose
+    # rotation differs from the gyro's by more: in a symmetric room PnP can match a
+    # look-alike view 90-180 deg off (small symmetric s0: a 45 deg turn replaced by one the
+    # other way), while the gyro over a keyframe interval is off by a tenth of a degree.
+    max_gyro_disagreement_deg: float = 5.0
     retrieval: RetrievalParams = RetrievalParams()
     # Open3D global optimisation.
     max_correspondence_distance_m: float = 0.05
@@ -152,6 +157,11 @@ def dense_edge(pair: PairMatches, kf_a: Keyframe, kf_b: Keyframe, odometry: Rgbd
     return None
 
 
+def _gyro_agrees(edge: OdometryEdge, T_target_source: np.ndarray, params: LoopParams) -> bool:
+    return edge.R_gyro is None or (rotation_angle_deg(edge.R_gyro, T_target_source[:3, :3])
+                                   <= params.max_gyro_disagreement_deg)
+
+
 def verify_edge(edge: OdometryEdge, pair: PairMatches, features: list[KeyframeFeatures], keyframes: list[Keyframe],
                 odometry: RgbdOdometry, params: LoopParams) -> tuple[OdometryEdge, bool]:
     """Check a tracking edge against the keyframes' SIFT + PnP estimate. Dense
@@ -184,7 +194,10 @@ def verify_edge(edge: OdometryEdge, pair: PairMatches, features: list[KeyframeFe
                           or edge_support < params.contradicted_support_ratio * pnp_support):
         fixed = OdometryEdge(kf_b.index, kf_a.index, T_pnp,
                              odometry.information(kf_b.depth_mm, kf_a.depth_mm, T_pnp), "odometry")
-    return (edge, False) if fixed is None else (fixed, True)
+    if fixed is None or not _gyro_agrees(edge, fixed.T_target_source, params):
+        return edge, False
+    fixed.R_gyro = edge.R_gyro
+    return fixed, True
 
 
 def _verify_across(edges: list[OdometryEdge], checked: list[bool], pairs: list[PairMatches],
@@ -211,10 +224,10 @@ def _verify_across(edges: list[OdometryEdge], checked: list[bool], pairs: list[P
             T_lo_hi = inv_se3(pair.pnp.T_b_a)
             T_via = edges[via].T_target_source
             implied = inv_se3(T_via) @ T_lo_hi if lo == a - 1 else T_lo_hi @ inv_se3(T_via)
-            if not _agree(e.T_target_source, implied, params):
+            if not _agree(e.T_target_source, implied, params) and _gyro_agrees(e, implied, params):
                 edges[i] = OdometryEdge(b, a, implied, odometry.information(keyframes[b].depth_mm,
                                                                              keyframes[a].depth_mm, implied),
-                                        "odometry")
+                                        "odometry", e.R_gyro)
                 replaced += 1
             break
     return replaced
@@ -328,7 +341,8 @@ class MultiwayRegistration:
     def _relocalised_start(self, loop: OdometryEdge) -> np.ndarray | None:
         """The pose of the first keyframe of the loop's newer keyframe's segment that the
         loop implies; None when the walk could not have got there from its last joined
-        keyframe in the time between them (faster than the odometry's `max_speed_mps`)."""
+        keyframe in the time between them (faster than the odometry's `max_speed_mps`),
+        or the turn across the break it implies contradicts the gyro's."""
         b, a = loop.source, loop.target
         segment = self.keyframes[b].segment
         s0 = next(k.index for k in self.keyframes if k.segment == segment)
@@ -336,7 +350,8 @@ class MultiwayRegistration:
         last = max(k.index for k in self.keyframes[:s0] if k.segment in self._joined)
         dt_s = (self.keyframes[s0].stamp_ns - self.keyframes[last].stamp_ns) * 1e-9
         reachable = np.linalg.norm(T_s0[:3, 3] - self._chain[last][:3, 3]) <= self.odometry.params.max_speed_mps * dt_s
-        return T_s0 if reachable else None
+        turn = _gyro_agrees(self.edges[s0 - 1], inv_se3(self._chain[s0 - 1]) @ T_s0, self.params)
+        return T_s0 if reachable and turn else None
 
     def _relocalise(self, segment: int, T_s0: np.ndarray) -> None:
         """Join a segment to the walk at the pose of its first keyframe: when that one's
@@ -349,7 +364,7 @@ class MultiwayRegistration:
         if brk.kind != "break":
             return
         self.edges[s0 - 1] = OdometryEdge(brk.source, brk.target, orthonormalize(inv_se3(self._chain[s0 - 1]) @ T_s0),
-                                          brk.information, brk.kind)
+                                          brk.information, brk.kind, brk.R_gyro)
         for k in range(s0, len(self.keyframes)):
             self._chain[k] = orthonormalize(self._chain[k - 1] @ self.edges[k - 1].T_target_source)
 
