@@ -1,6 +1,8 @@
 """Smoke tests on the real middleware (Fast DDS, separate processes)."""
 import os
+import queue
 import signal
+import threading
 import time
 
 import numpy as np
@@ -66,36 +68,45 @@ def test_bag_roundtrip_field_by_field(tmp_path):
     assert isinstance(got[0][2], (Image, CameraInfo, AgentKeypoints))
 
 
+def _lines(proc) -> queue.Queue:
+    """The process's stdout lines as they come (a reader thread): waits have a timeout."""
+    lines = queue.Queue()
+    threading.Thread(target=lambda: [lines.put(line.strip()) for line in proc.stdout], daemon=True).start()
+    return lines
+
+
 def test_a_stopped_node_first_delivers_what_it_published(tmp_path, start_script):
     """Ctrl-C on a node right after its last publish (the supervisor stopping a stage that
     just finished): it stays up until its reader acknowledged the message, then ends."""
     go = tmp_path / "go"
-    sub = start_script("flush_on_stop.py", "sub", 60)
+    sub = start_script("flush_on_stop.py", "sub", 90)
     pub = start_script("flush_on_stop.py", "pub", go)
-    assert sub.stdout.readline().strip() == "matched"
-    os.kill(sub.pid, signal.SIGSTOP)   # matched, but cannot acknowledge anything now
+    sub_lines, pub_lines = _lines(sub), _lines(pub)
+    assert sub_lines.get(timeout=60) == "matched" and pub_lines.get(timeout=60) == "matched"
+    os.kill(sub.pid, signal.SIGSTOP)   # matched both ways, but cannot acknowledge anything now
     try:
         go.touch()
-        assert pub.stdout.readline().strip() == "published"
+        assert pub_lines.get(timeout=30) == "published"
         pub.send_signal(signal.SIGINT)
         time.sleep(1.5)
         assert pub.poll() is None, "the publisher ended before its reader acknowledged the message"
     finally:
         os.kill(sub.pid, signal.SIGCONT)
-    out, err = sub.communicate(timeout=30)
-    assert sub.returncode == 0 and out.splitlines()[-1] == "final status", err
-    pub.communicate(timeout=FLUSH_S + 5)
+    sub.wait(timeout=30)
+    assert sub.returncode == 0 and sub_lines.get(timeout=5) == "final status"
+    pub.wait(timeout=FLUSH_S + 5)
     assert pub.returncode == 0
 
 
 def test_a_stopped_node_with_everything_delivered_ends_at_once(tmp_path, start_script):
     go = tmp_path / "go"
     go.touch()
-    sub = start_script("flush_on_stop.py", "sub", 60)
+    sub = start_script("flush_on_stop.py", "sub", 90)
     pub = start_script("flush_on_stop.py", "pub", go)
-    assert pub.stdout.readline().strip() == "published"
-    out, err = sub.communicate(timeout=30)
-    assert out.splitlines()[-1] == "final status", err
+    sub_lines, pub_lines = _lines(sub), _lines(pub)
+    assert pub_lines.get(timeout=60) == "matched" and pub_lines.get(timeout=30) == "published"
+    assert sub_lines.get(timeout=60) == "matched" and sub_lines.get(timeout=30) == "final status"
+    sub.wait(timeout=30)
     pub.send_signal(signal.SIGINT)
-    pub.communicate(timeout=FLUSH_S / 2)
+    pub.wait(timeout=FLUSH_S / 2)
     assert pub.returncode == 0

@@ -1,6 +1,6 @@
-"""`pub <go_file>`: a node run by `spin_node` latches one message once its reader matched and
-`go_file` exists, prints "published", and spins until stopped; `sub <seconds>`: prints
-"matched" once a publisher matched, then the message it receives."""
+"""`pub <go_file>`: a node run by `spin_node` prints "matched" once its reader matched, latches
+one message once `go_file` exists too, prints "published", and spins until stopped;
+`sub <seconds>`: prints "matched" once a publisher matched, then the message it receives."""
 import sys
 import time
 from pathlib import Path
@@ -17,11 +17,15 @@ TOPIC = "/yowo/test/flush"
 class Publisher(rclpy.node.Node):
     def __init__(self, go_file: Path):
         super().__init__("flush_pub")
-        self.pub, self.go_file, self.sent = self.create_publisher(String, TOPIC, LATCHED), go_file, False
+        self.pub, self.go_file = self.create_publisher(String, TOPIC, LATCHED), go_file
+        self.matched = self.sent = False
         self.create_timer(0.05, self._tick)
 
     def _tick(self):
-        if not self.sent and self.pub.get_subscription_count() and self.go_file.exists():
+        if not self.matched and self.pub.get_subscription_count():
+            self.matched = True
+            print("matched", flush=True)
+        if self.matched and not self.sent and self.go_file.exists():
             self.pub.publish(String(data="final status"))
             self.sent = True
             print("published", flush=True)
