@@ -58,7 +58,7 @@ def test_status_of_another_run_is_counted_and_ignored(tmp_path, ros_env, start_s
     # The monitor heard the other replay and stages, the trackers the other replay, the
     # group SfM the other trackers; none of it was used (every message of ours arrived).
     # How many of the other trackers the group SfM discovered before its final status
-    # depends on the machine's load (CI at 7183712, load from other jobs: 2 of 3).
+    # depends on the machine's load (a CI run at 14a827a next to other jobs: 2 of 3).
     assert strays["yowo_run"] >= 5 and strays["group_sfm"] >= 1, strays
     assert all(strays[f"keypoint_tracker_{c}"] >= 1 for c in ("c1", "c2", "c3")), strays
     assert log["received"]["/yowo/cmc/c1/agent_keypoints"] == {"group_sfm": 200}
