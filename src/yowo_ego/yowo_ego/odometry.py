@@ -464,7 +464,7 @@ class KeyframeTracker:
         self.keyframes.append(kf)
         edge = None
         if previous is not None:
-            R_gyro = self._gyro_rotation(previous.stamp_ns, level.stamp_ns)
+            R_gyro = None if imu_information is not None else self._gyro_rotation(previous.stamp_ns, level.stamp_ns)
             if imu_information is not None:
                 edge = OdometryEdge(kf.index, previous.index, T_prev_cur, imu_information, "imu")
             elif T_prev_cur is not None:

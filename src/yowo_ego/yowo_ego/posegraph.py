@@ -289,6 +289,7 @@ class MultiwayRegistration:
         self._corrected = self._verified = 0
         self.places = PlaceIndex(params.retrieval)
         self._joined = {0}                           # segments tied to the walk's first keyframe
+        self._segment_start: dict[int, int] = {}     # segment -> its first keyframe
         self._relocalised = self._retrieved = 0
 
     def add(self, keyframe: Keyframe, features: KeyframeFeatures, edge: OdometryEdge | None) -> None:
@@ -299,6 +300,7 @@ class MultiwayRegistration:
         self.keyframes.append(keyframe)
         self.features.append(features)
         self.places.add(features.descriptors)
+        self._segment_start.setdefault(keyframe.segment, b)
         if edge is None:
             self._chain.append(np.eye(4))
             return
@@ -331,21 +333,20 @@ class MultiwayRegistration:
             if edge is None:
                 continue
             if segment not in self._joined:
-                T_s0 = self._relocalised_start(edge)
+                s0 = self._segment_start[segment]
+                T_s0 = self._relocalised_start(edge, s0)
                 if T_s0 is None:            # a look-alike place (a symmetric room)
                     self._loops.remove(edge)
                     continue
-                self._relocalise(segment, T_s0)
+                self._relocalise(segment, s0, T_s0)
             self._retrieved += 1
 
-    def _relocalised_start(self, loop: OdometryEdge) -> np.ndarray | None:
-        """The pose of the first keyframe of the loop's newer keyframe's segment that the
+    def _relocalised_start(self, loop: OdometryEdge, s0: int) -> np.ndarray | None:
+        """The pose of keyframe s0, the first of the loop's newer keyframe's segment, that the
         loop implies; None when the walk could not have got there from its last joined
         keyframe in the time between them (faster than the odometry's `max_speed_mps`),
         or the turn across the break it implies contradicts the gyro's."""
         b, a = loop.source, loop.target
-        segment = self.keyframes[b].segment
-        s0 = next(k.index for k in self.keyframes if k.segment == segment)
         T_s0 = self._chain[a] @ loop.T_target_source @ inv_se3(self._chain[b]) @ self._chain[s0]
         last = max(k.index for k in self.keyframes[:s0] if k.segment in self._joined)
         dt_s = (self.keyframes[s0].stamp_ns - self.keyframes[last].stamp_ns) * 1e-9
@@ -353,11 +354,10 @@ class MultiwayRegistration:
         turn = _gyro_agrees(self.edges[s0 - 1], inv_se3(self._chain[s0 - 1]) @ T_s0, self.params)
         return T_s0 if reachable and turn else None
 
-    def _relocalise(self, segment: int, T_s0: np.ndarray) -> None:
-        """Join a segment to the walk at the pose of its first keyframe: when that one's
-        edge is a break (not one verified to a segment not joined either), the break edge
-        takes that pose; the chained poses follow."""
-        s0 = next(k.index for k in self.keyframes if k.segment == segment)
+    def _relocalise(self, segment: int, s0: int, T_s0: np.ndarray) -> None:
+        """Join a segment to the walk at the pose T_s0 of its first keyframe s0: when that
+        one's edge is a break (not one verified to a segment not joined either), the break
+        edge takes that pose; the chained poses follow."""
         self._joined.add(segment)
         self._relocalised += 1
         brk = self.edges[s0 - 1]

@@ -37,15 +37,19 @@ class PlaceIndex:
         self.params = params
         self.codebook: np.ndarray | None = None
         self._pending: list[np.ndarray] = []     # descriptors until the vocabulary exists
-        self._histograms: list[np.ndarray] = []
+        # Histograms in a buffer that doubles as it fills (one query per keyframe must not
+        # copy every earlier histogram), and how many keyframes hold each word.
+        self._counts = np.zeros((0, params.words))
+        self._n = 0
+        self._df = np.zeros(params.words)
 
     def __len__(self) -> int:
-        return len(self._histograms) + len(self._pending)
+        return self._n + len(self._pending)
 
     def add(self, descriptors: np.ndarray) -> None:
         """The next keyframe's (N, 128) descriptors."""
         if self.codebook is not None:
-            self._histograms.append(self._histogram(descriptors))
+            self._append(self._histogram(descriptors))
             return
         self._pending.append(np.asarray(descriptors, np.float32))
         if len(self._pending) >= self.params.vocabulary_keyframes:
@@ -62,11 +66,10 @@ class PlaceIndex:
         allowed = np.asarray(list(allowed), dtype=int)
         if not len(allowed):
             return []
-        H = np.asarray(self._histograms)
-        idf = np.log(len(H) / np.maximum((H > 0).sum(axis=0), 1))
-        W = H * idf
+        idf = np.log(self._n / np.maximum(self._df, 1))
+        W = self._counts[np.r_[keyframe, allowed]] * idf
         W /= np.maximum(np.linalg.norm(W, axis=1, keepdims=True), 1e-12)
-        scores = W[allowed] @ W[keyframe]
+        scores = W[1:] @ W[0]
         order = np.argsort(-scores, kind="stable")
         return [(int(allowed[i]), float(scores[i])) for i in order if scores[i] >= self.params.min_score]
 
@@ -76,8 +79,16 @@ class PlaceIndex:
             return
         self.codebook, _ = kmeans2(data, self.params.words, iter=self.params.vocabulary_iterations, minit="++",
                                    seed=0)
-        self._histograms = [self._histogram(d) for d in self._pending]
+        for d in self._pending:
+            self._append(self._histogram(d))
         self._pending = []
+
+    def _append(self, histogram: np.ndarray) -> None:
+        if self._n == len(self._counts):
+            self._counts = np.vstack([self._counts, np.zeros((max(self._n, 16), self.params.words))])
+        self._counts[self._n] = histogram
+        self._n += 1
+        self._df += histogram > 0
 
     def _histogram(self, descriptors: np.ndarray) -> np.ndarray:
         if not len(descriptors):
