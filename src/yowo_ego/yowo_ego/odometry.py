@@ -464,16 +464,17 @@ class KeyframeTracker:
         self.keyframes.append(kf)
         edge = None
         if previous is not None:
-            R_gyro = None if imu_information is not None else self._gyro_rotation(previous.stamp_ns, level.stamp_ns)
             if imu_information is not None:
                 edge = OdometryEdge(kf.index, previous.index, T_prev_cur, imu_information, "imu")
-            elif T_prev_cur is not None:
-                info = self.odometry.information(level.depth_mm, previous.depth_mm, T_prev_cur)
-                edge = OdometryEdge(kf.index, previous.index, T_prev_cur, info, "odometry", R_gyro)
             else:
-                # Unknown motion: a weak edge keeps the graph connected (1 m, ~30 deg sigma).
-                T = inv_se3(previous.T_odom_cam) @ T_odom_cam
-                edge = OdometryEdge(kf.index, previous.index, T, np.diag([1.0] * 3 + [1.0] * 3), "break", R_gyro)
+                R_gyro = self._gyro_rotation(previous.stamp_ns, level.stamp_ns)
+                if T_prev_cur is not None:
+                    info = self.odometry.information(level.depth_mm, previous.depth_mm, T_prev_cur)
+                    edge = OdometryEdge(kf.index, previous.index, T_prev_cur, info, "odometry", R_gyro)
+                else:
+                    # Unknown motion: a weak edge keeps the graph connected (1 m, ~30 deg sigma).
+                    T = inv_se3(previous.T_odom_cam) @ T_odom_cam
+                    edge = OdometryEdge(kf.index, previous.index, T, np.diag([1.0] * 6), "break", R_gyro)
             self.edges.append(edge)
         if self.on_keyframe is not None:
             self.on_keyframe(kf, edge, level.full_gray, level.full_depth)

@@ -338,7 +338,7 @@ class MultiwayRegistration:
                 if T_s0 is None:            # a look-alike place (a symmetric room)
                     self._loops.remove(edge)
                     continue
-                self._relocalise(segment, s0, T_s0)
+                self._relocalise(s0, T_s0)
             self._retrieved += 1
 
     def _relocalised_start(self, loop: OdometryEdge, s0: int) -> np.ndarray | None:
@@ -354,11 +354,11 @@ class MultiwayRegistration:
         turn = _gyro_agrees(self.edges[s0 - 1], inv_se3(self._chain[s0 - 1]) @ T_s0, self.params)
         return T_s0 if reachable and turn else None
 
-    def _relocalise(self, segment: int, s0: int, T_s0: np.ndarray) -> None:
+    def _relocalise(self, s0: int, T_s0: np.ndarray) -> None:
         """Join a segment to the walk at the pose T_s0 of its first keyframe s0: when that
         one's edge is a break (not one verified to a segment not joined either), the break
         edge takes that pose; the chained poses follow."""
-        self._joined.add(segment)
+        self._joined.add(self.keyframes[s0].segment)
         self._relocalised += 1
         brk = self.edges[s0 - 1]
         if brk.kind != "break":
