@@ -69,6 +69,12 @@ class OdometryParams:
     max_inlier_rmse: float = 6e-4
     max_speed_mps: float = 3.0           # motion plausibility between consecutive frames
     max_turn_dps: float = 900.0          # head turns reach several hundred deg/s
+    # A result with little overlap that turns far from the motion prediction is ambiguous:
+    # in a whip turn on bare walls dense odometry settles near zero motion at fitness ~0.3,
+    # tens of degrees off. Such a result is not accepted without the feature guess agreeing;
+    # otherwise the frame is lost and relocalisation joins what follows.
+    ambiguous_fitness: float = 0.4
+    max_prediction_disagreement_deg: float = 15.0
     keyframe_fitness: float = 0.65       # a new keyframe when the overlap with the last falls below
     keyframe_translation_m: float = 0.5
     keyframe_rotation_deg: float = 20.0
@@ -356,6 +362,11 @@ class KeyframeTracker:
                 and (self._gyro is None
                      or rotation_angle_deg(self._gyro, T_prev_cur[:3, :3]) <= p.max_gyro_disagreement_deg))
 
+    def _ambiguous(self, T_ref_cur: np.ndarray, fitness: float, T_ref_pred: np.ndarray) -> bool:
+        p = self.params
+        return (fitness < p.ambiguous_fitness
+                and rotation_angle_deg(T_ref_pred[:3, :3], T_ref_cur[:3, :3]) > p.max_prediction_disagreement_deg)
+
     def _attempts(self, level: _Level, ref: _Level, T_ref_prev: np.ndarray, dt_s: float):
         """The first acceptable T_ref_cur of the method cascades from the gyro guess
         (with the IMU), the constant-velocity and the zero-motion guess: (T, fitness)
@@ -368,7 +379,8 @@ class KeyframeTracker:
         for init in inits:
             for cascade in self.params.cascades:
                 T, fit, rmse = odo.register(level.rgbd, ref.rgbd, orthonormalize(init), cascade)
-                if fit < self.params.min_fitness or not self._plausible(inv_se3(T_ref_prev) @ T, dt_s):
+                if (fit < self.params.min_fitness or not self._plausible(inv_se3(T_ref_prev) @ T, dt_s)
+                        or self._ambiguous(T, fit, inits[0])):
                     continue
                 if rmse <= self.params.max_inlier_rmse:
                     return (self._remap(level, ref, odo.polish(level.rgbd, ref.rgbd, T), inits[0]), fit), fallback

@@ -71,6 +71,11 @@ class LoopParams:
     # look-alike view 90-180 deg off (small symmetric s0: a 45 deg turn replaced by one the
     # other way), while the gyro over a keyframe interval is off by a tenth of a degree.
     max_gyro_disagreement_deg: float = 5.0
+    # Without a dense confirmation, a tracking edge checked only across a neighbour is not
+    # turned further than this: the check corrects wrong dense minima (a few degrees off),
+    # while a larger change means PnP matched a look-alike view (small symmetric s0 without
+    # the IMU: a tracked 45 deg whip-turn step replaced by one 90 deg off).
+    max_across_correction_deg: float = 20.0
     retrieval: RetrievalParams = RetrievalParams()
     # Open3D global optimisation.
     max_correspondence_distance_m: float = 0.05
@@ -224,7 +229,9 @@ def _verify_across(edges: list[OdometryEdge], checked: list[bool], pairs: list[P
             T_lo_hi = inv_se3(pair.pnp.T_b_a)
             T_via = edges[via].T_target_source
             implied = inv_se3(T_via) @ T_lo_hi if lo == a - 1 else T_lo_hi @ inv_se3(T_via)
-            if not _agree(e.T_target_source, implied, params) and _gyro_agrees(e, implied, params):
+            if (not _agree(e.T_target_source, implied, params) and _gyro_agrees(e, implied, params)
+                    and rotation_angle_deg(e.T_target_source[:3, :3], implied[:3, :3])
+                    <= params.max_across_correction_deg):
                 edges[i] = OdometryEdge(b, a, implied, odometry.information(keyframes[b].depth_mm,
                                                                              keyframes[a].depth_mm, implied),
                                         "odometry", e.R_gyro)
