@@ -99,3 +99,12 @@ def test_frames_between_keyframes_share_the_keyframe_correction():
     delta = true_b @ np.linalg.inv(tracked_b)
     half = se3((Rotation.from_matrix(delta[:3, :3]) ** 0.5).as_matrix(), 0.5 * delta[:3, 3])
     assert np.allclose(T[1], half @ step)
+
+
+def test_low_overlap_result_far_from_the_prediction_is_ambiguous(ego_camera):
+    # A whip turn's wrong minimum: 44 deg from the predicted motion at fitness 0.3.
+    tracker = KeyframeTracker(ego_camera.K)
+    predicted, settled = _motion([0.0, 44.0, 0.0], [0.0, 0.0, 0.0]), np.eye(4)
+    assert tracker._ambiguous(settled, 0.3, predicted)
+    assert not tracker._ambiguous(settled, 0.5, predicted)                         # enough overlap
+    assert not tracker._ambiguous(_motion([0.0, 40.0, 0.0], [0, 0, 0]), 0.3, predicted)  # near the prediction
