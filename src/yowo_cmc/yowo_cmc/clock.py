@@ -17,7 +17,6 @@ from dataclasses import dataclass, field, replace
 import cv2
 import networkx as nx
 import numpy as np
-from scipy.interpolate import make_interp_spline
 from scipy.optimize import least_squares
 from scipy.signal import savgol_coeffs
 from scipy.spatial.transform import Rotation
@@ -26,7 +25,7 @@ from yowo_common.bundle import robust_sigma
 
 from .group_sfm import RANSAC_SEED, CameraGroupResult, SfmParams, sampson_px, spread_subset
 from .params import ClockParams
-from .tracks import CameraTracks, _window, clean_track, noise_scale, segments, undistort_tracks
+from .tracks import CameraTracks, _window, clean_track, noise_scale, track_splines, undistort_tracks
 
 
 @dataclass
@@ -73,10 +72,8 @@ class _Tracks:
         for i, t in ideal.tracks.items():
             if len(t) == 0:
                 continue
-            ts = (t.stamps_ns - origin_ns) / 1e9
-            self.samples[i] = (ts, t.uv)
-            self.splines[i] = [(ts[s][0], ts[s][-1], make_interp_spline(ts[s], t.uv[s], k=min(3, s.stop - s.start - 1)))
-                               for s in segments(t.stamps_ns, max_gap) if s.stop - s.start >= 2]
+            self.samples[i] = ((t.stamps_ns - origin_ns) / 1e9, t.uv)
+            self.splines[i] = track_splines(t, max_gap, origin_ns)
         window = _window(cam.frame_period_ns, sfm.tracks)
         self.correlation = 1.0 / savgol_coeffs(window, sfm.tracks.polyorder)[window // 2]
 

@@ -143,23 +143,37 @@ def undistort_tracks(cam: CameraTracks) -> CameraTracks:
                          for i, t in cam.tracks.items()}, cam.frame_period_ns)
 
 
+def track_splines(track: KeypointTrack, max_gap_ns: int, origin_ns: int) -> list[tuple[float, float, object]]:
+    """Per segment of a track (no gap over max_gap_ns) with two samples or more: its first
+    and last time [s since origin_ns] and the spline through its samples (cubic, or of the
+    highest degree its samples allow; derivatives for the clock fits)."""
+    from scipy.interpolate import make_interp_spline
+
+    ts = (track.stamps_ns - origin_ns) / 1e9
+    return [(ts[s][0], ts[s][-1], make_interp_spline(ts[s], track.uv[s], k=min(3, s.stop - s.start - 1)))
+            for s in segments(track.stamps_ns, max_gap_ns) if s.stop - s.start >= 2]
+
+
 def interpolate(track: KeypointTrack, stamps_ns: np.ndarray, max_gap_ns: int) -> tuple[np.ndarray, np.ndarray]:
-    """Track position at the given stamps, linear between two samples at most max_gap_ns
-    apart (no extrapolation). Returns (uv (K, 2), valid mask (K,))."""
+    """Track position at the given stamps: a sample's own at its stamp, the cubic spline
+    through its segment between samples (no extrapolation, no bridging of gaps over
+    max_gap_ns). Returns (uv (K, 2), valid mask (K,)). Cameras whose clocks differ sample
+    the agent at other instants: at half a frame of a 10 Hz track, linear interpolation
+    cuts a 2 Hz swing (ankles, wrists) by a fifth, the spline by about 1 %."""
     stamps_ns = np.asarray(stamps_ns, dtype=np.int64)
     uv = np.full((len(stamps_ns), 2), np.nan)
+    ok = np.zeros(len(stamps_ns), bool)
     if len(track) == 0:
-        return uv, np.zeros(len(stamps_ns), bool)
-    right = np.searchsorted(track.stamps_ns, stamps_ns)
-    exact = (right < len(track)) & (track.stamps_ns[np.minimum(right, len(track) - 1)] == stamps_ns)
-    left = right - 1
-    inside = (left >= 0) & (right < len(track))
-    li, ri = np.clip(left, 0, len(track) - 1), np.clip(right, 0, len(track) - 1)
-    gap = track.stamps_ns[ri] - track.stamps_ns[li]
-    ok = inside & (gap <= max_gap_ns) & (gap > 0)
-    a = np.where(ok, (stamps_ns - track.stamps_ns[li]) / np.maximum(gap, 1), 0.0)
-    uv[ok] = (1 - a[ok, None]) * track.uv[li[ok]] + a[ok, None] * track.uv[ri[ok]]
-    uv[exact] = track.uv[ri[exact]]
+        return uv, ok
+    origin = int(track.stamps_ns[0])
+    t = (stamps_ns - origin) / 1e9
+    for t0, t1, spline in track_splines(track, max_gap_ns, origin):
+        inside = (t >= t0) & (t <= t1)
+        if inside.any():
+            uv[inside], ok[inside] = spline(t[inside]), True
+    right = np.minimum(np.searchsorted(track.stamps_ns, stamps_ns), len(track) - 1)
+    exact = track.stamps_ns[right] == stamps_ns
+    uv[exact] = track.uv[right[exact]]
     return uv, ok | exact
 
 
