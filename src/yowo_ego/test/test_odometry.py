@@ -1,12 +1,14 @@
 """Frame-to-frame RGB-D odometry on noise-free frames rendered by the simulator."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from yowo_common.geometry import look_at, rotation_angle_deg, se3
 from yowo_ego.frames import RgbdFrame, make_frame
-from yowo_ego.odometry import (LOST, Keyframe, KeyframeTracker, OdometryEdge, TrackResult, downsample,
-                               orthonormalize)
+from yowo_ego.odometry import (LOST, MAP_RELOCALISED, Keyframe, KeyframeTracker, OdometryEdge, OdometryParams,
+                               TrackResult, downsample, orthonormalize)
 from yowo_ego.pipeline import frames_between_keyframes
 
 # Looking across the room at two walls, the floor and a box.
@@ -108,3 +110,51 @@ def test_low_overlap_result_far_from_the_prediction_is_ambiguous(ego_camera):
     assert tracker._ambiguous(settled, 0.3, predicted)
     assert not tracker._ambiguous(settled, 0.5, predicted)                         # enough overlap
     assert not tracker._ambiguous(_motion([0.0, 40.0, 0.0], [0, 0, 0]), 0.3, predicted)  # near the prediction
+    # Right after a lost frame (whose pose is a guess) no prediction vouches for little overlap.
+    tracker._prev_result = TrackResult(1, FRAME_NS, 1, np.eye(4), np.eye(4), 0.0, LOST, True)
+    assert tracker._ambiguous(_motion([0.0, 40.0, 0.0], [0, 0, 0]), 0.3, predicted)
+    assert not tracker._ambiguous(_motion([0.0, 40.0, 0.0], [0, 0, 0]), 0.5, predicted)
+
+
+def _heading(h_deg: float, eye=(1.3, 1.7, 1.6)) -> np.ndarray:
+    """T_world_cam at `eye` looking along heading h_deg, a little down."""
+    h = np.radians(h_deg)
+    return look_at(eye, np.asarray(eye) + [np.cos(h), np.sin(h), -0.4])
+
+
+def _look_around(renderer, ego_camera, params, headings_deg, eye=(1.3, 1.7, 1.6)):
+    """Track frames at 15 Hz turning on the spot through `headings_deg`: (the tracker, its
+    last result, the last frame's true pose relative to the first's)."""
+    tracker = KeyframeTracker(ego_camera.K, params)
+    for k, h in enumerate(headings_deg):
+        f = renderer.render(ego_camera, _heading(h, eye))
+        result = tracker.track(make_frame(k * FRAME_NS, f.rgb, f.depth, ego_camera))
+    return tracker, result, np.linalg.inv(_heading(headings_deg[0], eye)) @ _heading(headings_deg[-1], eye)
+
+
+def test_an_untracked_whip_turn_is_placed_in_the_map_of_the_keyframes_before(renderer, ego_camera):
+    """A look around the room, then 120 deg within one frame (nothing in common with the
+    frame before): the frame's depth fits the keyframes' clouds at one heading, so it is a
+    keyframe joined by a "map" edge at the true pose, not a break at a guess."""
+    headings = [*range(0, 360, 10), 350 + 120]
+    for enabled in (True, False):
+        p = OdometryParams()
+        tracker, result, T_true = _look_around(renderer, ego_camera,
+                                               replace(p, maploc=replace(p.maploc, enabled=enabled)), headings)
+        err_m = np.linalg.norm(result.T_odom_cam[:3, 3] - T_true[:3, 3])
+        err_deg = rotation_angle_deg(result.T_odom_cam[:3, :3], T_true[:3, :3])
+        if enabled:
+            assert result.status == MAP_RELOCALISED and tracker.breaks == 0, tracker.map_failures
+            assert tracker.edges[-1].kind == "map" and tracker.keyframes[-1].segment == 0
+            assert err_m < 0.02 and err_deg < 0.5, (err_m, err_deg)
+        else:
+            assert result.status == LOST and tracker.breaks == 1 and err_deg > 30.0
+
+
+def test_a_whip_turn_in_the_middle_of_a_square_room_is_not_placed_at_a_look_alike_heading(renderer, ego_camera):
+    """At the centre of the square room, turned headings 90 deg apart see the same walls at
+    the same distances: the map cannot tell them apart, so the frame is a break."""
+    tracker, result, _ = _look_around(renderer, ego_camera, OdometryParams(), [*range(0, 360, 10), 350 + 120],
+                                      eye=(2.0, 2.0, 1.6))
+    assert result.status == LOST and tracker.map_relocalised == 0
+    assert "another heading fits almost as well" in tracker.map_failures[-1]

@@ -13,8 +13,10 @@ against the previous frame (which becomes a keyframe), then from a feature guess
 (SIFT + depth + PnP RANSAC), which survives head turns of 40 deg between
 frames and stands on its own where dense odometry cannot refine it. An accepted result is polished by a few point-to-plane iterations
 (removes the photometric term's mm-level bias where geometry allows). When all
-fails the frame starts a new segment (a "break"), joined to the last by a weak
-edge that loop closures may override.
+fails, the frame is placed in the map of the recent keyframes by its depth
+(``yowo_ego.maploc``: a whip turn along bare walls), a keyframe joined by a "map"
+edge; if that fails too, it starts a new segment (a "break"), joined to the last by a
+weak edge that loop closures may override.
 
 With IMU samples (``imu``, ``OdometryParams.use_imu``) the gyro rotation since the
 previous frame, with the constant-velocity translation, is the first initial guess;
@@ -39,9 +41,14 @@ from .degeneracy import DegeneracyParams, motion_information, remap_degenerate
 from .features import FeatureExtractor, FeatureParams, pose_from_images
 from .frames import RgbdFrame
 from .imu import ImuBuffer
+from .maploc import MapLocParams, map_cloud, relocalise, up_direction
 
 _odo = o3d.t.pipelines.odometry
 TRACKED, RECOVERED, LOST, IMU_BRIDGED = "tracked", "recovered", "lost", "imu_bridged"
+MAP_RELOCALISED = "map_relocalised"      # untracked, placed in the map of the recent keyframes
+# Edges whose motion the tracking measured (dense odometry, a gyro bridge, the map); the
+# others (breaks, loops) are uncertain to the pose graph's line process.
+TRACKING_KINDS = ("odometry", "imu", "map")
 
 
 @dataclass(frozen=True)
@@ -97,6 +104,8 @@ class OdometryParams:
     # Directions an accepted result's depth and intensity terms do not constrain take the
     # motion prediction (yowo_ego.degeneracy).
     degeneracy: DegeneracyParams = DegeneracyParams()
+    # A frame no attempt tracks: its pose from the recent keyframes' depth (yowo_ego.maploc).
+    maploc: MapLocParams = MapLocParams()
 
 
 @dataclass
@@ -120,7 +129,7 @@ class OdometryEdge:
     target: int
     T_target_source: np.ndarray
     information: np.ndarray              # 6x6 (Open3D order: rotation, translation)
-    kind: str                            # "odometry" | "loop" | "break" | "imu"
+    kind: str                            # "odometry" | "loop" | "break" | "imu" | "map"
     R_gyro: np.ndarray | None = None     # tracking edges with the IMU: the gyro's R_target_source
 
 
@@ -132,7 +141,7 @@ class TrackResult:
     T_kf_cam: np.ndarray
     T_odom_cam: np.ndarray
     fitness: float
-    status: str                          # tracked | recovered | lost | imu_bridged
+    status: str                          # tracked | recovered | lost | imu_bridged | map_relocalised
     new_keyframe: bool
 
 
@@ -307,6 +316,9 @@ class KeyframeTracker:
         self._anchor_ns = 0                      # stamp of the last frame not bridged
         self.imu_frames = 0                      # frames tracked with a gyro rotation
         self.degenerate_frames = 0               # accepted results remapped along unobserved directions
+        self._chain: list[Keyframe] = []         # recent keyframes with poses in one consistent frame
+        self.map_relocalised = 0                 # breaks whose pose the map gave
+        self.map_failures: list[str] = []        # why the others' did not
 
     # --- public -----------------------------------------------------------------
     def track(self, frame: RgbdFrame) -> TrackResult:
@@ -320,10 +332,10 @@ class KeyframeTracker:
             result = self._track(level)
         self.results.append(result)
         prev = self._prev_result
+        # A lost frame's pose is a guess: the motion before the loss stays the
+        # prediction (a whip turn goes on), rather than zero motion.
         if prev is not None and result.status != LOST:
             self._velocity = inv_se3(prev.T_odom_cam) @ result.T_odom_cam
-        elif result.status == LOST:
-            self._velocity = np.eye(4)
         if self.imu is not None:
             self._imu_bookkeeping(prev, result)
         self._prev, self._prev_result = level, result
@@ -363,9 +375,12 @@ class KeyframeTracker:
                      or rotation_angle_deg(self._gyro, T_prev_cur[:3, :3]) <= p.max_gyro_disagreement_deg))
 
     def _ambiguous(self, T_ref_cur: np.ndarray, fitness: float, T_ref_pred: np.ndarray) -> bool:
+        """Little overlap, and far from the prediction or with none (right after a lost
+        frame, whose guessed pose predicts nothing)."""
         p = self.params
-        return (fitness < p.ambiguous_fitness
-                and rotation_angle_deg(T_ref_pred[:3, :3], T_ref_cur[:3, :3]) > p.max_prediction_disagreement_deg)
+        return fitness < p.ambiguous_fitness and (
+            (self._prev_result is not None and self._prev_result.status == LOST)
+            or rotation_angle_deg(T_ref_pred[:3, :3], T_ref_cur[:3, :3]) > p.max_prediction_disagreement_deg)
 
     def _attempts(self, level: _Level, ref: _Level, T_ref_prev: np.ndarray, dt_s: float):
         """The first acceptable T_ref_cur of the method cascades from the gyro guess
@@ -436,6 +451,13 @@ class KeyframeTracker:
             # Break: a new keyframe and segment, joined to the last by a weak edge
             # from the least bad attempt (or the constant-velocity prediction);
             # loop closures may tie the segments together properly later.
+            T_odom_cam = self._map_pose(level, prev_res, dt_s)
+            if T_odom_cam is not None:
+                m = p.maploc
+                info = np.diag([np.radians(m.sigma_deg) ** -2] * 3 + [m.sigma_m ** -2] * 3)
+                self._add_keyframe(level, T_odom_cam, kf, inv_se3(kf.T_odom_cam) @ T_odom_cam, ("map", info))
+                return TrackResult(level.frame_index, level.stamp_ns, len(self.keyframes) - 1, np.eye(4),
+                                   T_odom_cam, 0.0, MAP_RELOCALISED, True)
             T_kf_cur = fallback[0] if fallback is not None else T_kf_prev @ self._velocity
             T_odom_cam = kf.T_odom_cam @ orthonormalize(T_kf_cur)
             self.breaks += 1
@@ -452,6 +474,22 @@ class KeyframeTracker:
                                fitness, status, True)
         return TrackResult(level.frame_index, level.stamp_ns, kf.index, T_kf_cur, T_odom_cam, fitness, status, False)
 
+    def _map_pose(self, level: _Level, prev_res: TrackResult, dt_s: float) -> np.ndarray | None:
+        """The frame's pose in the map of the chain's keyframes (yowo_ego.maploc), None
+        when it is not found with confidence (the reason kept in map_failures)."""
+        p = self.params
+        if not p.maploc.enabled or not self._chain:
+            return None
+        poses = [k.T_odom_cam for k in self._chain]
+        cloud = map_cloud([k.depth_mm for k in self._chain], poses, self.odometry.K, p.maploc)
+        found = relocalise(level.depth_mm, self.odometry.K, cloud, up_direction(cloud, poses, p.maploc),
+                           prev_res.T_odom_cam, p.max_speed_mps * dt_s + p.maploc.reach_margin_m, p.maploc)
+        if found.T_odom_cam is None:
+            self.map_failures.append(f"frame {level.frame_index}: {found.reason}")
+            return None
+        self.map_relocalised += 1
+        return orthonormalize(found.T_odom_cam)
+
     def _bridge(self, level: _Level, prev_res: TrackResult, dt_s: float) -> TrackResult:
         """No visual attempt tracked the frame: its pose from the gyro rotation and the
         last visual step's velocity, as a keyframe (the previous keyframe's view may be
@@ -463,21 +501,24 @@ class KeyframeTracker:
         sigma_rot = np.radians(p.bridge_rotation_sigma_dps) * dt_s
         sigma_t = p.bridge_translation_sigma_mps * dt_s
         info = np.diag([sigma_rot ** -2] * 3 + [sigma_t ** -2] * 3)
-        self._add_keyframe(level, T_odom_cam, kf, inv_se3(kf.T_odom_cam) @ T_odom_cam, info)
+        self._add_keyframe(level, T_odom_cam, kf, inv_se3(kf.T_odom_cam) @ T_odom_cam, ("imu", info))
         return TrackResult(level.frame_index, level.stamp_ns, len(self.keyframes) - 1, np.eye(4), T_odom_cam, 0.0,
                            IMU_BRIDGED, True)
 
     def _add_keyframe(self, level: _Level, T_odom_cam: np.ndarray, previous: Keyframe | None,
-                      T_prev_cur: np.ndarray | None, imu_information: np.ndarray | None = None) -> None:
-        """``imu_information``: the edge is a gyro bridge's ("imu") with this information."""
+                      T_prev_cur: np.ndarray | None, given: tuple[str, np.ndarray] | None = None) -> None:
+        """``T_prev_cur`` None: a break. ``given``: the edge's kind and information when
+        they are not dense tracking's (a gyro bridge's "imu", a map relocalisation's "map")."""
         segment = 0 if previous is None else previous.segment + (T_prev_cur is None)
         kf = Keyframe(len(self.keyframes), level.frame_index, level.stamp_ns, T_odom_cam, level.color,
                       level.depth_mm, segment)
         self.keyframes.append(kf)
+        # A break's guessed pose is not consistent with the keyframes before: the map restarts.
+        self._chain = (self._chain + [kf])[-self.params.maploc.keyframes:] if T_prev_cur is not None else [kf]
         edge = None
         if previous is not None:
-            if imu_information is not None:
-                edge = OdometryEdge(kf.index, previous.index, T_prev_cur, imu_information, "imu")
+            if given is not None:
+                edge = OdometryEdge(kf.index, previous.index, T_prev_cur, given[1], given[0])
             else:
                 R_gyro = self._gyro_rotation(previous.stamp_ns, level.stamp_ns)
                 if T_prev_cur is not None:

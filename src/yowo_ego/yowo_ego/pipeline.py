@@ -181,7 +181,7 @@ class EgoMapper:
         stats.update(keyframes=len(keyframes), breaks=tr.breaks,
                      recovered=sum(r.status == RECOVERED for r in tr.results),
                      imu_bridged=sum(r.status == IMU_BRIDGED for r in tr.results), imu_frames=tr.imu_frames,
-                     degenerate_frames=tr.degenerate_frames)
+                     degenerate_frames=tr.degenerate_frames, map_relocalised=tr.map_relocalised)
         if tr.imu is not None:
             stats["imu_samples"] = len(tr.imu)
         T_odometry = [k.T_odom_cam for k in keyframes]
@@ -189,7 +189,10 @@ class EgoMapper:
         t0 = time.perf_counter()
         mw = self._multiway.finish()
         if tr.breaks:
-            warnings.append(f"odometry lost track {tr.breaks} time(s); {mw.relocalised} segment(s) relocalised by "
+            failed = f" (not in the map: {'; '.join(tr.map_failures[:3])}{'; ...' if len(tr.map_failures) > 3 else ''})" \
+                if tr.map_failures else ""
+            warnings.append(f"odometry lost track {tr.breaks} time(s): {tr.map_relocalised} placed in the map of the "
+                            f"recent keyframes by their depth{failed}; {mw.relocalised} segment(s) relocalised by "
                             "place recognition, the others joined by loop closures or weak constant-velocity edges")
         stats.update(multiway_s=time.perf_counter() - t0, edges_corrected=mw.edges_corrected,
                      loops_tried=mw.loops_tried,

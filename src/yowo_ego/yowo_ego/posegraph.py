@@ -31,7 +31,7 @@ import open3d as o3d
 from yowo_common.geometry import inv_se3, rotation_angle_deg
 
 from .features import FeatureParams, KeyframeFeatures, PnpResult, match, relative_pose, support
-from .odometry import Keyframe, OdometryEdge, RgbdOdometry, o3d_rgbd, orthonormalize
+from .odometry import TRACKING_KINDS, Keyframe, OdometryEdge, RgbdOdometry, o3d_rgbd, orthonormalize
 from .retrieval import PlaceIndex, RetrievalParams
 
 reg = o3d.pipelines.registration
@@ -259,7 +259,7 @@ def optimize(keyframes: list[Keyframe], edges: list[OdometryEdge],
         graph.nodes.append(reg.PoseGraphNode(kf.T_odom_cam))
     for e in edges:
         graph.edges.append(reg.PoseGraphEdge(e.source, e.target, e.T_target_source, e.information,
-                                             uncertain=e.kind not in ("odometry", "imu")))
+                                             uncertain=e.kind not in TRACKING_KINDS))
     option = reg.GlobalOptimizationOption(
         max_correspondence_distance=params.max_correspondence_distance_m,
         edge_prune_threshold=params.edge_prune_threshold,
@@ -405,6 +405,6 @@ class MultiwayRegistration:
                  for k, T in zip(self.keyframes, T_init)]
         T, kept = optimize(nodes, self.edges + self._loops, p)
         return MultiwayResult(T, self._corrected, len(self._tried), self._verified, len(self._loops),
-                              sum(e.kind not in ("odometry", "imu") for e in kept), self._relocalised,
+                              sum(e.kind not in TRACKING_KINDS for e in kept), self._relocalised,
                               self._retrieved, self._pairs, kept)
 
