@@ -6,6 +6,8 @@ import logging
 import time
 from dataclasses import dataclass
 
+import numpy as np
+
 from yowo_cmc.config import CmcParams
 from yowo_cmc.keypoint_input import TrackAccumulator, frame_from_msg, frame_to_msg
 from yowo_cmc.tracks import CameraTracks
@@ -104,11 +106,12 @@ def ego_map_data(ego):
     """yowo_ego's EgoMapResult -> the fusion's input: every frame's pose (the a2e factor
     needs the dense trajectory), observations re-indexed from keyframes to frames, and the
     cloud and layout (refined after joint optimisation)."""
+    from yowo_ego.odometry import MEASURED
     from yowo_fusion.pipeline import EgoMapData
 
     return EgoMapData(ego.camera, ego.stamps_ns, ego.T_world_cam, ego.landmarks, "SIFT", ego.descriptors,
                       ego.keyframe_frames[ego.obs_keyframe], ego.obs_landmark, ego.obs_uv, ego.cloud_points,
-                      ego.cloud_colors, ego.layout)
+                      ego.cloud_colors, ego.layout, np.isin(ego.tracking, MEASURED), ego.tracking_fitness)
 
 
 @dataclass

@@ -11,9 +11,13 @@ from yowo_common.rosconv import (array_to_points, matrix_to_pose, model_to_camer
                                  xyz_rgb_to_pointcloud2)
 
 from .layout import Layout
+from .odometry import IMU_BRIDGED, LOST, MAP_RELOCALISED, RECOVERED, TRACKED
 from .pipeline import EgoMapResult
 
 WORLD_FRAME = "map"
+TRACKING_CODES = {TRACKED: EgoMap.TRACKING_DENSE, RECOVERED: EgoMap.TRACKING_DENSE,
+                  MAP_RELOCALISED: EgoMap.TRACKING_MAP, IMU_BRIDGED: EgoMap.TRACKING_IMU_BRIDGE,
+                  LOST: EgoMap.TRACKING_LOST}
 
 
 def _header(stamp_ns: int) -> Header:
@@ -32,7 +36,9 @@ def ego_map_msg(r: EgoMapResult) -> EgoMap:
         descriptors=np.ascontiguousarray(r.descriptors, dtype=np.uint8).tobytes(),
         obs_pose_index=[int(i) for i in r.keyframe_frames[r.obs_keyframe]],
         obs_landmark_index=[int(i) for i in r.obs_landmark],
-        obs_x=[float(v) for v in r.obs_uv[:, 0]], obs_y=[float(v) for v in r.obs_uv[:, 1]])
+        obs_x=[float(v) for v in r.obs_uv[:, 0]], obs_y=[float(v) for v in r.obs_uv[:, 1]],
+        tracking=[TRACKING_CODES[str(s)] for s in r.tracking],
+        tracking_fitness=[float(f) for f in r.tracking_fitness])
 
 
 def path_msg(stamps_ns: np.ndarray, T_world_cam: np.ndarray) -> Path:

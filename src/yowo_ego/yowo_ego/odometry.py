@@ -41,7 +41,7 @@ from .degeneracy import DegeneracyParams, motion_information, remap_degenerate
 from .features import FeatureExtractor, FeatureParams, pose_from_images
 from .frames import RgbdFrame
 from .imu import ImuBuffer
-from .maploc import MapLocParams, map_cloud, relocalise, up_direction
+from .maploc import MapLocParams, MapLocResult, map_cloud, relocalise, up_direction
 
 _odo = o3d.t.pipelines.odometry
 TRACKED, RECOVERED, LOST, IMU_BRIDGED = "tracked", "recovered", "lost", "imu_bridged"
@@ -49,6 +49,8 @@ MAP_RELOCALISED = "map_relocalised"      # untracked, placed in the map of the r
 # Edges whose motion the tracking measured (dense odometry, a gyro bridge, the map); the
 # others (breaks, loops) are uncertain to the pose graph's line process.
 TRACKING_KINDS = ("odometry", "imu", "map")
+# Frame statuses whose pose was measured by vision (not a guess, not the gyro alone).
+MEASURED = (TRACKED, RECOVERED, MAP_RELOCALISED)
 
 
 @dataclass(frozen=True)
@@ -140,7 +142,7 @@ class TrackResult:
     keyframe: int                        # reference keyframe index
     T_kf_cam: np.ndarray
     T_odom_cam: np.ndarray
-    fitness: float
+    fitness: float                       # overlap with the keyframe (the map's share within ICP reach when placed)
     status: str                          # tracked | recovered | lost | imu_bridged | map_relocalised
     new_keyframe: bool
 
@@ -451,13 +453,13 @@ class KeyframeTracker:
             # Break: a new keyframe and segment, joined to the last by a weak edge
             # from the least bad attempt (or the constant-velocity prediction);
             # loop closures may tie the segments together properly later.
-            T_odom_cam = self._map_pose(level, prev_res, dt_s)
-            if T_odom_cam is not None:
-                m = p.maploc
+            placed = self._map_pose(level, prev_res, dt_s)
+            if placed is not None:
+                T_odom_cam, m = placed.T_odom_cam, p.maploc
                 info = np.diag([np.radians(m.sigma_deg) ** -2] * 3 + [m.sigma_m ** -2] * 3)
                 self._add_keyframe(level, T_odom_cam, kf, inv_se3(kf.T_odom_cam) @ T_odom_cam, ("map", info))
                 return TrackResult(level.frame_index, level.stamp_ns, len(self.keyframes) - 1, np.eye(4),
-                                   T_odom_cam, 0.0, MAP_RELOCALISED, True)
+                                   T_odom_cam, placed.fitness, MAP_RELOCALISED, True)
             T_kf_cur = fallback[0] if fallback is not None else T_kf_prev @ self._velocity
             T_odom_cam = kf.T_odom_cam @ orthonormalize(T_kf_cur)
             self.breaks += 1
@@ -474,8 +476,8 @@ class KeyframeTracker:
                                fitness, status, True)
         return TrackResult(level.frame_index, level.stamp_ns, kf.index, T_kf_cur, T_odom_cam, fitness, status, False)
 
-    def _map_pose(self, level: _Level, prev_res: TrackResult, dt_s: float) -> np.ndarray | None:
-        """The frame's pose in the map of the chain's keyframes (yowo_ego.maploc), None
+    def _map_pose(self, level: _Level, prev_res: TrackResult, dt_s: float) -> MapLocResult | None:
+        """The frame's placement in the map of the chain's keyframes (yowo_ego.maploc), None
         when it is not found with confidence (the reason kept in map_failures)."""
         p = self.params
         if not p.maploc.enabled or not self._chain:
@@ -488,7 +490,8 @@ class KeyframeTracker:
             self.map_failures.append(f"frame {level.frame_index}: {found.reason}")
             return None
         self.map_relocalised += 1
-        return orthonormalize(found.T_odom_cam)
+        found.T_odom_cam = orthonormalize(found.T_odom_cam)
+        return found
 
     def _bridge(self, level: _Level, prev_res: TrackResult, dt_s: float) -> TrackResult:
         """No visual attempt tracked the frame: its pose from the gyro rotation and the

@@ -82,6 +82,9 @@ class EgoMapResult:
     trajectories: dict[str, np.ndarray]  # stage -> (F, 4, 4) world poses: odometry, multiway, bundle
     stats: dict[str, float] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    # (F,) how each frame was tracked (yowo_ego.odometry statuses) and its overlap (TrackResult.fitness)
+    tracking: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype="<U16"))
+    tracking_fitness: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def keyframe_stamps_ns(self) -> np.ndarray:
@@ -247,7 +250,8 @@ class EgoMapper:
             self.camera, np.array([r.stamp_ns for r in tr.results], dtype=np.int64), final,
             np.array([k.frame_index for k in keyframes], dtype=int), np.array([W @ T for T in T_bundle]),
             transform_points(W, m.landmarks) if len(m.landmarks) else m.landmarks, m.descriptors, m.obs_keyframe,
-            m.obs_landmark, raw_uv, points_w, colors, layout, rect, trajectories, stats, warnings)
+            m.obs_landmark, raw_uv, points_w, colors, layout, rect, trajectories, stats, warnings,
+            np.array([r.status for r in tr.results]), np.array([r.fitness for r in tr.results], dtype=float))
 
     def _imu_usable(self) -> bool:
         imu = self.tracker.imu

@@ -281,3 +281,15 @@ def test_weak_ego_frames_from_landmark_support_and_gaps():
     bare = EgoMapData(ego.camera, stamps, ego.T_world_ego[:40], np.zeros((0, 3)), "SIFT", np.zeros((0, 128), np.uint8),
                       np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)))
     assert np.flatnonzero(weak_ego_frames(bare, FusionParams())[0]).tolist() == [30]
+    # Where the ego stage says how it tracked: a landmark-poor keyframe's frames tracked with
+    # good overlap (depth on a bare wall) are not weak, those with little are, and a frame
+    # vision did not track (a guess, a gyro bridge) is weak whatever its landmarks.
+    fitness = np.full(40, 0.8)
+    fitness[[12, 15]] = 0.4                               # landmark-poor keyframe 10, little overlap
+    fitness[25] = 0.3                                     # landmark-rich keyframe 20: overlap does not matter
+    measured = np.ones(40, bool)
+    measured[5] = False                                   # keyframe 0's stretch: bridged by the gyro
+    told = replace(sparse, tracking_measured=measured, tracking_fitness=fitness)
+    weak, gap = weak_ego_frames(told, FusionParams())
+    assert np.flatnonzero(weak).tolist() == [5, 12, 15, 30]
+    assert np.flatnonzero(gap).tolist() == [30]

@@ -47,7 +47,17 @@ def ego_map_from_msg(msg: EgoMap, cloud=None, layout: SceneLayout | None = None)
         points_to_array(msg.landmarks), msg.descriptor_type, desc,
         np.asarray(msg.obs_pose_index, dtype=int), np.asarray(msg.obs_landmark_index, dtype=int),
         np.column_stack([np.asarray(msg.obs_x, float), np.asarray(msg.obs_y, float)]).reshape(-1, 2),
-        xyz, colors, layout_from_msg(layout) if layout is not None else None)
+        xyz, colors, layout_from_msg(layout) if layout is not None else None,
+        *_tracking(msg))
+
+
+def _tracking(msg: EgoMap) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(measured, fitness) per pose, None when the message does not say (or not for every pose)."""
+    if len(msg.tracking) != len(msg.poses) or len(msg.tracking_fitness) != len(msg.poses):
+        return None, None
+    codes = np.asarray(msg.tracking, dtype=int)
+    return (np.isin(codes, [EgoMap.TRACKING_DENSE, EgoMap.TRACKING_MAP]),
+            np.asarray(msg.tracking_fitness, dtype=float))
 
 
 def registered_to_msg(cameras: list[RegisteredCmc], stamp_ns: int) -> RegisteredCameraArray:

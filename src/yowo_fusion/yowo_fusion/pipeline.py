@@ -42,6 +42,10 @@ class EgoMapData:
     cloud_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))   # (N, 3) world
     cloud_colors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))   # (N, 3) in [0, 1]
     layout: Layout | None = None     # the ego stage's layout of that cloud
+    # (F,) per frame: tracked by vision (dense odometry or placed in the map; not a guess or a
+    # gyro bridge), and its overlap; None: the ego stage did not say
+    tracking_measured: np.ndarray | None = None
+    tracking_fitness: np.ndarray | None = None
 
 
 @dataclass
@@ -98,8 +102,11 @@ class FusionParams:
     ok_rmse_px: float = 3.0
     ok_position_sigma_m: float = 0.10
     # Where the ego map is not to be trusted (weak_ego_frames): frames tracked from a keyframe
-    # with fewer landmark observations than this (its BA had next to nothing: bare walls, dark)...
+    # with fewer landmark observations than this (its BA had next to nothing: bare walls, dark)
+    # and, where the ego stage says how it tracked, with less overlap than weak_tracking_fitness
+    # (depth tracks a bare wall well; a low-overlap step in the dark goes wrong)...
     weak_keyframe_landmarks: int = 20
+    weak_tracking_fitness: float = 0.65
     # ...or after a gap in its frames longer than this (lost track, rejected frames).
     weak_frame_gap_s: float = 0.3
     # A camera whose registration rests on a stretch of the ego map with more weak frames
@@ -197,9 +204,14 @@ def weighted_median(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
 def weak_ego_frames(ego: EgoMapData, params: FusionParams) -> tuple[np.ndarray, np.ndarray]:
     """(weak, gap), each (F,): frame f's motion from frame f-1 is not to be trusted (weak:
     tracked from a keyframe with fewer than weak_keyframe_landmarks landmark observations,
-    or after a gap), and gap: more than weak_frame_gap_s after frame f-1 (the ego map lost
-    track or rejected frames there; what joins the two sides is a guess). A map without
-    any landmark observations (a trajectory alone) is judged by its gaps only."""
+    and, where the ego stage says how each frame was tracked, with an overlap below
+    weak_tracking_fitness, or not by vision at all; or after a gap), and gap: more than
+    weak_frame_gap_s after frame f-1 (the ego map lost track or rejected frames there; what
+    joins the two sides is a guess). A map without any landmark observations (a trajectory
+    alone) is judged by its gaps (and tracking) only. In a well-lit bare room every keyframe
+    has few landmarks while depth tracks it to centimetres: by landmarks alone the joint
+    optimisation let the agent track shape the whole map (small texture_poor s0: cameras
+    1.0 m off, 0.08 m with the tracking's overlap)."""
     n = len(ego.stamps_ns)
     gap = np.zeros(n, bool)
     gap[1:] = np.diff(ego.stamps_ns) > params.weak_frame_gap_s * 1e9
@@ -208,7 +220,12 @@ def weak_ego_frames(ego: EgoMapData, params: FusionParams) -> tuple[np.ndarray, 
     keyframes = np.flatnonzero(counts)
     if len(keyframes):
         last = np.searchsorted(keyframes, np.arange(n), side="right") - 1
-        weak |= np.where(last >= 0, counts[keyframes[np.maximum(last, 0)]], 0) < params.weak_keyframe_landmarks
+        few = np.where(last >= 0, counts[keyframes[np.maximum(last, 0)]], 0) < params.weak_keyframe_landmarks
+        if ego.tracking_fitness is not None:
+            few &= ego.tracking_fitness < params.weak_tracking_fitness
+        weak |= few
+    if ego.tracking_measured is not None:
+        weak |= ~ego.tracking_measured
     weak[0] = False
     return weak, gap
 
