@@ -209,3 +209,28 @@ def test_yowo_bench_keeps_the_tum_section():
     assert new.count("<!-- tum-rgbd:begin -->\n## TUM\nATE\n<!-- tum-rgbd:end -->") == 1
     assert new.index("speed") < new.index("## TUM")
     assert keep_sections("no sections", "fresh") == "fresh"
+
+
+def test_bench_tum_table_sits_beside_published_numbers_in_its_own_section(tmp_path):
+    from pathlib import Path
+
+    from yowo_eval.graph_bench import replace_section
+    from yowo_eval.tum_bench import published_cell, short_name, tum_markdown
+
+    assert short_name(Path("/data/rgbd_dataset_freiburg1_desk")) == "fr1_desk"
+    assert short_name(Path("my_walk")) == "my_walk"
+    assert published_cell("fr1_desk") == "0.021 DVO-SLAM<br>0.020 ElasticFusion<br>0.016 ORB-SLAM2 RGB-D"
+    assert published_cell("my_walk") == "-"
+    case = {"sequence": "fr1_desk", "frames": 573, "recording_s": 23.4, "ego_ate_m": 0.0291, "ego_ate_max_m": 0.07,
+            "ratio": 3.1, "exit": 0, "resources": {"ego_mapper": {"cpu_s": 95.2, "wall_s": 80.0, "peak_rss_mb": 1500.0}}}
+    row = next(line for line in tum_markdown([case], "c").splitlines() if line.startswith("| fr1_desk"))
+    assert row.startswith("| fr1_desk | 573 | 23.4 | 0.0291 | 0.0700 | 0.021 DVO-SLAM") and row.endswith("| 3.10 | 95 / 1500 |")
+    failed = tum_markdown([{**case, "ego_ate_m": None, "ego_ate_max_m": None, "exit": 1, "resources": {}}], "c")
+    assert "| - (exit 1) | - |" in failed
+    doc = tmp_path / "BENCHMARKS.md"
+    doc.write_text("# B\n\n<!-- graph-speed:begin -->\nspeed\n<!-- graph-speed:end -->\n")
+    replace_section(doc, tum_markdown([case], "first"), "tum-rgbd")
+    replace_section(doc, tum_markdown([{**case, "ego_ate_m": 0.02}], "second"), "tum-rgbd")
+    text = doc.read_text()
+    assert text.count("<!-- tum-rgbd:begin -->") == 1 and "second" in text and "first" not in text
+    assert "| 0.0200 |" in text and text.index("speed") < text.index("tum-rgbd:begin")

@@ -14,8 +14,10 @@ from pathlib import Path
 import yaml
 
 from .bench import bag_for
+from .bench_report import markers
 
-BEGIN, END = "<!-- graph-speed:begin -->", "<!-- graph-speed:end -->"   # bench_report.markers("graph-speed")
+BEGIN, END = markers("graph-speed")
+NOTES_BEGIN, NOTES_END = markers("graph-speed-notes")   # hand-written notes inside, kept when rendered again
 
 
 def recording_seconds(bag: Path) -> float:
@@ -115,19 +117,17 @@ def timeline_markdown(cases: list[dict]) -> list[str]:
     return lines + [""]
 
 
-# Hand-written notes inside the section (the profile and what it shows), kept when it is rendered again.
-NOTES_BEGIN, NOTES_END = "<!-- graph-speed-notes:begin -->", "<!-- graph-speed-notes:end -->"
-
-
-def replace_section(markdown_path: Path, section: str) -> None:
-    """Put the section into a markdown file, replacing an earlier one (its notes stay)."""
+def replace_section(markdown_path: Path, section: str, name: str = "graph-speed") -> None:
+    """Put the named section into a markdown file, replacing an earlier one (its hand-written
+    notes, between <!-- NAME-notes:begin/end -->, stay)."""
+    (begin, end), (notes_begin, notes_end) = markers(name), markers(f"{name}-notes")
     text = markdown_path.read_text() if markdown_path.exists() else ""
-    if BEGIN in text and END in text:
-        head, rest = text.split(BEGIN, 1)
-        old, tail = rest.split(END, 1)
-        if NOTES_BEGIN in old and NOTES_END in old:
-            notes = NOTES_BEGIN + old.split(NOTES_BEGIN, 1)[1].split(NOTES_END, 1)[0] + NOTES_END + "\n\n"
-            section = section.replace(END, notes + END)
+    if begin in text and end in text:
+        head, rest = text.split(begin, 1)
+        old, tail = rest.split(end, 1)
+        if notes_begin in old and notes_end in old:
+            notes = notes_begin + old.split(notes_begin, 1)[1].split(notes_end, 1)[0] + notes_end + "\n\n"
+            section = section.replace(end, notes + end)
         text = head + section.rstrip("\n") + tail
     else:
         text = text.rstrip("\n") + "\n\n" + section

@@ -67,6 +67,19 @@ def cmd_bench_graph(args) -> int:
     return 0 if all(c["exit"] == 0 for c in cases) else 1
 
 
+def cmd_bench_tum(args) -> int:
+    """TUM RGB-D sequences through the real graph with no CMCs: ATE beside published numbers."""
+    from .tum_bench import run_tum_bench
+
+    missing = [f for f in args.sequences if not Path(f).is_dir()]
+    if missing:
+        raise ValueError(f"no such sequence folder: {', '.join(missing)}")
+    extra = [a for s in (args.set or []) for a in ("--set", s)] + (["--config", args.config] if args.config else [])
+    cases = run_tum_bench([Path(f) for f in args.sequences], Path(args.output),
+                          Path(args.markdown) if args.markdown else None, extra)
+    return 0 if all(c["exit"] == 0 for c in cases) else 1
+
+
 def add_verbs(verbs) -> None:
     from yowo_bringup.cli import add_config_options
 
@@ -100,6 +113,15 @@ def add_verbs(verbs) -> None:
     p.add_argument("--markdown", help="put the table into this file (e.g. BENCHMARKS.md), replacing an earlier one")
     add_config_options(p)
     p.set_defaults(func=cmd_bench_graph)
+
+    p = verbs.add_parser("bench-tum", help="real TUM RGB-D sequences through the graph with no CMCs: ATE beside "
+                                          "published numbers -> BENCHMARKS.md")
+    p.add_argument("sequences", nargs="+", help="TUM RGB-D sequence folders (rgb/, depth/, rgb.txt, depth.txt, "
+                                                "groundtruth.txt), named as TUM names them")
+    p.add_argument("-o", "--output", default="bench/tum", help="directory for the imported recordings and runs")
+    p.add_argument("--markdown", help="put the table into this file (e.g. BENCHMARKS.md), replacing an earlier one")
+    add_config_options(p)
+    p.set_defaults(func=cmd_bench_tum)
 
     p = verbs.add_parser("eval", help="metric tables of a results directory against a bag's ground truth")
     p.add_argument("results", help="results directory of yowo run / calibrate-cmc")
