@@ -32,6 +32,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import cv2
+import gtsam
 import numpy as np
 import open3d as o3d
 
@@ -311,7 +312,9 @@ class KeyframeTracker:
         self._kf: _Level | None = None
         self._prev: _Level | None = None
         self._prev_result: TrackResult | None = None
-        self._velocity = np.eye(4)           # T_prev_cur of the last step
+        # Twist per second (rotation, translation; Pose3 log / dt) of the last step: a step over a
+        # gap (rejected frames) is not repeated frame by frame.
+        self._velocity = np.zeros(6)
         self._features = FeatureExtractor(params.recovery_features)
         self._gyro: np.ndarray | None = None     # R_prev_cur of the frame being tracked
         self._velocity_odom = np.zeros(3)        # odom-frame velocity of the last visual step [m/s]
@@ -337,7 +340,9 @@ class KeyframeTracker:
         # A lost frame's pose is a guess: the motion before the loss stays the
         # prediction (a whip turn goes on), rather than zero motion.
         if prev is not None and result.status != LOST:
-            self._velocity = inv_se3(prev.T_odom_cam) @ result.T_odom_cam
+            dt_s = max((result.stamp_ns - prev.stamp_ns) * 1e-9, 1e-3)
+            step = orthonormalize(inv_se3(prev.T_odom_cam) @ result.T_odom_cam)
+            self._velocity = gtsam.Pose3.Logmap(gtsam.Pose3(step)) / dt_s
         if self.imu is not None:
             self._imu_bookkeeping(prev, result)
         self._prev, self._prev_result = level, result
@@ -368,6 +373,10 @@ class KeyframeTracker:
         except ValueError:   # not calibrated, or a gap in the samples: vision alone
             return None
 
+    def _predicted_step(self, dt_s: float) -> np.ndarray:
+        """T_prev_cur at the last step's velocity (constant velocity) over dt_s."""
+        return gtsam.Pose3.Expmap(self._velocity * dt_s).matrix()
+
     def _plausible(self, T_prev_cur: np.ndarray, dt_s: float) -> bool:
         p = self.params
         dt = max(dt_s, 1e-3)
@@ -390,9 +399,10 @@ class KeyframeTracker:
         or None. Also returns the plausible result with the lowest RMSE, for a break
         edge."""
         odo, fallback = self.odometry, None
-        inits = [T_ref_prev @ self._velocity, T_ref_prev]
+        step = self._predicted_step(dt_s)
+        inits = [T_ref_prev @ step, T_ref_prev]
         if self._gyro is not None:
-            inits.insert(0, T_ref_prev @ se3(self._gyro, self._velocity[:3, 3]))
+            inits.insert(0, T_ref_prev @ se3(self._gyro, step[:3, 3]))
         for init in inits:
             for cascade in self.params.cascades:
                 T, fit, rmse = odo.register(level.rgbd, ref.rgbd, orthonormalize(init), cascade)
@@ -460,7 +470,7 @@ class KeyframeTracker:
                 self._add_keyframe(level, T_odom_cam, kf, inv_se3(kf.T_odom_cam) @ T_odom_cam, ("map", info))
                 return TrackResult(level.frame_index, level.stamp_ns, len(self.keyframes) - 1, np.eye(4),
                                    T_odom_cam, placed.fitness, MAP_RELOCALISED, True)
-            T_kf_cur = fallback[0] if fallback is not None else T_kf_prev @ self._velocity
+            T_kf_cur = fallback[0] if fallback is not None else T_kf_prev @ self._predicted_step(dt_s)
             T_odom_cam = kf.T_odom_cam @ orthonormalize(T_kf_cur)
             self.breaks += 1
             self._add_keyframe(level, T_odom_cam, kf, None)

@@ -28,7 +28,7 @@ from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3, se3, transform_points
 
 from .features import FeatureExtractor, FeatureParams, KeyframeFeatures, backproject
-from .frames import FrameError, Undistorter, make_frame, pinhole
+from .frames import MIN_TEXTURED_FRACTION, FrameError, Undistorter, make_frame, pinhole, textured_fraction
 from .imu import ImuBuffer, InertialParams, InertialTerms, keyframe_preintegration, up_from_accelerometer
 from .layout import KIND_WALL, Layout, LayoutParams, build_layout
 from .odometry import IMU_BRIDGED, RECOVERED, Keyframe, KeyframeTracker, OdometryEdge, OdometryParams, TrackResult
@@ -113,6 +113,7 @@ class EgoMapper:
         self._multiway = MultiwayRegistration(self.tracker.odometry, params.loops)
         self.rejected: dict[str, int] = {}      # problem (topic: what) -> frames
         self.first_rejection: dict[str, str] = {}   # problem -> the first such frame's message
+        self.untextured = 0                      # frames tracked by depth alone (no texture in colour)
         self._last_stamp = -1
         self._t_track = self._cpu_track = self._cpu_features = self._cpu_loops = 0.0
 
@@ -152,6 +153,7 @@ class EgoMapper:
             self.reject(exc)
             raise
         t0, c0 = time.perf_counter(), time.thread_time()
+        self.untextured += textured_fraction(frame.color) < MIN_TEXTURED_FRACTION
         result = self.tracker.track(frame)
         self._t_track += time.perf_counter() - t0
         self._cpu_track += time.thread_time() - c0
@@ -173,6 +175,9 @@ class EgoMapper:
         c_finish = time.thread_time()
         warnings = [f"{n} frame(s) rejected, the first: {self.first_rejection.get(why, why)}"
                     for why, n in self.rejected.items()]
+        if self.untextured:
+            warnings.append(f"{self.untextured} frame(s) without texture (covered lens, darkness or a bare wall close "
+                            "up) tracked by their depth alone")
         t0 = time.perf_counter()
         features: list[KeyframeFeatures] = [f.result() for f in self._features]
         self._pool.shutdown()
@@ -184,7 +189,8 @@ class EgoMapper:
         stats.update(keyframes=len(keyframes), breaks=tr.breaks,
                      recovered=sum(r.status == RECOVERED for r in tr.results),
                      imu_bridged=sum(r.status == IMU_BRIDGED for r in tr.results), imu_frames=tr.imu_frames,
-                     degenerate_frames=tr.degenerate_frames, map_relocalised=tr.map_relocalised)
+                     degenerate_frames=tr.degenerate_frames, map_relocalised=tr.map_relocalised,
+                     untextured_frames=self.untextured)
         if tr.imu is not None:
             stats["imu_samples"] = len(tr.imu)
         T_odometry = [k.T_odom_cam for k in keyframes]
