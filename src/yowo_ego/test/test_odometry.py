@@ -158,3 +158,16 @@ def test_a_whip_turn_in_the_middle_of_a_square_room_is_not_placed_at_a_look_alik
                                       eye=(2.0, 2.0, 1.6))
     assert result.status == LOST and tracker.map_relocalised == 0
     assert "another heading fits almost as well" in tracker.map_failures[-1]
+
+
+def test_constant_velocity_is_per_second_not_per_step(renderer, ego_camera):
+    """After a step across a gap (frames rejected or missing), the next frame's prediction is
+    the velocity over its own interval: a step of 10 frames' time is not replayed per frame."""
+    walk = _motion([0.0, 10.0, 0.0], [0.0, 0.0, 0.30])        # 10 frames of 3 cm and 1 deg each, at once
+    tracker = KeyframeTracker(ego_camera.K)
+    for k, T in ((0, T_START), (10, T_START @ walk)):
+        f = renderer.render(ego_camera, T)
+        tracker.track(make_frame(k * FRAME_NS, f.rgb, f.depth, ego_camera))
+    step = tracker._predicted_step(FRAME_NS * 1e-9)
+    assert np.linalg.norm(step[:3, 3]) == pytest.approx(0.03, abs=0.003)
+    assert rotation_angle_deg(np.eye(3), step[:3, :3]) == pytest.approx(1.0, abs=0.1)
