@@ -171,3 +171,32 @@ def test_constant_velocity_is_per_second_not_per_step(renderer, ego_camera):
     step = tracker._predicted_step(FRAME_NS * 1e-9)
     assert np.linalg.norm(step[:3, 3]) == pytest.approx(0.03, abs=0.003)
     assert rotation_angle_deg(np.eye(3), step[:3, :3]) == pytest.approx(1.0, abs=0.1)
+
+
+def test_a_suspect_result_is_checked_by_the_other_cascade(renderer, ego_camera):
+    """Hybrid's wrong minima on bare walls come with an RMSE far above the recent frames'.
+    Here one frame's Hybrid result is made such a minimum (10 cm off, 10x the RMSE, less
+    overlap): the other cascade runs from the same guess and its result is kept; on the
+    frames before, whose RMSE is ordinary, it never runs."""
+    step = _motion([0.0, 1.0, 0.0], [0.02, 0.0, 0.04])
+    tracker = KeyframeTracker(ego_camera.K)
+    real, calls, spoil = tracker.odometry.register, [], {"on": False}
+
+    def register(source, target, init, cascade=("Hybrid",)):
+        T, fit, rmse = real(source, target, init, cascade)
+        calls.append((spoil["on"], cascade))
+        if spoil["on"] and cascade == ("Hybrid",):
+            return T @ se3(np.eye(3), [0.1, 0.0, 0.0]), fit - 0.1, rmse * 10
+        return T, fit, rmse
+
+    tracker.odometry.register = register
+    for k in range(9):
+        spoil["on"] = k == 8
+        T = T_START @ np.linalg.matrix_power(step, k)
+        f = renderer.render(ego_camera, T)
+        result = tracker.track(make_frame(k * FRAME_NS, f.rgb, f.depth, ego_camera))
+    truth = np.linalg.inv(T_START) @ T
+    assert np.linalg.norm(result.T_odom_cam[:3, 3] - truth[:3, 3]) < 0.003
+    assert tracker.suspect_frames == 1
+    assert [c for on, c in calls if not on] == [("Hybrid",)] * 7       # one registration per ordinary frame
+    assert ("PointToPlane", "Hybrid") in [c for on, c in calls if on]

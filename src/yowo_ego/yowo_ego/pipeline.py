@@ -189,7 +189,8 @@ class EgoMapper:
         stats.update(keyframes=len(keyframes), breaks=tr.breaks,
                      recovered=sum(r.status == RECOVERED for r in tr.results),
                      imu_bridged=sum(r.status == IMU_BRIDGED for r in tr.results), imu_frames=tr.imu_frames,
-                     degenerate_frames=tr.degenerate_frames, map_relocalised=tr.map_relocalised,
+                     degenerate_frames=tr.degenerate_frames, suspect_frames=tr.suspect_frames,
+                     map_relocalised=tr.map_relocalised,
                      untextured_frames=self.untextured)
         if tr.imu is not None:
             stats["imu_samples"] = len(tr.imu)
