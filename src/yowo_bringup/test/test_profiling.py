@@ -35,9 +35,10 @@ def test_py_spy_records_a_process_from_its_start_and_summarises_it(tmp_path):
     top = top_functions(stacks)
     own = dict(top["own"])
     burn = next(f for f in own if f.startswith("burn "))
-    # The loop is where the time went; the sleep is idle (not sampled).
+    # The loop is where the time went; the sleep is idle (not sampled: sampled, its 0.5 s would be
+    # ~15 % of the samples; on a loaded machine a sample or two land on the wake-up).
     assert own[burn] > 0.6 * top["samples"], top
-    assert not any(f.startswith("idle ") for f in own)
+    assert sum(n for f, n in own.items() if f.startswith("idle ")) < 0.05 * top["samples"], top
     text = summary_markdown(tmp_path, 100)
     assert "## burner: " in text and " s not idle" in text and "`burn (" in text
 
