@@ -406,8 +406,9 @@ class KeyframeTracker:
     def _attempts(self, level: _Level, ref: _Level, T_ref_prev: np.ndarray, dt_s: float):
         """The first acceptable T_ref_cur of the method cascades from the gyro guess
         (with the IMU), the constant-velocity and the zero-motion guess: (T, fitness)
-        or None. Also returns the plausible result with the lowest RMSE, for a break
-        edge."""
+        or None; a suspect one (``_suspect``) is checked by the remaining cascades from the
+        same guess and the result with the most overlap kept. Also returns the plausible
+        result with the lowest RMSE, for a break edge."""
         odo, fallback = self.odometry, None
         step = self._predicted_step(dt_s)
         inits = [T_ref_prev @ step, T_ref_prev]
@@ -427,7 +428,7 @@ class KeyframeTracker:
                 accepted.append((T, fit, rmse))
                 if not self._suspect(rmse):
                     break
-                self.suspect_frames += len(accepted) == 1
+                self.suspect_frames += len(accepted) == 1     # counted once, at the first suspect result
             if accepted:
                 T, fit, rmse = max(accepted, key=lambda r: r[1])
                 self._rmse.append(rmse)

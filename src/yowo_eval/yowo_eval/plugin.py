@@ -57,11 +57,16 @@ def cmd_bench(args) -> int:
     return 0
 
 
+def _config_arguments(args) -> list[str]:
+    """The configuration options given to a bench verb, as `yowo run` arguments."""
+    return [a for s in (args.set or []) for a in ("--set", s)] + (["--config", args.config] if args.config else [])
+
+
 def cmd_bench_graph(args) -> int:
     """`yowo run --rate 0` on generated recordings: the real graph's speed per stage."""
     from .graph_bench import run_graph_bench
 
-    extra = [a for s in (args.set or []) for a in ("--set", s)] + (["--config", args.config] if args.config else [])
+    extra = _config_arguments(args)
     cases = run_graph_bench(args.preset, args.seeds, args.sources, Path(args.output),
                             Path(args.markdown) if args.markdown else None, extra)
     return 0 if all(c["exit"] == 0 for c in cases) else 1
@@ -74,7 +79,7 @@ def cmd_bench_tum(args) -> int:
     missing = [f for f in args.sequences if not Path(f).is_dir()]
     if missing:
         raise ValueError(f"no such sequence folder: {', '.join(missing)}")
-    extra = [a for s in (args.set or []) for a in ("--set", s)] + (["--config", args.config] if args.config else [])
+    extra = _config_arguments(args)
     cases = run_tum_bench([Path(f) for f in args.sequences], Path(args.output),
                           Path(args.markdown) if args.markdown else None, extra)
     return 0 if all(c["exit"] == 0 for c in cases) else 1

@@ -69,7 +69,7 @@ def run_tum_bench(folders: list[Path], out_dir: Path, markdown_path: Path | None
     for folder in folders:
         bag = out_dir / "bags" / folder.name
         if not bag.exists():
-            s = with_progress(lambda progress, folder=folder, bag=bag: import_tum(folder, bag, progress=progress))
+            s = with_progress(lambda progress: import_tum(folder, bag, progress=progress))   # called here, now
             log(f"imported {folder} -> {bag}: {s.frames} frames over {s.duration_s:.1f} s (camera {s.camera})")
         run = out_dir / "runs" / folder.name
         case = graph_case(bag, run, "auto", extra)
