@@ -234,3 +234,9 @@ def test_bench_tum_table_sits_beside_published_numbers_in_its_own_section(tmp_pa
     text = doc.read_text()
     assert text.count("<!-- tum-rgbd:begin -->") == 1 and "second" in text and "first" not in text
     assert "| 0.0200 |" in text and text.index("speed") < text.index("tum-rgbd:begin")
+
+
+def test_bench_tum_names_a_missing_sequence_folder_and_runs_nothing(tmp_path, capsys):
+    code = main(["bench-tum", str(tmp_path / "nope"), "-o", str(tmp_path / "out")])
+    assert code == 2 and f"no such sequence folder: {tmp_path / 'nope'}" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
