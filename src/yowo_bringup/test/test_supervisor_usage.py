@@ -23,3 +23,17 @@ def test_usage_of_a_live_process_and_of_a_gone_one():
     assert Usage.read(burn.pid) is None
     me = Usage.read(os.getpid())
     assert me is not None and me[1] > 10.0
+
+
+def test_node_processes_get_the_library_thread_count(tmp_path):
+    from yowo_bringup.supervisor import NodeSpec, Supervisor, library_threads_env
+    (tmp_path / "envdump.py").write_text(
+        "import os, pathlib\npathlib.Path(os.environ['DUMP']).write_text("
+        "' '.join(os.environ.get(k, '-') for k in ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS')))\n")
+    base = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
+    base.update(PYTHONPATH=str(tmp_path), DUMP=str(tmp_path / "dump"))
+    for threads, expected in ((1, "1 1 1"), (0, "- - -")):
+        sup = Supervisor(tmp_path / f"logs{threads}", library_threads_env(base, threads))
+        proc = sup.start(NodeSpec("dump", "envdump"))
+        assert proc.popen.wait(timeout=60) == 0, proc.log_tail()
+        assert (tmp_path / "dump").read_text() == expected

@@ -31,6 +31,10 @@ class SupervisorParams:
     # 0 by default: on a machine busy with other jobs a lowered stage also discovers its peers
     # late (DDS runs in its threads), and its statuses count fewer strays of other runs.
     downstream_niceness: int = 0
+    # Threads of each node process's numeric libraries (OpenMP, OpenBLAS, MKL); 0: their defaults
+    # (every core). The graph is parallel across its processes: pools of 2 threads in each of
+    # 8 processes only spin against each other (small normal s0: ego mapper 47 -> 42 CPU s).
+    library_threads: int = 1
 
 
 @dataclass(frozen=True)

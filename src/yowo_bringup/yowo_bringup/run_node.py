@@ -22,7 +22,7 @@ from .isolation import PRIVATE, GraphNetwork, graph_network
 from .profiling import summary_markdown
 from .progress import DONE, FAILED, RUNNING, WAITING, ProgressLines, RunProgress
 from .run import RunOutcome, RunPlan, write_run_results
-from .supervisor import Supervisor, stats_path, write_params_file
+from .supervisor import Supervisor, library_threads_env, stats_path, write_params_file
 
 # After the final stage finished, time for the latched outputs and every stage's last status
 # to arrive: a stage that succeeded published them all (a loaded machine took > 2 s to
@@ -113,7 +113,8 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
     (plan.out_dir / "params.yaml").write_text(yaml.safe_dump(params_document(
         plan.config, {n.name: {k: v for k, v in n.parameters.items() if k != "config"} for n in plan.nodes}),
         sort_keys=False))
-    sup = Supervisor(plan.out_dir / "logs", network.env, params_file, profile_dir,
+    sup = Supervisor(plan.out_dir / "logs", library_threads_env(network.env, plan.config.supervisor.library_threads),
+                     params_file, profile_dir,
                      plan.config.supervisor.profile_rate_hz)
     stages = plan.stages
     t0, t0_wall = time.monotonic(), time.time()

@@ -77,6 +77,14 @@ class NodeProcess:
             return ""
 
 
+LIBRARY_THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def library_threads_env(env: dict, threads: int) -> dict:
+    """``env`` with each numeric library's thread count set to ``threads`` (0: unchanged)."""
+    return {**env, **{k: str(threads) for k in LIBRARY_THREAD_VARIABLES}} if threads > 0 else dict(env)
+
+
 class _NoAliasDumper(yaml.SafeDumper):
     """rcl's parameter parser does not support YAML aliases (&id001 / *id001)."""
 

@@ -8,6 +8,9 @@ IMU never covers are tracked without it at the end of the stream. No bound in st
 time: it would make the result depend on timing (a replay gives the same map every run)."""
 from __future__ import annotations
 
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
+
 from nav_msgs.msg import Odometry, Path
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 from std_msgs.msg import Header, String
@@ -48,6 +51,11 @@ class EgoMapperNode(StageNode):
         self.info_problem = ""
         self.early: list[tuple[int, object, object]] = []
         self.pairer = StampPairer()
+        # Decoding and undistorting a frame on a thread of its own overlaps the previous
+        # frame's tracking (OpenCV releases the GIL); tracking stays in stamp order.
+        self.preparer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ego_prepare")
+        self.preparing: deque[Future] = deque()
+        self.logged_problems: set[str] = set()
         self.pub_odom = self.output(Odometry, topics.EGO_ODOMETRY)
         self.pub_map = self.output(EgoMap, topics.EGO_MAP, LATCHED)
         self.pub_path = self.output(Path, topics.EGO_PATH, LATCHED)
@@ -98,17 +106,29 @@ class EgoMapperNode(StageNode):
         if self.mapper is None:
             self.early = (self.early + list(pairs))[-MAX_EARLY_FRAMES:]
             return
-        for stamp, color_msg, depth_msg in pairs:
+        for pair in pairs:
+            self.preparing.append(self.preparer.submit(self._prepare, *pair))
+        self._track_prepared(keep=1)
+
+    def _prepare(self, stamp: int, color_msg, depth_msg):
+        """On the preparing thread: decoded, checked and undistorted (EgoMapper.prepare)."""
+        color = self._decode(self.color_topic, color_msg, decode_color, stamp)
+        depth = self._decode(self.depth_topic, depth_msg, decode_depth, stamp)
+        return self.mapper.prepare(stamp, color, depth, self.color_topic, self.depth_topic)
+
+    def _track_prepared(self, keep: int) -> None:
+        """Track the prepared frames in order, all but the newest ``keep`` (still being
+        prepared while the one before is tracked)."""
+        while len(self.preparing) > keep:
             try:
-                color = self._decode(self.color_topic, color_msg, decode_color, stamp)
-                depth = self._decode(self.depth_topic, depth_msg, decode_depth, stamp)
-                result = self.mapper.add(stamp, color, depth, self.color_topic, self.depth_topic)
+                frame = self.preparing.popleft().result()
             except FrameError as exc:
                 # Counted (reported in the final status); logged the first time it happens.
-                if self.mapper.rejected.get(exc.key, 0) == 1:
+                if exc.key not in self.logged_problems:
+                    self.logged_problems.add(exc.key)
                     self.get_logger().warning(f"{exc}; further frames with this problem are only counted")
                 continue
-            self.pub_odom.publish(self._odometry(result))
+            self.pub_odom.publish(self._odometry(self.mapper.track(frame)))
 
     def _decode(self, topic: str, msg, decode, stamp_ns: int):
         try:
@@ -126,6 +146,8 @@ class EgoMapperNode(StageNode):
 
     def finalize(self) -> str:
         self.on_pairs(self.wait.ready(flush=True))
+        self._track_prepared(keep=0)
+        self.preparer.shutdown()
         if self.mapper is None:
             raise ValueError(self.info_problem or f"no usable {self.info_topic} received; no ego map")
         r = self.mapper.finish()

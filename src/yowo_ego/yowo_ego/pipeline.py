@@ -28,7 +28,7 @@ from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3, se3, transform_points
 
 from .features import FeatureExtractor, FeatureParams, KeyframeFeatures, backproject
-from .frames import MIN_TEXTURED_FRACTION, FrameError, Undistorter, make_frame, pinhole, textured_fraction
+from .frames import MIN_TEXTURED_FRACTION, FrameError, RgbdFrame, Undistorter, make_frame, pinhole, textured_fraction
 from .imu import ImuBuffer, InertialParams, InertialTerms, keyframe_preintegration, up_from_accelerometer
 from .layout import KIND_WALL, Layout, LayoutParams, build_layout
 from .odometry import IMU_BRIDGED, RECOVERED, Keyframe, KeyframeTracker, OdometryEdge, OdometryParams, TrackResult
@@ -144,6 +144,13 @@ class EgoMapper:
             depth_topic: str = "depth") -> TrackResult:
         """Track one decoded frame (RGB uint8, depth in metres with NaN/0 invalid).
         Raises FrameError (counted in ``rejected``) for frames that cannot be used."""
+        return self.track(self.prepare(stamp_ns, color, depth, color_topic, depth_topic))
+
+    def prepare(self, stamp_ns: int, color: np.ndarray, depth: np.ndarray, color_topic: str = "colour",
+                depth_topic: str = "depth") -> RgbdFrame:
+        """The checked, undistorted frame ``track`` takes; FrameError (counted) for a frame
+        that cannot be used. Frames are prepared in stamp order, on any one thread (a node
+        prepares the next frame while the last is tracked)."""
         try:
             if stamp_ns <= self._last_stamp:
                 raise FrameError(color_topic, "stamp not after the previous frame's",
@@ -152,12 +159,16 @@ class EgoMapper:
         except FrameError as exc:
             self.reject(exc)
             raise
+        self._last_stamp = stamp_ns
+        return frame
+
+    def track(self, frame: RgbdFrame) -> TrackResult:
+        """Track a prepared frame (frames in the order they were prepared)."""
         t0, c0 = time.perf_counter(), time.thread_time()
         self.untextured += textured_fraction(frame.color) < MIN_TEXTURED_FRACTION
         result = self.tracker.track(frame)
         self._t_track += time.perf_counter() - t0
         self._cpu_track += time.thread_time() - c0
-        self._last_stamp = stamp_ns
         return result
 
     def finish(self) -> EgoMapResult:

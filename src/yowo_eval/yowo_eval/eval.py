@@ -13,22 +13,22 @@ from yowo_common.trajectory import read_tum
 
 from .evaluation import (ErrorSummary, ate, layout_iou, registration_errors, relative_errors_of_baseline,
                          relative_pose_errors)
-from .ground_truth import read_ground_truth
+from .ground_truth import GroundTruth, read_ground_truth
 
 
 RESULT_FILES = ("cameras.yaml", "ego_trajectory.tum", "layout.json")
 
 
-def evaluate(results_dir, bag) -> dict:
-    """Metrics of a results directory; ValueError naming what is missing when there is
-    nothing to evaluate."""
+def evaluate(results_dir, bag, gt: GroundTruth | None = None) -> dict:
+    """Metrics of a results directory (``gt``: the recording's ground truth when already
+    read); ValueError naming what is missing when there is nothing to evaluate."""
     results_dir = Path(results_dir)
     if not results_dir.is_dir():
         raise ValueError(f"{results_dir}: no such results directory")
     if not any((results_dir / f).exists() for f in RESULT_FILES):
         raise ValueError(f"{results_dir}: holds none of {', '.join(RESULT_FILES)}; nothing to evaluate "
                          "(did the run fail? see its run_log.yaml)")
-    gt = read_ground_truth(bag)
+    gt = gt if gt is not None else read_ground_truth(bag)
     if not gt.cameras and gt.ego is None:
         raise ValueError(f"{bag}: no ground truth (/gt/...) in the recording; nothing to evaluate against")
     out: dict = {}
