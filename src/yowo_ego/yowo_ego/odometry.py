@@ -220,6 +220,24 @@ def o3d_rgbd(color: np.ndarray, depth_mm: np.ndarray) -> o3d.t.geometry.RGBDImag
 
 
 @dataclass
+class OdometryImages:
+    """A frame's images as the tracker takes them: at the odometry resolution (also as
+    Open3D's RGBD image) and the full-resolution grey image the feature fall-back matches.
+    Made by ``of`` on any thread (the ego mapper node makes the next frame's while the last
+    is tracked)."""
+
+    color: np.ndarray
+    depth_mm: np.ndarray
+    rgbd: o3d.t.geometry.RGBDImage
+    full_gray: np.ndarray
+
+    @classmethod
+    def of(cls, frame: RgbdFrame, scale: int) -> "OdometryImages":
+        color, depth_mm = downsample(frame, scale)
+        return cls(color, depth_mm, o3d_rgbd(color, depth_mm), cv2.cvtColor(frame.color, cv2.COLOR_RGB2GRAY))
+
+
+@dataclass
 class _Level:
     """The odometry-resolution images of one frame plus what the feature fall-back needs."""
 
@@ -336,10 +354,10 @@ class KeyframeTracker:
         self.map_failures: list[str] = []        # why the others' did not
 
     # --- public -----------------------------------------------------------------
-    def track(self, frame: RgbdFrame) -> TrackResult:
-        color, depth_mm = downsample(frame, self.params.scale)
-        level = _Level(len(self.results), frame.stamp_ns, color, depth_mm, o3d_rgbd(color, depth_mm),
-                       cv2.cvtColor(frame.color, cv2.COLOR_RGB2GRAY), frame.depth)
+    def track(self, frame: RgbdFrame, images: OdometryImages | None = None) -> TrackResult:
+        """``images``: the frame's OdometryImages at ``params.scale`` when already made."""
+        im = images if images is not None else OdometryImages.of(frame, self.params.scale)
+        level = _Level(len(self.results), frame.stamp_ns, im.color, im.depth_mm, im.rgbd, im.full_gray, frame.depth)
         if self._kf is None:
             result = TrackResult(0, frame.stamp_ns, 0, np.eye(4), np.eye(4), 1.0, TRACKED, True)
             self._add_keyframe(level, np.eye(4), None, None)

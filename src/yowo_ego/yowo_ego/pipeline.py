@@ -31,7 +31,8 @@ from .features import FeatureExtractor, FeatureParams, KeyframeFeatures, backpro
 from .frames import MIN_TEXTURED_FRACTION, FrameError, RgbdFrame, Undistorter, make_frame, pinhole, textured_fraction
 from .imu import ImuBuffer, InertialParams, InertialTerms, keyframe_preintegration, up_from_accelerometer
 from .layout import KIND_WALL, Layout, LayoutParams, build_layout
-from .odometry import IMU_BRIDGED, RECOVERED, Keyframe, KeyframeTracker, OdometryEdge, OdometryParams, TrackResult
+from .odometry import (IMU_BRIDGED, RECOVERED, Keyframe, KeyframeTracker, OdometryEdge, OdometryImages, OdometryParams,
+                       TrackResult)
 from .posegraph import LoopParams, MultiwayRegistration
 from .refine import BundleParams, bundle_adjust
 from .scene import (CloudParams, Rectification, find_floor, fuse_cloud, planar_patches, rectify,
@@ -59,6 +60,15 @@ class EgoParams:
     # every time; on 2 cores it costs nothing measurable, since frames are decoded
     # and features extracted on other threads. 0: Open3D's default (all cores).
     open3d_threads: int = 1
+
+
+@dataclass
+class PreparedFrame:
+    """A frame ready for tracking (EgoMapper.prepare)."""
+
+    frame: RgbdFrame
+    images: OdometryImages
+    textured: bool                       # colour with texture (else tracked by depth alone)
 
 
 @dataclass
@@ -147,10 +157,10 @@ class EgoMapper:
         return self.track(self.prepare(stamp_ns, color, depth, color_topic, depth_topic))
 
     def prepare(self, stamp_ns: int, color: np.ndarray, depth: np.ndarray, color_topic: str = "colour",
-                depth_topic: str = "depth") -> RgbdFrame:
-        """The checked, undistorted frame ``track`` takes; FrameError (counted) for a frame
-        that cannot be used. Frames are prepared in stamp order, on any one thread (a node
-        prepares the next frame while the last is tracked)."""
+                depth_topic: str = "depth") -> PreparedFrame:
+        """The checked, undistorted frame and its odometry images, which ``track`` takes;
+        FrameError (counted) for a frame that cannot be used. Frames are prepared in stamp
+        order, on any one thread (a node prepares the next frame while the last is tracked)."""
         try:
             if stamp_ns <= self._last_stamp:
                 raise FrameError(color_topic, "stamp not after the previous frame's",
@@ -160,13 +170,14 @@ class EgoMapper:
             self.reject(exc)
             raise
         self._last_stamp = stamp_ns
-        return frame
+        return PreparedFrame(frame, OdometryImages.of(frame, self.params.odometry.scale),
+                             textured_fraction(frame.color) >= MIN_TEXTURED_FRACTION)
 
-    def track(self, frame: RgbdFrame) -> TrackResult:
+    def track(self, prepared: PreparedFrame) -> TrackResult:
         """Track a prepared frame (frames in the order they were prepared)."""
         t0, c0 = time.perf_counter(), time.thread_time()
-        self.untextured += textured_fraction(frame.color) < MIN_TEXTURED_FRACTION
-        result = self.tracker.track(frame)
+        self.untextured += not prepared.textured
+        result = self.tracker.track(prepared.frame, prepared.images)
         self._t_track += time.perf_counter() - t0
         self._cpu_track += time.thread_time() - c0
         return result
