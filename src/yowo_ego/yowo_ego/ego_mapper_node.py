@@ -51,8 +51,9 @@ class EgoMapperNode(StageNode):
         self.info_problem = ""
         self.early: list[tuple[int, object, object]] = []
         self.pairer = StampPairer()
-        # Decoding and undistorting a frame on a thread of its own overlaps the previous
-        # frame's tracking (OpenCV releases the GIL); tracking stays in stamp order.
+        # Decoding, undistorting and downsampling a frame (EgoMapper.prepare) on a thread of its
+        # own overlaps the previous frame's tracking (OpenCV and Open3D release the GIL);
+        # tracking stays in stamp order.
         self.preparer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ego_prepare")
         self.preparing: deque[Future] = deque()
         self.logged_problems: set[str] = set()
@@ -111,7 +112,7 @@ class EgoMapperNode(StageNode):
         self._track_prepared(keep=1)
 
     def _prepare(self, stamp: int, color_msg, depth_msg):
-        """On the preparing thread: decoded, checked and undistorted (EgoMapper.prepare)."""
+        """On the preparing thread: decoded, checked, undistorted, odometry images made (EgoMapper.prepare)."""
         color = self._decode(self.color_topic, color_msg, decode_color, stamp)
         depth = self._decode(self.depth_topic, depth_msg, decode_depth, stamp)
         return self.mapper.prepare(stamp, color, depth, self.color_topic, self.depth_topic)
