@@ -1,7 +1,8 @@
 """A live camera source: publishes every message of a recording on its topic (as
 drivers would: reliable, no end-of-stream announcement) once every subscriber of a
-CMC-only graph has matched, then waits until all of them are acknowledged and until
-every stage that reads them reports (in its status) that it has taken them all in."""
+CMC-only graph has matched, then waits until all of them are acknowledged, until every
+tracker reports (in its status) that it has taken them all in, and until the group SfM
+has taken in all the trackers published."""
 import sys
 import time
 
@@ -35,23 +36,27 @@ def main():
         for p in pubs.values():
             if not p.wait_for_all_acked(rclpy.duration.Duration(seconds=30)):
                 sys.exit("live_source: messages not acknowledged within 30 s")
-        # Acknowledged is not processed: a stage may still hold messages in its queue.
-        sent = {t.name: t.count for t in list_topics(bag) if t.name in pubs}
-        taken: dict[str, dict[str, int]] = {}   # stage -> its counted inputs among ours -> taken in
+        # Acknowledged is not processed: a stage may still hold messages in its queue, and
+        # what a tracker published may not have reached the group SfM yet.
+        expected = {t.name: t.count for t in list_topics(bag) if t.name in pubs}
+        statuses: dict[str, StageStatus] = {}
 
         def on_status(msg):
-            taken[msg.stage] = {t: n for t, n in zip(msg.input_topics, msg.received_counts) if t in sent}
-        stages = sorted({f"keypoint_tracker_{topics.parse_cmc_topic(t)[0]}" for t in pubs})
+            statuses[msg.stage] = msg
+            if msg.stage != topics.GROUP_SFM_STAGE:   # a tracker's outputs are the group SfM's inputs
+                expected.update(zip(msg.topics, msg.published_counts))
+        stages = sorted({f"keypoint_tracker_{topics.parse_cmc_topic(t)[0]}" for t in pubs}) + [topics.GROUP_SFM_STAGE]
         subs = [node.create_subscription(StageStatus, topics.status(s), on_status, LATCHED) for s in stages]
         deadline = time.monotonic() + 60.0
 
         def behind():
-            late = {t: f"{n}/{sent[t]}" for inputs in taken.values() for t, n in inputs.items() if n < sent[t]}
-            return {**{s: "no status yet" for s in stages if s not in taken}, **late}
+            late = {f"{m.stage} {t}": f"{n}/{expected[t]}" for m in statuses.values()
+                    for t, n in zip(m.input_topics, m.received_counts) if t in expected and n < expected[t]}
+            return {**{s: "no status yet" for s in stages if s not in statuses}, **late}
         while behind() and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.1)
         if behind():
-            sys.exit(f"live_source: the trackers had not taken in every message after 60 s: {behind()}")
+            sys.exit(f"live_source: not every message was taken in after 60 s: {behind()}")
         for s in subs:
             node.destroy_subscription(s)
         node.destroy_node()
