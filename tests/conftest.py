@@ -34,4 +34,8 @@ def start_script(ros_env):
     for p in procs:
         if p.poll() is None:
             p.terminate()
-            p.wait(timeout=10)
+            try:
+                p.wait(timeout=10)
+            except subprocess.TimeoutExpired:   # hung in the middleware, where no signal handler runs
+                p.kill()
+                p.wait(timeout=10)
