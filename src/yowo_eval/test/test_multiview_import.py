@@ -3,6 +3,7 @@ TOML, OpenPose BODY_25B JSON frames with a bystander, a short video): K, distort
 reference poses, stamps, keypoint ids, confidences and the derived ids 0/1 come back from
 the recording field by field; bad input is named without a traceback."""
 import json
+import re
 
 import cv2
 import numpy as np
@@ -159,3 +160,78 @@ def test_bad_input_is_named(tmp_path, capsys):
     (tmp_path / "s" / "calibration" / "Calib_test.toml").write_text(toml_text().replace("matrix = [[150.0", "matrix = [[-1"))
     code, err = run_cli(capsys, tmp_path / "s", "-o", tmp_path / "b4", "--fps", "30")
     assert code == 2 and "[cam_01]" in err and "focal lengths" in err
+
+
+def write_caliscope(root, cams: dict | None = None) -> tuple:
+    """A caliscope session: config.toml ([cam_N]: 3x3 rotation, world -> camera) and
+    recordings/r/HOLISTIC/xy_HOLISTIC.csv with two frames per camera at its own capture
+    times: pose landmarks 0 (nose), 7/8 (ears), 11/12 (shoulders), 29-32 (heels, foot indices), a hand point
+    (101) and a face point (502)."""
+    cams = cams or {0: CAMS["cam_01"], 3: CAMS["cam_02"]}
+    lines = ["CreationDate = 2023-05-06T11:12:27", "fps_recording = 24", ""]
+    for port, c in cams.items():
+        R = cv2.Rodrigues(np.array(c["rvec"]))[0]
+        lines += [f"[cam_{port}]", f"port = {port}", f"size = [ {W}, {H},]", f"matrix = {c['K']}",
+                  f"distortions = {c['D'] + [0.001]}", f"translation = {c['tvec']}",
+                  f"rotation = {R.tolist()}", "ignore = false", ""]
+    lines += ["[cam_7]", "port = 7", "ignore = false", ""]      # not posed yet: left out
+    (root / "recordings" / "r" / "HOLISTIC").mkdir(parents=True)
+    (root / "config.toml").write_text("\n".join(lines))
+    points = {0: (80, 20), 7: (84, 19), 8: (76, 19), 11: (88, 30), 12: (72, 30), 29: (84, 104), 30: (76, 104), 31: (88, 106), 32: (72, 106),
+              101: (95, 60), 502: (81, 22)}
+    times = {0: (100.000, 100.041), 3: (100.013, 100.055)}
+    rows = ["sync_index,port,frame_index,frame_time,point_id,img_loc_x,img_loc_y,obj_loc_x,obj_loc_y"]
+    for port in cams:
+        for f, t in enumerate(times[port]):
+            rows += [f"{f},{port},{f},{t},{pid},{x + f},{y},," for pid, (x, y) in points.items()]
+    csv = root / "recordings" / "r" / "HOLISTIC" / "xy_HOLISTIC.csv"
+    csv.write_text("\n".join(rows) + "\n")
+    return csv, points, times
+
+
+def test_caliscope_round_trip(tmp_path, capsys):
+    csv, points, times = write_caliscope(tmp_path / "cs")
+    bag = tmp_path / "bag"
+    code, err = run_cli(capsys, csv, "-o", bag)        # the calibration found above the table
+    assert code == 0, err
+    gt = read_ground_truth(bag)
+    assert sorted(gt.cameras) == ["cam_0", "cam_3"]
+    for name, c in (("cam_0", CAMS["cam_01"]), ("cam_3", CAMS["cam_02"])):
+        T_cam_world = se3(cv2.Rodrigues(np.array(c["rvec"]))[0], np.array(c["tvec"]))
+        assert np.allclose(gt.cameras[name], inv_se3(T_cam_world), atol=1e-9)
+    ids = joint_ids("BLAZEPOSE")
+    msgs = {}
+    for topic, _, msg in read_messages(bag):
+        msgs.setdefault((topic, msg.header.frame_id), []).append(msg)
+    for name, port in (("cam_0", 0), ("cam_3", 3)):
+        (info, *_), kps = msgs[(topics.cmc_info_topic(name), f"{name}_optical_frame")], \
+            msgs[(topics.cmc_keypoints_topic(name), f"{name}_optical_frame")]
+        cam = camera_info_to_model(info)
+        assert np.allclose(cam.D[:5], CAMS["cam_01" if port == 0 else "cam_02"]["D"] + [0.001])
+        # stamped by each camera's own capture times, from the earliest of all
+        assert [stamp_to_ns(m.header.stamp) for m in kps] == [START_NS + round((t - 100.0) * 1e9)
+                                                             for t in times[port]]
+        for f, m in enumerate(kps):
+            got = {k.id: (k.x, k.y) for k in m.keypoints}
+            assert got[ids["nose"]] == (80.0 + f, 20.0) and got[ids["left_ear"]] == (84.0 + f, 19.0)
+            assert got[103] == (95.0 + f, 60.0) and got[504] == (81.0 + f, 22.0)     # hand, face: id + 2
+            assert got[0][1] < 19.0 and 104.0 < got[1][1] < 107.0                   # head top, ground point
+            assert len(got) == len(points) + 2
+
+
+def test_caliscope_bad_input_is_named(tmp_path, capsys):
+    csv, _, _ = write_caliscope(tmp_path / "cs")
+    text = csv.read_text()
+    csv.write_text(text.replace("img_loc_x", "x"))
+    code, err = run_cli(capsys, csv, "-o", tmp_path / "b0")
+    assert code == 2 and "xy_HOLISTIC.csv: no column img_loc_x" in err
+    csv.write_text(text.replace("\n1,3,", "\n1,5,", 1))
+    code, err = run_cli(capsys, csv, "-o", tmp_path / "b1")
+    assert code == 2 and "keypoints of camera(s) [5]" in err and "config.toml does not pose" in err
+    assert not (tmp_path / "b1").exists()
+    csv.write_text(text)
+    cfg = tmp_path / "cs" / "config.toml"
+    cfg.write_text(re.sub(r"rotation = \[\[.*\]\]", "rotation = [[2.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]]",
+                          cfg.read_text(), count=1))
+    code, err = run_cli(capsys, csv, "-o", tmp_path / "b2")
+    assert code == 2 and "[cam_0]" in err and "rotation" in err

@@ -9,6 +9,21 @@ reference poses on /gt/cmc/<name>/pose for the evaluation only (hence in yowo_ev
 Pose2Sim pairs calibration cameras, keypoint folders and videos by sorted order; so does
 this importer (and prints the pairing).
 
+A caliscope recording (github mprib/caliscope, BSD-2-Clause) is read from its 2D keypoint
+table `xy_<TRACKER>.csv` (one row per camera, frame and point: sync_index, port or cam_id,
+frame_index, frame_time [s], point_id, img_loc_x, img_loc_y) and its calibration
+(`config.toml` [cam_N] or `camera_array.toml` [cameras.N]: size, matrix, distortions,
+rotation as a 3x3 matrix and translation, world -> camera). Frames are stamped by their
+frame_time (caliscope's cameras are unsynchronised; these are their capture times on one
+host clock). Points 0-32 are mediapipe's pose landmarks (BlazePose ids, ids 0 and 1
+derived); other points (hands from 100, face from 500 for HOLISTIC) keep their id + 2.
+The 4-camera demo of its tests (a seated person, holistic keypoints, a ChArUco reference):
+
+    G="git --git-dir=<fetched caliscope>"; S=tests/sessions/4_cam_recording
+    $G show f7c314b4:$S/config.toml > config.toml
+    $G show f7c314b4:$S/recordings/recording_1/HOLISTIC/xy_HOLISTIC.csv > xy_HOLISTIC.csv
+    yowo import-multiview xy_HOLISTIC.csv --calibration config.toml -o caliscope_kp
+
 The Pose2Sim demo recording (github perfanalytics/pose2sim, BSD-3-Clause; its keypoints and
 converted calibration are in the repository's history, not its newest tree):
 
@@ -25,6 +40,7 @@ import json
 import math
 import re
 import tomllib
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -103,12 +119,7 @@ def read_pose2sim_calibration(path) -> list[ReferenceCamera]:
     from yowo_common.geometry import inv_se3, se3
 
     path = Path(path)
-    if not path.is_file():
-        raise MultiviewImportError(f"{path}: no such calibration file")
-    try:
-        doc = tomllib.loads(path.read_text(errors="replace"))
-    except tomllib.TOMLDecodeError as exc:
-        raise MultiviewImportError(f"{path}: not a TOML file ({exc})") from None
+    doc = _read_toml(path)
     out = []
     for key in sorted(doc):
         table = doc[key]
@@ -133,6 +144,55 @@ def read_pose2sim_calibration(path) -> list[ReferenceCamera]:
     if len(out) < 2:
         raise MultiviewImportError(f"{path}: holds {len(out)} camera table(s) (name, size, matrix, distortions, "
                                    "rotation, translation); a multi-camera calibration needs two or more")
+    return out
+
+
+def _read_toml(path: Path) -> dict:
+    if not path.is_file():
+        raise MultiviewImportError(f"{path}: no such calibration file")
+    try:
+        return tomllib.loads(path.read_text(errors="replace"))
+    except tomllib.TOMLDecodeError as exc:
+        raise MultiviewImportError(f"{path}: not a TOML file ({exc})") from None
+
+
+def read_caliscope_calibration(path) -> dict[int, ReferenceCamera]:
+    """caliscope's calibration: {camera id: camera named cam_<id>}. Tables [cam_N] (config.toml,
+    id in `port`) or [cameras.N] (camera_array.toml, id in `cam_id`) with size, matrix,
+    distortions (k1 k2 p1 p2 k3), rotation (3x3, world -> camera), translation (m); cameras
+    marked `ignore = true` or not yet posed (no rotation) are left out."""
+    from yowo_common.camera import PLUMB_BOB, CameraModel
+    from yowo_common.geometry import inv_se3, se3
+
+    path = Path(path)
+    doc = _read_toml(path)
+    tables = [(f"cameras.{k}", t) for k, t in doc.get("cameras", {}).items()] if isinstance(doc.get("cameras"), dict) \
+        else [(k, t) for k, t in doc.items() if k.startswith("cam_")]
+    out = {}
+    for key, table in tables:
+        if not isinstance(table, dict) or table.get("ignore") is True or "rotation" not in table:
+            continue
+        where = f"{path} [{key}]"
+        missing = [k for k in ("size", "matrix", "distortions", "translation") if k not in table]
+        cam_id = table.get("port", table.get("cam_id"))
+        if missing or not isinstance(cam_id, int):
+            raise MultiviewImportError(f"{where}: missing {', '.join(missing) or 'port / cam_id'}")
+        w, h = _matrix(table["size"], (2,), f"{where} size")
+        D = _matrix(table["distortions"], (len(table["distortions"]),), f"{where} distortions")
+        cam = CameraModel(int(round(w)), int(round(h)), _matrix(table["matrix"], (3, 3), f"{where} matrix"), D,
+                          PLUMB_BOB)
+        R = _matrix(table["rotation"], (3, 3), f"{where} rotation (a 3x3 matrix)")
+        if abs(np.linalg.det(R) - 1.0) > 1e-3 or not np.allclose(R @ R.T, np.eye(3), atol=1e-3):
+            raise MultiviewImportError(f"{where}: rotation is not a rotation matrix")
+        problems = cam.problems()
+        if problems:
+            raise MultiviewImportError(f"{where}: {'; '.join(problems)}")
+        T = inv_se3(se3(R, _matrix(table["translation"], (3,), f"{where} translation")))
+        out[cam_id] = ReferenceCamera(f"cam_{cam_id}", cam, T)
+    if len(out) < 2:
+        raise MultiviewImportError(f"{path}: holds {len(out)} posed camera table(s) ([cam_N] or [cameras.N] with "
+                                   "size, matrix, distortions, rotation, translation); a multi-camera calibration "
+                                   "needs two or more")
     return out
 
 
@@ -345,6 +405,50 @@ class _Video:
         self.cap.release()
 
 
+@contextmanager
+def _recording(bag: Path, cameras: list[ReferenceCamera]):
+    """A new recording with the reference poses latched on /gt/; removed again when the
+    import fails (no half recording left behind)."""
+    import shutil
+
+    from geometry_msgs.msg import PoseStamped
+    from std_msgs.msg import Header
+
+    from yowo_common import topics
+    from yowo_common.ros.bag import BagError, BagWriter
+    from yowo_common.rosconv import matrix_to_pose, ns_to_time
+
+    if bag.exists():
+        raise MultiviewImportError(f"{bag}: already exists; refusing to overwrite a recording")
+    try:
+        with BagWriter(bag) as out:
+            header0 = Header(stamp=ns_to_time(START_NS), frame_id=GT_FRAME)
+            for ref in cameras:
+                out.write(topics.gt_cmc_pose_topic(ref.name), PoseStamped(header=header0,
+                          pose=matrix_to_pose(ref.T_world_cam)), START_NS, latched=True)
+            yield out
+    except BagError as exc:
+        shutil.rmtree(bag, ignore_errors=True)
+        raise MultiviewImportError(str(exc)) from None
+    except MultiviewImportError:
+        shutil.rmtree(bag, ignore_errors=True)
+        raise
+
+
+def _write_keypoints(out, name: str, header, ids, uv, confidence) -> int:
+    """One AgentKeypoints message (the joints with confidence > 0): how many it holds."""
+    from yowo_msgs.msg import AgentKeypoints, Keypoint2D
+
+    from yowo_common import topics
+    from yowo_common.rosconv import stamp_to_ns
+
+    kps = [Keypoint2D(id=int(i), x=float(u), y=float(v), confidence=float(c))
+           for i, (u, v), c in zip(ids, uv, confidence) if c > 0]
+    out.write(topics.cmc_keypoints_topic(name), AgentKeypoints(header=header, camera_name=name, keypoints=kps),
+              stamp_to_ns(header.stamp))
+    return len(kps)
+
+
 def import_multiview(folder, bag, calibration=None, keypoint_format: str = "BODY_25B", videos: bool = False,
                      fps: float | None = None, max_frames: int | None = None, jpeg_quality: int = 90,
                      progress=None) -> ImportSummary:
@@ -353,14 +457,11 @@ def import_multiview(folder, bag, calibration=None, keypoint_format: str = "BODY
     belong together). CameraInfo per frame (with --videos at the video's size, which may
     differ from the calibration's by the codec's padding: K stays); AgentKeypoints per
     keypoint frame (empty: nobody recognised); the reference poses latched on /gt/."""
-    from geometry_msgs.msg import PoseStamped
     from std_msgs.msg import Header
-    from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
     from yowo_common import topics
     from yowo_common.camera import CameraModel
-    from yowo_common.ros.bag import BagError, BagWriter
-    from yowo_common.rosconv import encode_color_jpeg, matrix_to_pose, model_to_camera_info, ns_to_time
+    from yowo_common.rosconv import encode_color_jpeg, model_to_camera_info, ns_to_time
 
     if keypoint_format not in all_formats():
         raise MultiviewImportError(f"unknown keypoint format '{keypoint_format}' ({', '.join(all_formats())})")
@@ -372,15 +473,9 @@ def import_multiview(folder, bag, calibration=None, keypoint_format: str = "BODY
                                    "videos'); "
                                    "give --fps")
     bag = Path(bag)
-    if bag.exists():
-        raise MultiviewImportError(f"{bag}: already exists; refusing to overwrite a recording")
     summaries = []
     try:
-        with BagWriter(bag) as out:
-            header0 = Header(stamp=ns_to_time(START_NS), frame_id=GT_FRAME)
-            for ref in s.cameras:
-                out.write(topics.gt_cmc_pose_topic(ref.name), PoseStamped(header=header0,
-                          pose=matrix_to_pose(ref.T_world_cam)), START_NS, latched=True)
+        with _recording(bag, s.cameras) as out:
             for k, ref in enumerate(s.cameras):
                 kp_dir = s.keypoint_dirs[k] if s.keypoint_dirs else None
                 video = streams[k] if streams else None
@@ -413,35 +508,115 @@ def import_multiview(folder, bag, calibration=None, keypoint_format: str = "BODY
                         people = [person_pose(uv, c, keypoint_format, cam.width, cam.height)
                                   for uv, c in read_people(files[i], keypoint_format)]
                         agent = tracker.pick(people)
-                        kps = [] if agent is None else [
-                            Keypoint2D(id=int(kid), x=float(u), y=float(v), confidence=float(c))
-                            for kid, (u, v), c in zip(agent.ids, agent.uv, agent.confidence) if c > 0]
-                        summary.with_agent += int(bool(kps))
-                        out.write(topics.cmc_keypoints_topic(ref.name), AgentKeypoints(
-                            header=header, camera_name=ref.name, keypoints=kps), stamp)
+                        summary.with_agent += int(bool(_write_keypoints(
+                            out, ref.name, header, *((agent.ids, agent.uv, agent.confidence) if agent else ([],) * 3))))
                     if progress:
                         progress(k + n / max(len(indices), 1), len(s.cameras))
                 summary.others = tracker.others
                 summaries.append(summary)
-    except BagError as exc:
-        raise MultiviewImportError(str(exc)) from None
-    except MultiviewImportError:
-        import shutil
-
-        shutil.rmtree(bag, ignore_errors=True)      # no half recording left behind
-        raise
     finally:
         for v in streams:
             v.close()
     return ImportSummary(bag, rate, summaries)
 
+def read_caliscope_keypoints(path) -> dict[int, list[tuple[float, np.ndarray, np.ndarray]]]:
+    """caliscope's xy_<TRACKER>.csv: {camera id: [(frame_time s, point ids, uv (N, 2)) per
+    frame, in time order]}."""
+    import csv
+
+    path = Path(path)
+    if not path.is_file():
+        raise MultiviewImportError(f"{path}: no such keypoint table")
+    with path.open(newline="", errors="replace") as f:
+        rows = csv.reader(f)
+        head = next(rows, [])
+        cam_col = "cam_id" if "cam_id" in head else "port"
+        need = [cam_col, "frame_index", "frame_time", "point_id", "img_loc_x", "img_loc_y"]
+        missing = [c for c in need if c not in head]
+        if missing:
+            raise MultiviewImportError(f"{path}: no column {', '.join(missing)} (not a caliscope xy_*.csv table; "
+                                       f"its header: {', '.join(head) or 'empty'})")
+        col = [head.index(c) for c in need]
+        try:
+            table = np.array([[float(r[c]) for c in col] for r in rows if r], dtype=float).reshape(-1, len(need))
+        except (ValueError, IndexError) as exc:
+            raise MultiviewImportError(f"{path}: a row that is not numbers ({exc})") from None
+    if not np.isfinite(table).all():
+        raise MultiviewImportError(f"{path}: a row with a missing or non-finite value")
+    out: dict[int, list] = {}
+    for cam_id in np.unique(table[:, 0]).astype(int):
+        mine = table[table[:, 0] == cam_id]
+        frames = []
+        for index in np.unique(mine[:, 1]):
+            rows_ = mine[mine[:, 1] == index]
+            frames.append((float(rows_[0, 2]), rows_[:, 3].astype(int), rows_[:, 4:6]))
+        out[int(cam_id)] = sorted(frames, key=lambda fr: fr[0])
+    return out
+
+
+def _caliscope_calibration(xy_csv: Path) -> Path:
+    """The session's config.toml or camera_array.toml, in the table's folder or above it."""
+    for folder in xy_csv.resolve().parents:
+        for name in ("camera_array.toml", "config.toml"):
+            if (folder / name).is_file():
+                return folder / name
+    raise MultiviewImportError(f"{xy_csv}: no config.toml or camera_array.toml in its folder or above "
+                               "(give --calibration)")
+
+
+def import_caliscope(xy_csv, bag, calibration=None, progress=None) -> ImportSummary:
+    """Write a caliscope recording (see the module docstring) as a recording: per camera and
+    frame CameraInfo and AgentKeypoints stamped by the frame's capture time."""
+    from std_msgs.msg import Header
+
+    from yowo_common import topics
+    from yowo_cmc.pose_model import ID_OFFSET
+    from yowo_common.rosconv import model_to_camera_info, ns_to_time
+
+    xy_csv = Path(xy_csv)
+    frames = read_caliscope_keypoints(xy_csv)
+    calib = Path(calibration) if calibration else _caliscope_calibration(xy_csv)
+    refs = read_caliscope_calibration(calib)
+    unknown = sorted(set(frames) - set(refs))
+    if unknown:
+        raise MultiviewImportError(f"{xy_csv}: keypoints of camera(s) {unknown}, which {calib} does not pose")
+    t0 = min(fr[0][0] for fr in frames.values())
+    n_pose = len(format_joints(BLAZEPOSE))
+    bag, summaries = Path(bag), []
+    with _recording(bag, list(refs.values())) as out:
+        for k, (cam_id, ref) in enumerate(sorted(refs.items())):
+            summary = CameraSummary(ref.name, xy_csv.name, None)
+            cam = ref.camera
+            for n, (t, ids, uv) in enumerate(frames.get(cam_id, [])):
+                stamp = START_NS + round((t - t0) * 1e9)
+                header = Header(stamp=ns_to_time(stamp), frame_id=f"{ref.name}_optical_frame")
+                out.write(topics.cmc_info_topic(ref.name), model_to_camera_info(cam, header), stamp)
+                body = (ids >= 0) & (ids < n_pose)
+                pose_uv, pose_conf = np.zeros((n_pose, 2)), np.zeros(n_pose)
+                pose_uv[ids[body]], pose_conf[ids[body]] = uv[body], 1.0      # caliscope keeps no confidence
+                person = person_pose(pose_uv, pose_conf, BLAZEPOSE, cam.width, cam.height)
+                extra = ~body & (ids >= n_pose)
+                summary.frames += 1
+                summary.with_agent += int(bool(_write_keypoints(
+                    out, ref.name, header, np.concatenate([person.ids, ids[extra] + ID_OFFSET]),
+                    np.vstack([person.uv, uv[extra]]), np.concatenate([person.confidence, np.ones(extra.sum())]))))
+                if progress:
+                    progress(k + n / max(len(frames.get(cam_id, [])), 1), len(refs))
+            summaries.append(summary)
+    periods = [np.median(np.diff([fr[0] for fr in f])) for f in frames.values() if len(f) > 1]
+    return ImportSummary(bag, 1.0 / float(np.median(periods)) if periods else float("nan"), summaries)
+
 
 def cmd_import_multiview(args) -> int:
     from .progress import with_progress
 
-    s = with_progress(lambda progress: import_multiview(args.session, args.output, args.calibration,
-                                                        args.keypoint_format, args.videos, args.fps,
-                                                        args.max_frames, progress=progress))
+    if str(args.session).lower().endswith(".csv"):
+        s = with_progress(lambda progress: import_caliscope(args.session, args.output, args.calibration,
+                                                            progress=progress))
+    else:
+        s = with_progress(lambda progress: import_multiview(args.session, args.output, args.calibration,
+                                                            args.keypoint_format, args.videos, args.fps,
+                                                            args.max_frames, progress=progress))
     print(f"wrote {s.bag}: {len(s.cameras)} cameras at {s.fps:g} frames/s, reference poses on /gt/cmc/<name>/pose")
     for c in s.cameras:
         src = ", ".join(x for x in (c.keypoints_from and f"keypoints {c.keypoints_from}",
@@ -457,10 +632,13 @@ def cmd_import_multiview(args) -> int:
 
 def add_verbs(verbs) -> None:
     p = verbs.add_parser("import-multiview", help="convert a multi-camera recording of a person (OpenPose JSON "
-                                                  "keypoints, Pose2Sim calibration TOML, videos) into a recording")
-    p.add_argument("session", help="the folder: pose/<camera>_json/*.json, Calib*.toml (or calibration/), videos/")
+                                                  "keypoints, Pose2Sim calibration TOML, videos; or a caliscope "
+                                                  "xy_*.csv with its config.toml) into a recording")
+    p.add_argument("session", help="the folder: pose/<camera>_json/*.json, Calib*.toml (or calibration/), videos/; "
+                                   "or caliscope's xy_<TRACKER>.csv")
     p.add_argument("-o", "--output", required=True, help="the rosbag2 (MCAP) recording to write")
-    p.add_argument("--calibration", help="the reference calibration TOML (default: Calib*.toml in the folder)")
+    p.add_argument("--calibration", help="the reference calibration TOML (default: Calib*.toml in the folder; "
+                                         "caliscope: camera_array.toml or config.toml beside the table or above)")
     p.add_argument("--keypoint-format", default="BODY_25B", choices=all_formats(),
                    help="the joints of pose_keypoints_2d (Pose2Sim's pose_model)")
     p.add_argument("--videos", action="store_true", help="also import videos/* as the CMC images (JPEG)")
