@@ -151,22 +151,40 @@ def _coarse_cost(pair: _Pair, delta: float, params: ClockParams, sfm: SfmParams,
     return best
 
 
-def _fine_shifts(pair: _Pair, grid: np.ndarray, params: ClockParams, sfm: SfmParams, thr_px: float) -> list[int]:
-    """Indices into the coarse grid where the full cost is worth evaluating: within one
-    search step of the search_candidates best shifts of the cheap fit (all with none)."""
-    if params.search_candidates <= 0:
-        return list(range(len(grid)))
+def _cheap_curve(pair: _Pair, grid: np.ndarray, params: ClockParams, sfm: SfmParams, thr_px: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """(indices into the grid, cost there): the cheap fit every search step."""
     every = max(1, round(params.search_step_frames / params.coarse_step_frames))
     cheap = replace(params, coarse_iterations=params.search_iterations, coarse_points=params.search_points)
     coarse = np.arange(0, len(grid), every)
-    cost = np.array([_coarse_cost(pair, grid[k], cheap, sfm, thr_px)[0] for k in coarse])
+    return coarse, np.array([_coarse_cost(pair, grid[k], cheap, sfm, thr_px)[0] for k in coarse])
+
+
+def _fine_shifts(coarse: np.ndarray, cost: np.ndarray, grid_size: int, params: ClockParams) -> list[int]:
+    """Indices into the coarse grid where the full cost is worth evaluating: within one
+    search step of the search_candidates best shifts of the cheap curve."""
+    every = max(1, round(params.search_step_frames / params.coarse_step_frames))
     picked: list[int] = []
     for r in np.argsort(cost, kind="stable"):
         if not np.isfinite(cost[r]) or len(picked) == params.search_candidates:
             break
         if all(abs(coarse[r] - j) > every for j in picked):
             picked.append(int(coarse[r]))
-    return sorted({j for k in picked for j in range(max(0, k - every), min(len(grid), k + every + 1))})
+    return sorted({j for k in picked for j in range(max(0, k - every), min(grid_size, k + every + 1))})
+
+
+def prominence(cost: np.ndarray) -> float:
+    """How far the cost curve's minimum lies below its median, in units of the curve's
+    own shift-to-shift noise (robust sigma of its successive differences / sqrt 2). A
+    curve with no true minimum (an agent that barely moves, keypoints noisier than the
+    motion between shifts) still has a lowest point; pure noise over ~150 shifts dips
+    about 3 noise levels below its median."""
+    c = cost[np.isfinite(cost)]
+    if len(c) < 5:
+        return float("nan")
+    d = np.diff(c)
+    noise = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(2.0)
+    return float((np.median(c) - c.min()) / max(noise, 1e-12))
 
 
 def _signed_sampson(F: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
@@ -238,12 +256,18 @@ def estimate_pair(a: _Tracks, b: _Tracks, params: ClockParams, sfm: SfmParams) -
     step = params.coarse_step_frames * min(a.period_s, b.period_s)
     grid = np.arange(-params.max_offset_s, params.max_offset_s + 0.5 * step, step)
     costs = [(np.inf, None)] * len(grid)
-    for k in _fine_shifts(pair, grid, params, sfm, thr):
+    coarse, cheap = _cheap_curve(pair, grid, params, sfm, thr)
+    for k in _fine_shifts(coarse, cheap, len(grid), params) if params.search_candidates > 0 else range(len(grid)):
         costs[k] = _coarse_cost(pair, grid[k], params, sfm, thr)
     best = int(np.argmin([c for c, _ in costs]))
     if not np.isfinite(costs[best][0]):
         return PairOffset(a.name, b.name, None, None, 0, None,
                           reason=f"fewer than {params.min_correspondences} co-visible samples at every shift")
+    dip = prominence(cheap)     # the cheap curve: evenly spaced, whatever the search evaluates in full
+    if not dip >= params.min_prominence:
+        return PairOffset(a.name, b.name, None, None, 0, None,
+                          reason=f"no clear minimum over the shifts (the best, {grid[best]:+.3f} s, is {dip:.1f} noise "
+                                 f"levels below the median cost; needs {params.min_prominence:g})")
     if best in (0, len(grid) - 1):
         return PairOffset(a.name, b.name, None, None, 0, None,
                           reason=f"the best shift is at the edge of the search range (+-{params.max_offset_s:g} s): "

@@ -91,6 +91,12 @@ class ClockParams:
     search_step_frames: float = 1.0     # in frame periods of the faster camera (a multiple of coarse_step_frames)
     search_iterations: int = 50
     search_points: int = 60
+    # A pair's best shift counts only if it stands this many noise levels below the median
+    # cost (clock.prominence). Real recordings of a seated person (caliscope's 4-camera
+    # demo, stamps from one host clock): 2.7-8.2, with spurious offsets of 0.1-0.96 s that
+    # cost the group 5.4 -> 18 % of the mean baseline; Pose2Sim's demo 18.7-41; the
+    # simulator's walks 9.7-17.5.
+    min_prominence: float = 6.0
     truncate_px: float = 3.0            # coarse cost: Sampson error truncated here (x the pair's noise scale)
     huber_px: float = 1.0               # refinement: Huber loss scale (x the pair's noise scale)
     # A pair's sigma from the curvature assumes independent residuals, with their spread;
