@@ -76,6 +76,19 @@ def test_a_two_camera_groups_refined_offset_has_an_honest_sigma():
     assert 0.5 < np.sqrt(np.mean(np.square(normalised))) < 1.3, normalised
 
 
+def test_an_agent_that_barely_moves_gives_no_offset():
+    """An agent swaying 2 cm on the spot, keypoints with 2 px noise: no shift fits clearly
+    better than the others (caliscope's seated person). Without the prominence check the
+    cost curve's lowest dip became offsets that are wrong by 70-800 ms."""
+    raw = views(OFFSETS, sigma_px=2.0, seed=1, walk=loop_walk((3.0, 2.5), (0.02, 0.02)))
+    est = estimate_clock_offsets(raw)
+    assert all(p.offset_s is None and p.reason.startswith("no clear minimum over the shifts") for p in est.pairs)
+    assert all(c.offset_s is None for c in est.cameras.values())
+    unchecked = estimate_clock_offsets(raw, ClockParams(min_prominence=0.0))
+    wrong = [abs(p.offset_s - (OFFSETS[p.b] - OFFSETS[p.a])) for p in unchecked.pairs if p.offset_s is not None]
+    assert wrong and max(wrong) > 0.05, wrong
+
+
 def test_camera_that_never_coobserves_has_no_estimate():
     cams = {**{k: CAMS[k] for k in "abc"}, "iso": ceiling_camera(20.3, 0.3, (22.5, 2.5))}
 
