@@ -151,10 +151,15 @@ def _coarse_cost(pair: _Pair, delta: float, params: ClockParams, sfm: SfmParams,
     return best
 
 
+def _search_every(params: ClockParams) -> int:
+    """The search step in steps of the coarse grid."""
+    return max(1, round(params.search_step_frames / params.coarse_step_frames))
+
+
 def _cheap_curve(pair: _Pair, grid: np.ndarray, params: ClockParams, sfm: SfmParams, thr_px: float
                  ) -> tuple[np.ndarray, np.ndarray]:
     """(indices into the grid, cost there): the cheap fit every search step."""
-    every = max(1, round(params.search_step_frames / params.coarse_step_frames))
+    every = _search_every(params)
     cheap = replace(params, coarse_iterations=params.search_iterations, coarse_points=params.search_points)
     coarse = np.arange(0, len(grid), every)
     return coarse, np.array([_coarse_cost(pair, grid[k], cheap, sfm, thr_px)[0] for k in coarse])
@@ -163,7 +168,7 @@ def _cheap_curve(pair: _Pair, grid: np.ndarray, params: ClockParams, sfm: SfmPar
 def _fine_shifts(coarse: np.ndarray, cost: np.ndarray, grid_size: int, params: ClockParams) -> list[int]:
     """Indices into the coarse grid where the full cost is worth evaluating: within one
     search step of the search_candidates best shifts of the cheap curve."""
-    every = max(1, round(params.search_step_frames / params.coarse_step_frames))
+    every = _search_every(params)
     picked: list[int] = []
     for r in np.argsort(cost, kind="stable"):
         if not np.isfinite(cost[r]) or len(picked) == params.search_candidates:
@@ -182,8 +187,7 @@ def prominence(cost: np.ndarray) -> float:
     c = cost[np.isfinite(cost)]
     if len(c) < 5:
         return float("nan")
-    d = np.diff(c)
-    noise = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(2.0)
+    noise = robust_sigma(np.diff(c)[:, None]) / np.sqrt(2.0)
     return float((np.median(c) - c.min()) / max(noise, 1e-12))
 
 

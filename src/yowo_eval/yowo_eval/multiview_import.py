@@ -544,14 +544,11 @@ def read_caliscope_keypoints(path) -> dict[int, list[tuple[float, np.ndarray, np
     if not np.isfinite(table).all():
         raise MultiviewImportError(f"{path}: a row with a missing or non-finite value")
     out: dict[int, list] = {}
-    for cam_id in np.unique(table[:, 0]).astype(int):
-        mine = table[table[:, 0] == cam_id]
-        frames = []
-        for index in np.unique(mine[:, 1]):
-            rows_ = mine[mine[:, 1] == index]
-            frames.append((float(rows_[0, 2]), rows_[:, 3].astype(int), rows_[:, 4:6]))
-        out[int(cam_id)] = sorted(frames, key=lambda fr: fr[0])
-    return out
+    table = table[np.lexsort((table[:, 1], table[:, 0]))]        # by camera, then frame
+    starts = np.flatnonzero(np.r_[True, np.any(np.diff(table[:, :2], axis=0) != 0, axis=1)])
+    for rows in np.split(table, starts[1:]):
+        out.setdefault(int(rows[0, 0]), []).append((float(rows[0, 2]), rows[:, 3].astype(int), rows[:, 4:6]))
+    return {cam_id: sorted(frames, key=lambda fr: fr[0]) for cam_id, frames in out.items()}
 
 
 def _caliscope_calibration(xy_csv: Path) -> Path:
@@ -595,7 +592,7 @@ def import_caliscope(xy_csv, bag, calibration=None, progress=None) -> ImportSumm
                 pose_uv, pose_conf = np.zeros((n_pose, 2)), np.zeros(n_pose)
                 pose_uv[ids[body]], pose_conf[ids[body]] = uv[body], 1.0      # caliscope keeps no confidence
                 person = person_pose(pose_uv, pose_conf, BLAZEPOSE, cam.width, cam.height)
-                extra = ~body & (ids >= n_pose)
+                extra = ids >= n_pose
                 summary.frames += 1
                 summary.with_agent += int(bool(_write_keypoints(
                     out, ref.name, header, np.concatenate([person.ids, ids[extra] + ID_OFFSET]),
