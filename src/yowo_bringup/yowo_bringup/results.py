@@ -71,7 +71,7 @@ def keypoint_noise_entry(group: CameraGroupResult | None) -> dict:
     """The per-keypoint-id pixel noise the camera's group bundle adjustment estimated."""
     if group is None or not group.sigma_px_by_id:
         why = ("the camera is in no group" if group is None else
-               f"group {group.group_id}'s bundle adjustment estimated none (cmc.sfm.per_id_sigma off, or too few "
+               f"group {group.group_id}'s bundle adjustment estimated none (cmc.sfm.class_sigma off, or too few "
                "observations per id)")
         return {"keypoint_noise": None, "keypoint_noise_note": f"not estimated: {why}"}
     sigma = dict(sorted(group.sigma_px_by_id.items()))

@@ -322,7 +322,9 @@ class IncrementalSfm:
     def _views(self, key: int) -> list[int]:
         return [c for c in self.poses if key in self.obs.per_camera[c]]
 
-    def triangulate_new(self) -> None:
+    def triangulate_new(self, gate_px: float | None = None) -> None:
+        """Triangulate the keys seen by >= 2 posed cameras that have no point yet, each kept if
+        it reprojects within gate_px (default max_reproj_px) times the cameras' noise scale."""
         candidates = set().union(*(self.obs.per_camera[c].keys() for c in self.poses)) - set(self.points)
         for key in candidates:
             views = self._views(key)
@@ -333,14 +335,15 @@ class IncrementalSfm:
             uvs = [self.obs.per_camera[c][key] for c in views]
             X = triangulate(cams, poses, uvs)
             scales = [self.obs.noise_scale[c] for c in views]
-            if np.isfinite(X).all() and self._acceptable(X, cams, poses, uvs, scales):
+            if np.isfinite(X).all() and self._acceptable(X, cams, poses, uvs, scales, gate_px):
                 self.points[key] = X
 
-    def _acceptable(self, X, cams, poses, uvs, scales) -> bool:
+    def _acceptable(self, X, cams, poses, uvs, scales, gate_px: float | None = None) -> bool:
+        gate_px = self.params.max_reproj_px if gate_px is None else gate_px
         rays = []
         for cam, T, uv, scale in zip(cams, poses, uvs, scales):
             proj, front = cam.project_world(T, X[None])
-            if not front[0] or np.linalg.norm(proj[0] - uv) > self.params.max_reproj_px * scale:
+            if not front[0] or np.linalg.norm(proj[0] - uv) > gate_px * scale:
                 return False
             rays.append((X - T[:3, 3]) / np.linalg.norm(X - T[:3, 3]))
         cos = max(abs(float(r1 @ r2)) for i, r1 in enumerate(rays) for r2 in rays[i + 1:])
@@ -425,11 +428,14 @@ class IncrementalSfm:
         return {"obs": obs, "residuals": res.residuals_px, "cams": cams, "keys": keys}
 
 
-def residual_sigmas(ba: dict) -> dict[int, float]:
-    """{keypoint id: robust sigma px} from a bundle adjustment's residuals (ids with 10 or more)."""
+def residual_sigmas(ba: dict, class_bounds: tuple[int, ...]) -> dict[int, float]:
+    """{keypoint id: robust sigma px} from a bundle adjustment's residuals, pooled over each
+    keypoint class (ids split at class_bounds; classes with 10 or more residuals)."""
     kp_ids = ba["keys"][ba["obs"].point] % MAX_IDS
-    return {int(i): max(robust_sigma(ba["residuals"][kp_ids == i]), 0.05)
-            for i in np.unique(kp_ids) if np.sum(kp_ids == i) >= 10}
+    classes = np.searchsorted(np.asarray(class_bounds, dtype=np.int64), kp_ids, side="right")
+    sigma = {int(k): max(robust_sigma(ba["residuals"][classes == k]), 0.05)
+             for k in np.unique(classes) if np.sum(classes == k) >= 10}
+    return {int(i): sigma[int(k)] for i, k in zip(*np.unique(np.stack([kp_ids, classes]), axis=1)) if int(k) in sigma}
 
 
 def reconstruct_group(obs: GridObservations, members: list[int], pairs: list[PairGeometry], group_id: str,
@@ -453,14 +459,15 @@ def reconstruct_group(obs: GridObservations, members: list[int], pairs: list[Pai
             sfm.failed[c] = f"sees fewer than {params.min_pnp} of the group's triangulated agent points"
     if len(sfm.points) < params.min_pnp:
         return None, {c: f"the initial pair triangulated only {len(sfm.points)} agent points" for c in members}
-    # Robust BA rounds; after each, every keypoint id's sigma from its residuals (variance
+    # Robust BA rounds; after each, every keypoint class's sigma from its residuals (variance
     # component estimation).
     sigma_by_id: dict[int, float] = {}
-    for round_ in range(max(params.sigma_rounds, 2) if params.per_id_sigma else 1):
+    for round_ in range(max(params.sigma_rounds, 2) if params.class_sigma else 1):
         if round_:
-            sfm.triangulate_new()  # points rejected under the pre-BA poses get a second chance
+            # Points rejected under the pre-BA poses get a second chance, at the wider gate.
+            sfm.triangulate_new(params.rounds_reproj_px)
         ba = sfm.bundle_adjust(init.a, init.b, sigma_by_id)
-        previous, sigma_by_id = sigma_by_id, residual_sigmas(ba)
+        previous, sigma_by_id = sigma_by_id, residual_sigmas(ba, params.sigma_class_bounds)
         if previous and all(abs(sigma_by_id.get(i, v) / v - 1) <= params.sigma_tolerance for i, v in previous.items()):
             break
     res, o = ba["residuals"], ba["obs"]

@@ -43,16 +43,27 @@ class SfmParams:
     # camera with most 2D-3D matches, one sigma for every keypoint id.
     min_init_fraction: float = 0.5      # of the initial pair's inliers that must triangulate
     overlap_ordering: bool = True
-    per_id_sigma: bool = True
-    # Variance component estimation: robust BA rounds, each weighting a keypoint id by the
-    # residual spread of the previous round (real pose keypoints: 1-18 px by id on Pose2Sim's
-    # demo, face lowest, wrists and hips highest). One re-estimate (2 rounds) keeps weights
-    # from the first, equally weighted round's residuals, which the noisy ids inflate for
-    # all; stop early once no sigma moves by more than sigma_tolerance. (Pose2Sim's demo,
-    # OpenPose keypoints, clocks as recorded: 1.09 % of the mean baseline / 0.99 deg with 2
-    # rounds, 0.63 % / 0.83 deg with 4; a factor per camera on top measured worse, 0.97 %.)
+    class_sigma: bool = True
+    # Variance component estimation: robust BA rounds, each weighting a keypoint class by the
+    # residual spread of the previous round. Real pose keypoints differ in noise by class (face
+    # ~1 px, body 3-12 px, hands 5-27 px between views). A sigma per id measured better on a
+    # moving person (Pose2Sim's demo 0.76 % of the mean baseline against 1.10 % per class) but
+    # on a seated one an id's errors are the same view-dependent bias in every frame, its sigma
+    # rests on a few numbers, and ids that happen to fit a wrong pose gain weight and pull it
+    # further (caliscope's demo: 6.75 % per id, 1.67 % per class). Classes split at these ids:
+    # 0 derived head top, 1 derived ground point, 2-99 body joints, 100-499 hands, >= 500 face
+    # (docs/pose_model.md and README "Real multi-camera recordings"). One re-estimate (2 rounds) keeps
+    # weights from the first, equally weighted round's residuals, which the noisy classes
+    # inflate for all; stop early once no sigma moves by more than sigma_tolerance.
+    sigma_class_bounds: tuple[int, ...] = (1, 2, 100, 500)
     sigma_rounds: int = 4
     sigma_tolerance: float = 0.05
+    # Triangulation gate (px, times the noise scale) for points re-tried in the rounds after the
+    # first BA: wider than max_reproj_px, which guards the incremental registration against
+    # outliers (a 9-12 px gate there broke the model-free detector's group on small normal s0).
+    # Real keypoints' view-dependent errors are 10-25 px: with 6 px the rounds keep only the
+    # views that agree with the current poses. caliscope 2.22 -> 1.67 %, Pose2Sim 1.30 -> 1.10 %.
+    rounds_reproj_px: float = 9.0
     # Our addition to the paper's edge rule: an edge's inliers must also cover both
     # images (eq. overlap of each side >= this). A camera that sees the agent only
     # through a doorway shares many matches with the next room's cameras, all in one

@@ -63,7 +63,7 @@ RELATIVE_METHODS = {
     # E-matrix pair with the most inliers, PnP in order of matches, one BA with one
     # sigma; no overlap scores (neither for ordering nor for the edge rule).
     "ECCMP-style": ("keypoints", lambda tracks, cmc: calibrate_groups(
-        tracks, replace(cmc.sfm, overlap_ordering=False, per_id_sigma=False, min_edge_overlap=0.0))),
+        tracks, replace(cmc.sfm, overlap_ordering=False, class_sigma=False, min_edge_overlap=0.0))),
     # Factor graph over the person keypoints from a pairwise initialisation with a
     # person-height scale prior (yowo_eval.omecc_style); YOWO's grouping.
     "OMECC-style": ("keypoints", lambda tracks, cmc: calibrate_groups_omecc(tracks)),
