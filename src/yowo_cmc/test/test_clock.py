@@ -89,6 +89,21 @@ def test_an_agent_that_barely_moves_gives_no_offset():
     assert wrong and max(wrong) > 0.05, wrong
 
 
+def test_a_clock_no_pair_pins_is_not_refined():
+    """The group refinement corrects clocks the pairs estimated; it does not create offsets
+    where every pair of a camera found no clear minimum (a seated person's view-dependent
+    keypoint errors then look like a 2-5 sigma offset). Offsets of 30-60 ms, within the
+    refinement's reach: found when the pairs pin them, kept at 0 when no pair counts."""
+    small = {"a": 0.0, "b": 0.031, "c": -0.047, "d": 0.058}
+    raw = views(small, sigma_px=1.0)
+    (pinned,) = calibrate_cmcs(raw).groups
+    truth = {n: small[n] - small[pinned.reference] for n in CAMS}
+    assert all(abs(pinned.clock_offsets_s[n] - truth[n]) < 5e-3 for n in CAMS), (pinned.clock_offsets_s, truth)
+    refused = replace(CmcParams(), clock=replace(ClockParams(), min_prominence=1e9))
+    (unpinned,) = calibrate_cmcs(raw, refused).groups
+    assert all(v == 0.0 for v in unpinned.clock_offsets_s.values()), unpinned.clock_offsets_s
+
+
 def test_camera_that_never_coobserves_has_no_estimate():
     cams = {**{k: CAMS[k] for k in "abc"}, "iso": ceiling_camera(20.3, 0.3, (22.5, 2.5))}
 
