@@ -68,16 +68,16 @@ def intrinsics_entry(camera: CameraModel | None) -> dict:
 
 
 def keypoint_noise_entry(group: CameraGroupResult | None) -> dict:
-    """The per-keypoint-id pixel noise the camera's group bundle adjustment estimated."""
+    """The pixel noise the camera's group bundle adjustment estimated (one per keypoint class, listed per id)."""
     if group is None or not group.sigma_px_by_id:
         why = ("the camera is in no group" if group is None else
                f"group {group.group_id}'s bundle adjustment estimated none (cmc.sfm.class_sigma off, or too few "
-               "observations per id)")
+               "observations per keypoint class)")
         return {"keypoint_noise": None, "keypoint_noise_note": f"not estimated: {why}"}
     sigma = dict(sorted(group.sigma_px_by_id.items()))
     values = np.array(list(sigma.values()))
     return {"keypoint_noise": {
-        "estimated_by": f"group {group.group_id} bundle adjustment (shared by its cameras)",
+        "estimated_by": f"group {group.group_id} bundle adjustment, one sigma per keypoint class (shared by its cameras)",
         "sigma_px_by_keypoint_id": {int(i): round(float(v), 4) for i, v in sigma.items()},
         "median_px": round(float(np.median(values)), 4), "min_px": round(float(values.min()), 4),
         "max_px": round(float(values.max()), 4)}}
