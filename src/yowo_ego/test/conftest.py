@@ -56,6 +56,12 @@ def dark_noise(frame, rng):
 
 
 @pytest.fixture(scope="session")
+def darken():
+    """`dark_noise` for tests that darken frames of their own."""
+    return dark_noise
+
+
+@pytest.fixture(scope="session")
 def dark_walk(tiny_bag):
     """(recording with its IMU samples, frames, the dark frames' indices) of the tiny walk
     with frames 60-67 (0.53 s) replaced by `dark_noise`: nothing to track there."""

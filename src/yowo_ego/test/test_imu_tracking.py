@@ -15,6 +15,7 @@ from yowo_common.ros.bag import BagWriter, list_topics, read_messages
 from yowo_common.rosconv import stamp_to_ns
 from yowo_common.trajectory import Trajectory
 from yowo_ego.imu import CoverageWait, ImuBuffer, ImuCalibration, ImuSamples
+from yowo_ego.odometry import INTERPOLATED, SKIPPED
 from yowo_ego.pipeline import EgoParams, map_recording
 from yowo_ego.recording import (COLOR_TOPICS, DEPTH_TOPICS, INFO_TOPIC, map_bag)
 from yowo_eval.evaluation import ate
@@ -238,7 +239,10 @@ def test_node_waits_for_the_imu_covering_each_frame(imu_node, tiny_bag):
     # All released: tracked, but the newest, which is being prepared while the one before is tracked.
     assert len(node.preparing) <= 1
     assert node.published["/yowo/ego/odometry"] + len(node.preparing) >= 29
-    assert node.mapper.tracker.imu_frames == len(node.mapper.tracker.results) - 1     # all but the first frame
+    # Every frame tracked after the first used the gyro; it also let slow frames be skipped
+    # (OdometryParams.skip, only with the IMU).
+    tracked = sum(r.status not in (SKIPPED, INTERPOLATED) for r in node.mapper.tracker.results)
+    assert node.mapper.tracker.imu_frames == tracked - 1 and tracked < len(node.mapper.tracker.results)
     assert node.wait.released_without == 0
 
 
@@ -266,5 +270,7 @@ def test_use_imu_off_equals_a_recording_without_imu(tiny_bag, tmp_path):
     assert off.stats["imu_frames"] == 0 and none.stats["imu_frames"] == 0
     np.testing.assert_array_equal(off.trajectories["odometry"], none.trajectories["odometry"])
     on, _ = map_bag(tiny_bag)
-    assert on.stats["imu_frames"] == len(on.stamps_ns) - 1
+    # Every frame tracked after the first used the gyro (the others were skipped: OdometryParams.skip).
+    assert on.stats["skipped_frames"] > 0
+    assert on.stats["imu_frames"] == len(on.stamps_ns) - 1 - on.stats["skipped_frames"]
     assert not np.array_equal(on.trajectories["odometry"], off.trajectories["odometry"])

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
 
 from nav_msgs.msg import Odometry, Path
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
@@ -30,6 +31,17 @@ MAX_EARLY_FRAMES = 30  # frames kept while waiting for the first CameraInfo
 # Online odometry is expressed in the first ego camera's optical frame: gravity and
 # the map frame are only known once the floor has been found at the end of the walk.
 ODOM_FRAME, EGO_FRAME = "odom", "ego_optical_frame"
+
+
+@dataclass
+class _Queued:
+    """An admitted frame pair waiting for tracking: being prepared ahead (``future``), or
+    not (predicted to be skipped: prepared only should it be tracked after all)."""
+
+    stamp_ns: int
+    color_msg: object
+    depth_msg: object
+    future: Future | None
 
 
 class EgoMapperNode(StageNode):
@@ -53,9 +65,10 @@ class EgoMapperNode(StageNode):
         self.pairer = StampPairer()
         # Decoding, undistorting and downsampling a frame (EgoMapper.prepare) on a thread of its
         # own overlaps the previous frame's tracking (OpenCV and Open3D release the GIL);
-        # tracking stays in stamp order.
+        # tracking stays in stamp order. A frame predicted to be skipped (slow motion,
+        # ego.odometry.skip) is not prepared unless it is tracked after all.
         self.preparer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ego_prepare")
-        self.preparing: deque[Future] = deque()
+        self.preparing: deque[_Queued] = deque()
         self.logged_problems: set[str] = set()
         self.pub_odom = self.output(Odometry, topics.EGO_ODOMETRY)
         self.pub_map = self.output(EgoMap, topics.EGO_MAP, LATCHED)
@@ -107,29 +120,54 @@ class EgoMapperNode(StageNode):
         if self.mapper is None:
             self.early = (self.early + list(pairs))[-MAX_EARLY_FRAMES:]
             return
-        for pair in pairs:
-            self.preparing.append(self.preparer.submit(self._prepare, *pair))
+        for stamp, color_msg, depth_msg in pairs:
+            try:
+                self.mapper.admit(stamp, self.color_topic)
+            except FrameError as exc:
+                self._log_problem(exc)
+                continue
+            # Whether it will be skipped is known for certain only once the frames before it are
+            # tracked; the prediction decides only whether it is prepared ahead.
+            ahead = not self.mapper.skips(stamp, tuple(q.stamp_ns for q in self.preparing))
+            future = self.preparer.submit(self._prepare, stamp, color_msg, depth_msg) if ahead else None
+            self.preparing.append(_Queued(stamp, color_msg, depth_msg, future))
         self._track_prepared(keep=1)
 
     def _prepare(self, stamp: int, color_msg, depth_msg):
-        """On the preparing thread: decoded, checked, undistorted, odometry images made (EgoMapper.prepare)."""
+        """Decoded, checked, undistorted, odometry images made (EgoMapper.prepare): on the
+        preparing thread, or on this one for a frame not prepared ahead."""
         color = self._decode(self.color_topic, color_msg, decode_color, stamp)
         depth = self._decode(self.depth_topic, depth_msg, decode_depth, stamp)
-        return self.mapper.prepare(stamp, color, depth, self.color_topic, self.depth_topic)
+        return self.mapper.prepare(stamp, color, depth, self.color_topic, self.depth_topic, admitted=True)
+
+    def _prepared(self, queued: _Queued):
+        if queued.future is not None:
+            return queued.future.result()
+        return self._prepare(queued.stamp_ns, queued.color_msg, queued.depth_msg)
+
+    def _log_problem(self, exc: FrameError) -> None:
+        """Counted (reported in the final status); logged the first time it happens."""
+        if exc.key not in self.logged_problems:
+            self.logged_problems.add(exc.key)
+            self.get_logger().warning(f"{exc}; further frames with this problem are only counted")
 
     def _track_prepared(self, keep: int) -> None:
-        """Track the prepared frames in order, all but the newest ``keep`` (still being
-        prepared while the one before is tracked)."""
+        """Track (or skip) the queued frames in order, all but the newest ``keep`` (still
+        being prepared while the one before is tracked); publish the odometry of every
+        frame settled (a skipped frame's once the next is tracked)."""
         while len(self.preparing) > keep:
-            try:
-                frame = self.preparing.popleft().result()
-            except FrameError as exc:
-                # Counted (reported in the final status); logged the first time it happens.
-                if exc.key not in self.logged_problems:
-                    self.logged_problems.add(exc.key)
-                    self.get_logger().warning(f"{exc}; further frames with this problem are only counted")
+            queued = self.preparing.popleft()
+            if self.mapper.skips(queued.stamp_ns):
+                self.mapper.skip(queued.stamp_ns, lambda q=queued: self._prepared(q))
                 continue
-            self.pub_odom.publish(self._odometry(self.mapper.track(frame)))
+            try:
+                frame = self._prepared(queued)
+            except FrameError as exc:
+                self._log_problem(exc)
+                continue
+            self.mapper.track(frame)
+            for result in self.mapper.settled():
+                self.pub_odom.publish(self._odometry(result))
 
     def _decode(self, topic: str, msg, decode, stamp_ns: int):
         try:
@@ -151,7 +189,9 @@ class EgoMapperNode(StageNode):
         self.preparer.shutdown()
         if self.mapper is None:
             raise ValueError(self.info_problem or f"no usable {self.info_topic} received; no ego map")
-        r = self.mapper.finish()
+        r = self.mapper.finish()                 # tracks a skipped frame that ends the walk
+        for result in self.mapper.settled():
+            self.pub_odom.publish(self._odometry(result))
         self.pub_map.publish(ego_map_msg(r))
         self.pub_path.publish(path_msg(r.stamps_ns, r.T_world_cam))
         self.pub_cloud.publish(cloud_msg(r))

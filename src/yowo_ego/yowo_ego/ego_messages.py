@@ -11,11 +11,12 @@ from yowo_common.rosconv import (array_to_points, matrix_to_pose, model_to_camer
                                  xyz_rgb_to_pointcloud2)
 
 from .layout import Layout
-from .odometry import IMU_BRIDGED, LOST, MAP_RELOCALISED, RECOVERED, TRACKED
+from .odometry import IMU_BRIDGED, INTERPOLATED, LOST, MAP_RELOCALISED, RECOVERED, TRACKED
 from .pipeline import EgoMapResult
 
 WORLD_FRAME = "map"
-TRACKING_CODES = {TRACKED: EgoMap.TRACKING_DENSE, RECOVERED: EgoMap.TRACKING_DENSE,
+# An interpolated frame (not tracked where the motion was slow) lies between two densely tracked ones.
+TRACKING_CODES = {TRACKED: EgoMap.TRACKING_DENSE, RECOVERED: EgoMap.TRACKING_DENSE, INTERPOLATED: EgoMap.TRACKING_DENSE,
                   MAP_RELOCALISED: EgoMap.TRACKING_MAP, IMU_BRIDGED: EgoMap.TRACKING_IMU_BRIDGE,
                   LOST: EgoMap.TRACKING_LOST}
 

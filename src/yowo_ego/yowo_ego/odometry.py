@@ -26,16 +26,30 @@ a result whose rotation disagrees with the gyro by more than
 the velocity of the last visual step give its pose, it becomes a keyframe joined by
 an "imu" edge (same segment) and the next frame is tracked against it. Without IMU
 samples every path is the visual one alone.
+
+Motion-adaptive frame rate (``OdometryParams.skip``, issue #19): with the IMU, a frame
+whose motion since the last tracked frame is small (the gyro's rotation; the translation
+from the last tracked step's velocity) is not tracked: it is *skipped* (``skip``), never a
+keyframe, and its pose is interpolated (the gyro's rotation, linear translation) between the
+tracked frames either side once the next is tracked. Frames are skipped only after a frame
+tracked at the first attempt with good overlap, at most ``max_frames`` in a row and
+``max_interval_s`` after the last tracked frame. Should the next frame fail its first dense
+attempts against the keyframe (the motion was larger than predicted), the skipped frames'
+images are made after all (the caller hands ``skip`` a function for that) and tracked
+first, then the frame again: skipping never costs a frame. Without the IMU every frame is
+tracked.
 """
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
 import gtsam
 import numpy as np
 import open3d as o3d
+from scipy.spatial.transform import Rotation
 
 from yowo_common.geometry import inv_se3, rotation_angle_deg, se3
 
@@ -48,11 +62,37 @@ from .maploc import MapLocParams, MapLocResult, map_cloud, relocalise, up_direct
 _odo = o3d.t.pipelines.odometry
 TRACKED, RECOVERED, LOST, IMU_BRIDGED = "tracked", "recovered", "lost", "imu_bridged"
 MAP_RELOCALISED = "map_relocalised"      # untracked, placed in the map of the recent keyframes
+# Not tracked (slow motion, OdometryParams.skip): the pose interpolated between the tracked
+# frames either side, both densely tracked; SKIPPED until the next frame is tracked.
+INTERPOLATED, SKIPPED = "interpolated", "skipped"
 # Edges whose motion the tracking measured (dense odometry, a gyro bridge, the map); the
 # others (breaks, loops) are uncertain to the pose graph's line process.
 TRACKING_KINDS = ("odometry", "imu", "map")
-# Frame statuses whose pose was measured by vision (not a guess, not the gyro alone).
-MEASURED = (TRACKED, RECOVERED, MAP_RELOCALISED)
+# Frame statuses whose pose was measured by vision (not a guess, not the gyro alone); an
+# interpolated frame lies between a frame tracked at its first attempt and a densely tracked one.
+MEASURED = (TRACKED, RECOVERED, MAP_RELOCALISED, INTERPOLATED)
+
+
+@dataclass(frozen=True)
+class SkipParams:
+    """Motion-adaptive frame rate (issue #19): which frames dense odometry may leave out."""
+
+    # Dense odometry (~33 ms a frame on one core) is the ego stage's long pole. Leaving out
+    # frames where the gyro sees a slow head halves its CPU with the same bundle-adjusted ATE
+    # (BENCHMARKS, issue #19). Without the IMU the last step's rate is no safe prediction: on
+    # small dim_light s0 the 2-frame steps then converged to wrong minima (ATE 0.008 -> 0.71 m),
+    # so without it every frame is tracked.
+    enabled: bool = True
+    # Gyro rotation since the last tracked frame above which a frame is tracked: 4 deg per
+    # 15 Hz frame is 60 deg/s, a look around; the next tracked step then spans ~8 deg, well
+    # inside the dense odometry's basin (2 deg skipped a third fewer frames, no more accurate).
+    max_rotation_deg: float = 4.0
+    # Predicted translation (last tracked step's velocity x interval): 1 m/s walking is 6.7 cm a frame.
+    max_translation_m: float = 0.08
+    max_frames: int = 1                  # skipped frames in a row (1: every 2nd frame at least)
+    max_interval_s: float = 0.2          # from the last tracked frame (a gap in the stream: track)
+    # The last tracked frame's overlap with its keyframe below this: weak, track every frame.
+    min_fitness: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -117,6 +157,8 @@ class OdometryParams:
     degeneracy: DegeneracyParams = DegeneracyParams()
     # A frame no attempt tracks: its pose from the recent keyframes' depth (yowo_ego.maploc).
     maploc: MapLocParams = MapLocParams()
+    # Frames not tracked where the motion is slow, their poses interpolated (SkipParams).
+    skip: SkipParams = SkipParams()
 
 
 @dataclass
@@ -152,8 +194,13 @@ class TrackResult:
     T_kf_cam: np.ndarray
     T_odom_cam: np.ndarray
     fitness: float                       # overlap with the keyframe (the map's share within ICP reach when placed)
-    status: str                          # tracked | recovered | lost | imu_bridged | map_relocalised
+    status: str                          # tracked | recovered | lost | imu_bridged | map_relocalised | interpolated
     new_keyframe: bool
+
+
+# Makes a skipped frame's images after all (the frame after it did not track at its first
+# attempts); None when the frame turns out unusable.
+FrameSource = Callable[[], "tuple[RgbdFrame, OdometryImages] | None"]
 
 
 def orthonormalize(T: np.ndarray) -> np.ndarray:
@@ -352,18 +399,86 @@ class KeyframeTracker:
         self._chain: list[Keyframe] = []         # recent keyframes with poses in one consistent frame
         self.map_relocalised = 0                 # breaks whose pose the map gave
         self.map_failures: list[str] = []        # why the others' did not
+        self.skipped = 0                         # frames not tracked (SkipParams), interpolated
+        self.backfilled = 0                      # of them tracked after all (the next frame did not track)
+        self._skipped: list[tuple[TrackResult, FrameSource | None]] = []   # waiting for the next tracked frame
+        self._easy = False                       # the last frame tracked at its first attempt (may skip after)
 
     # --- public -----------------------------------------------------------------
     def track(self, frame: RgbdFrame, images: OdometryImages | None = None) -> TrackResult:
         """``images``: the frame's OdometryImages at ``params.scale`` when already made."""
+        return self._process(self._level(len(self.results), frame, images))
+
+    def skips(self, stamp_ns: int, before: tuple[int, ...] = ()) -> bool:
+        """Whether the frame at ``stamp_ns`` is to be skipped (SkipParams): the decision
+        ``track``/``skip`` follow. ``before``: stamps of frames still to come ahead of it,
+        taken as decided here, each tracked one as leaving the state as it is (a
+        prediction, for preparing frames ahead)."""
+        prev = self._prev_result
+        if not self.params.skip.enabled or prev is None:
+            return False
+        last, run, skip = prev.stamp_ns, len(self._skipped), False
+        for stamp in (*before, stamp_ns):
+            skip = self._slow(last, stamp, run)
+            last, run = (last, run + 1) if skip else (stamp, 0)
+        return skip
+
+    def skip(self, stamp_ns: int, source: FrameSource | None = None) -> TrackResult:
+        """Leave the frame out of dense odometry: its result (status SKIPPED, the last
+        tracked pose) gets its interpolated pose (INTERPOLATED) once the next frame is
+        tracked. ``source`` makes its images should that frame not track at its first
+        attempts (or should it end the walk, ``flush``)."""
+        prev = self._prev_result
+        result = TrackResult(len(self.results), stamp_ns, prev.keyframe, prev.T_kf_cam.copy(),
+                             prev.T_odom_cam.copy(), prev.fitness, SKIPPED, False)
+        self.results.append(result)
+        self._skipped.append((result, source))
+        self.skipped += 1
+        return result
+
+    def flush(self) -> None:
+        """At the end of the walk: skipped frames at its end are tracked (the last; those
+        before it are interpolated), or dropped when their images cannot be made."""
+        while self._skipped:
+            result, source = self._skipped.pop()
+            made = source() if source is not None else None
+            self.skipped -= 1
+            if made is None:
+                del self.results[result.frame_index]     # the last result: nothing refers to it
+                continue
+            self.backfilled += 1
+            self._process(self._level(result.frame_index, *made))
+
+    # --- internals --------------------------------------------------------------
+    def _level(self, index: int, frame: RgbdFrame, images: OdometryImages | None) -> _Level:
         im = images if images is not None else OdometryImages.of(frame, self.params.scale)
-        level = _Level(len(self.results), frame.stamp_ns, im.color, im.depth_mm, im.rgbd, im.full_gray, frame.depth)
+        return _Level(index, frame.stamp_ns, im.color, im.depth_mm, im.rgbd, im.full_gray, frame.depth)
+
+    def _slow(self, last_ns: int, stamp_ns: int, run: int) -> bool:
+        """The motion predicted from the last tracked frame (at ``last_ns``, ``run`` frames
+        skipped since) to ``stamp_ns`` is small enough to leave the frame out."""
+        s, prev = self.params.skip, self._prev_result
+        dt_s = (stamp_ns - last_ns) * 1e-9
+        if (run >= s.max_frames or not 0.0 < dt_s <= s.max_interval_s or not self._easy
+                or prev.status != TRACKED or prev.fitness < s.min_fitness):
+            return False
+        R = self._gyro_rotation(last_ns, stamp_ns) if self.imu is not None else None
+        if R is None:                         # no IMU, or it does not cover the interval: track
+            return False
+        return (rotation_angle_deg(np.eye(3), R) <= s.max_rotation_deg
+                and np.linalg.norm(self._velocity[3:]) * dt_s <= s.max_translation_m)
+
+    def _process(self, level: _Level) -> TrackResult:
+        """Track ``level`` into its place in ``results`` (appended, or a skipped frame's)."""
         if self._kf is None:
-            result = TrackResult(0, frame.stamp_ns, 0, np.eye(4), np.eye(4), 1.0, TRACKED, True)
+            result = TrackResult(level.frame_index, level.stamp_ns, 0, np.eye(4), np.eye(4), 1.0, TRACKED, True)
             self._add_keyframe(level, np.eye(4), None, None)
         else:
             result = self._track(level)
-        self.results.append(result)
+        if level.frame_index == len(self.results):
+            self.results.append(result)
+        else:
+            self.results[level.frame_index] = result
         prev = self._prev_result
         # A lost frame's pose is a guess: the motion before the loss stays the
         # prediction (a whip turn goes on), rather than zero motion.
@@ -373,10 +488,51 @@ class KeyframeTracker:
             self._velocity = gtsam.Pose3.Logmap(gtsam.Pose3(step)) / dt_s
         if self.imu is not None:
             self._imu_bookkeeping(prev, result)
+        if self._skipped:
+            self._interpolate(prev, result)
         self._prev, self._prev_result = level, result
         return result
 
-    # --- internals --------------------------------------------------------------
+    def _interpolate(self, a: TrackResult, b: TrackResult) -> None:
+        """The skipped frames between the tracked results ``a`` and ``b``: the rotation the
+        gyro measured from ``a`` (its small disagreement with the tracked ``b`` spread by
+        time; a slerp where the gyro does not cover it), the translation linear in time;
+        each against the last keyframe before it (``frames_between_keyframes`` spreads the
+        optimised keyframes' corrections over them as over tracked frames)."""
+        Ta, Tb = a.T_odom_cam, b.T_odom_cam
+        R_ab = Ta[:3, :3].T @ Tb[:3, :3]
+        R_ab_gyro = self._gyro_rotation(a.stamp_ns, b.stamp_ns)
+        for r, _ in self._skipped:
+            alpha = (r.stamp_ns - a.stamp_ns) / (b.stamp_ns - a.stamp_ns)
+            R_as_gyro = self._gyro_rotation(a.stamp_ns, r.stamp_ns) if R_ab_gyro is not None else None
+            if R_as_gyro is None:
+                R_as = Rotation.from_rotvec(alpha * Rotation.from_matrix(R_ab).as_rotvec()).as_matrix()
+            else:
+                # A head turn is not uniform in 2 frames (a slerp was off by up to 1.8 deg on tiny s0).
+                correction = Rotation.from_matrix(R_ab_gyro.T @ R_ab).as_rotvec()
+                R_as = R_as_gyro @ Rotation.from_rotvec(alpha * correction).as_matrix()
+            T = orthonormalize(se3(Ta[:3, :3] @ R_as, (1.0 - alpha) * Ta[:3, 3] + alpha * Tb[:3, 3]))
+            kf = next(k for k in reversed(self.keyframes) if k.stamp_ns < r.stamp_ns)
+            r.keyframe, r.T_kf_cam, r.T_odom_cam = kf.index, inv_se3(kf.T_odom_cam) @ T, T
+            r.fitness, r.status = b.fitness, INTERPOLATED
+        self._skipped = []
+
+    def _backfill(self) -> bool:
+        """Track the skipped frames whose images can still be made (the frame after them
+        did not track at its first attempts); False when there are none."""
+        if not any(source is not None for _, source in self._skipped):
+            return False
+        pending, self._skipped = self._skipped, []
+        for result, source in pending:
+            made = source() if source is not None else None
+            if made is None:                 # unusable after all: interpolated between its neighbours
+                self._skipped.append((result, None))
+                continue
+            self.skipped -= 1
+            self.backfilled += 1
+            self._process(self._level(result.frame_index, *made))
+        return True
+
     def _imu_bookkeeping(self, prev: TrackResult | None, result: TrackResult) -> None:
         """After a frame with the IMU: the velocity a bridge continues, the bridge's
         start, and the gyro bias from a densely tracked step."""
@@ -432,9 +588,10 @@ class KeyframeTracker:
         inits = [T_ref_prev @ step, T_ref_prev]
         if self._gyro is not None:
             inits.insert(0, T_ref_prev @ se3(self._gyro, step[:3, 3]))
-        for init in inits:
+        first_try = False       # accepted from the first guess by the first cascade, not suspect
+        for n_init, init in enumerate(inits):
             accepted = []
-            for cascade in self.params.cascades:
+            for n_cascade, cascade in enumerate(self.params.cascades):
                 T, fit, rmse = odo.register(level.rgbd, ref.rgbd, orthonormalize(init), cascade)
                 if (fit < self.params.min_fitness or not self._plausible(inv_se3(T_ref_prev) @ T, dt_s)
                         or self._ambiguous(T, fit, inits[0])):
@@ -443,6 +600,7 @@ class KeyframeTracker:
                     if fallback is None or rmse < fallback[2]:
                         fallback = (T, fit, rmse)
                     continue
+                first_try = n_init == n_cascade == 0 and not self._suspect(rmse)
                 accepted.append((T, fit, rmse))
                 if not self._suspect(rmse):
                     break
@@ -450,7 +608,11 @@ class KeyframeTracker:
             if accepted:
                 T, fit, rmse = max(accepted, key=lambda r: r[1])
                 self._rmse.append(rmse)
-                return (self._remap(level, ref, odo.polish(level.rgbd, ref.rgbd, T), inits[0]), fit), fallback
+                remapped = self.degenerate_frames
+                T = self._remap(level, ref, odo.polish(level.rgbd, ref.rgbd, T), inits[0])
+                # At the first try and observed in every direction: frames after it may be skipped.
+                self._easy = first_try and self.degenerate_frames == remapped
+                return (T, fit), fallback
         return None, fallback
 
     def _suspect(self, rmse: float) -> bool:
@@ -477,13 +639,22 @@ class KeyframeTracker:
         status = TRACKED
         self._gyro = self._gyro_rotation(prev.stamp_ns, level.stamp_ns)
         self.imu_frames += self._gyro is not None
+        self._easy = False
         best, fallback = self._attempts(level, self._kf, T_kf_prev, dt_s)
+        if best is None and self._skipped:
+            # The motion since the last tracked frame was more than predicted: the skipped
+            # frames are tracked after all, then this one again from the last of them.
+            self.imu_frames -= self._gyro is not None
+            if self._backfill():
+                return self._track(level)
+            self.imu_frames += self._gyro is not None
         if best is None and prev.frame_index != kf.frame_index:
             # Lost the keyframe (fast turn): the previous frame overlaps more.
             self._add_keyframe(prev, prev_res.T_odom_cam, kf, T_kf_prev)
             kf, T_kf_prev = self.keyframes[-1], np.eye(4)
             prev_res.keyframe, prev_res.T_kf_cam, prev_res.new_keyframe = kf.index, np.eye(4), True
             best, fallback = self._attempts(level, self._kf, T_kf_prev, dt_s)
+            self._easy = False
         if best is None:
             guess = pose_from_images(level.full_gray, level.full_depth, prev.full_gray, prev.full_depth,
                                      self.odometry.K_full, self._features)

@@ -16,7 +16,7 @@ whole recording (pose-graph optimisation, bundle adjustment, cloud, layout).
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -31,8 +31,8 @@ from .features import FeatureExtractor, FeatureParams, KeyframeFeatures, backpro
 from .frames import MIN_TEXTURED_FRACTION, FrameError, RgbdFrame, Undistorter, make_frame, pinhole, textured_fraction
 from .imu import ImuBuffer, InertialParams, InertialTerms, keyframe_preintegration, up_from_accelerometer
 from .layout import KIND_WALL, Layout, LayoutParams, build_layout
-from .odometry import (IMU_BRIDGED, RECOVERED, Keyframe, KeyframeTracker, OdometryEdge, OdometryImages, OdometryParams,
-                       TrackResult)
+from .odometry import (IMU_BRIDGED, RECOVERED, SKIPPED, Keyframe, KeyframeTracker, OdometryEdge, OdometryImages,
+                       OdometryParams, TrackResult)
 from .posegraph import LoopParams, MultiwayRegistration
 from .refine import BundleParams, bundle_adjust
 from .scene import (CloudParams, Rectification, find_floor, fuse_cloud, planar_patches, rectify,
@@ -76,7 +76,7 @@ class EgoMapResult:
     """Everything in the world frame `map` (z up, floor z = 0) unless noted."""
 
     camera: CameraModel                  # as received, with distortion
-    stamps_ns: np.ndarray                # (F,) every tracked frame
+    stamps_ns: np.ndarray                # (F,) every frame tracked or skipped (interpolated), none rejected
     T_world_cam: np.ndarray              # (F, 4, 4) final poses
     keyframe_frames: np.ndarray          # (K,) frame index of each keyframe
     T_world_kf: np.ndarray               # (K, 4, 4)
@@ -125,6 +125,7 @@ class EgoMapper:
         self.first_rejection: dict[str, str] = {}   # problem -> the first such frame's message
         self.untextured = 0                      # frames tracked by depth alone (no texture in colour)
         self._last_stamp = -1
+        self._settled = 0                        # results handed out by ``settled``
         self._t_track = self._cpu_track = self._cpu_features = self._cpu_loops = 0.0
 
     def _on_keyframe(self, kf, edge, gray, depth) -> None:
@@ -152,26 +153,62 @@ class EgoMapper:
 
     def add(self, stamp_ns: int, color: np.ndarray, depth: np.ndarray, color_topic: str = "colour",
             depth_topic: str = "depth") -> TrackResult:
-        """Track one decoded frame (RGB uint8, depth in metres with NaN/0 invalid).
-        Raises FrameError (counted in ``rejected``) for frames that cannot be used."""
-        return self.track(self.prepare(stamp_ns, color, depth, color_topic, depth_topic))
+        """Track one decoded frame (RGB uint8, depth in metres with NaN/0 invalid), or skip
+        it where the motion is slow (``skips``; its result is completed when the next frame
+        is tracked). Raises FrameError (counted in ``rejected``) for frames that cannot be used
+        (a skipped frame's images are not looked at unless it is tracked after all)."""
+        self.admit(stamp_ns, color_topic)
+        if self.skips(stamp_ns):
+            return self.skip(stamp_ns, lambda: self.prepare(stamp_ns, color, depth, color_topic, depth_topic,
+                                                             admitted=True))
+        return self.track(self.prepare(stamp_ns, color, depth, color_topic, depth_topic, admitted=True))
+
+    def admit(self, stamp_ns: int, topic: str = "colour") -> None:
+        """The frame's place in the stream: FrameError (counted) unless its stamp follows the last's."""
+        if stamp_ns <= self._last_stamp:
+            error = FrameError(topic, "stamp not after the previous frame's", f" ({self._last_stamp} ns)", stamp_ns)
+            self.reject(error)
+            raise error
+        self._last_stamp = stamp_ns
 
     def prepare(self, stamp_ns: int, color: np.ndarray, depth: np.ndarray, color_topic: str = "colour",
-                depth_topic: str = "depth") -> PreparedFrame:
+                depth_topic: str = "depth", admitted: bool = False) -> PreparedFrame:
         """The checked, undistorted frame and its odometry images, which ``track`` takes;
-        FrameError (counted) for a frame that cannot be used. Frames are prepared in stamp
-        order, on any one thread (a node prepares the next frame while the last is tracked)."""
+        FrameError (counted) for a frame that cannot be used. Frames are admitted (``admit``,
+        here unless ``admitted``) in stamp order, and prepared on any one thread (a node
+        prepares the next frame while the last is tracked)."""
+        if not admitted:
+            self.admit(stamp_ns, color_topic)
         try:
-            if stamp_ns <= self._last_stamp:
-                raise FrameError(color_topic, "stamp not after the previous frame's",
-                                 f" ({self._last_stamp} ns)", stamp_ns)
             frame = make_frame(stamp_ns, color, depth, self.camera, self._undistort, color_topic, depth_topic)
         except FrameError as exc:
             self.reject(exc)
             raise
-        self._last_stamp = stamp_ns
         return PreparedFrame(frame, OdometryImages.of(frame, self.params.odometry.scale),
                              textured_fraction(frame.color) >= MIN_TEXTURED_FRACTION)
+
+    def skips(self, stamp_ns: int, before: tuple[int, ...] = ()) -> bool:
+        """Whether the next frame, at ``stamp_ns``, is to be skipped (``OdometryParams.skip``);
+        ``before``: stamps of admitted frames ahead of it not yet tracked or skipped (a
+        prediction, for preparing frames ahead: see ``KeyframeTracker.skips``)."""
+        return self.tracker.skips(stamp_ns, before)
+
+    def skip(self, stamp_ns: int, source: Callable[[], PreparedFrame]) -> TrackResult:
+        """Leave the next (admitted) frame untracked: its pose is interpolated once the next
+        frame is tracked. ``source`` prepares it (FrameError when unusable) should it be
+        tracked after all."""
+        def made():
+            try:
+                prepared = source()
+            except FrameError:          # counted by prepare
+                return None
+            self.untextured += not prepared.textured
+            return prepared.frame, prepared.images
+
+        c0 = time.thread_time()
+        result = self.tracker.skip(stamp_ns, made)
+        self._cpu_track += time.thread_time() - c0
+        return result
 
     def track(self, prepared: PreparedFrame) -> TrackResult:
         """Track a prepared frame (frames in the order they were prepared)."""
@@ -182,6 +219,16 @@ class EgoMapper:
         self._cpu_track += time.thread_time() - c0
         return result
 
+    def settled(self) -> list[TrackResult]:
+        """The results completed since the last call, in stamp order (a skipped frame's once
+        the frame after it was tracked): what the node publishes as online odometry."""
+        results = self.tracker.results
+        end = self._settled
+        while end < len(results) and results[end].status != SKIPPED:
+            end += 1
+        out, self._settled = results[self._settled:end], end
+        return out
+
     def finish(self) -> EgoMapResult:
         try:
             return self._finish()
@@ -189,6 +236,10 @@ class EgoMapper:
             o3d.utility.set_max_threads(self._open3d_threads)
 
     def _finish(self) -> EgoMapResult:
+        t0, c0 = time.perf_counter(), time.thread_time()
+        self.tracker.flush()                     # skipped frames at the end of the walk
+        self._t_track += time.perf_counter() - t0
+        self._cpu_track += time.thread_time() - c0
         if len(self.tracker.results) < 2:
             raise ValueError(f"ego camera: {len(self.tracker.results)} usable RGB-D frame(s); mapping needs at "
                              "least 2" + (f" (rejected: {self.rejected})" if self.rejected else ""))
@@ -212,8 +263,8 @@ class EgoMapper:
                      recovered=sum(r.status == RECOVERED for r in tr.results),
                      imu_bridged=sum(r.status == IMU_BRIDGED for r in tr.results), imu_frames=tr.imu_frames,
                      degenerate_frames=tr.degenerate_frames, suspect_frames=tr.suspect_frames,
-                     map_relocalised=tr.map_relocalised,
-                     untextured_frames=self.untextured)
+                     map_relocalised=tr.map_relocalised, skipped_frames=tr.skipped,
+                     backfilled_frames=tr.backfilled, untextured_frames=self.untextured)
         if tr.imu is not None:
             stats["imu_samples"] = len(tr.imu)
         T_odometry = [k.T_odom_cam for k in keyframes]

@@ -102,6 +102,8 @@ def planar_patches(points: np.ndarray, cameras: np.ndarray, params: CloudParams 
     pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=3 * params.plane_voxel_m, max_nn=30))
     pts = np.asarray(pcd.points)
     normals = np.asarray(pcd.normals)
+    if len(pts) < params.plane_min_points:       # a walk of a few frames: no plane to find
+        return [], pts, normals
     # Orient point normals towards the closest camera centre (the side it was seen from).
     nearest = cameras[cKDTree(cameras).query(pts)[1]]
     flip = np.einsum("ij,ij->i", normals, nearest - pts) < 0

@@ -6,7 +6,7 @@ from sensor_msgs.msg import CameraInfo
 from yowo_msgs.msg import EgoMap
 
 from yowo_ego.ego_messages import TRACKING_CODES
-from yowo_ego.odometry import IMU_BRIDGED, LOST, MAP_RELOCALISED, MEASURED, RECOVERED, TRACKED
+from yowo_ego.odometry import IMU_BRIDGED, INTERPOLATED, LOST, MAP_RELOCALISED, MEASURED, RECOVERED, TRACKED
 from yowo_fusion.messages import ego_map_from_msg
 
 
@@ -30,5 +30,5 @@ def test_tracking_reaches_the_fusion_and_its_absence_is_none():
 
 
 def test_every_tracking_status_has_a_code():
-    assert set(TRACKING_CODES) == {TRACKED, RECOVERED, MAP_RELOCALISED, IMU_BRIDGED, LOST}
+    assert set(TRACKING_CODES) == {TRACKED, RECOVERED, MAP_RELOCALISED, IMU_BRIDGED, LOST, INTERPOLATED}
     assert all(TRACKING_CODES[s] in (EgoMap.TRACKING_DENSE, EgoMap.TRACKING_MAP) for s in MEASURED)
