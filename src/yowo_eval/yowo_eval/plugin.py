@@ -6,14 +6,21 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .eval import evaluate, print_tables, write_metrics
 
-__all__ = ["add_verbs", "evaluate_run", "print_tables", "write_metrics"]
+def __getattr__(name: str):
+    """print_tables and write_metrics from .eval, imported when first used: every `yowo`
+    command loads this module to add its verbs, and .eval pulls in the whole pipeline
+    (Open3D: 1 s of the 1.5 s `yowo --version` took)."""
+    if name in ("print_tables", "write_metrics"):
+        from . import eval as evaluation
+        return getattr(evaluation, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def evaluate_run(out_dir, bag) -> tuple[dict, dict] | None:
     """(metrics, ground-truth camera poses) of a results directory, or None when the
     recording has no ground truth for it."""
+    from .eval import evaluate
     from .ground_truth import read_ground_truth
 
     try:
@@ -26,6 +33,8 @@ def evaluate_run(out_dir, bag) -> tuple[dict, dict] | None:
 def cmd_eval(args) -> int:
     """Metrics of a results directory against the recording's ground truth."""
     from rich.console import Console
+
+    from .eval import evaluate, print_tables, write_metrics
 
     metrics = evaluate(args.results, args.bag)
     print_tables(metrics, Console())
