@@ -15,8 +15,8 @@ from .odometry import IMU_BRIDGED, INTERPOLATED, LOST, MAP_RELOCALISED, RECOVERE
 from .pipeline import EgoMapResult
 
 WORLD_FRAME = "map"
-# An interpolated frame (not tracked where the motion was slow) lies between two densely tracked ones.
-TRACKING_CODES = {TRACKED: EgoMap.TRACKING_DENSE, RECOVERED: EgoMap.TRACKING_DENSE, INTERPOLATED: EgoMap.TRACKING_DENSE,
+TRACKING_CODES = {TRACKED: EgoMap.TRACKING_DENSE, RECOVERED: EgoMap.TRACKING_DENSE,
+                  INTERPOLATED: EgoMap.TRACKING_INTERPOLATED,
                   MAP_RELOCALISED: EgoMap.TRACKING_MAP, IMU_BRIDGED: EgoMap.TRACKING_IMU_BRIDGE,
                   LOST: EgoMap.TRACKING_LOST}
 

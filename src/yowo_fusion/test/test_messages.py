@@ -10,10 +10,10 @@ from yowo_ego.odometry import IMU_BRIDGED, INTERPOLATED, LOST, MAP_RELOCALISED, 
 from yowo_fusion.messages import ego_map_from_msg
 
 
-def _msg(tracking, fitness) -> EgoMap:
+def _msg(tracking, fitness, n: int = 5) -> EgoMap:
     info = CameraInfo(width=640, height=480, k=[500.0, 0, 320, 0, 500, 240, 0, 0, 1], distortion_model="plumb_bob",
                       d=[0.0] * 5)
-    poses = [Pose() for _ in range(4)]
+    poses = [Pose() for _ in range(n)]
     for p in poses:
         p.orientation.w = 1.0
     return EgoMap(camera_info=info, stamps=[], poses=poses, descriptor_type="SIFT", descriptor_size=128,
@@ -21,14 +21,16 @@ def _msg(tracking, fitness) -> EgoMap:
 
 
 def test_tracking_reaches_the_fusion_and_its_absence_is_none():
-    statuses = [TRACKED, MAP_RELOCALISED, IMU_BRIDGED, LOST]
-    ego = ego_map_from_msg(_msg([TRACKING_CODES[s] for s in statuses], [0.8, 0.9, 0.0, 0.0]))
-    assert ego.tracking_measured.tolist() == [s in MEASURED for s in statuses] == [True, True, False, False]
-    assert np.allclose(ego.tracking_fitness, [0.8, 0.9, 0.0, 0.0])
+    statuses = [TRACKED, MAP_RELOCALISED, INTERPOLATED, IMU_BRIDGED, LOST]
+    ego = ego_map_from_msg(_msg([TRACKING_CODES[s] for s in statuses], [0.8, 0.9, 0.7, 0.0, 0.0]))
+    assert ego.tracking_measured.tolist() == [s in MEASURED for s in statuses] == [True, True, True, False, False]
+    assert np.allclose(ego.tracking_fitness, [0.8, 0.9, 0.7, 0.0, 0.0])
     silent = ego_map_from_msg(_msg([], []))
     assert silent.tracking_measured is None and silent.tracking_fitness is None
 
 
 def test_every_tracking_status_has_a_code():
     assert set(TRACKING_CODES) == {TRACKED, RECOVERED, MAP_RELOCALISED, IMU_BRIDGED, LOST, INTERPOLATED}
-    assert all(TRACKING_CODES[s] in (EgoMap.TRACKING_DENSE, EgoMap.TRACKING_MAP) for s in MEASURED)
+    measured = (EgoMap.TRACKING_DENSE, EgoMap.TRACKING_MAP, EgoMap.TRACKING_INTERPOLATED)
+    assert all((TRACKING_CODES[s] in measured) == (s in MEASURED) for s in TRACKING_CODES)
+    assert TRACKING_CODES[INTERPOLATED] not in (TRACKING_CODES[TRACKED], TRACKING_CODES[IMU_BRIDGED])

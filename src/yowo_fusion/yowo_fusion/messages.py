@@ -56,7 +56,8 @@ def _tracking(msg: EgoMap) -> tuple[np.ndarray | None, np.ndarray | None]:
     if len(msg.tracking) != len(msg.poses) or len(msg.tracking_fitness) != len(msg.poses):
         return None, None
     codes = np.asarray(msg.tracking, dtype=int)
-    return (np.isin(codes, [EgoMap.TRACKING_DENSE, EgoMap.TRACKING_MAP]),
+    # An interpolated pose lies between two densely tracked ones (the ego stage's MEASURED).
+    return (np.isin(codes, [EgoMap.TRACKING_DENSE, EgoMap.TRACKING_MAP, EgoMap.TRACKING_INTERPOLATED]),
             np.asarray(msg.tracking_fitness, dtype=float))
 
 
