@@ -44,9 +44,9 @@ SCENARIOS = {
     "clock_offsets": {"cmc_clock_offset_s": 1.0},
 }
 # Presets that only feed the speed/scale table: rendering 42 CMC image streams over the
-# large preset's long walk would take hours here, so they record keypoints only, run
+# long walks of the floor presets would take hours here, so they record keypoints only, run
 # the normal scenario on the first seed only, and leave out the relative-pose baselines.
-SCALE_ONLY_PRESETS = {"large"}
+SCALE_ONLY_PRESETS = {"large", "floor50"}
 
 # Relative calibration methods compared in Table "relative_pose_eval": label ->
 # (keypoint source, calibration(tracks, the tree's CmcParams)). The baselines are

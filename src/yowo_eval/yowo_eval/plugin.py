@@ -103,8 +103,8 @@ def add_verbs(verbs) -> None:
 
     p = verbs.add_parser("bench", help="YOWO and baselines on generated recordings -> BENCHMARKS.md")
     p.add_argument("--preset", nargs="+", default=["small"],
-                   help="one or more of tiny, small, standard, large (several: the scale table; large "
-                   "runs the first seed only, keypoints only)")
+                   help="one or more of tiny, small, standard, large, floor50 (several: the scale table; "
+                   "large and floor50 run the first seed only, keypoints only)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--scenarios", nargs="+", default=["normal"], help="normal, texture_poor, symmetric, "
                    "dim_light, stationary, kp_noise_{0.5,1.0,2.0,5.0}px, kp_outliers_5pct, clock_offsets")

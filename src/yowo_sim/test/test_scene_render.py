@@ -9,7 +9,9 @@ import shapely
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import look_at
 from yowo_sim.body import GROUND, HEAD_TOP, LEFT_FOOT, PELVIS, RIGHT_FOOT, agent_keypoints_3d, agent_mesh
+from yowo_sim.capture import place_cmcs
 from yowo_sim.render import Renderer
+from yowo_sim.presets import PRESETS
 from yowo_sim.scene import LIGHT_RANGE, WALL_THICKNESS, Light, Scene, SceneSpec, build_scene
 
 PINHOLE = CameraModel(640, 480, [[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
@@ -258,3 +260,18 @@ def test_light_intensity_scales_the_image():
         scene = build_scene(SceneSpec(layout="room_4x4", texture="poor", light_intensity=li, seed=1))
         means.append(Renderer(scene).render(PINHOLE, T).rgb.astype(float).mean())
     assert means[0] / means[1] == pytest.approx(0.5, abs=0.02)
+
+
+@pytest.mark.parametrize("name", sorted(PRESETS))
+def test_every_preset_places_its_cameras_in_its_rooms(name):
+    preset = PRESETS[name]
+    scene = build_scene(preset.scene)
+    cmcs = place_cmcs(scene, preset, np.random.default_rng(0))
+    assert len(cmcs) == sum(preset.cmcs_per_room)
+    rooms = {r.name: r.bounds for r in scene.rooms}
+    for c in cmcs:
+        x0, y0, x1, y1 = rooms[c.room]
+        x, y = c.T_world_cam[:2, 3]
+        assert x0 <= x <= x1 and y0 <= y <= y1, c.name
+    if name == "floor50":
+        assert len(cmcs) == 50

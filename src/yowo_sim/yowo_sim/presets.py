@@ -61,6 +61,10 @@ PRESETS = {
                               walk=WalkSpec(pause_s=4.0, long_pause_s=12.0)),
     "large": CapturePreset("large", SceneSpec(layout="floor_40x20"), (3,) * 14,
                            walk=WalkSpec(speed_mps=0.8, pause_s=30.0)),
+    # The scale case of issue #19: 50 CMCs (4 in the corridor, 2-3 per room over 20 rooms)
+    # and a walk of about 30 minutes over the whole floor.
+    "floor50": CapturePreset("floor50", SceneSpec(layout="floor_40x20"), (4,) + (3, 2, 2) * 6 + (2, 2),
+                             walk=WalkSpec(speed_mps=0.8, pause_s=27.0)),
 }
 
 

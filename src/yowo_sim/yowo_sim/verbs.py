@@ -64,7 +64,7 @@ def cmd_demo(args) -> int:
 
 def add_verbs(verbs) -> None:
     p = verbs.add_parser("simulate", help="generate a synthetic recording with ground truth")
-    p.add_argument("--preset", default="small", help="tiny | small | standard | large (default: small)")
+    p.add_argument("--preset", default="small", help="tiny | small | standard | large | floor50 (default: small)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("-o", "--output", required=True, help="new rosbag2 directory to write (MCAP)")
     p.add_argument("--no-cmc-images", action="store_true", help="record CMC keypoints only, no images")
