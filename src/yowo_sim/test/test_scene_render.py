@@ -10,8 +10,8 @@ from yowo_common.camera import CameraModel
 from yowo_common.geometry import look_at
 from yowo_sim.body import GROUND, HEAD_TOP, LEFT_FOOT, PELVIS, RIGHT_FOOT, agent_keypoints_3d, agent_mesh
 from yowo_sim.capture import place_cmcs
-from yowo_sim.render import Renderer
 from yowo_sim.presets import PRESETS
+from yowo_sim.render import Renderer
 from yowo_sim.scene import LIGHT_RANGE, WALL_THICKNESS, Light, Scene, SceneSpec, build_scene
 
 PINHOLE = CameraModel(640, 480, [[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
