@@ -28,7 +28,7 @@ class KeyframeFeatures:
     """Keypoints of one image in undistorted pixels, their SIFT descriptors and depth."""
 
     uv: np.ndarray            # (N, 2) float
-    descriptors: np.ndarray   # (N, 128) float32
+    descriptors: np.ndarray   # (N, 128) uint8: OpenCV's SIFT values are integers (4x less than float32)
     depth: np.ndarray         # (N,) metres, NaN where the depth is missing or on an edge
 
     def __len__(self) -> int:
@@ -73,9 +73,9 @@ class FeatureExtractor:
     def __call__(self, gray: np.ndarray, depth: np.ndarray) -> KeyframeFeatures:
         kps, desc = self._sift.detectAndCompute(gray, None)
         if desc is None or not kps:
-            return KeyframeFeatures(np.zeros((0, 2)), np.zeros((0, 128), np.float32), np.zeros(0))
+            return KeyframeFeatures(np.zeros((0, 2)), np.zeros((0, 128), np.uint8), np.zeros(0))
         uv = np.array([k.pt for k in kps], dtype=float)
-        return KeyframeFeatures(uv, desc.astype(np.float32), sample_depth(depth, uv, self.params.depth_edge_ratio))
+        return KeyframeFeatures(uv, desc.astype(np.uint8), sample_depth(depth, uv, self.params.depth_edge_ratio))
 
 
 def match(a: KeyframeFeatures, b: KeyframeFeatures, ratio: float = 0.8) -> np.ndarray:
@@ -87,7 +87,7 @@ def match(a: KeyframeFeatures, b: KeyframeFeatures, ratio: float = 0.8) -> np.nd
     every call, which cost more CPU than the whole product on 2 busy cores."""
     if len(a) < 2 or len(b) < 2:
         return np.zeros((0, 2), int)
-    da, db = a.descriptors, b.descriptors
+    da, db = a.descriptors.astype(np.float32), b.descriptors.astype(np.float32)
     d2 = (da * da).sum(1)[:, None] + (db * db).sum(1)[None, :] - cv2.gemm(da, db, 2.0, None, 0.0,
                                                                             flags=cv2.GEMM_2_T)
     np.maximum(d2, 0.0, out=d2)

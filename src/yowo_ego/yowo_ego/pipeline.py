@@ -411,9 +411,8 @@ class EgoMapper:
             b = np.array(list(ba.biases.values()))
             stats.update(imu_accel_bias_mps2=float(np.linalg.norm(b[:, :3], axis=1).mean()),
                          imu_gyro_bias_dps=float(np.degrees(np.linalg.norm(b[:, 3:], axis=1).mean())))
-        return (ba.T_world_kf, _SceneMap(ba.landmarks[keep], np.clip(np.round(ba.descriptors[keep]), 0, 255)
-                                         .astype(np.uint8), ba.obs.camera[sel], remap[ba.obs.point[sel]],
-                                         ba.obs.uv[sel]),
+        return (ba.T_world_kf, _SceneMap(ba.landmarks[keep], ba.descriptors[keep], ba.obs.camera[sel],
+                                         remap[ba.obs.point[sel]], ba.obs.uv[sel]),
                 inertial.up_odom if inertial is not None and inertial.between else None)
 
 

@@ -55,7 +55,7 @@ class BundleParams:
 class BundleOutput:
     T_world_kf: list[np.ndarray]
     landmarks: np.ndarray                # (P, 3) world
-    descriptors: np.ndarray              # (P, 128) float32, of each landmark's first observation
+    descriptors: np.ndarray              # (P, 128) uint8 (SIFT), of each landmark's first observation
     obs: Observations                    # camera = keyframe, point = landmark (undistorted pixels)
     rmse_px: float
     sigma_px: float
@@ -159,7 +159,7 @@ def bundle_adjust(tracks: Tracks, features: list[KeyframeFeatures], T_world_kf: 
     preintegrated IMU between consecutive keyframes."""
     K = camera.K
     lm, points, kf, feat, uv, depth = landmarks_from_tracks(tracks, features, T_world_kf, K, params)
-    descriptors = np.zeros((len(points), 128), np.float32)
+    descriptors = np.zeros((len(points), 128), np.uint8)
     first = np.unique(lm, return_index=True)[1]
     for i in first:
         descriptors[lm[i]] = features[kf[i]].descriptors[feat[i]]
