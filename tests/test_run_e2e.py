@@ -63,6 +63,10 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
     assert set(log["resources"]) == set(log["graph"]["nodes_on_this_host"])
     for node, r in log["resources"].items():
         assert 0.5 < r["cpu_s"] and 1.0 < r["wall_s"] and 40.0 < r["peak_rss_mb"] < 4000.0, (node, r)
+    # The graph's memory (PSS summed at one sample) lies below the sum of the peak RSS, which
+    # counts each shared library once per process, and above the largest single process.
+    rss = [r["peak_rss_mb"] for r in log["resources"].values()]
+    assert max(rss) < log["peak_memory_mb"] < sum(rss), (log["peak_memory_mb"], rss)
     for topic, n in log["replay_published"].items():  # lossless: every message reached every stage
         assert log["received"][topic] and all(v == n for v in log["received"][topic].values()), topic
 

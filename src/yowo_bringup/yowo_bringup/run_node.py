@@ -132,6 +132,9 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
                 "restarts": {p.spec.name: p.exits for p in sup.procs if p.exits},
                 # Sampled once a second from /proc: the last second of a node is not counted.
                 "resources": {p.spec.name: p.resources() for p in sup.procs},
+                # The largest sum of every process's proportional set size (this one's included)
+                # at one sample: what the graph held of the machine's memory at its peak.
+                "peak_memory_mb": round(sup.peak_memory_mb, 1),
                 # Seconds since the run started; queue waits and handling per input topic.
                 "timing": node_timing(sup, t0_wall)}
     try:

@@ -31,22 +31,25 @@ class Usage:
 
     cpu_s: float = 0.0            # user + system
     peak_rss_mb: float = 0.0      # VmHWM
+    pss_mb: float = 0.0           # now: the proportional set size (shared pages split among their users)
     started: float = field(default_factory=time.monotonic)
     spawned: float = field(default_factory=time.time)     # wall clock, as the nodes' timing files
     last_seen: float = 0.0
 
     @staticmethod
-    def read(pid: int) -> tuple[float, float] | None:
-        """(cpu seconds, peak RSS MB) of a live process, None when it is gone."""
+    def read(pid: int) -> tuple[float, float, float] | None:
+        """(cpu seconds, peak RSS MB, PSS MB now) of a live process, None when it is gone."""
         try:
             stat = Path(f"/proc/{pid}/stat").read_text()
             status = Path(f"/proc/{pid}/status").read_text()
+            rollup = Path(f"/proc/{pid}/smaps_rollup").read_text()
         except OSError:
             return None
         fields = stat.rsplit(")", 1)[1].split()           # after "pid (comm)"
         cpu = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
         hwm = next((int(line.split()[1]) for line in status.splitlines() if line.startswith("VmHWM:")), 0)
-        return cpu, hwm / 1024.0
+        pss = next((int(line.split()[1]) for line in rollup.splitlines() if line.startswith("Pss:")), 0)
+        return cpu, hwm / 1024.0, pss / 1024.0
 
 
 @dataclass
@@ -62,7 +65,9 @@ class NodeProcess:
         got = Usage.read(self.popen.pid) if self.popen.poll() is None else None
         if got is not None:
             u = self.usage[-1]
-            u.cpu_s, u.peak_rss_mb, u.last_seen = got[0], max(u.peak_rss_mb, got[1]), time.monotonic()
+            u.cpu_s, u.peak_rss_mb, u.pss_mb, u.last_seen = got[0], max(u.peak_rss_mb, got[1]), got[2], time.monotonic()
+        else:
+            self.usage[-1].pss_mb = 0.0
 
     def resources(self) -> dict:
         """CPU seconds (summed over incarnations), wall seconds alive, peak RSS."""
@@ -113,6 +118,10 @@ class Supervisor:
         self.env = dict(os.environ if env is None else env)
         self.params_file = params_file
         self.procs: list[NodeProcess] = []
+        # The graph's memory: the largest sum of the node processes' and this process's PSS
+        # at one sample. Peak RSS per process counts the shared libraries in every process
+        # and peaks that came at different times, so their sum overstates a many-node graph.
+        self.peak_memory_mb = 0.0
         self.profile_dir, self.profile_rate_hz = profile_dir, profile_rate_hz
         self.profilers: list[NodeProfiler] = []
         if profile_dir is not None:
@@ -156,6 +165,9 @@ class Supervisor:
     def sample(self) -> None:
         for p in self.procs:
             p.sample()
+        own = Usage.read(os.getpid())
+        total = sum(p.usage[-1].pss_mb for p in self.procs) + (own[2] if own else 0.0)
+        self.peak_memory_mb = max(self.peak_memory_mb, total)
 
     def dead(self) -> list[NodeProcess]:
         """Processes that exited with an error."""

@@ -2,6 +2,7 @@ from yowo_eval.graph_bench import BEGIN, END, keep_section, replace_section, spe
 
 CASE = {"bag": "small_normal_s0", "source": "keypoints", "exit": 0, "recording_s": 40.0, "wall_s": 66.0, "ratio": 1.65,
         "registration_pos_avg_m": 0.0123, "registration_rot_avg_deg": 0.201, "ego_ate_m": 0.0031,
+        "peak_memory_mb": 1234.4,
         "resources": {"keypoint_tracker_a": {"cpu_s": 2.0, "wall_s": 60.0, "peak_rss_mb": 210.0},
                       "keypoint_tracker_b": {"cpu_s": 4.0, "wall_s": 62.0, "peak_rss_mb": 230.0},
                       "ego_mapper": {"cpu_s": 30.5, "wall_s": 63.0, "peak_rss_mb": 800.0}}}
@@ -10,7 +11,7 @@ CASE = {"bag": "small_normal_s0", "source": "keypoints", "exit": 0, "recording_s
 def test_the_table_has_the_ratio_and_each_stage_once(tmp_path):
     md = speed_markdown([CASE], "yowo bench-graph --preset small")
     row = next(line for line in md.splitlines() if line.startswith("| small_normal_s0"))
-    assert "| 1.65 | 66 | 40 | 0.0123 / 0.201 | 0.0031 |" in row
+    assert "| 1.65 | 66 | 40 | 0.0123 / 0.201 | 0.0031 | 1234 |" in row
     # Trackers: mean CPU and lifetime, the largest peak.
     assert "keypoint_tracker (each): 3.0 / 61 / 230" in row and "ego_mapper: 30.5 / 63 / 800" in row
     failed = speed_markdown([{**CASE, "exit": 1}], "c")

@@ -43,6 +43,7 @@ def graph_case(bag: Path, out: Path, source: str, extra: list[str], timeout_s: f
     reg = metrics.get("registration", {}).get("summary", {})
     return {"bag": bag.name, "source": source, "exit": r.returncode, "recording_s": recording, "wall_s": wall,
             "ratio": wall / recording if recording > 0 else float("nan"), "resources": log.get("resources", {}),
+            "peak_memory_mb": log.get("peak_memory_mb"),
             "timing": log.get("timing", {}),
             "registration_pos_avg_m": reg.get("pos_avg"), "registration_rot_avg_deg": reg.get("rot_avg"),
             "ego_ate_m": metrics.get("ego", {}).get("ate_rmse_m"),
@@ -57,10 +58,12 @@ def speed_markdown(cases: list[dict], command: str) -> str:
     lines = [BEGIN, "## Speed of the real graph (`yowo run --rate 0`)", "", "Produced by:", "", "```", command, "```",
              "", "Wall time of the whole `yowo run` (start-up, replay, every stage, results) over the recording's "
              "length; per stage the CPU seconds, the process lifetime and the peak RSS (sampled from /proc once a "
-             "second; trackers: the mean and the largest peak over cameras). Registration and ATE as `yowo eval` "
-             "computes them.", "",
+             "second; trackers: the mean and the largest peak over cameras). Graph memory: the largest sum of every "
+             "process's proportional set size at one sample (shared libraries counted once), the machine's memory "
+             "the run held at its peak. Registration and ATE as `yowo eval` computes them.", "",
              "| recording | source | processing / recording | wall [s] | recording [s] | registration avg [m / deg] "
-             "| ego ATE [m] | stage: CPU s / wall s / peak MB |", "|---|---|---|---|---|---|---|---|"]
+             "| ego ATE [m] | graph memory [MB] | stage: CPU s / wall s / peak MB |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for c in cases:
         stages: dict[str, list[dict]] = {}
         for name, r in c["resources"].items():
@@ -74,8 +77,9 @@ def speed_markdown(cases: list[dict], command: str) -> str:
                if c.get("registration_pos_avg_m") is not None else "-")
         ate = f"{c['ego_ate_m']:.4f}" if c.get("ego_ate_m") is not None else "-"
         status = f"{c['ratio']:.2f}" if c["exit"] == 0 else f"failed (exit {c['exit']})"
+        memory = f"{c['peak_memory_mb']:.0f}" if c.get("peak_memory_mb") is not None else "-"
         lines.append(f"| {c['bag']} | {c['source']} | {status} | {c['wall_s']:.0f} | {c['recording_s']:.0f} | {reg} "
-                     f"| {ate} | {'<br>'.join(cells)} |")
+                     f"| {ate} | {memory} | {'<br>'.join(cells)} |")
     return "\n".join(lines + [""] + timeline_markdown(cases) + [END, ""])
 
 
