@@ -6,6 +6,7 @@ import sys
 import threading
 
 import numpy as np
+import pytest
 import yaml
 
 from e2e_helpers import kill_when_playing, three_camera_recording, yowo
@@ -80,12 +81,15 @@ def test_non_monotonic_stamps_are_rejected_and_counted(tmp_path, ros_env):
     assert "1 stamp not after the previous frame" in stages["keypoint_tracker_c1"]
 
 
-def test_killed_stages_are_restarted_and_every_camera_is_calibrated(tmp_path, ros_env):
+@pytest.mark.parametrize("tracker_processes", [8, 2])
+def test_killed_stages_are_restarted_and_every_camera_is_calibrated(tmp_path, ros_env, tracker_processes):
+    """With 8 tracker processes each camera has its own; with 2, c1 and c3 share one (which
+    the kill takes down together), c2 has the other."""
     cams, _ = three_camera_recording(tmp_path / "rec", duration_s=40.0)
     out = tmp_path / "out"
     proc = subprocess.Popen([sys.executable, "-m", "yowo_bringup.cli", "calibrate-cmc", str(tmp_path / "rec"),
-                             "-o", str(out), "--rate", "1.0"], env=ros_env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                             "-o", str(out), "--rate", "1.0", "--set", f"supervisor.tracker_processes={tracker_processes}"],
+                            env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     # The tracker dies mid-replay (it must be sent what it missed), the group SfM later (its
     # inputs come again from the trackers' durable streams).
     killers = [threading.Thread(target=kill_when_playing, args=(out, "keypoint_tracker_c1", 8.0)),
@@ -96,17 +100,22 @@ def test_killed_stages_are_restarted_and_every_camera_is_calibrated(tmp_path, ro
     for k in killers:
         k.join()
     assert proc.returncode == 0, err
-    assert "node 'keypoint_tracker_c1' died (exit -9); restarted it" in console
+    shared = tracker_processes == 2
+    tracker = "keypoint_trackers_0" if shared else "keypoint_tracker_c1"
+    hosting = " (hosting keypoint_tracker_c1, keypoint_tracker_c3)" if shared else ""
+    assert f"node '{tracker}'{hosting} died (exit -9); restarted it" in console, console
     assert "node 'group_sfm' died (exit -9); restarted it" in console
     doc = yaml.safe_load((out / "cameras.yaml").read_text())["cameras"]
     assert sorted(c["name"] for c in doc if c["status"] == "ok") == sorted(cams)
     log = yaml.safe_load((out / "run_log.yaml").read_text())
-    assert log["restarts"] == {"keypoint_tracker_c1": [-9], "group_sfm": [-9]}
+    assert log["restarts"] == {tracker: [-9], "group_sfm": [-9]}
+    assert len(log["graph"]["processes"]) == (2 if shared else 3) + 2        # + the group SfM and the replay
     assert log["replay_resent"] > 0                  # what the tracker had been sent before it died
     for topic, n in log["replay_published"].items():  # the restarted tracker got every message
         assert log["received"][topic] == {f"keypoint_tracker_{topic.split('/')[2]}": n}, topic
     # ... in order: it kept every frame (none "not after the previous frame")
-    assert log["stages"]["keypoint_tracker_c1"] == log["stages"]["keypoint_tracker_c2"].replace("c2", "c1")
+    for c in ("c1", "c3"):
+        assert log["stages"][f"keypoint_tracker_{c}"] == log["stages"]["keypoint_tracker_c2"].replace("c2", c)
     r = yowo("eval", out, "--bag", tmp_path / "rec", env=ros_env)
     assert r.returncode == 0, r.stderr
     rel = json.loads((out / "metrics.json").read_text())["relative"]["summary"]

@@ -60,7 +60,7 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
         assert abs(got[f"{c['name']}_optical_frame"] - c["T_world_camera"]["position"][0]) < 1e-5
     log = yaml.safe_load((out / "run_log.yaml").read_text())
     # Each node's CPU time, lifetime and peak memory (the real graph's profile, #19).
-    assert set(log["resources"]) == set(log["graph"]["nodes_on_this_host"])
+    assert set(log["resources"]) == set(log["graph"]["processes"])
     for node, r in log["resources"].items():
         assert 0.5 < r["cpu_s"] and 1.0 < r["wall_s"] and 40.0 < r["peak_rss_mb"] < 4000.0, (node, r)
     # The graph's memory (PSS summed at one sample) lies below the sum of the peak RSS, which

@@ -7,3 +7,28 @@ def test_downstream_stages_can_run_at_a_lower_priority(tmp_path):
     nice = {n.name: n.niceness for n in plan.nodes}
     assert nice == {"keypoint_tracker_a": 0, "keypoint_tracker_b": 0, "group_sfm": 5, "ego_mapper": 0, "fusion": 5}
     assert all(n.niceness == 0 for n in plan_live(["a", "b"], tmp_path).nodes)     # the default
+
+
+def test_many_trackers_share_a_few_processes(tmp_path):
+    from yowo_common.ros.context import hosted_node_names
+
+    cams = [f"c{i}" for i in range(10)]
+    plan = plan_live(cams, tmp_path, config=load_config(None, ["supervisor.tracker_processes=4"]))
+    procs = plan.local_processes
+    hosts = [p for p in procs if p.hosted]
+    assert [p.name for p in hosts] == [f"keypoint_trackers_{i}" for i in range(4)]
+    # Every tracker in exactly one process, 2-3 each; the other stages alone, in their order.
+    assert sorted(n for p in hosts for n in p.hosted) == sorted(f"keypoint_tracker_{c}" for c in cams)
+    assert [len(p.hosted) for p in hosts] == [3, 3, 2, 2]
+    assert [p.name for p in procs if not p.hosted] == ["group_sfm", "ego_mapper", "fusion"]
+    assert procs.index(hosts[0]) == 0
+    # The hosted nodes keep their own names and parameters (the params file is per node).
+    assert {n.name for n in plan.nodes} >= {f"keypoint_tracker_{c}" for c in cams}
+    # Few cameras, or 0: one process per tracker, as the nodes are.
+    few = plan_live(cams[:3], tmp_path)
+    assert few.local_processes == few.local_nodes
+    off = plan_live(cams, tmp_path, config=load_config(None, ["supervisor.tracker_processes=0"]))
+    assert off.local_processes == off.local_nodes
+    # What a hosting process reads from its command line.
+    assert hosted_node_names(["x", "--nodes", "a,b", "--ros-args", "-p", "q:=1"]) == ["a", "b"]
+    assert hosted_node_names(["x", "--ros-args", "--nodes", "a"]) == []

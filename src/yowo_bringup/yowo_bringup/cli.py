@@ -65,7 +65,8 @@ def _execute(args, mode: str):
     for w in plan.warnings:
         print(f"warning: {w}", file=sys.stderr)
     print(f"{what}: {len(plan.cameras)} CMCs ({', '.join(plan.cameras) or 'none'}), "
-          f"{len(plan.local_nodes)} node processes here; graph on {network.describe()}; "
+          f"{len(plan.local_nodes)} nodes in {len(plan.local_processes)} processes here; graph on "
+          f"{network.describe()}; "
           f"logs in {Path(args.output) / 'logs'}")
     progress = console_progress(f"{args.verb} {plan.run_id}")
     try:

@@ -35,6 +35,11 @@ class SupervisorParams:
     # (every core). The graph is parallel across its processes: pools of 2 threads in each of
     # 8 processes only spin against each other (small normal s0: ego mapper 47 -> 42 CPU s).
     library_threads: int = 1
+    # The trackers of this host run in at most this many processes (cameras spread evenly; 0: one
+    # process per camera). A process per camera costs ~120 MB and a DDS participant each, and
+    # Fast DDS's localhost-only discovery (a private run's) reaches the first 32 participants of
+    # a host only: on a 42-camera floor the ego mapper and 11 trackers never heard the replay.
+    tracker_processes: int = 8
 
 
 @dataclass(frozen=True)

@@ -61,6 +61,21 @@ class RunPlan:
     def local_nodes(self) -> list[NodeSpec]:
         return [n for n in self.nodes if any(fnmatch.fnmatchcase(n.name, p) for p in self.local)]
 
+    @property
+    def local_processes(self) -> list[NodeSpec]:
+        """The processes this host starts, in the order of its nodes: the trackers spread
+        over at most `supervisor.tracker_processes` processes, each other node alone."""
+        nodes = self.local_nodes
+        trackers = [n for n in nodes if n.module == STAGE_MODULES["keypoint_tracker"]]
+        count = self.config.supervisor.tracker_processes
+        if not count or len(trackers) <= count:
+            return nodes
+        hosts = [NodeSpec(f"keypoint_trackers_{i}", trackers[0].module, niceness=trackers[0].niceness,
+                          hosted=[t.name for t in trackers[i::count]]) for i in range(count)]
+        first = nodes.index(trackers[0])
+        others = [n for n in nodes if n not in trackers]
+        return others[:first] + hosts + others[first:]
+
     def select(self, patterns: list[str] | None) -> None:
         """Start only the nodes matching `patterns` here (a graph split across hosts)."""
         if not patterns:

@@ -127,7 +127,9 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
 
     def graph_log() -> dict:
         return {"graph": {"run_id": plan.run_id, "ros_domain_id": network.domain_id, "private": network.private,
-                          "discovery_range": network.discovery, "nodes_on_this_host": [p.spec.name for p in sup.procs],
+                          "discovery_range": network.discovery,
+                          "nodes_on_this_host": [n for p in sup.procs for n in p.spec.nodes],
+                          "processes": {p.spec.name: p.spec.nodes for p in sup.procs},
                           "stray_status_messages": monitor.strays()},
                 "restarts": {p.spec.name: p.exits for p in sup.procs if p.exits},
                 # Sampled once a second from /proc: the last second of a node is not counted.
@@ -141,7 +143,7 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
         with ros_context([]):
             monitor = RunMonitor(stages, plan.outputs, plan.run_id)
             try:
-                for spec in plan.local_nodes:  # replay last: it waits for the stages' subscriptions
+                for spec in plan.local_processes:  # replay last: it waits for the stages' subscriptions
                     sup.start(spec)
                 finished_at, last_sample = None, 0.0
                 while True:
@@ -211,13 +213,14 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
 
 
 def node_timing(sup: Supervisor, t0_wall: float) -> dict:
-    """What each node process of this host wrote about its timing (its last incarnation's)."""
+    """What each node of this host wrote about its timing (its process's last incarnation's)."""
     timing = {}
     for p in sup.procs:
-        path = stats_path(sup.log_dir, p.spec.name, p.incarnation)
-        if path.exists():
-            timing[p.spec.name] = {"spawned_s": round(p.usage[-1].spawned - t0_wall, 2),
-                                   **relative_to(yaml.safe_load(path.read_text()), t0_wall)}
+        for name in p.spec.nodes:
+            path = stats_path(sup.log_dir, name, p.incarnation)
+            if path.exists():
+                timing[name] = {"spawned_s": round(p.usage[-1].spawned - t0_wall, 2),
+                                **relative_to(yaml.safe_load(path.read_text()), t0_wall)}
     return timing
 
 
@@ -225,7 +228,8 @@ def _restart_dead(sup: Supervisor, max_restarts: int, log) -> str:
     """Restart every node that died (the replay cannot be: it is the one that re-sends what
     a restarted stage missed); the failure message when a node cannot be restarted."""
     for p in sup.dead():
-        died = f"node '{p.spec.name}' died (exit {p.popen.returncode})"
+        hosting = f" (hosting {', '.join(p.spec.hosted)})" if p.spec.hosted else ""
+        died = f"node '{p.spec.name}'{hosting} died (exit {p.popen.returncode})"
         if p.spec.name == "replay" or len(p.exits) >= max_restarts:
             why = ("the replay cannot be restarted: nobody could re-send what the stages missed"
                    if p.spec.name == "replay" else f"it was restarted {len(p.exits)} times already")

@@ -13,15 +13,23 @@ from pathlib import Path
 
 import yaml
 
+from yowo_common.ros.context import NODES_ARG
+
 from .profiling import NodeProfiler, py_spy
 
 
 @dataclass
 class NodeSpec:
-    name: str                      # node (and stage) name
+    name: str                      # node (and stage) name; of a process hosting several: the process's
     module: str                    # python module with main(), e.g. "yowo_cmc.group_sfm_node"
     parameters: dict = field(default_factory=dict)
     niceness: int = 0              # added to the supervisor's own (a lower priority)
+    hosted: list[str] = field(default_factory=list)   # the nodes one process runs (their parameters
+                                                      # in the params file); empty: this node alone
+
+    @property
+    def nodes(self) -> list[str]:
+        return self.hosted or [self.name]
 
 
 @dataclass
@@ -129,12 +137,15 @@ class Supervisor:
             Path(profile_dir).mkdir(parents=True, exist_ok=True)
 
     def _popen(self, spec: NodeSpec, incarnation: int, mode: str) -> subprocess.Popen:
-        cmd = [sys.executable, "-m", spec.module, "--ros-args", "-r", f"__node:={spec.name}"]
-        if self.params_file is not None and spec.parameters:
+        if spec.hosted:
+            cmd = [sys.executable, "-m", spec.module, NODES_ARG, ",".join(spec.hosted), "--ros-args"]
+        else:
+            cmd = [sys.executable, "-m", spec.module, "--ros-args", "-r", f"__node:={spec.name}"]
+        if self.params_file is not None and (spec.parameters or spec.hosted):
             cmd += ["--params-file", str(self.params_file)]
         if incarnation:
             cmd += ["-p", f"incarnation:={incarnation}"]
-        cmd += ["-p", f"stats_file:={stats_path(self.log_dir, spec.name, incarnation)}"]
+        cmd += ["-p", f"stats_file:={stats_path(self.log_dir, '{node}' if spec.hosted else spec.name, incarnation)}"]
         if spec.niceness:           # nice execs the node: the same process, every thread of it
             cmd = ["nice", "-n", str(spec.niceness)] + cmd
         with open(self.log_dir / f"{spec.name}.log", mode) as log:
@@ -143,7 +154,8 @@ class Supervisor:
                 log.flush()
             popen = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=self.env,
                                      start_new_session=True)  # our own Ctrl-C handling stops them in order
-        (self.log_dir / f"{spec.name}.pid").write_text(f"{popen.pid}\n")  # for users and tests
+        for name in {spec.name, *spec.nodes}:     # for users and tests, also per hosted node
+            (self.log_dir / f"{name}.pid").write_text(f"{popen.pid}\n")
         if self.profile_dir is not None:
             stem = spec.name if not incarnation else f"{spec.name}.{incarnation}"
             self.profilers.append(NodeProfiler(popen.pid, Path(self.profile_dir) / f"{stem}.txt",

@@ -31,8 +31,8 @@ SOURCES = ("keypoints", "pose", "images")
 
 
 class KeypointTrackerNode(StageNode):
-    def __init__(self):
-        super().__init__("keypoint_tracker")
+    def __init__(self, name: str = "keypoint_tracker"):
+        super().__init__(name)
         camera = self.declare_parameter("camera", "").value
         if not camera:
             raise ValueError("keypoint_tracker_node needs the parameter camera:=<name>")

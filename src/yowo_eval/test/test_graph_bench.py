@@ -13,7 +13,7 @@ def test_the_table_has_the_ratio_and_each_stage_once(tmp_path):
     row = next(line for line in md.splitlines() if line.startswith("| small_normal_s0"))
     assert "| 1.65 | 66 | 40 | 0.0123 / 0.201 | 0.0031 | 1234 |" in row
     # Trackers: mean CPU and lifetime, the largest peak.
-    assert "keypoint_tracker (each): 3.0 / 61 / 230" in row and "ego_mapper: 30.5 / 63 / 800" in row
+    assert "keypoint_tracker (each process): 3.0 / 61 / 230" in row and "ego_mapper: 30.5 / 63 / 800" in row
     failed = speed_markdown([{**CASE, "exit": 1}], "c")
     assert "failed (exit 1)" in failed
 

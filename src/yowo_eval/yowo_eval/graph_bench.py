@@ -51,14 +51,15 @@ def graph_case(bag: Path, out: Path, source: str, extra: list[str], timeout_s: f
 
 
 def _stage(name: str) -> str:
-    return "keypoint_tracker (each)" if name.startswith("keypoint_tracker_") else name
+    # Trackers: one per process, or several per process on many cameras (supervisor.tracker_processes).
+    return "keypoint_tracker (each process)" if name.startswith("keypoint_tracker") else name
 
 
 def speed_markdown(cases: list[dict], command: str) -> str:
     lines = [BEGIN, "## Speed of the real graph (`yowo run --rate 0`)", "", "Produced by:", "", "```", command, "```",
              "", "Wall time of the whole `yowo run` (start-up, replay, every stage, results) over the recording's "
              "length; per stage the CPU seconds, the process lifetime and the peak RSS (sampled from /proc once a "
-             "second; trackers: the mean and the largest peak over cameras). Graph memory: the largest sum of every "
+             "second; trackers: the mean and the largest peak over their processes). Graph memory: the largest sum of every "
              "process's proportional set size at one sample (shared libraries counted once), the machine's memory "
              "the run held at its peak. Registration and ATE as `yowo eval` computes them.", "",
              "| recording | source | processing / recording | wall [s] | recording [s] | registration avg [m / deg] "

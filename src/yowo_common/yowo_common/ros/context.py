@@ -3,11 +3,12 @@ from __future__ import annotations
 
 import contextlib
 import signal
+import sys
 import time
 
 import rclpy
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
@@ -17,6 +18,9 @@ from rclpy.signals import SignalHandlerOptions
 # is re-sent only by a writer still alive (CI at 3a1a918: a split run's other host never
 # heard that fusion had finished).
 FLUSH_S = 5.0
+# A process hosting several nodes of one executable (the supervisor's trackers) gets their
+# names on its command line, before --ros-args: `--nodes keypoint_tracker_a,keypoint_tracker_b`.
+NODES_ARG = "--nodes"
 
 
 @contextlib.contextmanager
@@ -49,17 +53,32 @@ def flush_publishers(node, timeout_s: float = FLUSH_S) -> bool:
     return True
 
 
+def hosted_node_names(args=None) -> list[str]:
+    """The node names given with NODES_ARG (before --ros-args), [] without it."""
+    argv = list(sys.argv if args is None else args)
+    end = argv.index("--ros-args") if "--ros-args" in argv else len(argv)
+    if NODES_ARG in argv[:end] and argv.index(NODES_ARG) + 1 < end:
+        return [n for n in argv[argv.index(NODES_ARG) + 1].split(",") if n]
+    return []
+
+
 def spin_node(node_factory, args=None) -> None:
-    """Entry point body of a node executable: create the node, spin it single-threaded
-    (a multi-threaded executor burns a core here); on Ctrl-C deliver what it published
-    (see FLUSH_S), then shut down cleanly."""
+    """Entry point body of a node executable: create the node (with NODES_ARG, one node of
+    each name: `node_factory(name)`), spin single-threaded (a multi-threaded executor burns
+    a core here); on Ctrl-C deliver what they published (see FLUSH_S), then shut down."""
+    names = hosted_node_names(args)
     with ros_context(args, signal_handlers=False):
-        node = node_factory()
+        nodes = [node_factory(n) for n in names] if names else [node_factory()]
+        executor = SingleThreadedExecutor()
+        for node in nodes:
+            executor.add_node(node)
         try:
-            rclpy.spin(node)
+            executor.spin()
         except KeyboardInterrupt:
-            if not flush_publishers(node):
-                node.get_logger().warning(f"stopped with messages not acknowledged by every reader "
-                                          f"after {FLUSH_S:.0f} s")
+            for node in nodes:
+                if not flush_publishers(node):
+                    node.get_logger().warning(f"stopped with messages not acknowledged by every reader "
+                                              f"after {FLUSH_S:.0f} s")
         finally:
-            node.destroy_node()
+            for node in nodes:
+                node.destroy_node()

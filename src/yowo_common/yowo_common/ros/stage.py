@@ -58,8 +58,9 @@ class StageNode(Node):
     def __init__(self, name: str):
         super().__init__(name)
         self.timing = NodeTiming()
-        # Where to write self.timing once finalised ("": nowhere; the supervisor names one).
-        self._stats_file = self.declare_parameter("stats_file", "").value
+        # Where to write self.timing once finalised ("": nowhere; the supervisor names one,
+        # "{node}" in it standing for this node's name when one process hosts several).
+        self._stats_file = self.declare_parameter("stats_file", "").value.replace("{node}", self.get_name())
         self.stage = self.get_name()  # a launcher may rename the node (one tracker per camera)
         # Isolation: statuses of other runs are counted and ignored. Incarnation: how often
         # the supervisor restarted this stage (upstream statuses and the replay re-send what
