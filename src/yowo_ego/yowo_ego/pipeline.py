@@ -277,7 +277,13 @@ class EgoMapper:
             warnings.append(f"odometry lost track {tr.breaks} time(s): {tr.map_relocalised} placed in the map of the "
                             f"recent keyframes by their depth{failed}; {mw.relocalised} segment(s) relocalised by "
                             "place recognition, the others joined by loop closures or weak constant-velocity edges")
+        if not mw.optimised:
+            warnings.append(f"{len(keyframes)} keyframes: the pose graph was not optimised globally and its "
+                            f"{mw.loops_verified} verified loop closure(s) are not applied (Open3D's optimisation "
+                            f"would hold a dense system of ~{1.1e-6 * len(keyframes) ** 2:.0f} GB; "
+                            f"ego.loops.max_optimised_keyframes = {p.loops.max_optimised_keyframes})")
         stats.update(multiway_s=time.perf_counter() - t0, edges_corrected=mw.edges_corrected,
+                     pose_graph_optimised=int(mw.optimised),
                      loops_tried=mw.loops_tried,
                      loops_verified=mw.loops_verified, loops_refined=mw.loops_refined,
                      loops_kept=mw.loops_kept, relocalised=mw.relocalised, loops_retrieved=mw.loops_retrieved)

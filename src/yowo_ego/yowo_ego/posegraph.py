@@ -81,6 +81,12 @@ class LoopParams:
     max_correspondence_distance_m: float = 0.05
     edge_prune_threshold: float = 0.25
     preference_loop_closure: float = 1.0
+    # Open3D holds the optimisation's normal equations as a dense 6N x 6N matrix (N keyframes):
+    # ~1.1 kB x N^2 of memory (2000 keyframes: 4.5 GB, measured) and time to match; a 25-minute
+    # floor's walk was killed for it at 22 GB. Above this many keyframes the graph is not
+    # optimised and its loop edges are left out (a warning says so), until a sparse optimiser
+    # replaces Open3D's.
+    max_optimised_keyframes: int = 2500
 
 
 @dataclass
@@ -105,6 +111,7 @@ class MultiwayResult:
     loops_retrieved: int           # loop edges between keyframes found by place recognition
     pairs: list[PairMatches]       # every matched keyframe pair (consecutive and loops)
     edges: list[OdometryEdge]      # the graph's edges the optimisation kept (tracking, IMU, break, loop)
+    optimised: bool = True         # False: too many keyframes for the global optimisation (odometry poses)
 
 
 def loop_candidates_of(b: int, T_odom_kf: list[np.ndarray], params: LoopParams = LoopParams()) -> list[int]:
@@ -403,8 +410,10 @@ class MultiwayRegistration:
         T_init = chain_poses(len(self.keyframes), self.edges)
         nodes = [Keyframe(k.index, k.frame_index, k.stamp_ns, T, k.color, k.depth_mm, k.segment)
                  for k, T in zip(self.keyframes, T_init)]
-        T, kept = optimize(nodes, self.edges + self._loops, p)
+        optimised = len(nodes) <= p.max_optimised_keyframes
+        T, kept = (optimize(nodes, self.edges + self._loops, p) if optimised
+                   else (T_init, [e for e in self.edges if e.kind in TRACKING_KINDS]))
         return MultiwayResult(T, self._corrected, len(self._tried), self._verified, len(self._loops),
                               sum(e.kind not in TRACKING_KINDS for e in kept), self._relocalised,
-                              self._retrieved, self._pairs, kept)
+                              self._retrieved, self._pairs, kept, optimised)
 
