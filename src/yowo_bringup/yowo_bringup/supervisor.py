@@ -53,8 +53,7 @@ class Usage:
             return None
         fields = stat.rsplit(")", 1)[1].split()           # after "pid (comm)"
         cpu = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-        hwm = next((int(line.split()[1]) for line in status.splitlines() if line.startswith("VmHWM:")), 0)
-        return cpu, hwm / 1024.0
+        return cpu, _proc_mb(status, "VmHWM:")
 
     @staticmethod
     def pss_mb(pid: int) -> float:
@@ -64,7 +63,12 @@ class Usage:
             rollup = Path(f"/proc/{pid}/smaps_rollup").read_text()
         except OSError:
             return 0.0
-        return next((int(line.split()[1]) for line in rollup.splitlines() if line.startswith("Pss:")), 0) / 1024.0
+        return _proc_mb(rollup, "Pss:")
+
+
+def _proc_mb(text: str, key: str) -> float:
+    """A "<key> <n> kB" line of a /proc file, in MB (0 without it)."""
+    return next((int(line.split()[1]) for line in text.splitlines() if line.startswith(key)), 0) / 1024.0
 
 
 @dataclass

@@ -33,7 +33,7 @@ from .imu import ImuBuffer, InertialParams, InertialTerms, keyframe_preintegrati
 from .layout import KIND_WALL, Layout, LayoutParams, build_layout
 from .odometry import (IMU_BRIDGED, RECOVERED, SKIPPED, Keyframe, KeyframeTracker, OdometryEdge, OdometryImages,
                        OdometryParams, TrackResult)
-from .posegraph import LoopParams, MultiwayRegistration
+from .posegraph import LoopParams, MultiwayRegistration, dense_system_gb
 from .refine import BundleParams, bundle_adjust
 from .scene import (CloudParams, Rectification, find_floor, fuse_cloud, planar_patches, rectify,
                     up_from_cameras)
@@ -280,7 +280,7 @@ class EgoMapper:
         if not mw.optimised:
             warnings.append(f"{len(keyframes)} keyframes: the pose graph was not optimised globally and its "
                             f"{mw.loops_verified} verified loop closure(s) are not applied (Open3D's optimisation "
-                            f"would hold a dense system of ~{1.1e-6 * len(keyframes) ** 2:.0f} GB; "
+                            f"would hold a dense system of ~{dense_system_gb(len(keyframes)):.0f} GB; "
                             f"ego.loops.max_optimised_keyframes = {p.loops.max_optimised_keyframes})")
         stats.update(multiway_s=time.perf_counter() - t0, edges_corrected=mw.edges_corrected,
                      pose_graph_optimised=int(mw.optimised),

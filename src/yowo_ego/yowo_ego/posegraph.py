@@ -82,11 +82,17 @@ class LoopParams:
     edge_prune_threshold: float = 0.25
     preference_loop_closure: float = 1.0
     # Open3D holds the optimisation's normal equations as a dense 6N x 6N matrix (N keyframes):
-    # ~1.1 kB x N^2 of memory (2000 keyframes: 4.5 GB, measured) and time to match; a 25-minute
+    # `dense_system_gb` (2000 keyframes: 4.5 GB, measured) and time to match; a 25-minute
     # floor's walk was killed for it at 22 GB. Above this many keyframes the graph is not
     # optimised and its loop edges are left out (a warning says so), until a sparse optimiser
     # replaces Open3D's.
     max_optimised_keyframes: int = 2500
+
+
+def dense_system_gb(keyframes: int) -> float:
+    """What Open3D's global optimisation holds for this many keyframes (measured on chains:
+    ~1.1 kB x N^2, the dense 6N x 6N normal equations and their copies)."""
+    return 1.1e-6 * keyframes ** 2
 
 
 @dataclass
