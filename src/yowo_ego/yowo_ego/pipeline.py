@@ -33,7 +33,7 @@ from .imu import ImuBuffer, InertialParams, InertialTerms, keyframe_preintegrati
 from .layout import KIND_WALL, Layout, LayoutParams, build_layout
 from .odometry import (IMU_BRIDGED, RECOVERED, SKIPPED, Keyframe, KeyframeTracker, OdometryEdge, OdometryImages,
                        OdometryParams, TrackResult)
-from .posegraph import LoopParams, MultiwayRegistration, dense_system_gb
+from .posegraph import LoopParams, MultiwayRegistration
 from .refine import BundleParams, bundle_adjust
 from .scene import (CloudParams, Rectification, find_floor, fuse_cloud, planar_patches, rectify,
                     up_from_cameras)
@@ -277,13 +277,7 @@ class EgoMapper:
             warnings.append(f"odometry lost track {tr.breaks} time(s): {tr.map_relocalised} placed in the map of the "
                             f"recent keyframes by their depth{failed}; {mw.relocalised} segment(s) relocalised by "
                             "place recognition, the others joined by loop closures or weak constant-velocity edges")
-        if not mw.optimised:
-            warnings.append(f"{len(keyframes)} keyframes: the pose graph was not optimised globally and its "
-                            f"{mw.loops_verified} verified loop closure(s) are not applied (Open3D's optimisation "
-                            f"would hold a dense system of ~{dense_system_gb(len(keyframes)):.0f} GB; "
-                            f"ego.loops.max_optimised_keyframes = {p.loops.max_optimised_keyframes})")
         stats.update(multiway_s=time.perf_counter() - t0, edges_corrected=mw.edges_corrected,
-                     pose_graph_optimised=int(mw.optimised),
                      loops_tried=mw.loops_tried,
                      loops_verified=mw.loops_verified, loops_refined=mw.loops_refined,
                      loops_kept=mw.loops_kept, relocalised=mw.relocalised, loops_retrieved=mw.loops_retrieved)

@@ -16,8 +16,9 @@ registration [Choi et al. 2015]), as an Open3D pose graph:
   recognition, ``retrieval``), verified and refined as a loop; its break edge then
   takes the pose that loop implies. Once joined, each keyframe's best look-alike
   further away than the pose-based search reaches is tried as a loop too;
-- Open3D's global optimisation (Levenberg-Marquardt with a line process on the
-  loop edges, which prunes the ones inconsistent with the rest).
+- global optimisation: Open3D's (Levenberg-Marquardt with a line process on the
+  loop edges, which prunes the ones inconsistent with the rest), solved sparsely
+  with GTSAM (``optimize``).
 
 Edge checks and loop closures run per keyframe as the recording goes on
 (``MultiwayRegistration.add``); only the optimisation waits for its end."""
@@ -25,16 +26,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import gtsam
 import numpy as np
-import open3d as o3d
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
+from yowo_common.bundle import optimize as levenberg_marquardt
 from yowo_common.geometry import inv_se3, rotation_angle_deg
 
 from .features import FeatureParams, KeyframeFeatures, PnpResult, match, relative_pose, support
 from .odometry import TRACKING_KINDS, Keyframe, OdometryEdge, RgbdOdometry, o3d_rgbd, orthonormalize
 from .retrieval import PlaceIndex, RetrievalParams
-
-reg = o3d.pipelines.registration
 
 
 @dataclass(frozen=True)
@@ -77,22 +79,12 @@ class LoopParams:
     # the IMU: a tracked 45 deg whip-turn step replaced by one 90 deg off).
     max_across_correction_deg: float = 20.0
     retrieval: RetrievalParams = RetrievalParams()
-    # Open3D global optimisation.
+    # Global optimisation, Open3D's GlobalOptimizationOption and convergence criteria.
     max_correspondence_distance_m: float = 0.05
     edge_prune_threshold: float = 0.25
     preference_loop_closure: float = 1.0
-    # Open3D holds the optimisation's normal equations as a dense 6N x 6N matrix (N keyframes):
-    # `dense_system_gb` (2000 keyframes: 4.5 GB, measured) and time to match; a 25-minute
-    # floor's walk was killed for it at 22 GB. Above this many keyframes the graph is not
-    # optimised and its loop edges are left out (a warning says so), until a sparse optimiser
-    # replaces Open3D's.
-    max_optimised_keyframes: int = 2500
-
-
-def dense_system_gb(keyframes: int) -> float:
-    """What Open3D's global optimisation holds for this many keyframes (measured on chains:
-    ~1.1 kB x N^2, the dense 6N x 6N normal equations and their copies)."""
-    return 1.1e-6 * keyframes ** 2
+    max_iterations: int = 100
+    relative_error_tol: float = 1e-6
 
 
 @dataclass
@@ -117,7 +109,6 @@ class MultiwayResult:
     loops_retrieved: int           # loop edges between keyframes found by place recognition
     pairs: list[PairMatches]       # every matched keyframe pair (consecutive and loops)
     edges: list[OdometryEdge]      # the graph's edges the optimisation kept (tracking, IMU, break, loop)
-    optimised: bool = True         # False: too many keyframes for the global optimisation (odometry poses)
 
 
 def loop_candidates_of(b: int, T_odom_kf: list[np.ndarray], params: LoopParams = LoopParams()) -> list[int]:
@@ -264,27 +255,61 @@ def chain_poses(n: int, edges: list[OdometryEdge]) -> list[np.ndarray]:
 
 def optimize(keyframes: list[Keyframe], edges: list[OdometryEdge],
              params: LoopParams = LoopParams()) -> tuple[list[np.ndarray], list[OdometryEdge]]:
-    """Global pose-graph optimisation (Open3D, Levenberg-Marquardt with line
-    process on loop edges). Returns T_odom_kf and the edges kept (the line
-    process prunes uncertain ones)."""
-    graph = reg.PoseGraph()
-    for kf in keyframes:
-        graph.nodes.append(reg.PoseGraphNode(kf.T_odom_cam))
-    for e in edges:
-        graph.edges.append(reg.PoseGraphEdge(e.source, e.target, e.T_target_source, e.information,
-                                             uncertain=e.kind not in TRACKING_KINDS))
-    option = reg.GlobalOptimizationOption(
-        max_correspondence_distance=params.max_correspondence_distance_m,
-        edge_prune_threshold=params.edge_prune_threshold,
-        preference_loop_closure=params.preference_loop_closure, reference_node=0)
-    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        reg.global_optimization(graph, reg.GlobalOptimizationLevenbergMarquardt(),
-                                reg.GlobalOptimizationConvergenceCriteria(), option)
-    # Pruning keeps the order; a tracking break's edge and a loop may join the same pair.
-    remaining = iter(edges)
-    kept = [next(e for e in remaining if (e.source, e.target) == (g.source_node_id, g.target_node_id))
-            for g in graph.edges]
-    return [orthonormalize(np.asarray(n.pose)) for n in graph.nodes], kept
+    """Global pose-graph optimisation of Choi et al. 2015 as Open3D's
+    ``global_optimization`` does it (Levenberg-Marquardt with a line process on
+    the loop edges; the loops whose line process ends below
+    ``edge_prune_threshold`` are pruned and the rest optimised again), solved with
+    GTSAM's sparse LM instead: Open3D builds the normal equations as a dense
+    6N x 6N matrix (a 2000-keyframe chain took 4.5 GB, a 25-minute floor 22 GB).
+    The residual of an edge is the same (GTSAM's BetweenFactor error is
+    Log(T_meas^-1 T_target^-1 T_source), rotation first as Open3D's information);
+    the line process at its optimum is the Geman-McClure kernel with c^2 = Open3D's
+    line-process weight. Keyframe 0 stays fixed (Open3D's reference node).
+    Returns T_odom_kf and the edges kept."""
+    T = [kf.T_odom_cam for kf in keyframes]
+    active = list(range(len(edges)))
+    for _ in range(2):
+        T, confidence = _optimize_once(T, [edges[i] for i in active], params)
+        active = [i for i, c in zip(active, confidence) if c > params.edge_prune_threshold]
+    return [orthonormalize(t) for t in T], [edges[i] for i in active]
+
+
+def _optimize_once(T_init: list[np.ndarray], edges: list[OdometryEdge],
+                   params: LoopParams) -> tuple[list[np.ndarray], list[float]]:
+    """One of Open3D's optimisation passes: poses and each edge's line process
+    (1 for tracking edges)."""
+    # Open3D's line-process weight (ComputeLineProcessWeight), over the edges of this pass.
+    mu = params.preference_loop_closure * params.max_correspondence_distance_m ** 2 * float(
+        np.mean([e.information[5, 5] for e in edges])) if edges else 0.0
+    kernel = gtsam.noiseModel.mEstimator.GemanMcClure.Create(np.sqrt(mu)) if mu > 0 else None
+    uncertain = [e.kind not in TRACKING_KINDS for e in edges]
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for i, T in enumerate(T_init):
+        values.insert(i, gtsam.Pose3(T))
+    factors = []
+    for e, loose in zip(edges, uncertain):
+        model = gtsam.noiseModel.Gaussian.Information(e.information)
+        if loose and kernel is not None:
+            model = gtsam.noiseModel.Robust.Create(kernel, model)
+        factors.append(gtsam.BetweenFactorPose3(e.target, e.source, gtsam.Pose3(e.T_target_source), model))
+        graph.add(factors[-1])
+    # Fix one node per connected part: keyframe 0, and where pruned loops left a part
+    # unattached (Open3D's damped solve leaves such a part where it is), its first keyframe.
+    n = len(T_init)
+    adjacency = coo_matrix((np.ones(len(edges)), ([e.source for e in edges], [e.target for e in edges])),
+                           shape=(n, n))
+    _, part = connected_components(adjacency, directed=False)
+    for first in np.unique(part, return_index=True)[1]:
+        graph.add(gtsam.NonlinearEqualityPose3(int(first), gtsam.Pose3(T_init[first])))
+    result, *_ = levenberg_marquardt(graph, values, params.max_iterations, params.relative_error_tol)
+    confidence = []
+    for f, e, loose in zip(factors, edges, uncertain):
+        if not loose:
+            confidence.append(1.0)
+            continue
+        r = f.unwhitenedError(result)
+        confidence.append((mu / (mu + float(r @ e.information @ r))) ** 2 if mu > 0 else 1.0)
+    return [result.atPose3(i).matrix() for i in range(n)], confidence
 
 
 class MultiwayRegistration:
@@ -416,10 +441,8 @@ class MultiwayRegistration:
         T_init = chain_poses(len(self.keyframes), self.edges)
         nodes = [Keyframe(k.index, k.frame_index, k.stamp_ns, T, k.color, k.depth_mm, k.segment)
                  for k, T in zip(self.keyframes, T_init)]
-        optimised = len(nodes) <= p.max_optimised_keyframes
-        T, kept = (optimize(nodes, self.edges + self._loops, p) if optimised
-                   else (T_init, [e for e in self.edges if e.kind in TRACKING_KINDS]))
+        T, kept = optimize(nodes, self.edges + self._loops, p)
         return MultiwayResult(T, self._corrected, len(self._tried), self._verified, len(self._loops),
                               sum(e.kind not in TRACKING_KINDS for e in kept), self._relocalised,
-                              self._retrieved, self._pairs, kept, optimised)
+                              self._retrieved, self._pairs, kept)
 
