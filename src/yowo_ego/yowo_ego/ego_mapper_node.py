@@ -105,7 +105,7 @@ class EgoMapperNode(StageNode):
         self.on_pairs([r for pair in pairs for r in self.wait.push(pair[0], pair)])
 
     def on_info(self, msg: CameraInfo) -> None:
-        if self.mapper is not None or self.info_problem:
+        if self.mapper is not None or self.info_problem or self.finished:
             return
         try:
             self.mapper = EgoMapper(camera_info_to_model(msg), self.params, self.info_topic, self.imu)
@@ -198,6 +198,7 @@ class EgoMapperNode(StageNode):
         self.pub_layout.publish(layout_msg(r))
         text = (f"{len(r.stamps_ns)} frames, {len(r.keyframe_frames)} keyframes, {len(r.landmarks)} landmarks, "
                 f"{len(r.cloud_points)} cloud points, {len(r.layout.floor_polygons)} floor polygon(s)")
+        self.mapper = None                       # published: the keyframes' images can go
         imu = []
         if self.imu_problem:
             imu.append(self.imu_problem)

@@ -15,6 +15,7 @@ from yowo_msgs.msg import ReplayStatus, StageStatus
 
 from .. import topics
 from ..config import describe_changes, load
+from ..memory import release_free_memory
 from ..streams import StreamCompletion
 from .timing import NodeTiming
 
@@ -177,10 +178,13 @@ class StageNode(Node):
             self.get_logger().error(f"{self.stage} failed: {exc}\n{traceback.format_exc()}")
             self._write_timing()
             self.publish_status(StageStatus.STATE_FAILED, str(exc))
+            release_free_memory()
             return
         self._write_timing()
         self.publish_status(StageStatus.STATE_FINISHED, summary)
         self.get_logger().info(f"{self.stage} finished. {summary}")
+        # The process stays until the run ends, next to the stages still working.
+        release_free_memory()
 
     def finalize(self) -> str | None:
         raise NotImplementedError
