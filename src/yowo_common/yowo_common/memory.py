@@ -5,19 +5,21 @@ run (the 42-camera floor: the ego mapper held 7.5 GB through the whole fusion)."
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
+import functools
 import gc
+
+
+@functools.cache
+def _malloc_trim():
+    """glibc's malloc_trim from the symbols the process already has (None elsewhere)."""
+    return getattr(ctypes.CDLL(None), "malloc_trim", None)
 
 
 def release_free_memory() -> bool:
     """Collect garbage and return the free heap pages to the system (glibc's
     malloc_trim). False where the C library has no malloc_trim (musl, macOS)."""
     gc.collect()
-    name = ctypes.util.find_library("c")
-    try:
-        trim = ctypes.CDLL(name).malloc_trim if name else None
-    except (OSError, AttributeError):
-        trim = None
+    trim = _malloc_trim()
     if trim is None:
         return False
     trim(0)

@@ -32,6 +32,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from yowo_common.bundle import optimize as levenberg_marquardt
+from yowo_common.bundle import pose3
 from yowo_common.geometry import inv_se3, rotation_angle_deg
 
 from .features import FeatureParams, KeyframeFeatures, PnpResult, match, relative_pose, support
@@ -285,13 +286,13 @@ def _optimize_once(T_init: list[np.ndarray], edges: list[OdometryEdge],
     uncertain = [e.kind not in TRACKING_KINDS for e in edges]
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     for i, T in enumerate(T_init):
-        values.insert(i, gtsam.Pose3(T))
+        values.insert(i, pose3(T))
     factors = []
     for e, loose in zip(edges, uncertain):
         model = gtsam.noiseModel.Gaussian.Information(e.information)
         if loose and kernel is not None:
             model = gtsam.noiseModel.Robust.Create(kernel, model)
-        factors.append(gtsam.BetweenFactorPose3(e.target, e.source, gtsam.Pose3(e.T_target_source), model))
+        factors.append(gtsam.BetweenFactorPose3(e.target, e.source, pose3(e.T_target_source), model))
         graph.add(factors[-1])
     # Fix one node per connected part: keyframe 0, and where pruned loops left a part
     # unattached (Open3D's damped solve leaves such a part where it is), its first keyframe.
@@ -300,7 +301,7 @@ def _optimize_once(T_init: list[np.ndarray], edges: list[OdometryEdge],
                            shape=(n, n))
     _, part = connected_components(adjacency, directed=False)
     for first in np.unique(part, return_index=True)[1]:
-        graph.add(gtsam.NonlinearEqualityPose3(int(first), gtsam.Pose3(T_init[first])))
+        graph.add(gtsam.NonlinearEqualityPose3(int(first), pose3(T_init[first])))
     result, *_ = levenberg_marquardt(graph, values, params.max_iterations, params.relative_error_tol)
     confidence = []
     for f, e, loose in zip(factors, edges, uncertain):
