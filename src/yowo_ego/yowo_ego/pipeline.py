@@ -409,7 +409,8 @@ class EgoMapper:
         remap = np.cumsum(keep) - 1
         sel = keep[ba.obs.point]
         stats.update(landmarks=int(keep.sum()), observations=int(sel.sum()), bundle_rmse_px=ba.rmse_px,
-                     bundle_sigma_px=ba.sigma_px, bundle_dropped=ba.dropped, bundle_iterations=ba.iterations)
+                     bundle_sigma_px=ba.sigma_px, bundle_dropped=ba.dropped,
+                     bundle_left_out=ba.left_out, bundle_iterations=ba.iterations)
         if ba.biases:
             b = np.array(list(ba.biases.values()))
             stats.update(imu_accel_bias_mps2=float(np.linalg.norm(b[:, :3], axis=1).mean()),

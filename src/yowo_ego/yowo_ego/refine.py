@@ -49,6 +49,10 @@ class BundleParams:
     pose_graph_factors: bool = True
     edge_information_scale: float = 1.0
     edge_huber_k: float = 1.345          # on the whitened edge error: a wrong edge yields to the features
+    # Observations the adjustment (and so the map) keeps at most; 0: all. GTSAM's solve takes
+    # ~3 kB per observation (a 25-minute floor: 1.09 M, +3.4 GB), so above this each keyframe
+    # keeps its longest tracks (select_landmarks). The small and standard walks stay below it.
+    max_observations: int = 500_000
 
 
 @dataclass
@@ -63,6 +67,7 @@ class BundleOutput:
     final_error: float
     iterations: int
     dropped: int                         # observations removed as outliers
+    left_out: int                        # observations over params.max_observations (select_landmarks)
     velocities: dict[int, np.ndarray]    # keyframe -> world velocity [m/s] (IMU factors only)
     biases: dict[int, np.ndarray]        # keyframe -> (accelerometer, gyro) bias, IMU frame (IMU factors only)
 
@@ -99,6 +104,29 @@ def landmarks_from_tracks(tracks: Tracks, features: list[KeyframeFeatures], T_wo
     new_id = np.cumsum(keep_track) - 1
     sel = keep_track[trk]
     return new_id[trk[sel]], points, kf[sel], feat[sel], uv[sel], depth[sel]
+
+
+def select_landmarks(landmark: np.ndarray, keyframe: np.ndarray, budget: int) -> np.ndarray:
+    """Which landmarks to keep (bool per landmark) so that their observations fit the
+    budget: every keyframe ranks the landmarks it sees by track length (the longest tie
+    keyframes furthest apart, loops included), and a landmark stays if it is among the
+    first q of any of its keyframes, q the largest that fits. Keyframes keep an equal
+    share, so none is left hanging on its pose-graph edges alone."""
+    n = int(landmark.max()) + 1 if len(landmark) else 0
+    if budget <= 0 or len(landmark) <= budget:
+        return np.ones(n, bool)
+    length = np.bincount(landmark, minlength=n)
+    order = np.lexsort((landmark, -length[landmark], keyframe))       # per keyframe, longest tracks first
+    first = np.searchsorted(keyframe[order], keyframe[order])          # start of each keyframe's run
+    rank = np.empty(len(landmark), int)
+    rank[order] = np.arange(len(order)) - first
+    best = np.full(n, np.iinfo(int).max)
+    np.minimum.at(best, landmark, rank)                                # a landmark's best rank in any keyframe
+    lo, hi = 0, int(rank.max()) + 1                     # observations kept at q = lo fit, at q = hi do not
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (mid, hi) if length[best < mid].sum() <= budget else (lo, mid)
+    return best < lo
 
 
 def edge_factor(edge: OdometryEdge, params: BundleParams) -> gtsam.BetweenFactorPose3:
@@ -159,6 +187,12 @@ def bundle_adjust(tracks: Tracks, features: list[KeyframeFeatures], T_world_kf: 
     preintegrated IMU between consecutive keyframes."""
     K = camera.K
     lm, points, kf, feat, uv, depth = landmarks_from_tracks(tracks, features, T_world_kf, K, params)
+    kept = select_landmarks(lm, kf, params.max_observations)
+    left_out = int((~kept[lm]).sum())
+    if left_out:
+        sel = kept[lm]
+        lm, points, kf, feat, uv, depth = np.cumsum(kept)[lm[sel]] - 1, points[kept], kf[sel], feat[sel], uv[sel], \
+            depth[sel]
     descriptors = np.zeros((len(points), 128), np.uint8)
     first = np.unique(lm, return_index=True)[1]
     for i in first:
@@ -217,5 +251,5 @@ def bundle_adjust(tracks: Tracks, features: list[KeyframeFeatures], T_world_kf: 
             velocities[i] = np.asarray(result.atVector(V(i)))
             b = result.atConstantBias(B(i))
             biases[i] = np.concatenate([b.accelerometer(), b.gyroscope()])
-    return BundleOutput(T, P, descriptors, final_obs, rmse, sigma, initial_error, final_error, iterations, dropped,
+    return BundleOutput(T, P, descriptors, final_obs, rmse, sigma, initial_error, final_error, iterations, dropped, left_out,
                         velocities, biases)
