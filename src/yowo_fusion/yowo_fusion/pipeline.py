@@ -19,7 +19,7 @@ from yowo_ego.scene import CloudParams
 
 from .alignment import AlignParams, ClockFit, align_group, estimate_clock_offset, interpolate_positions
 from .isolated import AgentTrack, IsolatedParams, refine_pose, register_by_agent
-from .joint import (UNKNOWN_COVARIANCE, JointParams, JointProblem, covariance_unavailable, ros_covariance,
+from .joint import (UNKNOWN_COVARIANCE, JointParams, JointProblem, JointResult, covariance_unavailable, ros_covariance,
                     solve_joint, solver_failure)
 from .refined_map import move_cloud, rebuild_layout
 from .scene_matching import SceneMatchParams, match_scene
@@ -122,11 +122,11 @@ class FusionParams:
     # and the joint optimisation fits the other pieces to its track; 0: such a group's
     # cameras are registered one by one.
     rescue_window_s: float = 6.0
-    # A joint solution that freed breaks the ego map did not flag is kept only if every
-    # group's head-top track fits it within this (RMS): a map bent where no agent track
-    # holds it leaves ~0.5 m (small symmetric s0 without IMU: cameras 0.28 -> 1.3 m off);
-    # the frames beside a repaired break can stay off by more than ok_track_rms_m (test
-    # world, 1.5 m / 40 deg break: 0.24 m, cameras within 5 cm).
+    # A joint solution is kept only if every group's head-top track fits its ego trajectory
+    # within this (RMS); the worst group beyond it is left out and the rest solved again. A
+    # map bent where no agent track holds it leaves ~0.5 m (small symmetric s0 without IMU:
+    # cameras 0.28 -> 1.3 m off); the frames beside a repaired break can stay off by more
+    # than ok_track_rms_m (test world, 1.5 m / 40 deg break: 0.24 m, cameras within 5 cm).
     max_unexplained_track_rms_m: float = 0.3
 
 
@@ -474,39 +474,30 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
     T_ego, landmarks = ego.T_world_ego, ego.landmarks
     cloud, layout = ego.cloud_points, ego.layout
     if names:
-        problem = JointProblem(ideal_ego, ego.stamps_ns, list(ego.T_world_ego), ego.landmarks, ego_obs, cams, T_init,
-                               scene_obs, agent.points, agent.stamps_ns, agent.ids, agent_obs, head_offset,
-                               grouped.agent_chain, weak[0])
-        res, jo_failure = None, ""
-        if params.joint_optimisation:
-            try:
-                res = solve_joint(problem, params.joint)
-            except RuntimeError as exc:  # GTSAM gave up on the system: keep the aligned poses
-                jo_failure = f"joint optimisation failed ({solver_failure(exc)}): pose without JO"
-            if res is not None:
-                jo_failure = _diverged(names, res.cmc_agent_residuals,
-                                       reprojection_residuals(cams, T_init, agent.points, agent_obs), agent_obs, params)
-                jo_failure = jo_failure or _unexplained_breaks(res, grouped, ego, params)
-                res = None if jo_failure else res
+        jo = _joint(grouped, scene_obs, ego, ideal_ego, ego_obs, weak, params)
+        res, T_final = jo.result, jo.T_world_cmc
         if res is not None:
             # Breaks the joint optimisation found are breaks of the ego map like its gaps.
             found = np.isin(np.arange(len(ego.stamps_ns)), res.ego_breaks)
             weak = (weak[0] | found, weak[1] | found)
-            T_ego, landmarks, T_final = np.array(res.T_world_ego), res.landmarks, res.T_world_cmc
-            agent = AgentTrack(agent.stamps_ns, agent.ids, res.agent_points)
-            head_offset, covs = res.head_offset, res.cmc_covariances
-            cov_failures = [res.covariance_failure] * len(names)
-            agent_res = res.cmc_agent_residuals
+            T_ego, landmarks = np.array(res.T_world_ego), res.landmarks
+            agent = AgentTrack(agent.stamps_ns, agent.ids, jo.agent_points)
+            head_offset = res.head_offset
             if len(cloud):
                 views = res.anchors
                 cloud = move_cloud(cloud, ideal_ego, ego.T_world_ego[views], T_ego[views], params.cloud.depth_max_m)
                 layout = rebuild_layout(cloud, T_ego[views, :3, 3], params.cloud, params.layout)
-        else:
-            T_final = T_init
-            own = [agent_obs.camera == i for i in range(len(names))]
-            covs, cov_failures = zip(*[_covariance(cams[i], T_init[i], agent.points[agent_obs.point[sel]],
-                                                   agent_obs.uv[sel], 2.0) for i, sel in enumerate(own)])
-            agent_res = reprojection_residuals(cams, T_final, agent.points, agent_obs)
+        covs, cov_failures = [], []
+        for i, k in enumerate(np.cumsum(jo.in_jo) - 1):
+            if jo.in_jo[i]:
+                covs.append(res.cmc_covariances[k])
+                cov_failures.append(res.covariance_failure)
+                continue
+            own = agent_obs.camera == i
+            cov, failure = _covariance(cams[i], T_final[i], agent.points[agent_obs.point[own]], agent_obs.uv[own], 2.0)
+            covs.append(cov)
+            cov_failures.append(failure)
+        agent_res = reprojection_residuals(cams, T_final, agent.points, agent_obs)
         for i, n in enumerate(names):
             own = agent_obs.camera == i
             raw = cmcs[n].tracks.camera
@@ -514,8 +505,9 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
                                  raw.distort_pixels(agent_obs.uv[own] - agent_res[own])))
             rmse = _rmse(agent_res[own])
             status, reason = _verdict(rmse, covs[i], params, cov_failures[i])
-            distrust = [jo_failure] + _group_distrust(grouped.chains[group_of[n]], agent, grouped.agent_chain, ego,
-                                                      T_ego, head_offset, weak, params, n in grouped.disputed)
+            distrust = [jo.failure, jo.left_out.get(group_of[n], "")] + _group_distrust(
+                grouped.chains[group_of[n]], agent, grouped.agent_chain, ego, T_ego, head_offset, weak, params,
+                n in grouped.disputed)
             if any(distrust):
                 status, reason = WEAK, "; ".join(r for r in distrust + [reason] if r)
             registered.append(RegisteredCmc(n, group_of[n], GROUP_SFM, status, reason, T_final[i], covs[i],
@@ -531,33 +523,97 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
                         ego.cloud_colors, layout, grouped.alignments, fits)
 
 
-def _diverged(names: list[str], after: np.ndarray, before: np.ndarray, obs: Observations, params: FusionParams
-              ) -> str:
+@dataclass
+class _Joint:
+    """The joint optimisation's outcome on _GroupedCmcs' cameras and agent points: each
+    camera's pose (its group's alignment where it was not in a kept solution)."""
+
+    result: JointResult | None           # None: no solution kept (failure says why)
+    in_jo: np.ndarray                    # (cameras,) bool: the camera's pose is the solution's
+    T_world_cmc: list[np.ndarray]
+    agent_points: np.ndarray
+    left_out: dict[str, str]             # group -> why it was left out of the solution
+    failure: str = ""
+
+
+def _joint(grouped: _GroupedCmcs, scene_obs: Observations, ego: EgoMapData, ideal_ego: CameraModel,
+           ego_obs: Observations, weak: tuple[np.ndarray, np.ndarray], params: FusionParams) -> _Joint:
+    """The joint optimisation of every group; a solution a group cannot be reconciled with
+    (its agent reprojection diverged, or its track does not fit the ego trajectory the
+    solution made) is solved again without that group, which keeps its alignment: one wrong group
+    (rooms joined through a doorway) must not cost the others theirs."""
+    n_cams = len(grouped.names)
+    none = _Joint(None, np.zeros(n_cams, bool), list(grouped.T_init), grouped.agent.points, {})
+    left_out: dict[str, str] = {}
+    while params.joint_optimisation:
+        cams = np.array([grouped.group_of[n] not in left_out for n in grouped.names])
+        chains = [c for g, (c, _) in grouped.chains.items() if g not in left_out]
+        points = np.isin(grouped.agent_chain, chains)
+        cam_index, point_index = np.cumsum(cams) - 1, np.cumsum(points) - 1
+        agent_obs = grouped.agent_obs.subset(cams[grouped.agent_obs.camera])   # a camera sees its group's points
+        agent_obs = replace(agent_obs, camera=cam_index[agent_obs.camera], point=point_index[agent_obs.point])
+        scene = scene_obs.subset(cams[scene_obs.camera])
+        scene = replace(scene, camera=cam_index[scene.camera])
+        problem = JointProblem(ideal_ego, ego.stamps_ns, list(ego.T_world_ego), ego.landmarks, ego_obs,
+                               [c for c, k in zip(grouped.cams, cams) if k],
+                               [T for T, k in zip(grouped.T_init, cams) if k], scene, grouped.agent.points[points],
+                               grouped.agent.stamps_ns[points], grouped.agent.ids[points], agent_obs,
+                               grouped.head_offset, grouped.agent_chain[points], weak[0])
+        try:
+            res = solve_joint(problem, params.joint)
+        except RuntimeError as exc:  # GTSAM gave up on the system: keep the aligned poses
+            return replace(none, left_out=left_out,
+                           failure=f"joint optimisation failed ({solver_failure(exc)}): pose without JO")
+        T_world_cmc, agent_points = list(grouped.T_init), grouped.agent.points.copy()
+        for i, T in zip(np.flatnonzero(cams), res.T_world_cmc):
+            T_world_cmc[i] = T
+        agent_points[points] = res.agent_points
+        out = _Joint(res, cams, T_world_cmc, agent_points, left_out)
+        why, group = _diverged(grouped, out, params)
+        if not why:
+            why, group = _unreconciled(grouped, out, ego, params)
+        if not why:
+            return out
+        if group is None or len(left_out) + 1 >= len(grouped.chains):
+            return replace(none, left_out=left_out, failure=f"{why}: pose without JO")
+        left_out[group] = f"group {group} left out of the joint optimisation: {why}"
+    return none
+
+
+def _diverged(grouped: _GroupedCmcs, jo: _Joint, params: FusionParams) -> tuple[str, str | None]:
     """Why the joint optimisation's result is rejected: a camera's agent reprojection RMSE
     above ok_rmse_px and worse than before it (on a badly broken ego map it can end in a
-    minimum where the group no longer fits its own views), or ''."""
-    for c in np.unique(obs.camera):
+    minimum where the group no longer fits its own views), and the camera's group; or ''."""
+    obs = grouped.agent_obs
+    after = reprojection_residuals(grouped.cams, jo.T_world_cmc, jo.agent_points, obs)
+    before = reprojection_residuals(grouped.cams, grouped.T_init, grouped.agent.points, obs)
+    for c in np.flatnonzero(jo.in_jo):
         a, b = _rmse(after[obs.camera == c]), _rmse(before[obs.camera == c])
         if not np.isfinite(a) or (a > params.ok_rmse_px and a > max(2.0 * b, b + 1.0)):
-            return (f"joint optimisation diverged ({names[c]}'s agent reprojection RMSE {a:.1f} px, {b:.1f} px "
-                    "before it): pose without JO")
-    return ""
+            name = grouped.names[c]
+            return (f"joint optimisation diverged ({name}'s agent reprojection RMSE {a:.1f} px, {b:.1f} px "
+                    "before it)"), grouped.group_of[name]
+    return "", None
 
 
-def _unexplained_breaks(res, grouped: _GroupedCmcs, ego: EgoMapData, params: FusionParams) -> str:
-    """Why a solution that freed breaks the ego map did not flag is rejected: a group's agent
-    track still disagrees with it (the freed map bent where no agent track holds it), or ''."""
-    if not len(res.ego_breaks):
-        return ""
-    agent = AgentTrack(grouped.agent.stamps_ns, grouped.agent.ids, res.agent_points)
+def _unreconciled(grouped: _GroupedCmcs, jo: _Joint, ego: EgoMapData, params: FusionParams) -> tuple[str, str | None]:
+    """Why a solution is rejected: a group's agent track still disagrees with the ego
+    trajectory it solved for by more than max_unexplained_track_rms_m (the solution could not
+    reconcile the two: a wrong group bends the map, and any unflagged breaks it freed, for all
+    the others), and the worst such group; or ''."""
+    res = jo.result
+    agent = AgentTrack(grouped.agent.stamps_ns, grouped.agent.ids, jo.agent_points)
+    worst, culprit = params.max_unexplained_track_rms_m, None
     for gid, (c, _) in sorted(grouped.chains.items()):
         rms = head_top_rms(agent, grouped.agent_chain, c, ego.stamps_ns, np.asarray(res.T_world_ego), res.head_offset,
-                           params.align.max_time_gap_s)
-        if np.isfinite(rms) and rms > params.max_unexplained_track_rms_m:
-            return (f"the joint optimisation found {len(res.ego_breaks)} unflagged break step(s) in the ego map that "
-                    f"the agent tracks do not explain (group {gid}'s head-top RMS {rms:.2f} m > "
-                    f"{params.max_unexplained_track_rms_m:g} m after it): pose without JO")
-    return ""
+                           params.align.max_time_gap_s) if gid not in jo.left_out else float("nan")
+        if np.isfinite(rms) and rms > worst:
+            worst, culprit = rms, gid
+    if culprit is None:
+        return "", None
+    breaks = f" (it found {len(res.ego_breaks)} unflagged break step(s) in the ego map)" if len(res.ego_breaks) else ""
+    return (f"group {culprit}'s head-top track does not fit the ego trajectory of the joint solution{breaks}: RMS "
+            f"{worst:.2f} m > {params.max_unexplained_track_rms_m:g} m"), culprit
 
 
 def _group_distrust(chain: tuple[int, CameraGroupResult], agent: AgentTrack, agent_chain: np.ndarray,
