@@ -1,7 +1,8 @@
+import networkx as nx
 import numpy as np
 
 from yowo_eval.evaluation import relative_pose_errors
-from yowo_cmc.group_sfm import SfmParams, calibrate_groups, overlap_score
+from yowo_cmc.group_sfm import SfmParams, calibrate_groups, overlap_score, weak_cut_parts
 from yowo_cmc.tracks import TrackParams
 from yowo_common.camera import CameraModel
 
@@ -123,6 +124,35 @@ def test_camera_seeing_through_a_doorway_does_not_merge_two_rooms():
         check_relative(g, cams, 0.03, 0.3)
     merged = calibrate_groups(tracks, SfmParams(min_edge_overlap=0.0))
     assert sum(len(g.names) for g in merged.groups) < 6
+
+
+def test_rooms_joined_by_a_weak_cut_are_split():
+    """Two rooms of three cameras (~1000 inliers per camera pair) joined by doorway glimpses
+    (two edges of 60): two parts; joined as strongly as within a room: one. A camera that
+    shares less with its room's others (300 against 1000) is not cut off, nor is a lone
+    room ever split, and 0 switches the rule off."""
+    def rooms(join: float, n_join: int = 2) -> nx.Graph:
+        G = nx.Graph()
+        for room in "ab":
+            G.add_weighted_edges_from([(f"{room}1", f"{room}2", 1000), (f"{room}1", f"{room}3", 1100),
+                                       (f"{room}2", f"{room}3", 900)])
+        G.add_weighted_edges_from([("a1", "b1", join), ("a3", "b2", join)][:n_join])
+        return G
+
+    assert sorted(sorted(p) for p in weak_cut_parts(rooms(60), 0.1)) == [["a1", "a2", "a3"], ["b1", "b2", "b3"]]
+    assert [len(p) for p in weak_cut_parts(rooms(800), 0.1)] == [6]
+    assert [len(p) for p in weak_cut_parts(rooms(60), 0.0)] == [6]
+    G = nx.complete_graph(["c1", "c2", "c3", "c4"])
+    nx.set_edge_attributes(G, 1000, "weight")
+    for other in ("c1", "c2", "c3"):
+        G["c4"][other]["weight"] = 300
+    assert [len(p) for p in weak_cut_parts(G, 0.1)] == [4]
+    # Three rooms in a row: both doorways cut.
+    G = rooms(60)
+    G.add_weighted_edges_from([("c1", "c2", 1000), ("c1", "c3", 1000), ("c2", "c3", 1000), ("b3", "c1", 50),
+                               ("b2", "c3", 50)])
+    assert sorted(sorted(p) for p in weak_cut_parts(G, 0.1)) == [["a1", "a2", "a3"], ["b1", "b2", "b3"],
+                                                                 ["c1", "c2", "c3"]]
 
 
 def test_cameras_chained_by_single_edges_still_pair_up():

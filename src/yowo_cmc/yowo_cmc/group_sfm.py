@@ -178,10 +178,40 @@ def strong_edge(pair: PairGeometry, params: SfmParams) -> bool:
     return pair.num_inliers >= params.min_matches and min(pair.overlap) >= params.min_edge_overlap
 
 
+def weak_cut_parts(G: nx.Graph, max_conductance: float) -> list[set]:
+    """The graph's nodes split along every cut whose conductance (inliers across the cut /
+    the smaller side's inliers at its cameras) is below max_conductance, recursively.
+    Each cut is the best sweep of the normalised Laplacian's second eigenvector (spectral
+    partitioning: exact enumeration grows as 2^n with a floor's cameras)."""
+    nodes = list(G.nodes)
+    if len(nodes) < 4 or max_conductance <= 0:    # each side needs two cameras
+        return [set(nodes)]
+    W = nx.to_numpy_array(G, nodelist=nodes, weight="weight")
+    d = W.sum(axis=1)
+    if not d.all():         # cameras left without an edge on their side of an earlier cut
+        return [{n} for n, x in zip(nodes, d) if not x] + weak_cut_parts(
+            G.subgraph(n for n, x in zip(nodes, d) if x), max_conductance)
+    _, V = np.linalg.eigh(np.eye(len(nodes)) - W / np.sqrt(np.outer(d, d)))
+    order = np.argsort(V[:, 1] / np.sqrt(d), kind="stable")
+    side = np.zeros(len(nodes), bool)
+    best, best_at = max_conductance, None
+    for i in order[:-1]:
+        side[i] = True
+        cut = W[side][:, ~side].sum()
+        conductance = cut / min(d[side].sum(), d[~side].sum())
+        if min(side.sum(), (~side).sum()) >= 2 and conductance < best:
+            best, best_at = conductance, side.copy()
+    if best_at is None:
+        return [set(nodes)]
+    return [part for s in (best_at, ~best_at)
+            for part in weak_cut_parts(G.subgraph(n for n, k in zip(nodes, s) if k), max_conductance)]
+
+
 def group_cameras(obs: GridObservations, pairs: list[PairGeometry], params: SfmParams
                   ) -> tuple[list[list[int]], dict[int, str]]:
     """Scene-graph clustering: edges with >= min_matches inliers covering both images;
-    members of a group of three or more must be joined by two edge-disjoint paths."""
+    members of a group of three or more must be joined by two edge-disjoint paths, and a
+    group is split where it hangs together by a weak cut (weak_cut_parts)."""
     G = nx.Graph()
     G.add_nodes_from(range(len(obs.names)))
     for p in pairs:
@@ -190,7 +220,8 @@ def group_cameras(obs: GridObservations, pairs: list[PairGeometry], params: SfmP
     groups: list[list[int]] = []
     for comp in nx.connected_components(G):
         if len(comp) > 2:
-            groups += [sorted(c) for c in nx.k_edge_components(G.subgraph(comp), k=2) if len(c) >= 2]
+            for part in weak_cut_parts(G.subgraph(comp), params.max_cut_conductance):
+                groups += [sorted(c) for c in nx.k_edge_components(G.subgraph(part), k=2) if len(c) >= 2]
     # Cameras left over (a pair alone, or joined to the rest by single edges) form pairs
     # along their strongest edges: a pair needs no second path.
     grouped = {c for g in groups for c in g}

@@ -76,6 +76,12 @@ class SfmParams:
     # (standard s0, with joint optimisation: 2.8 cm / 0.38 deg avg with, 2.2 cm / 0.24 deg
     # without). False: only a pair that is a component of its own is a group.
     pair_leftovers: bool = False
+    # A group whose cameras hang together by a cut this weak (inliers across it / inliers at
+    # the smaller side's cameras) is split there: two rooms joined by glimpses through a
+    # doorway (a few keypoints in a few dozen frames) make one self-consistent reconstruction
+    # whose far room is turned by tens of degrees; each side alone is aligned to the ego map
+    # by its own view of the walk. 0: never split.
+    max_cut_conductance: float = 0.0
 
 
 @dataclass(frozen=True)
