@@ -128,6 +128,8 @@ class FusionParams:
     # cameras 0.28 -> 1.3 m off); the frames beside a repaired break can stay off by more
     # than ok_track_rms_m (test world, 1.5 m / 40 deg break: 0.24 m, cameras within 5 cm).
     max_unexplained_track_rms_m: float = 0.3
+    # Joint solves at most (each leaves one more such group out; a floor's solve takes minutes).
+    max_joint_solves: int = 3
 
 
 @dataclass
@@ -574,7 +576,7 @@ def _joint(grouped: _GroupedCmcs, scene_obs: Observations, ego: EgoMapData, idea
             why, group = _unreconciled(grouped, out, ego, params)
         if not why:
             return out
-        if group is None or len(left_out) + 1 >= len(grouped.chains):
+        if group is None or len(left_out) + 1 >= min(len(grouped.chains), params.max_joint_solves):
             return replace(none, left_out=left_out, failure=f"{why}: pose without JO")
         left_out[group] = f"group {group} left out of the joint optimisation: {why}"
     return none
