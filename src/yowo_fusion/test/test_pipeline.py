@@ -101,6 +101,22 @@ def test_degenerate_group_is_registered_camera_by_camera():
     assert all(e.eps_pos_m < 0.5 for e in errs), [(e.name, e.eps_pos_m) for e in errs]
 
 
+def test_each_camera_observes_each_agent_point_once(monkeypatch):
+    """The joint problem holds one observation per camera and agent point (each was repeated
+    once per keypoint id triangulated at its stamp: 6x the information, covariances
+    sqrt(6) too small), and a camera of the group observes most of the group's points."""
+    import yowo_fusion.pipeline as pipeline
+    problems, solve = [], pipeline.solve_joint
+    monkeypatch.setattr(pipeline, "solve_joint", lambda p, params: problems.append(p) or solve(p, params))
+    _, tracks, ego = world()
+    grouping = calibrate_groups(tracks)
+    fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks})
+    obs = problems[0].cmc_agent_obs
+    pairs = obs.camera * len(problems[0].agent_points) + obs.point
+    assert len(np.unique(pairs)) == len(pairs)
+    assert np.bincount(obs.camera).min() > 0.5 * len(problems[0].agent_points)
+
+
 def _fuse_with_gtsam_failure(monkeypatch, function: str, symbol: str, params=FusionParams()):
     """fuse() on the test world with `function` of the pipeline raising GTSAM's error."""
     import yowo_fusion.pipeline as pipeline

@@ -84,6 +84,11 @@ class JointParams:
     # are 0.0002 m worse to 0.0005 m better than 1e-10's, and the JO's CPU falls 2-11x (normal s0:
     # 45 -> 4 s).
     relative_error_tol: float = 1e-6
+    # For the covariances only (not the solve): a prior holds an agent point or landmark the data
+    # leaves indeterminate, at most this many (JointResult.held_points); past them the covariances
+    # are unknown.
+    marginals_point_prior_sigma_m: float = 1.0
+    marginals_max_held_points: int = 10
 
 
 @dataclass
@@ -121,6 +126,7 @@ class JointResult:
     anchors: np.ndarray                      # frame indices optimised (the rest followed them)
     covariance_failure: str = ""             # why cmc_covariances are NaN (unknown): an indeterminate system
     ego_breaks: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # frames of unflagged breaks found
+    held_points: list[str] = field(default_factory=list)   # indeterminate points held for the covariances
 
 
 def interpolation_pairs(ego_ns: np.ndarray, query_ns: np.ndarray, max_gap_ns: int):
@@ -258,9 +264,9 @@ def _solve(p: JointProblem, params: JointParams) -> JointResult:
         landmarks[j] = result.atPoint3(L(j))
     T_cmc = [result.atPose3(C(i)).matrix() for i in range(len(p.T_world_cmc))]
     agent = np.array([result.atPoint3(A(k)) for k in range(len(p.agent_points))]).reshape(-1, 3)
-    covs, failure = [UNKNOWN_COVARIANCE] * len(T_cmc), ""
+    covs, failure, held = [UNKNOWN_COVARIANCE] * len(T_cmc), "", []
     try:
-        marginals = gtsam.Marginals(graph, result)
+        marginals, held = _marginals(graph, result, params)
         covs = [ros_covariance(marginals.marginalCovariance(C(i)), T[:3, :3]) for i, T in enumerate(T_cmc)]
     except RuntimeError as exc:
         # The optimiser damps a (nearly) indeterminate system, the marginals cannot: the poses
@@ -269,7 +275,29 @@ def _solve(p: JointProblem, params: JointParams) -> JointResult:
     return JointResult(T_ego, landmarks, T_cmc, agent, np.asarray(result.atPoint3(O(0))), covs,
                        reprojection_residuals(p.cmc_cameras, T_cmc, agent, p.cmc_agent_obs),
                        reprojection_residuals(p.cmc_cameras, T_cmc, landmarks, p.cmc_scene_obs),
-                       initial_error, final_error, anchors, failure, _broken_steps(p, params, anchors, result))
+                       initial_error, final_error, anchors, failure, _broken_steps(p, params, anchors, result), held)
+
+
+def _marginals(graph, result, params: JointParams) -> tuple[gtsam.Marginals, list[str]]:
+    """The marginals of the solution. A point the data leaves indeterminate (one the solution
+    put behind every camera that sees it: its projections carry no Jacobian; one seen by one
+    camera only) stops the Cholesky of the whole system, and every camera would lose its
+    covariance for it: such a point gets a loose prior and the marginals are tried again.
+    It carries no information on the poses, so the prior changes none of their covariances.
+    Returns the marginals and the points held so."""
+    held, names = gtsam.NonlinearFactorGraph(graph), []
+    noise = gtsam.noiseModel.Isotropic.Sigma(3, params.marginals_point_prior_sigma_m)
+    for _ in range(params.marginals_max_held_points):
+        try:
+            return gtsam.Marginals(held, result), names
+        except RuntimeError as exc:
+            near = re.search(r"Symbol: ([al])(\d+)", str(exc))
+            if not near:
+                raise
+            key = gtsam.Symbol(near.group(1), int(near.group(2))).key()
+            held.add(gtsam.PriorFactorPoint3(key, result.atPoint3(key), noise))
+            names.append(near.group(1) + near.group(2))
+    return gtsam.Marginals(held, result), names
 
 
 def solver_failure(exc: RuntimeError) -> str:

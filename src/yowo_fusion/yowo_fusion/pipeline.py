@@ -402,13 +402,15 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
         agent_ids.append(g.point_ids)
         agent_chain.append(np.full(len(g.points), gi))
         key = {(int(s), int(i)): base + k for k, (s, i) in enumerate(zip(g.point_stamps_ns, g.point_ids))}
+        stamps = np.unique(g.point_stamps_ns)
         for n in g.names:
             if n not in cmcs:
                 failed[n] = "no keypoints received for this camera"
                 continue
-            # The member's stamps onto the clock of the group's points (the ego's).
+            # The member's stamps onto the clock of the group's points (the ego's); once per
+            # stamp (point_stamps_ns repeats a stamp for every keypoint id triangulated there).
             ideal, samples = resample(cmcs[n].tracks.shifted(g.clock_offsets_s.get(n, 0.0) + ego_shift[g.group_id]),
-                                      g.point_stamps_ns, params.tracks)
+                                      stamps, params.tracks)
             ci = len(names)
             names.append(n)
             cams.append(ideal)
@@ -417,7 +419,7 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
             sigma = {i: g.sigma_px_by_id.get(i, params.joint.ego_sigma_px * 1.5) for i in samples}
             for kp_id, (uv, ok) in samples.items():
                 for k in np.flatnonzero(ok):
-                    j = key.get((int(g.point_stamps_ns[k]), kp_id))
+                    j = key.get((int(stamps[k]), kp_id))
                     if j is not None:
                         c_idx.append(ci)
                         p_idx.append(j)
