@@ -234,6 +234,13 @@ def _verify_across(edges: list[OdometryEdge], checked: list[bool], pairs: list[P
             T_lo_hi = inv_se3(pair.pnp.T_b_a)
             T_via = edges[via].T_target_source
             implied = inv_se3(T_via) @ T_lo_hi if lo == a - 1 else T_lo_hi @ inv_se3(T_via)
+            # As verify_edge: the edge stays where the matches support it nearly as well. In a
+            # room of look-alike walls PnP across two keyframes can fit a shifted copy (small
+            # symmetric s2 without IMU: a correctly tracked edge moved 0.50 m).
+            T_lo_hi_edge = T_via @ e.T_target_source if lo == a - 1 else e.T_target_source @ T_via
+            if (support(features[lo], features[hi], pair.matches, inv_se3(T_lo_hi_edge), K)
+                    >= params.keep_support_ratio * support(features[lo], features[hi], pair.matches, pair.pnp.T_b_a, K)):
+                break
             if (not _agree(e.T_target_source, implied, params) and _gyro_agrees(e, implied, params)
                     and rotation_angle_deg(e.T_target_source[:3, :3], implied[:3, :3])
                     <= params.max_across_correction_deg):
