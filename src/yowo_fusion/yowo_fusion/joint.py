@@ -291,19 +291,25 @@ def _marginals(graph, result, params: JointParams) -> tuple[gtsam.Marginals, lis
         try:
             return gtsam.Marginals(held, result), names
         except RuntimeError as exc:
-            near = re.search(r"Symbol: ([al])(\d+)", str(exc))
-            if not near:
+            symbol = _indeterminate_symbol(exc)
+            if symbol is None or symbol[0] not in "al":
                 raise
-            key = gtsam.Symbol(near.group(1), int(near.group(2))).key()
+            key = gtsam.Symbol(symbol[0], int(symbol[1:])).key()
             held.add(gtsam.PriorFactorPoint3(key, result.atPoint3(key), noise))
-            names.append(near.group(1) + near.group(2))
+            names.append(symbol)
     return gtsam.Marginals(held, result), names
+
+
+def _indeterminate_symbol(exc: RuntimeError) -> str | None:
+    """The variable GTSAM's IndeterminateLinearSystemException names (e.g. 'a600'), or None."""
+    near = re.search(r"Symbol: (\w+)", str(exc))
+    return near.group(1) if near else None
 
 
 def solver_failure(exc: RuntimeError) -> str:
     """A short reason from GTSAM's exception (IndeterminateLinearSystemException names the variable)."""
-    near = re.search(r"Symbol: (\w+)", str(exc))
-    return f"indeterminate system near variable {near.group(1)}" if near else str(exc).strip().splitlines()[0]
+    symbol = _indeterminate_symbol(exc)
+    return f"indeterminate system near variable {symbol}" if symbol else str(exc).strip().splitlines()[0]
 
 
 def covariance_unavailable(exc: RuntimeError) -> str:
