@@ -67,6 +67,10 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
     # counts each shared library once per process, and above the largest single process.
     rss = [r["peak_rss_mb"] for r in log["resources"].values()]
     assert max(rss) < log["peak_memory_mb"] < sum(rss), (log["peak_memory_mb"], rss)
+    # ... and says which process held how much of it at that sample.
+    parts = log["peak_memory_by_process_mb"]
+    assert "supervisor" in parts and set(parts) <= set(log["graph"]["processes"]) | {"supervisor"}, parts
+    assert abs(sum(parts.values()) - log["peak_memory_mb"]) < 0.5 and min(parts.values()) > 5.0, parts
     for topic, n in log["replay_published"].items():  # lossless: every message reached every stage
         assert log["received"][topic] and all(v == n for v in log["received"][topic].values()), topic
 

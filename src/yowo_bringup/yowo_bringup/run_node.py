@@ -140,6 +140,7 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
                 # The largest sum of every process's proportional set size (this one's included)
                 # at one sample: what the graph held of the machine's memory at its peak.
                 "peak_memory_mb": round(sup.peak_memory_mb, 1),
+                "peak_memory_by_process_mb": {k: round(v, 1) for k, v in sup.peak_memory_by_process.items()},
                 # Seconds since the run started; queue waits and handling per input topic.
                 "timing": node_timing(sup, t0_wall)}
     try:

@@ -139,6 +139,7 @@ class Supervisor:
         # at one sample. Peak RSS per process counts the shared libraries in every process
         # and peaks that came at different times, so their sum overstates a many-node graph.
         self.peak_memory_mb = 0.0
+        self.peak_memory_by_process: dict[str, float] = {}   # each process's PSS at that sample
         self.profile_dir, self.profile_rate_hz = profile_dir, profile_rate_hz
         self.profilers: list[NodeProfiler] = []
         if profile_dir is not None:
@@ -188,8 +189,10 @@ class Supervisor:
         for p in self.procs:
             p.sample()
         if memory:
-            total = sum(Usage.pss_mb(p.popen.pid) for p in self.procs if p.popen.poll() is None)
-            self.peak_memory_mb = max(self.peak_memory_mb, total + Usage.pss_mb(os.getpid()))
+            now = {p.spec.name: Usage.pss_mb(p.popen.pid) for p in self.procs if p.popen.poll() is None}
+            now["supervisor"] = Usage.pss_mb(os.getpid())
+            if sum(now.values()) > self.peak_memory_mb:
+                self.peak_memory_mb, self.peak_memory_by_process = sum(now.values()), now
 
     def dead(self) -> list[NodeProcess]:
         """Processes that exited with an error."""

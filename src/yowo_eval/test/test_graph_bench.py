@@ -14,6 +14,11 @@ def test_the_table_has_the_ratio_and_each_stage_once(tmp_path):
     assert "| 1.65 | 66 | 40 | 0.0123 / 0.201 | 0.0031 | 1234 |" in row
     # Trackers: mean CPU and lifetime, the largest peak.
     assert "keypoint_tracker (each process): 3.0 / 61 / 230" in row and "ego_mapper: 30.5 / 63 / 800" in row
+    # The graph's peak and the stages that held most of it then (trackers summed).
+    held = speed_markdown([{**CASE, "peak_memory_by_process_mb": {
+        "keypoint_tracker_a": 60.0, "keypoint_tracker_b": 70.0, "ego_mapper": 700.0, "supervisor": 40.0,
+        "fusion": 364.4}}], "c")
+    assert "| 1234<br>ego_mapper 700<br>fusion 364<br>keypoint_trackers 130 |" in held, held
     failed = speed_markdown([{**CASE, "exit": 1}], "c")
     assert "failed (exit 1)" in failed
 

@@ -44,6 +44,7 @@ def graph_case(bag: Path, out: Path, source: str, extra: list[str], timeout_s: f
     return {"bag": bag.name, "source": source, "exit": r.returncode, "recording_s": recording, "wall_s": wall,
             "ratio": wall / recording if recording > 0 else float("nan"), "resources": log.get("resources", {}),
             "peak_memory_mb": log.get("peak_memory_mb"),
+            "peak_memory_by_process_mb": log.get("peak_memory_by_process_mb", {}),
             "timing": log.get("timing", {}),
             "registration_pos_avg_m": reg.get("pos_avg"), "registration_rot_avg_deg": reg.get("rot_avg"),
             "ego_ate_m": metrics.get("ego", {}).get("ate_rmse_m"),
@@ -61,7 +62,7 @@ def speed_markdown(cases: list[dict], command: str) -> str:
              "length; per stage the CPU seconds, the process lifetime and the peak RSS (sampled from /proc once a "
              "second; trackers: the mean and the largest peak over their processes). Graph memory: the largest sum of every "
              "process's proportional set size at one sample (shared libraries counted once), the machine's memory "
-             "the run held at its peak. Registration and ATE as `yowo eval` computes them.", "",
+             "the run held at its peak, and below it the stages that held most of it then. Registration and ATE as `yowo eval` computes them.", "",
              "| recording | source | processing / recording | wall [s] | recording [s] | registration avg [m / deg] "
              "| ego ATE [m] | graph memory [MB] | stage: CPU s / wall s / peak MB |",
              "|---|---|---|---|---|---|---|---|---|"]
@@ -79,6 +80,12 @@ def speed_markdown(cases: list[dict], command: str) -> str:
         ate = f"{c['ego_ate_m']:.4f}" if c.get("ego_ate_m") is not None else "-"
         status = f"{c['ratio']:.2f}" if c["exit"] == 0 else f"failed (exit {c['exit']})"
         memory = f"{c['peak_memory_mb']:.0f}" if c.get("peak_memory_mb") is not None else "-"
+        held: dict[str, float] = {}
+        for name, mb in c.get("peak_memory_by_process_mb", {}).items():   # the trackers' processes summed
+            stage = "keypoint_trackers" if name.startswith("keypoint_tracker") else name
+            held[stage] = held.get(stage, 0.0) + mb
+        if held:
+            memory += "<br>" + "<br>".join(f"{n} {mb:.0f}" for n, mb in sorted(held.items(), key=lambda x: -x[1])[:3])
         lines.append(f"| {c['bag']} | {c['source']} | {status} | {c['wall_s']:.0f} | {c['recording_s']:.0f} | {reg} "
                      f"| {ate} | {memory} | {'<br>'.join(cells)} |")
     return "\n".join(lines + [""] + timeline_markdown(cases) + [END, ""])
