@@ -200,3 +200,22 @@ def test_a_suspect_result_is_checked_by_the_other_cascade(renderer, ego_camera):
     assert tracker.suspect_frames == 1
     assert [c for on, c in calls if not on] == [("Hybrid",)] * 7       # one registration per ordinary frame
     assert ("PointToPlane", "Hybrid") in [c for on, c in calls if on]
+
+
+def test_keyframe_images_are_packed_losslessly_in_about_half_their_bytes(renderer, ego_camera):
+    """The tracker keeps its keyframes' images PNG-compressed; what it reads back is the
+    downsampled frame bit for bit, and a moved keyframe shares them."""
+    view = renderer.render(ego_camera, T_START)
+    frame = make_frame(0, view.rgb, view.depth, ego_camera)
+    tracker = KeyframeTracker(ego_camera.K)
+    tracker.track(frame)
+    kf = tracker.keyframes[0]
+    color, depth_mm = downsample(frame, tracker.params.scale)
+    assert np.array_equal(kf.color, color) and np.array_equal(kf.depth_mm, depth_mm)
+    assert kf.image_bytes < 0.75 * (color.nbytes + depth_mm.nbytes), (kf.image_bytes, color.nbytes + depth_mm.nbytes)
+    moved = kf.moved(se3(np.eye(3), [1.0, 0.0, 0.0]))
+    assert moved.image_bytes == kf.image_bytes and np.array_equal(moved.depth_mm, depth_mm)
+    assert moved.T_odom_cam[0, 3] == 1.0 and np.allclose(kf.T_odom_cam, np.eye(4))   # the first: odom origin
+    raw = KeyframeTracker(ego_camera.K, replace(OdometryParams(), compress_keyframes=False))
+    raw.track(frame)
+    assert raw.keyframes[0].image_bytes == color.nbytes + depth_mm.nbytes

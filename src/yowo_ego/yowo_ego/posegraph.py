@@ -447,8 +447,7 @@ class MultiwayRegistration:
                 self._try_loop(a, c)
         # Re-initialise the nodes along the checked chain (tracking built on the old edges).
         T_init = chain_poses(len(self.keyframes), self.edges)
-        nodes = [Keyframe(k.index, k.frame_index, k.stamp_ns, T, k.color, k.depth_mm, k.segment)
-                 for k, T in zip(self.keyframes, T_init)]
+        nodes = [k.moved(T) for k, T in zip(self.keyframes, T_init)]
         T, kept = optimize(nodes, self.edges + self._loops, p)
         return MultiwayResult(T, self._corrected, len(self._tried), self._verified, len(self._loops),
                               sum(e.kind not in TRACKING_KINDS for e in kept), self._relocalised,
