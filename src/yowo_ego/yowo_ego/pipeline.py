@@ -35,7 +35,7 @@ from .layout import KIND_WALL, Layout, LayoutParams, build_layout
 from .odometry import (IMU_BRIDGED, RECOVERED, SKIPPED, Keyframe, KeyframeTracker, OdometryEdge, OdometryImages,
                        OdometryParams, TrackResult)
 from .posegraph import LoopParams, MultiwayRegistration
-from .refine import BundleParams, bundle_adjust
+from .refine import BundleParams, BundleProblem, solve_bundle
 from .scene import (CloudParams, Rectification, find_floor, fuse_cloud, planar_patches, rectify,
                     up_from_cameras)
 from .tracks import FilterParams, build_tracks, filter_matches
@@ -254,6 +254,7 @@ class EgoMapper:
                             "up) tracked by their depth alone")
         t0 = time.perf_counter()
         features: list[KeyframeFeatures] = [f.result() for f in self._features]
+        self._features = []                      # the list above holds them, until the adjustment
         self._pool.shutdown()
         stats.update(feature_wait_s=time.perf_counter() - t0, features_cpu_s=self._cpu_features,
                      loops_online_cpu_s=self._cpu_loops)
@@ -272,6 +273,7 @@ class EgoMapper:
 
         t0 = time.perf_counter()
         mw = self._multiway.finish()
+        self._multiway = None                    # its features and pairs live on in `features` and mw
         if tr.breaks:
             failed = f" (not in the map: {'; '.join(tr.map_failures[:3])}{'; ...' if len(tr.map_failures) > 3 else ''})" \
                 if tr.map_failures else ""
@@ -400,7 +402,13 @@ class EgoMapper:
         if tracks.count < MIN_TRACKS:
             warnings.append(f"only {tracks.count} feature tracks survived the filters; bundle adjustment skipped")
             return T_kf, _SceneMap.empty(), None
-        ba = bundle_adjust(tracks, features, T_kf, self.ideal, p.bundle, mw.edges, inertial)
+        problem = BundleProblem.from_tracks(tracks, features, T_kf, K, p.bundle)
+        # Nothing after reads the features or the matches: they go before the solve's GBs come.
+        features.clear()
+        mw.pairs.clear()
+        del tracks, accepted
+        release_free_memory()
+        ba = solve_bundle(problem, T_kf, self.ideal, p.bundle, mw.edges, inertial)
         # Its factor graph's GBs (a 25-minute floor: 3.9 -> 7.3 GB) back before the cloud is fused.
         release_free_memory()
         # Landmarks that kept at least two observations after outlier removal.

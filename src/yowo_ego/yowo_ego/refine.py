@@ -179,24 +179,53 @@ def add_inertial(graph, values, T_world_kf: list[np.ndarray], inertial: Inertial
         graph.add(gtsam.CombinedImuFactor(X(i), V(i), X(i + 1), V(i + 1), B(i), B(i + 1), pim))
 
 
+@dataclass
+class BundleProblem:
+    """What the adjustment takes from the tracks and keyframe features: each kept
+    observation's landmark, keyframe, undistorted pixel and depth, the landmarks' initial
+    positions and descriptors. The features (a 25-minute floor's: 0.7 GB) can go before
+    the solve."""
+    landmark: np.ndarray                 # (M,) per observation
+    keyframe: np.ndarray                 # (M,)
+    uv: np.ndarray                       # (M, 2) undistorted pixels
+    depth: np.ndarray                    # (M,) metres, NaN without
+    points: np.ndarray                   # (P, 3) world, initial
+    descriptors: np.ndarray              # (P, 128) uint8, of each landmark's first observation
+    left_out: int                        # observations over params.max_observations
+
+    @classmethod
+    def from_tracks(cls, tracks: Tracks, features: list[KeyframeFeatures], T_world_kf: list[np.ndarray],
+                    K: np.ndarray, params: BundleParams = BundleParams()) -> "BundleProblem":
+        lm, points, kf, feat, uv, depth = landmarks_from_tracks(tracks, features, T_world_kf, K, params)
+        kept = select_landmarks(lm, kf, params.max_observations)
+        left_out = int((~kept[lm]).sum())
+        if left_out:
+            sel = kept[lm]
+            lm, points, kf, feat, uv, depth = np.cumsum(kept)[lm[sel]] - 1, points[kept], kf[sel], feat[sel], \
+                uv[sel], depth[sel]
+        descriptors = np.zeros((len(points), 128), np.uint8)
+        first = np.unique(lm, return_index=True)[1]
+        for i in first:
+            descriptors[lm[i]] = features[kf[i]].descriptors[feat[i]]
+        return cls(lm, kf, uv, depth, points, descriptors, left_out)
+
+
 def bundle_adjust(tracks: Tracks, features: list[KeyframeFeatures], T_world_kf: list[np.ndarray],
                   camera: CameraModel, params: BundleParams = BundleParams(),
                   edges: list[OdometryEdge] = (), inertial: InertialTerms | None = None) -> BundleOutput:
     """Refine keyframe poses and landmarks; `camera` is the undistorted pinhole.
     ``edges``: the pose graph's (with ``params.pose_graph_factors``); ``inertial``:
     preintegrated IMU between consecutive keyframes."""
+    return solve_bundle(BundleProblem.from_tracks(tracks, features, T_world_kf, camera.K, params), T_world_kf,
+                        camera, params, edges, inertial)
+
+
+def solve_bundle(problem: BundleProblem, T_world_kf: list[np.ndarray], camera: CameraModel,
+                 params: BundleParams = BundleParams(), edges: list[OdometryEdge] = (),
+                 inertial: InertialTerms | None = None) -> BundleOutput:
+    """bundle_adjust on a BundleProblem."""
     K = camera.K
-    lm, points, kf, feat, uv, depth = landmarks_from_tracks(tracks, features, T_world_kf, K, params)
-    kept = select_landmarks(lm, kf, params.max_observations)
-    left_out = int((~kept[lm]).sum())
-    if left_out:
-        sel = kept[lm]
-        lm, points, kf, feat, uv, depth = np.cumsum(kept)[lm[sel]] - 1, points[kept], kf[sel], feat[sel], uv[sel], \
-            depth[sel]
-    descriptors = np.zeros((len(points), 128), np.uint8)
-    first = np.unique(lm, return_index=True)[1]
-    for i in first:
-        descriptors[lm[i]] = features[kf[i]].descriptors[feat[i]]
+    lm, kf, uv, depth, points = problem.landmark, problem.keyframe, problem.uv, problem.depth, problem.points
     cameras = [camera] * len(T_world_kf)
     obs = Observations(kf, lm, uv, np.full(len(kf), params.sigma_px))
     rays = np.linalg.norm(np.column_stack([(uv - K[:2, 2]) / np.diag(K)[:2], np.ones(len(uv))]), axis=1)
@@ -251,5 +280,5 @@ def bundle_adjust(tracks: Tracks, features: list[KeyframeFeatures], T_world_kf: 
             velocities[i] = np.asarray(result.atVector(V(i)))
             b = result.atConstantBias(B(i))
             biases[i] = np.concatenate([b.accelerometer(), b.gyroscope()])
-    return BundleOutput(T, P, descriptors, final_obs, rmse, sigma, initial_error, final_error, iterations, dropped, left_out,
-                        velocities, biases)
+    return BundleOutput(T, P, problem.descriptors, final_obs, rmse, sigma, initial_error, final_error, iterations,
+                        dropped, problem.left_out, velocities, biases)
