@@ -191,8 +191,9 @@ class Supervisor:
         if memory:
             now = {p.spec.name: Usage.pss_mb(p.popen.pid) for p in self.procs if p.popen.poll() is None}
             now["supervisor"] = Usage.pss_mb(os.getpid())
-            if sum(now.values()) > self.peak_memory_mb:
-                self.peak_memory_mb, self.peak_memory_by_process = sum(now.values()), now
+            total = sum(now.values())
+            if total > self.peak_memory_mb:
+                self.peak_memory_mb, self.peak_memory_by_process = total, now
 
     def dead(self) -> list[NodeProcess]:
         """Processes that exited with an error."""

@@ -183,8 +183,8 @@ def add_inertial(graph, values, T_world_kf: list[np.ndarray], inertial: Inertial
 class BundleProblem:
     """What the adjustment takes from the tracks and keyframe features: each kept
     observation's landmark, keyframe, undistorted pixel and depth, the landmarks' initial
-    positions and descriptors. The features (a 25-minute floor's: 0.7 GB) can go before
-    the solve."""
+    positions and descriptors. The features (a 25-minute floor's: 0.32 GB, its matches
+    0.05 GB) can go before the solve."""
     landmark: np.ndarray                 # (M,) per observation
     keyframe: np.ndarray                 # (M,)
     uv: np.ndarray                       # (M, 2) undistorted pixels

@@ -51,9 +51,13 @@ def graph_case(bag: Path, out: Path, source: str, extra: list[str], timeout_s: f
             "error": "" if r.returncode == 0 else (r.stderr or r.stdout)[-500:]}
 
 
-def _stage(name: str) -> str:
+def _is_tracker(name: str) -> bool:
     # Trackers: one per process, or several per process on many cameras (supervisor.tracker_processes).
-    return "keypoint_tracker (each process)" if name.startswith("keypoint_tracker") else name
+    return name.startswith("keypoint_tracker")
+
+
+def _stage(name: str) -> str:
+    return "keypoint_tracker (each process)" if _is_tracker(name) else name
 
 
 def speed_markdown(cases: list[dict], command: str) -> str:
@@ -62,7 +66,8 @@ def speed_markdown(cases: list[dict], command: str) -> str:
              "length; per stage the CPU seconds, the process lifetime and the peak RSS (sampled from /proc once a "
              "second; trackers: the mean and the largest peak over their processes). Graph memory: the largest sum of every "
              "process's proportional set size at one sample (shared libraries counted once), the machine's memory "
-             "the run held at its peak, and below it the stages that held most of it then. Registration and ATE as `yowo eval` computes them.", "",
+             "the run held at its peak, and below it the stages that held most of it then. Registration and ATE "
+             "as `yowo eval` computes them.", "",
              "| recording | source | processing / recording | wall [s] | recording [s] | registration avg [m / deg] "
              "| ego ATE [m] | graph memory [MB] | stage: CPU s / wall s / peak MB |",
              "|---|---|---|---|---|---|---|---|---|"]
@@ -82,7 +87,7 @@ def speed_markdown(cases: list[dict], command: str) -> str:
         memory = f"{c['peak_memory_mb']:.0f}" if c.get("peak_memory_mb") is not None else "-"
         held: dict[str, float] = {}
         for name, mb in c.get("peak_memory_by_process_mb", {}).items():   # the trackers' processes summed
-            stage = "keypoint_trackers" if name.startswith("keypoint_tracker") else name
+            stage = "keypoint_trackers" if _is_tracker(name) else name
             held[stage] = held.get(stage, 0.0) + mb
         if held:
             memory += "<br>" + "<br>".join(f"{n} {mb:.0f}" for n, mb in sorted(held.items(), key=lambda x: -x[1])[:3])
