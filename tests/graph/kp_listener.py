@@ -1,4 +1,5 @@
 """Receives AgentKeypoints until N arrived (or a timeout) and prints a checksum line per message."""
+import faulthandler
 import sys
 import time
 
@@ -11,6 +12,7 @@ from yowo_common.ros.context import ros_context
 def main():
     count = int(sys.argv[1])
     received = []
+    faulthandler.dump_traceback_later(55, exit=True)   # see kp_talker
     with ros_context():
         node = rclpy.create_node("kp_listener")
         qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
