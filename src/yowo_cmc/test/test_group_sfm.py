@@ -1,9 +1,11 @@
 import networkx as nx
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from yowo_eval.evaluation import relative_pose_errors
-from yowo_cmc.group_sfm import SfmParams, calibrate_groups, overlap_score, weak_cut_parts
-from yowo_cmc.tracks import TrackParams
+from yowo_cmc.group_sfm import SfmParams, agreement_px, calibrate_groups, overlap_score, sample_on_grid, weak_cut_parts
+from yowo_cmc.tracks import KeypointTrack, TrackParams
+from yowo_common.geometry import se3
 from yowo_common.camera import CameraModel
 
 from cmc_synthetic import ceiling_camera, loop_walk, observe
@@ -217,10 +219,11 @@ def test_each_keypoint_ids_sigma_is_re_estimated_until_it_settles():
     for c, n in zip(clean, noisy):
         c.tracks[1] = n.tracks[1]           # head top at 0.3 px, ground point at 6 px: ratio 20
     unsmoothed = TrackParams(window_s=0.0, gate_px=1e9)
-    (group,) = calibrate_groups(clean, SfmParams(tracks=unsmoothed)).groups
+    # The rounds alone, with the gates held (geometric_gates would reconstruct again at wider ones).
+    (group,) = calibrate_groups(clean, SfmParams(tracks=unsmoothed, geometric_gates=False)).groups
     assert abs(group.sigma_px_by_id[1] / group.sigma_px_by_id[0] / 20.0 - 1) < 0.1
     check_relative(group, cams, 0.003, 0.06)
-    (once,) = calibrate_groups(clean, SfmParams(tracks=unsmoothed, sigma_rounds=2)).groups
+    (once,) = calibrate_groups(clean, SfmParams(tracks=unsmoothed, sigma_rounds=2, geometric_gates=False)).groups
     assert once.sigma_px_by_id[1] / once.sigma_px_by_id[0] < 0.85 * 20.0
 
 
@@ -239,3 +242,58 @@ def test_ids_of_one_keypoint_class_share_one_sigma():
     assert sigma[102] == sigma[103]
     assert abs(sigma[102] / sigma[0] / 10.0 - 1) < 0.15, sigma
     check_relative(group, cams, 0.003, 0.06)
+
+
+def with_biased_body_joints(cams, walk, tracks, bias_px: float, seed: int):
+    """Adds body joints (ids 2-4: shoulders, hip) to each camera's tracks, each with an error of
+    bias_px per axis that is constant in time and differs between views (as a pose model's are)."""
+    rng = np.random.default_rng(seed)
+    for ct in tracks:
+        cam, T = cams[ct.name]
+        stamps = ct.tracks[0].stamps_ns
+        xy = np.array([walk(t) for t in (stamps - stamps[0]) / 1e9])
+        for kid, (dx, z) in {2: (0.2, 1.4), 3: (-0.2, 1.4), 4: (0.0, 1.0)}.items():
+            uv, front = cam.project_world(T, np.column_stack([xy[:, 0] + dx, xy[:, 1], np.full(len(xy), z)]))
+            ok = front & cam.in_image(uv)
+            uv = uv + rng.normal(size=2) * bias_px + rng.normal(size=uv.shape) * 0.3
+            ct.tracks[kid] = KeypointTrack(stamps[ok], uv[ok], np.full(ok.sum(), 0.9))
+    return tracks
+
+
+def test_a_noisier_keypoint_class_gets_wider_gates_in_a_second_reconstruction():
+    """Body joints whose views disagree by ~8 px (constant per view) measure a class sigma above
+    the nominal 1.5 px; the group is reconstructed again with their gates widened by
+    sigma / 1.5 and keeps far more of their views, the poses as exact as before. The guard:
+    new poses that explain the first reconstruction's points worse than max_agreement_ratio
+    times are not taken (ratio 0 rejects any)."""
+    cams = three_camera_rig()
+    walk = loop_walk((3.0, 2.5), (2.0, 1.5))
+    tracks = with_biased_body_joints(cams, walk, observe(cams, walk, 30.0, sigma_px=0.3, seed=7), 8.0, seed=0)
+    (wide,) = calibrate_groups(tracks).groups
+    (nominal,) = calibrate_groups(tracks, SfmParams(geometric_gates=False)).groups
+    (rejected,) = calibrate_groups(tracks, SfmParams(max_agreement_ratio=0.0)).groups
+    assert sorted(wide.gate_scales) == [2, 3, 4] and len(set(wide.gate_scales.values())) == 1
+    assert wide.gate_scales[2] > 1.5
+    assert nominal.gate_scales == {} and rejected.gate_scales == {}
+    assert sum(wide.num_observations.values()) > 1.3 * sum(nominal.num_observations.values())
+    check_relative(wide, cams, 0.003, 0.06)
+    for n in nominal.T_local_cam:
+        np.testing.assert_allclose(rejected.T_local_cam[n], nominal.T_local_cam[n], atol=1e-12)
+    # Keypoints at the nominal noise (the simulator's) never trigger the second reconstruction.
+    (clean,) = calibrate_groups(observe(cams, walk, 30.0, sigma_px=1.0, seed=7)).groups
+    assert clean.gate_scales == {}
+
+
+def test_agreement_rises_when_a_camera_is_turned():
+    """The guard's measure: the median reprojection residual of the agent points triangulated
+    with a group's poses; one camera turned by 2 degrees raises it several-fold."""
+    cams = three_camera_rig()
+    tracks = observe(cams, loop_walk((3.0, 2.5), (2.0, 1.5)), 20.0, sigma_px=0.5, seed=2)
+    (group,) = calibrate_groups(tracks).groups
+    obs = sample_on_grid(tracks, SfmParams().tracks)
+    keys = np.array(sorted(set(obs.per_camera[0]) | set(obs.per_camera[1])), dtype=np.int64)
+    good = agreement_px(obs, keys, group)
+    turn = se3(Rotation.from_euler("y", 2.0, degrees=True).as_matrix(), np.zeros(3))
+    group.T_local_cam["b"] = group.T_local_cam["b"] @ turn
+    assert 0.1 < good < 0.5
+    assert agreement_px(obs, keys, group) > 5 * good

@@ -76,6 +76,8 @@ class CameraGroupResult:
     clock_sigmas_s: dict[str, float] = field(default_factory=dict)
     # True: calibrated on stamps corrected by them, the points on the reference's clock.
     clocks_applied: bool = False
+    # keypoint id -> factor on the triangulation gates of the kept reconstruction ({}: the nominal gates)
+    gate_scales: dict[int, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -275,8 +277,11 @@ def _translation_given_rotation(R_cam_world: np.ndarray, X: np.ndarray, xn: np.n
 class IncrementalSfm:
     """Incremental reconstruction of one group in its local frame (reference camera = identity)."""
 
-    def __init__(self, obs: GridObservations, members: list[int], params: SfmParams):
+    def __init__(self, obs: GridObservations, members: list[int], params: SfmParams,
+                 id_gate_scale: dict[int, float] | None = None):
         self.obs, self.members, self.params = obs, members, params
+        # keypoint id -> factor on the triangulation gates (at least the camera's noise scale)
+        self.id_gate_scale = id_gate_scale or {}
         self.poses: dict[int, np.ndarray] = {}
         self.points: dict[int, np.ndarray] = {}
         self.failed: dict[int, str] = {}
@@ -344,7 +349,7 @@ class IncrementalSfm:
             uvs = [self.obs.per_camera[v][keys[i]] for v in views]
             X = triangulate(cams, [poses[v] for v in views], uvs)
             if np.isfinite(X).all() and self._acceptable(X, cams, [poses[v] for v in views], uvs,
-                                                         [self.obs.noise_scale[v] for v in views]):
+                                                         self._gate_scales(keys[i], views)):
                 count += 1
                 errs += [np.linalg.norm(cam.project_world(poses[v], X[None])[0][0] - p)
                          for cam, v, p in zip(cams, views, uvs)]
@@ -365,9 +370,13 @@ class IncrementalSfm:
             poses = [self.poses[c] for c in views]
             uvs = [self.obs.per_camera[c][key] for c in views]
             X = triangulate(cams, poses, uvs)
-            scales = [self.obs.noise_scale[c] for c in views]
+            scales = self._gate_scales(key, views) if gate_px is None else [self.obs.noise_scale[c] for c in views]
             if np.isfinite(X).all() and self._acceptable(X, cams, poses, uvs, scales, gate_px):
                 self.points[key] = X
+
+    def _gate_scales(self, key: int, views: list[int]) -> list[float]:
+        id_scale = self.id_gate_scale.get(int(key) % MAX_IDS, 1.0)
+        return [max(self.obs.noise_scale[c], id_scale) for c in views]
 
     def _acceptable(self, X, cams, poses, uvs, scales, gate_px: float | None = None) -> bool:
         gate_px = self.params.max_reproj_px if gate_px is None else gate_px
@@ -469,15 +478,64 @@ def residual_sigmas(ba: dict, class_bounds: tuple[int, ...]) -> dict[int, float]
     return {int(i): sigma[int(k)] for i, k in zip(*np.unique(np.stack([kp_ids, classes]), axis=1)) if int(k) in sigma}
 
 
+def geometric_gate_scales(sigma_by_id: dict[int, float], params: SfmParams) -> dict[int, float]:
+    """{keypoint id: factor on the triangulation gates} for the ids whose estimated sigma (their
+    residual between views) exceeds the nominal noise the gates were tuned for; {} if none does."""
+    nominal = params.tracks.nominal_noise_px
+    return {i: s / nominal for i, s in sigma_by_id.items() if s > nominal}
+
+
 def reconstruct_group(obs: GridObservations, members: list[int], pairs: list[PairGeometry], group_id: str,
                       params: SfmParams) -> tuple[CameraGroupResult | None, dict[int, str]]:
     inside = [p for p in pairs if p.a in members and p.b in members and p.F is not None and strong_edge(p, params)]
     if not inside:
         return None, {c: "no camera pair of its group has enough matches" for c in members}
+    result, failed, keys = _reconstruct(obs, members, inside, group_id, params, {})
+    # Our addition: the gates are tuned for keypoints whose views agree to ~1 px. Real pose
+    # keypoints disagree between views by 3-5 px per class (view-dependent errors that the
+    # temporal noise scale does not see), and the 6 px gate then keeps only the views that
+    # agree with the first poses. Once the robust rounds have measured each class, the group
+    # is reconstructed again with the gates of the noisier classes widened in proportion. The
+    # wider gates also let outliers in: the new poses are kept only if they register as many
+    # cameras and explain the first reconstruction's own points nearly as well.
+    scales = geometric_gate_scales(result.sigma_px_by_id, params) if result is not None else {}
+    if params.geometric_gates and scales:
+        again, failed_again, _ = _reconstruct(obs, members, inside, group_id, params, scales)
+        if again is not None and len(again.names) >= len(result.names):
+            before, after = agreement_px(obs, keys, result), agreement_px(obs, keys, again)
+            if after <= params.max_agreement_ratio * before:
+                result, failed = again, failed_again
+                result.gate_scales = scales
+    return result, failed
+
+
+def agreement_px(obs: GridObservations, keys: np.ndarray, result: CameraGroupResult) -> float:
+    """Median reprojection residual (px) of the agent points `keys`, each triangulated from
+    its views among the group's cameras with the group's poses: how well the poses explain
+    those points, in any gauge."""
+    poses = {obs.names.index(n): T for n, T in result.T_local_cam.items()}
+    residuals = []
+    for key in keys:
+        views = [c for c in poses if key in obs.per_camera[c]]
+        if len(views) < 2:
+            continue
+        cams, Ts = [obs.cameras[c] for c in views], [poses[c] for c in views]
+        uvs = [obs.per_camera[c][key] for c in views]
+        X = triangulate(cams, Ts, uvs)
+        if np.isfinite(X).all():
+            residuals += [np.linalg.norm(cam.project_world(T, X[None])[0][0] - uv) for cam, T, uv in zip(cams, Ts, uvs)]
+    return float(np.median(residuals)) if residuals else float("inf")
+
+
+def _reconstruct(obs: GridObservations, members: list[int], inside: list[PairGeometry], group_id: str,
+                 params: SfmParams, id_gate_scale: dict[int, float]
+                 ) -> tuple[CameraGroupResult | None, dict[int, str], np.ndarray]:
+    """One incremental reconstruction and its robust rounds: the group, the reasons of the
+    cameras left out, and the keys of the agent points in its final bundle adjustment."""
     ranked = sorted(inside, key=lambda p: match_score(p) if params.overlap_ordering else p.num_inliers,
                     reverse=True)
     for init in ranked:
-        sfm = IncrementalSfm(obs, members, params)
+        sfm = IncrementalSfm(obs, members, params, id_gate_scale)
         sfm.initialise(init)
         # A wrong decomposition triangulates few of the pair's inliers in front of both
         # cameras: then try the next pair (paper: geometric verification of the solution).
@@ -489,7 +547,8 @@ def reconstruct_group(obs: GridObservations, members: list[int], pairs: list[Pai
         if c not in sfm.poses and c not in sfm.failed:
             sfm.failed[c] = f"sees fewer than {params.min_pnp} of the group's triangulated agent points"
     if len(sfm.points) < params.min_pnp:
-        return None, {c: f"the initial pair triangulated only {len(sfm.points)} agent points" for c in members}
+        return None, {c: f"the initial pair triangulated only {len(sfm.points)} agent points" for c in members}, \
+            np.zeros(0, np.int64)
     # Robust BA rounds; after each, every keypoint class's sigma from its residuals (variance
     # component estimation).
     sigma_by_id: dict[int, float] = {}
@@ -513,7 +572,7 @@ def reconstruct_group(obs: GridObservations, members: list[int], pairs: list[Pai
     result = CameraGroupResult(group_id, obs.names[init.a], names, {obs.names[c]: sfm.poses[c] for c in ba["cams"]},
                                stamps, ids, np.array([sfm.points[int(k)] for k in ba["keys"]]), rmse, counts,
                                sigma_by_id, (obs.names[init.a], obs.names[init.b]))
-    return result, sfm.failed
+    return result, sfm.failed, ba["keys"]
 
 
 def calibrate_groups(cams: list[CameraTracks], params: SfmParams = SfmParams(),

@@ -54,9 +54,18 @@ class GroupSfmNode(StageNode):
         result.ungrouped.update(unusable)
         self.pub.publish(groups_to_msg(result, self.last_stamp))
         lines = [f"{g.group_id}: {', '.join(g.names)} (initial pair {'/'.join(g.initial_pair)}, RMSE "
-                 + ", ".join(f"{n} {g.rmse_px[n]:.2f}px" for n in g.names) + ")" for g in result.groups]
+                 + ", ".join(f"{n} {g.rmse_px[n]:.2f}px" for n in g.names) + widened_gates(g) + ")"
+                 for g in result.groups]
         lines += [f"{name}: {why}" for name, why in result.ungrouped.items()]
         return "; ".join(lines)
+
+
+def widened_gates(group) -> str:
+    if not group.gate_scales:
+        return ""
+    scales = group.gate_scales.values()
+    return (f"; reconstructed again with the gates of {len(scales)} noisier keypoint ids widened "
+            f"x{min(scales):.1f}-{max(scales):.1f}")
 
 
 def main(args=None):

@@ -64,6 +64,14 @@ class SfmParams:
     # Real keypoints' view-dependent errors are 10-25 px: with 6 px the rounds keep only the
     # views that agree with the current poses. caliscope 2.22 -> 1.67 %, Pose2Sim 1.30 -> 1.10 %.
     rounds_reproj_px: float = 9.0
+    # True: a group whose robust rounds measured a keypoint class noisier than tracks.nominal_noise_px
+    # (real pose keypoints: 3-5 px between views) is reconstructed again with that class's gates
+    # widened by sigma / nominal (group_sfm.geometric_gate_scales); the simulator's keypoints
+    # (below nominal) never trigger it.
+    geometric_gates: bool = True
+    # ... and kept only if the first reconstruction's points, triangulated with the new poses,
+    # reproject (median) within this factor of their residual under the first poses.
+    max_agreement_ratio: float = 1.5
     # Our addition to the paper's edge rule: an edge's inliers must also cover both
     # images (eq. overlap of each side >= this). A camera that sees the agent only
     # through a doorway shares many matches with the next room's cameras, all in one
