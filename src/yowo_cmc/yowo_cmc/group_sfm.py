@@ -495,9 +495,10 @@ def reconstruct_group(obs: GridObservations, members: list[int], pairs: list[Pai
     # keypoints disagree between views by 3-5 px per class (view-dependent errors that the
     # temporal noise scale does not see), and the 6 px gate then keeps only the views that
     # agree with the first poses. Once the robust rounds have measured each class, the group
-    # is reconstructed again with the gates of the noisier classes widened in proportion. The
-    # wider gates also let outliers in: the new poses are kept only if they register as many
-    # cameras and explain the first reconstruction's own points nearly as well.
+    # is reconstructed again with the incremental registration's gate of the noisier classes
+    # widened in proportion (the rounds' wider gate stays: widened too, caliscope got worse).
+    # The wider gate also lets outliers in: the new poses are kept only if they register as
+    # many cameras and explain the first reconstruction's own points nearly as well.
     scales = geometric_gate_scales(result.sigma_px_by_id, params) if result is not None else {}
     if params.geometric_gates and scales:
         again, failed_again, _ = _reconstruct(obs, members, inside, group_id, params, scales)
