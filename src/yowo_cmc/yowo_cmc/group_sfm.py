@@ -264,6 +264,12 @@ def triangulate(cameras: list[CameraModel], poses: list[np.ndarray], uvs: list[n
     return X[:3] / X[3] if abs(X[3]) > 1e-12 else np.full(3, np.nan)
 
 
+def view_residuals_px(X: np.ndarray, cameras: list[CameraModel], poses: list[np.ndarray],
+                      uvs: list[np.ndarray]) -> list[float]:
+    """The reprojection residual (px) of the point X in each of its views."""
+    return [float(np.linalg.norm(cam.project_world(T, X[None])[0][0] - uv)) for cam, T, uv in zip(cameras, poses, uvs)]
+
+
 def _translation_given_rotation(R_cam_world: np.ndarray, X: np.ndarray, xn: np.ndarray) -> np.ndarray:
     """Least-squares t of x ~ R X + t from normalised image points: linear once R is known."""
     RX = X @ R_cam_world.T
@@ -351,8 +357,7 @@ class IncrementalSfm:
             if np.isfinite(X).all() and self._acceptable(X, cams, [poses[v] for v in views], uvs,
                                                          self._gate_scales(keys[i], views)):
                 count += 1
-                errs += [np.linalg.norm(cam.project_world(poses[v], X[None])[0][0] - p)
-                         for cam, v, p in zip(cams, views, uvs)]
+                errs += view_residuals_px(X, cams, [poses[v] for v in views], uvs)
         return count, -float(np.mean(errs)) if errs else 0.0
 
     def _views(self, key: int) -> list[int]:
@@ -524,7 +529,7 @@ def agreement_px(obs: GridObservations, keys: np.ndarray, result: CameraGroupRes
         uvs = [obs.per_camera[c][key] for c in views]
         X = triangulate(cams, Ts, uvs)
         if np.isfinite(X).all():
-            residuals += [np.linalg.norm(cam.project_world(T, X[None])[0][0] - uv) for cam, T, uv in zip(cams, Ts, uvs)]
+            residuals += view_residuals_px(X, cams, Ts, uvs)
     return float(np.median(residuals)) if residuals else float("inf")
 
 
