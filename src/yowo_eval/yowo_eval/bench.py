@@ -23,6 +23,7 @@ from yowo_sim.presets import get_preset
 from yowo_bringup.config import YowoConfig
 from yowo_bringup.offline import read_cmc_tracks
 
+from .bench_report import TRUE_CLOCKS
 from .bound import BOUND_VERSION, bound_case
 from .evaluation import ErrorSummary, relative_pose_errors
 from .ground_truth import read_ground_truth
@@ -116,6 +117,16 @@ def has_cmc_images(bag: Path) -> bool:
     return any(counts.get(t, 0) for name in inputs.cmc_names for t in cmc_image_topics(name))
 
 
+def truth_clocked(tracks: list, truth, config: YowoConfig) -> tuple[list, YowoConfig]:
+    """The synchronised case of a recording whose CMC clocks are off, on the same data
+    (same noise, same frames): each CMC's stamps moved onto the ego clock by the recorded
+    truth, clock estimation off. Evaluation only: the pipeline never reads /gt."""
+    synced = [t.shifted(truth.clock_offsets_s.get(t.name, 0.0)) for t in tracks]
+    off = replace(config, cmc=replace(config.cmc, estimate_clock_offsets=False),
+                  fusion=replace(config.fusion, align=replace(config.fusion.align, estimate_clock_offset=False)))
+    return synced, off
+
+
 def relative_pose_case(bag: Path, images: bool, baselines: bool = True, config: YowoConfig = YowoConfig()) -> dict:
     """Table relative_pose_eval's rows for one recording (YOWO alone without `baselines`)."""
     truth = read_ground_truth(bag)
@@ -125,23 +136,30 @@ def relative_pose_case(bag: Path, images: bool, baselines: bool = True, config: 
         tracks["images"] = read_cmc_tracks(bag, "images", config.cmc)
         tracks["pose"] = read_cmc_tracks(bag, "pose", config.cmc)
     out = {}
-    for method, (source, calibrate) in RELATIVE_METHODS.items():
-        if source not in tracks or not (baselines or method == "YOWO"):
-            continue
+
+    def case(tracks_used, calibrate, cmc_params) -> dict:
         t0 = time.perf_counter()
-        result = calibrate(tracks[source], config.cmc)
+        result = calibrate(tracks_used, cmc_params)
         seconds = time.perf_counter() - t0
         est = {n: T for g in result.groups for n, T in g.T_local_cam.items()}
         groups = {g.group_id: g.names for g in result.groups}
         errs, _ = relative_pose_errors(est, gt, groups)
-        out[method] = {"summary": asdict(ErrorSummary.of(errs)), "calibrated": len(est), "cameras": len(gt),
-                       "seconds": seconds, "errors": {e.name: [e.eps_pos_m, e.eps_rot_deg] for e in errs},
-                       "groups": groups}
-        if truth.clock_offsets_s:   # each member's offset to its group's reference against the truth
-            true = truth.clock_offsets_s
-            out[method]["clock_errors_ms"] = {
+        entry = {"summary": asdict(ErrorSummary.of(errs)), "calibrated": len(est), "cameras": len(gt),
+                 "seconds": seconds, "errors": {e.name: [e.eps_pos_m, e.eps_rot_deg] for e in errs},
+                 "groups": groups}
+        if truth.clock_offsets_s and cmc_params.estimate_clock_offsets:
+            true = truth.clock_offsets_s   # each member's offset to its group's reference against the truth
+            entry["clock_errors_ms"] = {
                 n: 1e3 * (o - (true.get(n, 0.0) - true.get(g.reference, 0.0)))
                 for g in result.groups for n, o in g.clock_offsets_s.items() if n != g.reference}
+        return entry
+
+    for method, (source, calibrate) in RELATIVE_METHODS.items():
+        if source in tracks and (baselines or method == "YOWO"):
+            out[method] = case(tracks[source], calibrate, config.cmc)
+    if truth.clock_offsets_s:
+        synced, synced_config = truth_clocked(tracks["keypoints"], truth, config)
+        out[TRUE_CLOCKS] = case(synced, calibrate_cmcs, synced_config.cmc)
     return out
 
 
@@ -239,6 +257,16 @@ def full_case(bag: Path, images: bool, config: YowoConfig = YowoConfig()) -> dic
             found = {n: localize(db, n, bg, cams[n], priors.get(n) if use_prior else None) for n, bg in backgrounds.items()}
             reg[label] = registration({n: f.T_world_cam for n, f in found.items() if f.T_world_cam is not None}) \
                 | {"seconds": time.perf_counter() - t0}
+    clocks = {}
+    if gt.clock_offsets_s:
+        synced, synced_config = truth_clocked(tracks, gt, config)
+        grouping = calibrate_cmcs(synced, synced_config.cmc)
+        reg[TRUE_CLOCKS] = registration(registered(fuse(
+            ego_map_data(r.ego), grouping.groups, grouping.ungrouped,
+            {t.name: CmcInput(t, backgrounds.get(t.name)) for t in synced}, synced_config.fusion)))
+        # Each registered camera's offset to the ego clock against the truth.
+        clocks = {c.name: 1e3 * (c.clock_offset_s - gt.clock_offsets_s.get(c.name, 0.0))
+                  for c in r.fusion.cameras if c.clock_offset_s is not None}
     ate_by_stage = {stage: ate(Trajectory(r.ego.stamps_ns, T), gt.ego).rmse_m
                     for stage, T in r.ego.trajectories.items()}
     ate_by_stage["joint"] = ate(Trajectory(r.ego.stamps_ns, r.fusion.T_world_ego), gt.ego).rmse_m
@@ -246,7 +274,7 @@ def full_case(bag: Path, images: bool, config: YowoConfig = YowoConfig()) -> dic
     return {"registration": reg, "ate": ate_by_stage, "layout_iou": layout_iou(r.ego.layout.floor_polygons, gt.floor),
             "layout_iou_joint": layout_iou(r.fusion.layout.floor_polygons, gt.floor),
             "seconds": r.seconds, "recording_s": duration, "realtime_factor": sum(r.seconds.values()) / duration,
-            "cmcs": len(gt.cameras)}
+            "cmcs": len(gt.cameras)} | ({"clock_errors_to_ego_ms": clocks} if gt.clock_offsets_s else {})
 
 
 def code_version() -> str:
