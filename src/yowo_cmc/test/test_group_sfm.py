@@ -1,9 +1,11 @@
 import networkx as nx
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from yowo_eval.evaluation import relative_pose_errors
-from yowo_cmc.group_sfm import SfmParams, agreement_px, calibrate_groups, overlap_score, sample_on_grid, weak_cut_parts
+from yowo_cmc.group_sfm import (SfmParams, agreement_px, calibrate_groups, geometric_gate_scales, overlap_score,
+                                 sample_on_grid, weak_cut_parts)
 from yowo_cmc.tracks import KeypointTrack, TrackParams
 from yowo_common.geometry import se3
 from yowo_common.camera import CameraModel
@@ -282,6 +284,14 @@ def test_a_noisier_keypoint_class_gets_wider_gates_in_a_second_reconstruction():
     # Keypoints at the nominal noise (the simulator's) never trigger the second reconstruction.
     (clean,) = calibrate_groups(observe(cams, walk, 30.0, sigma_px=1.0, seed=7)).groups
     assert clean.gate_scales == {}
+
+
+def test_gates_widen_only_for_classes_clearly_above_the_nominal_noise():
+    sigmas = {0: 1.0, 1: 1.52, 2: 1.79, 3: 1.8, 4: 4.5}     # nominal 1.5 px, min_gate_scale 1.2: from 1.8 px
+    assert geometric_gate_scales(sigmas, SfmParams()) == {3: pytest.approx(1.2), 4: pytest.approx(3.0)}
+    assert geometric_gate_scales(sigmas, SfmParams(min_gate_scale=1.0)) == {
+        1: pytest.approx(1.52 / 1.5), 2: pytest.approx(1.79 / 1.5), 3: pytest.approx(1.2), 4: pytest.approx(3.0)}
+    assert geometric_gate_scales({0: 1.0, 1: 1.6}, SfmParams()) == {}
 
 
 def test_agreement_rises_when_a_camera_is_turned():

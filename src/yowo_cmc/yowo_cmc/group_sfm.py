@@ -485,9 +485,10 @@ def residual_sigmas(ba: dict, class_bounds: tuple[int, ...]) -> dict[int, float]
 
 def geometric_gate_scales(sigma_by_id: dict[int, float], params: SfmParams) -> dict[int, float]:
     """{keypoint id: factor on the triangulation gates} for the ids whose estimated sigma (their
-    residual between views) exceeds the nominal noise the gates were tuned for; {} if none does."""
+    residual between views) is at least min_gate_scale times the nominal noise the gates were
+    tuned for; {} if none is."""
     nominal = params.tracks.nominal_noise_px
-    return {i: s / nominal for i, s in sigma_by_id.items() if s > nominal}
+    return {i: s / nominal for i, s in sigma_by_id.items() if s >= params.min_gate_scale * nominal}
 
 
 def reconstruct_group(obs: GridObservations, members: list[int], pairs: list[PairGeometry], group_id: str,

@@ -66,9 +66,11 @@ class SfmParams:
     rounds_reproj_px: float = 9.0
     # True: a group whose robust rounds measured a keypoint class noisier than tracks.nominal_noise_px
     # (real pose keypoints: 3-5 px between views) is reconstructed again with that class's gates
-    # widened by sigma / nominal (group_sfm.geometric_gate_scales); the simulator's keypoints
-    # (below nominal) never trigger it.
+    # widened by sigma / nominal (group_sfm.geometric_gate_scales), for the classes at least
+    # min_gate_scale times nominal: a gate a few per cent wider changes nothing but doubles the
+    # group's time (the simulator's dim_light s0 measured one class at 1.01x nominal).
     geometric_gates: bool = True
+    min_gate_scale: float = 1.2
     # ... and kept only if the first reconstruction's points, triangulated with the new poses,
     # reproject (median) within this factor of their residual under the first poses.
     max_agreement_ratio: float = 1.5
