@@ -2,11 +2,13 @@
 section reaches its nodes and params.yaml; the offline API given the same tree computes
 what `yowo run` computes, byte for byte."""
 
+import dataclasses
+
 import pytest
 import yaml
 
 from e2e_helpers import three_camera_recording, yowo
-from yowo_bringup.config import YowoConfig, load_config
+from yowo_bringup.config import YowoConfig, fusion_upstream, load_config, node_config
 from yowo_common.config import ConfigError, dump, load
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
@@ -21,6 +23,33 @@ def test_tree_from_yaml_and_dotted_overrides(tmp_path):
     assert cfg.fusion.ok_rmse_px == 4.0
     assert cfg.ego.odometry.depth_max_m == YowoConfig().ego.odometry.depth_max_m     # the rest: defaults
     assert load(YowoConfig, dump(cfg)) == cfg                                        # what `yowo config` prints
+
+
+def section_types(section) -> set[type]:
+    """The dataclass types anywhere in a section of the tree."""
+    out = set()
+    for f in dataclasses.fields(section):
+        value = getattr(section, f.name)
+        if dataclasses.is_dataclass(value):
+            out |= {type(value)} | section_types(value)
+    return out
+
+
+def test_each_setting_has_one_home_and_reaches_the_fusion_from_there():
+    """The fusion cleans the CMC tracks as the group SfM does and rebuilds the ego stage's
+    cloud and layout: it reads those stages' settings, it holds no copy of them."""
+    cfg = YowoConfig()
+    others = section_types(cfg.ego) | section_types(cfg.cmc) | section_types(cfg.replay)
+    assert not section_types(cfg.fusion) & others
+    cfg = load_config(None, ["cmc.sfm.tracks.gate_px=20", "ego.cloud.voxel_m=0.05", "ego.layout.wall_min_points=7"])
+    upstream = fusion_upstream(cfg)
+    assert (upstream.tracks.gate_px, upstream.cloud.voxel_m, upstream.layout.wall_min_points) == (20.0, 0.05, 7)
+    params = node_config(cfg, "fusion")
+    assert load(type(upstream.tracks), params["tracks"]) == cfg.cmc.sfm.tracks
+    assert load(type(upstream.cloud), params["cloud"]) == cfg.ego.cloud
+    assert load(type(upstream.layout), params["layout"]) == cfg.ego.layout
+    assert load(type(cfg.fusion), params["config"]) == cfg.fusion
+    assert set(node_config(cfg, "group_sfm")) == {"config"}
 
 
 @pytest.mark.parametrize("item, message", [
@@ -68,7 +97,7 @@ def test_offline_api_and_graph_agree_with_the_same_tree(tmp_path, ros_env):
     generate(get_preset("tiny"), 5, bag)
     # One key of every section the recorded keypoints go through.
     sets = ["ego.odometry.polish_iterations=2", "cmc.sfm.ransac_px=2.5", "cmc.background_period_s=0.5",
-            "fusion.ok_rmse_px=4", "replay.ack_window=8", "supervisor.max_restarts=1"]
+            "fusion.ok_rmse_px=4", "replay.ack_window=8", "supervisor.max_restarts=1", "cmc.sfm.tracks.gate_px=6"]
     out = tmp_path / "graph"
     r = yowo("run", bag, "-o", out, *[a for s in sets for a in ("--set", s)], env=ros_env, timeout=600)
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
@@ -76,6 +105,7 @@ def test_offline_api_and_graph_agree_with_the_same_tree(tmp_path, ros_env):
     assert "ego.odometry.polish_iterations=2" in logs["ego_mapper"]
     assert "cmc.background_period_s=0.5" in logs["keypoint_tracker_cam00"]
     assert "fusion.ok_rmse_px=4.0" in logs["fusion"]
+    assert "cmc.sfm.tracks.gate_px=6.0" in logs["fusion"]     # the group SfM's setting, read by the fusion too
     offline = process(bag, load_config(None, sets))
     write_cameras_yaml(tmp_path / "offline.yaml", offline.fusion.cameras, offline.grouping.groups)
     assert (tmp_path / "offline.yaml").read_text() == (out / "cameras.yaml").read_text()

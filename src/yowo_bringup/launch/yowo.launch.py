@@ -15,7 +15,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from yowo_bringup.config import load_config, section_yaml
+from yowo_bringup.config import load_config, node_config
 
 
 def _nodes(context):
@@ -24,7 +24,7 @@ def _nodes(context):
     bag = LaunchConfiguration("bag").perform(context)
 
     def params(node: str, **wiring) -> list[dict]:
-        return [{"config": section_yaml(config, node), **wiring}]
+        return [{**node_config(config, node), **wiring}]
     nodes = [Node(package="yowo_cmc", executable="keypoint_tracker_node", name=f"keypoint_tracker_{c}",
                   parameters=params("keypoint_tracker", camera=c)) for c in cameras]
     nodes += [

@@ -16,11 +16,12 @@ import yaml
 from yowo_cmc.config import CmcParams
 from yowo_common.config import ConfigError, dump, load, to_dict
 from yowo_ego.pipeline import EgoParams
-from yowo_fusion.pipeline import FusionParams
+from yowo_fusion.pipeline import UPSTREAM_HOMES, FusionParams, UpstreamParams
 
 from .replay import ReplayParams
 
-__all__ = ["ConfigError", "YowoConfig", "SupervisorParams", "load_config", "section_yaml", "versions"]
+__all__ = ["ConfigError", "YowoConfig", "SupervisorParams", "fusion_upstream", "load_config", "node_config",
+           "versions"]
 
 
 @dataclass(frozen=True)
@@ -74,10 +75,31 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
         raise ConfigError(f"{path}: {exc}" if path is not None else str(exc)) from exc
 
 
-def section_yaml(config: YowoConfig, node: str) -> str:
-    """The YAML of a node's section (its `config` parameter)."""
+def _value(config: YowoConfig, dotted: str):
+    value = config
+    for key in dotted.split("."):
+        value = getattr(value, key)
+    return value
+
+
+def fusion_upstream(config: YowoConfig) -> UpstreamParams:
+    """The other stages' settings the fusion applies again (one home each, not a copy)."""
+    return UpstreamParams(**{field: _value(config, home) for field, home in UPSTREAM_HOMES.items()})
+
+
+# Values of the tree that a node reads besides its section (`config`), each in a parameter.
+NODE_EXTRAS = {"fusion": UPSTREAM_HOMES}
+
+# The node parameters that carry the tree (params.yaml records the tree once, not per node).
+CONFIG_PARAMETERS = {"config", *(k for extras in NODE_EXTRAS.values() for k in extras)}
+
+
+def node_config(config: YowoConfig, node: str) -> dict[str, str]:
+    """A node's configuration parameters: its section's YAML in `config`, and the YAML of any
+    other value of the tree it reads (NODE_EXTRAS)."""
     kind = "keypoint_tracker" if node.startswith("keypoint_tracker") else node
-    return dump(getattr(config, NODE_SECTIONS[kind]))
+    return {"config": dump(getattr(config, NODE_SECTIONS[kind])),
+            **{name: dump(_value(config, home)) for name, home in NODE_EXTRAS.get(kind, {}).items()}}
 
 
 def versions() -> dict[str, str]:

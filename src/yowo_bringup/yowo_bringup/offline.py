@@ -14,7 +14,7 @@ from yowo_cmc.tracks import CameraTracks
 from yowo_common.ros.bag import read_messages
 from yowo_common.rosconv import camera_info_to_model
 
-from .config import YowoConfig
+from .config import YowoConfig, fusion_upstream
 from .contract import discover_inputs
 from .run import cmc_info_topic, cmc_source
 
@@ -142,6 +142,7 @@ def process(bag, config: YowoConfig | None = None, source: str = "auto") -> Offl
     seconds["cmc"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     fusion = fuse(ego_map_data(ego), grouping.groups, grouping.ungrouped,
-                  {t.name: CmcInput(t, backgrounds.get(t.name)) for t in tracks}, config.fusion)
+                  {t.name: CmcInput(t, backgrounds.get(t.name)) for t in tracks}, config.fusion,
+                  fusion_upstream(config))
     seconds["fusion"] = time.perf_counter() - t0
     return OfflineResult(ego, grouping, fusion, seconds, tracks, backgrounds)

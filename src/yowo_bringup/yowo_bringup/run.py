@@ -13,7 +13,7 @@ import yaml
 from yowo_cmc.group_sfm import CameraGroupResult
 from yowo_common import topics
 
-from .config import YowoConfig, section_yaml
+from .config import YowoConfig, node_config
 from .contract import (EGO_COLOR, EGO_DEPTH, EGO_INFO, cmc_image_topics, cmc_info_topic, cmc_keypoints_topic,
                        discover_inputs)
 from .results import clock_entry, intrinsics_entry, keypoint_noise_entry, pose_entry
@@ -101,7 +101,7 @@ def _stamp_run(nodes: list[NodeSpec], run_id: str, replayed: bool, config: YowoC
         if spec.module in DOWNSTREAM:
             spec.niceness = config.supervisor.downstream_niceness
         spec.parameters["run_id"] = run_id
-        spec.parameters["config"] = section_yaml(config, spec.name)
+        spec.parameters.update(node_config(config, spec.name))
         if spec.name != "replay":
             spec.parameters["replayed"] = replayed
 

@@ -17,7 +17,7 @@ from yowo_common import topics
 from yowo_common.ros.stage import LATCHED, RunFilter
 from yowo_common.ros.timing import relative_to
 
-from .config import params_document
+from .config import CONFIG_PARAMETERS, params_document
 from .isolation import PRIVATE, GraphNetwork, graph_network
 from .profiling import summary_markdown
 from .progress import DONE, FAILED, RUNNING, WAITING, ProgressLines, RunProgress
@@ -114,7 +114,7 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
     params_file = plan.out_dir / "logs" / "ros_params.yaml"        # what the nodes are started with
     write_params_file(plan.nodes, params_file)
     (plan.out_dir / "params.yaml").write_text(yaml.safe_dump(params_document(
-        plan.config, {n.name: {k: v for k, v in n.parameters.items() if k != "config"} for n in plan.nodes}),
+        plan.config, {n.name: {k: v for k, v in n.parameters.items() if k not in CONFIG_PARAMETERS} for n in plan.nodes}),
         sort_keys=False))
     sup = Supervisor(plan.out_dir / "logs", library_threads_env(network.env, plan.config.supervisor.library_threads),
                      params_file, profile_dir,

@@ -20,7 +20,7 @@ from yowo_cmc.pipeline import calibrate_cmcs
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
 
-from yowo_bringup.config import YowoConfig
+from yowo_bringup.config import YowoConfig, fusion_upstream
 from yowo_bringup.offline import read_cmc_tracks
 
 from .bench_report import TRUE_CLOCKS
@@ -232,7 +232,7 @@ def full_case(bag: Path, images: bool, config: YowoConfig = YowoConfig()) -> dic
     tracks, backgrounds = r.tracks, r.backgrounds
     no_jo = fuse(ego_map_data(r.ego), r.grouping.groups, r.grouping.ungrouped,
                  {t.name: CmcInput(t, backgrounds.get(t.name)) for t in tracks},
-                 replace(config.fusion, joint_optimisation=False))
+                 replace(config.fusion, joint_optimisation=False), fusion_upstream(config))
 
     def registration(est: dict, cameras: int = len(gt.cameras)) -> dict:
         errors = registration_errors(est, gt.cameras)
@@ -263,7 +263,8 @@ def full_case(bag: Path, images: bool, config: YowoConfig = YowoConfig()) -> dic
         grouping = calibrate_cmcs(synced, synced_config.cmc)
         reg[TRUE_CLOCKS] = registration(registered(fuse(
             ego_map_data(r.ego), grouping.groups, grouping.ungrouped,
-            {t.name: CmcInput(t, backgrounds.get(t.name)) for t in synced}, synced_config.fusion)))
+            {t.name: CmcInput(t, backgrounds.get(t.name)) for t in synced}, synced_config.fusion,
+            fusion_upstream(synced_config))))
         # Each registered camera's offset to the ego clock against the truth.
         clocks = {c.name: 1e3 * (c.clock_offset_s - gt.clock_offsets_s.get(c.name, 0.0))
                   for c in r.fusion.cameras if c.clock_offset_s is not None}

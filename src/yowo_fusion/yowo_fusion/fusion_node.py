@@ -22,7 +22,7 @@ from yowo_common.rosconv import camera_info_to_model, decode_color
 from yowo_ego.ego_messages import path_msg, points_msg, scene_layout_msg
 
 from .messages import agent_fits_to_msg, ego_map_from_msg, layout_markers, registered_to_msg, tf_static
-from .pipeline import CmcInput, FusionParams, fuse
+from .pipeline import UPSTREAM_HOMES, CmcInput, FusionParams, UpstreamParams, fuse
 
 
 
@@ -31,6 +31,9 @@ class FusionNode(StageNode):
         super().__init__(topics.FUSION_STAGE)
         cameras = [c for c in self.declare_parameter("cameras", [""]).value if c]
         self.params = self.section(FusionParams, "fusion")
+        defaults = UpstreamParams()
+        self.upstream = UpstreamParams(**{field: self.section(type(getattr(defaults, field)), home, field)
+                                          for field, home in UPSTREAM_HOMES.items()})
         self.acc = {c: TrackAccumulator(c) for c in cameras}
         self.backgrounds = {}
         self.ego_map = self.groups = self.layout = self.cloud = None
@@ -71,7 +74,7 @@ class FusionNode(StageNode):
                 for n, a in self.acc.items() if a.camera is not None}
         ungrouped.update({n: "no usable CameraInfo" for n, a in self.acc.items() if a.camera is None})
         ego = ego_map_from_msg(self.ego_map, self.cloud, self.layout)
-        result = fuse(ego, groups, ungrouped, cmcs, self.params)
+        result = fuse(ego, groups, ungrouped, cmcs, self.params, self.upstream)
         stamp = max((f.stamp_ns for a in self.acc.values() for f in a.frames), default=0)
         self.pub_poses.publish(registered_to_msg(result.cameras, stamp))
         self.pub_tf.publish(tf_static(result.cameras, stamp))

@@ -20,7 +20,6 @@ class IsolatedParams:
     pnp_px: float = 4.0
     min_spread_m: float = 0.05       # RMS spread of the 3D points below which no pose is attempted
     max_gap_s: float = 0.25          # the world track is interpolated only between samples this close
-    tracks: TrackParams = TrackParams()
 
 
 @dataclass
@@ -40,13 +39,13 @@ class PnpResult:
     camera: CameraModel              # ideal (undistorted) intrinsics
 
 
-def agent_correspondences(cam: CameraTracks, track: AgentTrack, params: IsolatedParams
+def agent_correspondences(cam: CameraTracks, track: AgentTrack, params: IsolatedParams, tracks: TrackParams
                           ) -> tuple[CameraModel, np.ndarray, np.ndarray]:
     """(ideal camera, 3D points, 2D ideal pixels) pairing the camera's keypoints with
     the world track interpolated at the camera's own stamps."""
     pts, uvs = [], []
     stamps = np.unique(np.concatenate([t.stamps_ns for t in cam.tracks.values()] or [np.zeros(0, np.int64)]))
-    ideal, samples = resample(cam, stamps, params.tracks)
+    ideal, samples = resample(cam, stamps, tracks)
     for kp_id, (uv, ok) in samples.items():
         sel = track.ids == kp_id
         if sel.sum() < 2:
@@ -63,9 +62,10 @@ def agent_correspondences(cam: CameraTracks, track: AgentTrack, params: Isolated
     return ideal, np.vstack(pts or [np.zeros((0, 3))]), np.vstack(uvs or [np.zeros((0, 2))])
 
 
-def register_by_agent(cam: CameraTracks, track: AgentTrack, params: IsolatedParams = IsolatedParams()
-                      ) -> tuple[PnpResult | None, str]:
-    ideal, P, uv = agent_correspondences(cam, track, params)
+def register_by_agent(cam: CameraTracks, track: AgentTrack, params: IsolatedParams = IsolatedParams(),
+                      tracks: TrackParams = TrackParams()) -> tuple[PnpResult | None, str]:
+    """tracks: the cleaning of the camera's keypoint tracks (cmc.sfm.tracks)."""
+    ideal, P, uv = agent_correspondences(cam, track, params, tracks)
     if len(P) < params.min_matches:
         return None, (f"only {len(P)} of its agent keypoints fall on the optimised agent track "
                       f"(needs {params.min_matches})")

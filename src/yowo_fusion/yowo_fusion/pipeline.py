@@ -89,16 +89,29 @@ class AgentFit:
 
 
 @dataclass(frozen=True)
+class UpstreamParams:
+    """Settings of other stages that the fusion applies again to their data. They are not the
+    fusion's section: each lives in the tree once, where its stage reads it (UPSTREAM_HOMES;
+    the node gets each in a parameter of the field's name): how the group SfM cleans the CMC keypoint tracks
+    (cmc.sfm.tracks) and how the ego stage builds its cloud and layout (ego.cloud,
+    ego.layout), which the fusion rebuilds at the jointly optimised poses."""
+    tracks: TrackParams = TrackParams()
+    cloud: CloudParams = CloudParams()
+    layout: LayoutParams = LayoutParams()
+
+
+# Where each of UpstreamParams' fields lives in the configuration tree.
+UPSTREAM_HOMES = {"tracks": "cmc.sfm.tracks", "cloud": "ego.cloud", "layout": "ego.layout"}
+
+
+@dataclass(frozen=True)
 class FusionParams:
     align: AlignParams = AlignParams()
     joint: JointParams = JointParams()
     scene: SceneMatchParams = SceneMatchParams()
     isolated: IsolatedParams = IsolatedParams()
-    tracks: TrackParams = TrackParams()
     use_scene_keypoints: bool = True
     joint_optimisation: bool = True           # False: ablation "without joint optimisation"
-    cloud: CloudParams = CloudParams()        # the ego stage's, for the refined cloud and layout
-    layout: LayoutParams = LayoutParams()
     ok_rmse_px: float = 3.0
     ok_position_sigma_m: float = 0.10
     # Where the ego map is not to be trusted (weak_ego_frames): frames tracked from a keyframe
@@ -365,8 +378,8 @@ class _GroupedCmcs:
 
 
 def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, str],
-                   cmcs: dict[str, CmcInput], params: FusionParams, weak: tuple[np.ndarray, np.ndarray]
-                   ) -> _GroupedCmcs:
+                   cmcs: dict[str, CmcInput], params: FusionParams, weak: tuple[np.ndarray, np.ndarray],
+                   tracks: TrackParams) -> _GroupedCmcs:
     names, cams, T_init, group_of = [], [], [], {}
     agent_pts, agent_ns, agent_ids, agent_chain = [], [], [], []
     c_idx, p_idx, uv_obs, sig_obs = [], [], [], []
@@ -410,7 +423,7 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
             # The member's stamps onto the clock of the group's points (the ego's); once per
             # stamp (point_stamps_ns repeats a stamp for every keypoint id triangulated there).
             ideal, samples = resample(cmcs[n].tracks.shifted(g.clock_offsets_s.get(n, 0.0) + ego_shift[g.group_id]),
-                                      stamps, params.tracks)
+                                      stamps, tracks)
             ci = len(names)
             names.append(n)
             cams.append(ideal)
@@ -464,12 +477,12 @@ def _on_ego_clock(groups: list[CameraGroupResult], ego: EgoMapData, params: Alig
 
 
 def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, str], cmcs: dict[str, CmcInput],
-         params: FusionParams = FusionParams()) -> FusionResult:
+         params: FusionParams = FusionParams(), upstream: UpstreamParams = UpstreamParams()) -> FusionResult:
     ideal_ego = CameraModel(ego.camera.width, ego.camera.height, ego.camera.K)
     ego_obs = Observations(ego.obs_pose.astype(int), ego.obs_landmark.astype(int),
                            ego.camera.undistort_pixels(ego.obs_uv), np.full(len(ego.obs_pose), params.joint.ego_sigma_px))
     weak = weak_ego_frames(ego, params)
-    grouped = _gather_groups(ego, groups, ungrouped, cmcs, params, weak)
+    grouped = _gather_groups(ego, groups, ungrouped, cmcs, params, weak, upstream.tracks)
     names, cams, T_init, group_of = grouped.names, grouped.cams, grouped.T_init, grouped.group_of
     agent, agent_obs, head_offset = grouped.agent, grouped.agent_obs, grouped.head_offset
     scene_obs, scene_count = _scene_observations(names, cams, T_init, cmcs, ego, params)
@@ -489,8 +502,8 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
             head_offset = res.head_offset
             if len(cloud):
                 views = res.anchors
-                cloud = move_cloud(cloud, ideal_ego, ego.T_world_ego[views], T_ego[views], params.cloud.depth_max_m)
-                layout = rebuild_layout(cloud, T_ego[views, :3, 3], params.cloud, params.layout)
+                cloud = move_cloud(cloud, ideal_ego, ego.T_world_ego[views], T_ego[views], upstream.cloud.depth_max_m)
+                layout = rebuild_layout(cloud, T_ego[views, :3, 3], upstream.cloud, upstream.layout)
         covs, cov_failures = [], []
         for i, k in enumerate(np.cumsum(jo.in_jo) - 1):
             if jo.in_jo[i]:
@@ -521,7 +534,7 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
     # on the floor z = 0) -- an extension: the paper needs a group to have seen the agent.
     track = merge_tracks(agent, ego_agent_track(T_ego, ego.stamps_ns, head_offset), params.isolated.max_gap_s)
     for n, why in sorted(grouped.failed.items()):
-        registered.append(_register_isolated(n, why, cmcs.get(n), track, ego, landmarks, params, weak,
+        registered.append(_register_isolated(n, why, cmcs.get(n), track, ego, landmarks, params, upstream.tracks, weak,
                                              n in grouped.disputed))
     return FusionResult(sorted(registered, key=lambda r: r.name), T_ego, landmarks, agent, head_offset, cloud,
                         ego.cloud_colors, layout, grouped.alignments, fits)
@@ -687,13 +700,13 @@ def _scene_observations(names, cams, T_init, cmcs, ego: EgoMapData, params: Fusi
 
 
 def _register_isolated(name: str, why: str, cmc: CmcInput | None, agent: AgentTrack, ego: EgoMapData,
-                       landmarks: np.ndarray, params: FusionParams, weak: tuple[np.ndarray, np.ndarray],
-                       disputed: bool = False) -> RegisteredCmc:
+                       landmarks: np.ndarray, params: FusionParams, tracks: TrackParams,
+                       weak: tuple[np.ndarray, np.ndarray], disputed: bool = False) -> RegisteredCmc:
     """disputed: the camera's self-consistent group contradicts the ego trajectory its
     registration now rests on (never ok)."""
     if cmc is None:
         return RegisteredCmc(name, "", NONE, FAILED, why, None, None, None, float("nan"), 0, 0)
-    pnp, reason = register_by_agent(cmc.tracks, agent, params.isolated)
+    pnp, reason = register_by_agent(cmc.tracks, agent, params.isolated, tracks)
     if pnp is None:
         return RegisteredCmc(name, "", NONE, FAILED, f"{why}; isolated registration failed: {reason}", None, None,
                              cmc.tracks.camera, float("nan"), 0, 0)

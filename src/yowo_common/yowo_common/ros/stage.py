@@ -86,10 +86,10 @@ class StageNode(Node):
         self.create_timer(0.2, self._check)
         self.create_timer(2.0, lambda: self.publish_status(StageStatus.STATE_RUNNING) if not self._finalized else None)
 
-    def section(self, cls, where: str):
+    def section(self, cls, where: str, parameter: str = "config"):
         """This node's section of the configuration tree (YAML in its `config` parameter;
-        empty: the defaults)."""
-        params = load(cls, self.declare_parameter("config", "").value, where=where)
+        empty: the defaults), or another value of the tree in its own parameter."""
+        params = load(cls, self.declare_parameter(parameter, "").value, where=where)
         self.get_logger().info(f"configuration: {describe_changes(params, where)}")
         return params
 
