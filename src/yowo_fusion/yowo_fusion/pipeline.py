@@ -92,9 +92,9 @@ class AgentFit:
 class UpstreamParams:
     """Settings of other stages that the fusion applies again to their data. They are not the
     fusion's section: each lives in the tree once, where its stage reads it (UPSTREAM_HOMES;
-    the node gets each in a parameter of the field's name): how the group SfM cleans the CMC keypoint tracks
-    (cmc.sfm.tracks) and how the ego stage builds its cloud and layout (ego.cloud,
-    ego.layout), which the fusion rebuilds at the jointly optimised poses."""
+    the node gets each in a parameter of the field's name): how the group SfM cleans the
+    CMC keypoint tracks (cmc.sfm.tracks) and how the ego stage builds its cloud and layout
+    (ego.cloud, ego.layout), which the fusion rebuilds at the jointly optimised poses."""
     tracks: TrackParams = TrackParams()
     cloud: CloudParams = CloudParams()
     layout: LayoutParams = LayoutParams()
