@@ -151,13 +151,15 @@ def markdown(results: dict, command: str, env: dict) -> str:
                   f"(`{TRUE_CLOCKS}`: same frames, same noise); the ratios are YOWO's avg eps_pos over it.", ""]
         rows = []
         for (p, s), cs in clocks.items():
-            rel = _paired_ratio([(c["relative"].get("YOWO", {}).get("summary", {}).get("pos_avg"),
-                          c["relative"].get(TRUE_CLOCKS, {}).get("summary", {}).get("pos_avg")) for c in cs])
-            reg = _paired_ratio([(c["full"]["registration"].get("YOWO", {}).get("pos_avg"),
-                          c["full"]["registration"].get(TRUE_CLOCKS, {}).get("pos_avg")) for c in cs if "full" in c])
-            rows.append([p, s, *_abs_errors(e for c in cs for e in c["relative"]["YOWO"].get("clock_errors_ms", {}).values()),
-                         *_abs_errors(e for c in cs for e in c.get("full", {}).get("clock_errors_to_ego_ms", {}).values()),
-                         rel, reg])
+            yowo = [c["relative"].get("YOWO", {}) for c in cs]
+            synced = [c["relative"].get(TRUE_CLOCKS, {}) for c in cs]
+            full = [c["full"] for c in cs if "full" in c]
+            rows.append([p, s, *_abs_errors(e for y in yowo for e in y.get("clock_errors_ms", {}).values()),
+                         *_abs_errors(e for f in full for e in f.get("clock_errors_to_ego_ms", {}).values()),
+                         _paired_ratio((y.get("summary", {}).get("pos_avg"), t.get("summary", {}).get("pos_avg"))
+                                       for y, t in zip(yowo, synced)),
+                         _paired_ratio((f["registration"].get("YOWO", {}).get("pos_avg"),
+                                        f["registration"].get(TRUE_CLOCKS, {}).get("pos_avg")) for f in full)])
         lines += _table(["preset", "scenario", "members", "median \\|error\\| to reference [ms]", "max [ms]",
                          "within 2 ms", "registered", "median \\|error\\| to ego [ms]", "max [ms]", "within 2 ms",
                          "relative eps_pos / synchronised", "registration eps_pos / synchronised"], rows)
