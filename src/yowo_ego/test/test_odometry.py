@@ -7,8 +7,8 @@ from scipy.spatial.transform import Rotation
 
 from yowo_common.geometry import look_at, rotation_angle_deg, se3
 from yowo_ego.frames import RgbdFrame, make_frame
-from yowo_ego.odometry import (LOST, MAP_RELOCALISED, Keyframe, KeyframeTracker, OdometryEdge, OdometryParams,
-                               TrackResult, downsample, orthonormalize)
+from yowo_ego.odometry import (LOST, MAP_RELOCALISED, Keyframe, KeyframeTracker, OdometryEdge, OdometryImages,
+                               OdometryParams, RgbdOdometry, TrackResult, downsample, orthonormalize)
 from yowo_ego.pipeline import frames_between_keyframes
 
 # Looking across the room at two walls, the floor and a box.
@@ -219,3 +219,20 @@ def test_keyframe_images_are_packed_losslessly_in_about_half_their_bytes(rendere
     raw = KeyframeTracker(ego_camera.K, replace(OdometryParams(), compress_keyframes=False))
     raw.track(frame)
     assert raw.keyframes[0].image_bytes == color.nbytes + depth_mm.nbytes
+
+
+def test_fitness_counts_a_frame_with_little_depth_as_one_with_depth_almost_everywhere(renderer, ego_camera):
+    """A Kinect sees depth in ~70 % of its pixels: a frame with depth in half of them,
+    registered to itself, reaches the fitness a full frame has (Open3D's own: half of it);
+    a frame with depth almost everywhere keeps Open3D's."""
+    view = renderer.render(ego_camera, T_START)
+    full = OdometryImages.of(make_frame(0, view.rgb, view.depth, ego_camera), 2)
+    holed = view.depth.copy()
+    holed[:, :320] = np.nan
+    half = OdometryImages.of(make_frame(0, view.rgb, holed, ego_camera), 2)
+    assert np.mean(full.depth_mm > 0) > 0.99 and np.mean(half.depth_mm > 0) == pytest.approx(0.5, abs=0.01)
+    odometry = RgbdOdometry(ego_camera.K)
+    fit_full = odometry.register(full.rgbd, full.rgbd, np.eye(4))[1]
+    fit_half = odometry.register(half.rgbd, full.rgbd, np.eye(4))[1]
+    assert 0.85 < fit_full <= 320 * 240 / (336 * 256)      # Open3D's: the padding cannot match
+    assert fit_half == pytest.approx(odometry.params.full_depth_fraction * fit_full, abs=0.02)

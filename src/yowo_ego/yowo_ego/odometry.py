@@ -138,6 +138,11 @@ class OdometryParams:
     keyframe_translation_m: float = 0.5
     keyframe_rotation_deg: float = 20.0
     info_distance_m: float = 0.07        # correspondence distance for edge information matrices
+    # Open3D's fitness is a share of all pixels, and the fitness thresholds above hold for frames
+    # with depth almost everywhere. A frame with depth in fewer than this share of its pixels
+    # (a Kinect: ~70 %) has its fitness scaled up by this share over its own: unscaled, TUM
+    # fr1_rpy never reached keyframe_fitness and every one of its 694 frames became a keyframe.
+    full_depth_fraction: float = 0.9
     # Re-tracking after a fast turn accepts weaker evidence than loop closures:
     # the dense check that follows rejects a wrong guess.
     recovery_features: FeatureParams = FeatureParams(ratio=0.9, pnp_min_inliers=15)
@@ -362,7 +367,8 @@ class RgbdOdometry:
                  init_target_source: np.ndarray, cascade: tuple[str, ...] = ("Hybrid",)
                  ) -> tuple[np.ndarray, float, float]:
         """(T_target_source, fitness, inlier RMSE) after running the methods of
-        ``cascade`` in turn; fitness 0 when Open3D gives up."""
+        ``cascade`` in turn (fitness scaled for a source with little depth, full_depth_fraction);
+        fitness 0 when Open3D gives up."""
         T = init_target_source
         for method in cascade:
             try:
@@ -375,7 +381,12 @@ class RgbdOdometry:
             if not np.isfinite(T).all():
                 return init_target_source, 0.0, np.inf
             T = orthonormalize(T)
-        return T, float(r.fitness), float(r.inlier_rmse)
+        return T, float(r.fitness) * self._fitness_scale(source), float(r.inlier_rmse)
+
+    def _fitness_scale(self, source: o3d.t.geometry.RGBDImage) -> float:
+        """full_depth_fraction over the source's share of pixels with depth (inside the padding), at least 1."""
+        depth = source.depth.as_tensor().numpy()[ODOMETRY_PAD_PX:-ODOMETRY_PAD_PX, ODOMETRY_PAD_PX:-ODOMETRY_PAD_PX]
+        return max(1.0, self.params.full_depth_fraction * depth.size / max(np.count_nonzero(depth), 1))
 
     def polish(self, source: o3d.t.geometry.RGBDImage, target: o3d.t.geometry.RGBDImage,
                T_target_source: np.ndarray) -> np.ndarray:
