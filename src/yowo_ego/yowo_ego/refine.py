@@ -31,6 +31,7 @@ from yowo_common.geometry import transform_points
 from .features import KeyframeFeatures, backproject
 from .imu import InertialTerms
 from .odometry import OdometryEdge
+from .scene import FloorAttitudeParams, FloorAttitudes
 from .tracks import Tracks
 
 
@@ -53,6 +54,8 @@ class BundleParams:
     # ~3 kB per observation (a 25-minute floor: 1.09 M, +3.4 GB), so above this each keyframe
     # keeps its longest tracks (select_landmarks). The small and standard walks stay below it.
     max_observations: int = 500_000
+    # Without an IMU: each keyframe's view of the floor as a prior on its tilt (FloorAttitudeParams).
+    floor: FloorAttitudeParams = FloorAttitudeParams()
 
 
 @dataclass
@@ -141,15 +144,16 @@ def edge_factor(edge: OdometryEdge, params: BundleParams) -> gtsam.BetweenFactor
     return gtsam.BetweenFactorPose3(X(edge.target), X(edge.source), T, model)
 
 
-def gauge_model(T0: np.ndarray, inertial: InertialTerms | None) -> gtsam.noiseModel.Base:
-    """The first keyframe's prior: fixed; with IMU factors free to tilt (about the axes
-    across gravity) so that the accelerometer, whose bias the factors estimate, sets
-    the vertical rather than the initial guess of gravity (their mean specific force,
-    off by the accelerometer bias: ~0.5 deg)."""
-    if inertial is None or not inertial.between:
+def gauge_model(T0: np.ndarray, up_odom: np.ndarray | None = None, tilt_deg: float = 0.0) -> gtsam.noiseModel.Base:
+    """The first keyframe's prior: fixed; with a vertical from other factors (``up_odom``:
+    the IMU's gravity, the keyframes' floor) free to tilt by ``tilt_deg`` about the axes
+    across it, so that those factors set the vertical rather than the first keyframe's
+    pose (the IMU's initial guess of gravity, off by the accelerometer bias: ~0.5 deg; a
+    first keyframe tracked before the floor came into view)."""
+    if up_odom is None:
         return gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)
-    u = np.asarray(inertial.up_odom, float)
-    tilt = np.radians(inertial.tilt_prior_deg)
+    u = np.asarray(up_odom, float)
+    tilt = np.radians(tilt_deg)
     rot_nav = tilt ** 2 * (np.eye(3) - np.outer(u, u)) + FIXED_SIGMA ** 2 * np.outer(u, u)
     R = T0[:3, :3]            # tangent perturbations are in the keyframe's frame
     cov = np.zeros((6, 6))
@@ -212,18 +216,20 @@ class BundleProblem:
 
 def bundle_adjust(tracks: Tracks, features: list[KeyframeFeatures], T_world_kf: list[np.ndarray],
                   camera: CameraModel, params: BundleParams = BundleParams(),
-                  edges: list[OdometryEdge] = (), inertial: InertialTerms | None = None) -> BundleOutput:
+                  edges: list[OdometryEdge] = (), inertial: InertialTerms | None = None,
+                  floor: FloorAttitudes | None = None) -> BundleOutput:
     """Refine keyframe poses and landmarks; `camera` is the undistorted pinhole.
     ``edges``: the pose graph's (with ``params.pose_graph_factors``); ``inertial``:
-    preintegrated IMU between consecutive keyframes."""
+    preintegrated IMU between consecutive keyframes; ``floor``: each keyframe's view of the floor."""
     return solve_bundle(BundleProblem.from_tracks(tracks, features, T_world_kf, camera.K, params), T_world_kf,
-                        camera, params, edges, inertial)
+                        camera, params, edges, inertial, floor)
 
 
 def solve_bundle(problem: BundleProblem, T_world_kf: list[np.ndarray], camera: CameraModel,
                  params: BundleParams = BundleParams(), edges: list[OdometryEdge] = (),
-                 inertial: InertialTerms | None = None) -> BundleOutput:
-    """bundle_adjust on a BundleProblem."""
+                 inertial: InertialTerms | None = None, floor: FloorAttitudes | None = None) -> BundleOutput:
+    """bundle_adjust on a BundleProblem; ``floor``: the keyframes' views of the floor, each an
+    attitude factor (GTSAM's AttitudeFactorPose3, Huber) towards the up direction they share."""
     K = camera.K
     lm, kf, uv, depth, points = problem.landmark, problem.keyframe, problem.uv, problem.depth, problem.points
     cameras = [camera] * len(T_world_kf)
@@ -235,6 +241,8 @@ def solve_bundle(problem: BundleProblem, T_world_kf: list[np.ndarray], camera: C
     initial_error = final_error = 0.0
     iterations = 0
     result = None
+    vertical = ((inertial.up_odom, inertial.tilt_prior_deg) if inertial is not None and inertial.between
+                else (floor.up_odom, params.floor.tilt_prior_deg) if floor is not None else ())
     for rnd in range(params.rounds):
         if rnd > 0:
             res = reprojection_residuals(cameras, T, P, obs)
@@ -246,7 +254,7 @@ def solve_bundle(problem: BundleProblem, T_world_kf: list[np.ndarray], camera: C
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         for i, Ti in enumerate(T):
             values.insert(X(i), pose3(Ti))
-        graph.add(gtsam.PriorFactorPose3(X(0), pose3(T[0]), gauge_model(T[0], inertial)))
+        graph.add(gtsam.PriorFactorPose3(X(0), pose3(T[0]), gauge_model(T[0], *vertical)))
         for j in np.unique(current.point):
             values.insert(L(int(j)), gtsam.Point3(*P[j]))
         add_projection_factors(graph, current, cameras, X, L, params.huber_k)
@@ -263,6 +271,11 @@ def solve_bundle(problem: BundleProblem, T_world_kf: list[np.ndarray], camera: C
                 graph.add(edge_factor(e, params))
         if inertial is not None and inertial.between:
             add_inertial(graph, values, T, inertial, result)
+        if floor is not None:
+            tilt = gtsam.noiseModel.Robust.Create(
+                huber, gtsam.noiseModel.Isotropic.Sigma(2, float(np.radians(params.floor.sigma_deg))))
+            for i, n in floor.normals.items():
+                graph.add(gtsam.AttitudeFactorPose3(X(i), gtsam.Unit3(floor.up_odom), tilt, gtsam.Unit3(n)))
         result, e0, e1, its = optimize(graph, values, params.max_iterations)
         if rnd == 0:
             initial_error = e0

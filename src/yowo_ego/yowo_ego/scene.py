@@ -198,3 +198,74 @@ def up_from_cameras(T_odom_cam: list[np.ndarray]) -> np.ndarray:
     """Mean image-up direction (-y of the optical frame) of a head-worn camera."""
     up = -np.mean([T[:3, 1] for T in T_odom_cam], axis=0)
     return up / np.linalg.norm(up)
+
+
+@dataclass(frozen=True)
+class FloorAttitudeParams:
+    """Without an IMU, the floor each keyframe sees sets its tilt in the bundle adjustment
+    (yowo_ego.refine): a building's floor is one plane, so a keyframe whose view of it
+    leans against the map's floor was tracked with a tilt (bare walls: 7 deg over 14 s on
+    small texture_poor s2). Not the paper's (an extension, like the IMU's gravity)."""
+
+    enabled: bool = True
+    sigma_deg: float = 1.0               # a keyframe's floor normal (plane fit to its own depth)
+    tilt_prior_deg: float = 5.0          # the map may tilt this much (the first keyframe's prior)
+    below_camera_m: float = 0.8          # floor candidates: this far below the camera at least
+    max_tilt_deg: float = 20.0           # from the up direction the keyframe's pose predicts
+    distance_m: float = 0.02             # RANSAC inlier distance of the plane fit
+    min_points: int = 1500               # inliers (of the 320x240 depth) for a keyframe to count
+    stride: int = 2                      # every stride-th pixel each way
+
+
+def floor_normal_in_view(depth_mm: np.ndarray, K: np.ndarray, up_cam: np.ndarray,
+                         params: FloorAttitudeParams = FloorAttitudeParams()) -> np.ndarray | None:
+    """The floor's upward normal in the camera frame from one depth image (intrinsics K),
+    or None: a plane through the points at least ``below_camera_m`` under the camera
+    (along ``up_cam``, the up direction the keyframe's pose predicts) within
+    ``max_tilt_deg`` of it."""
+    s = params.stride
+    z = depth_mm[::s, ::s].astype(float) / 1000.0
+    v, u = np.mgrid[0:depth_mm.shape[0]:s, 0:depth_mm.shape[1]:s].astype(float)
+    P = np.dstack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z])[z > 0]
+    P = P[P @ up_cam <= -params.below_camera_m]
+    if len(P) < params.min_points // (s * s):
+        return None
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
+    o3d.utility.random.seed(0)          # the same recording gives the same map
+    _, inliers = cloud.segment_plane(params.distance_m, 3, 100)
+    if len(inliers) * s * s < params.min_points:
+        return None
+    Q = P[inliers] - P[inliers].mean(axis=0)
+    n = np.linalg.svd(Q, full_matrices=False)[2][2]     # least squares over the RANSAC inliers
+    n = n if n @ up_cam > 0 else -n
+    return n if n @ up_cam >= np.cos(np.radians(params.max_tilt_deg)) else None
+
+
+@dataclass
+class FloorAttitudes:
+    """The floor's up direction in the odometry frame (the keyframes' consensus) and each
+    keyframe's own view of it (camera frame), by keyframe index."""
+
+    up_odom: np.ndarray
+    normals: dict[int, np.ndarray]
+
+
+def floor_attitudes(keyframes: list[Keyframe], T_odom_kf: list[np.ndarray], K: np.ndarray,
+                    params: FloorAttitudeParams = FloorAttitudeParams()) -> FloorAttitudes | None:
+    """The keyframes that see the floor (``floor_normal_in_view``, K of their depth images)
+    and the up direction most of them agree on; None with fewer than three."""
+    guess = up_from_cameras(T_odom_kf)
+    normals = {}
+    for i, (kf, T) in enumerate(zip(keyframes, T_odom_kf)):
+        n = floor_normal_in_view(kf.depth_mm, K, T[:3, :3].T @ guess, params)
+        if n is not None:
+            normals[i] = n
+    if len(normals) < 3:
+        return None
+    seen = np.array([T_odom_kf[i][:3, :3] @ n for i, n in normals.items()])
+    up = seen.mean(axis=0)
+    for _ in range(3):       # the majority: keyframes tracked with a tilt lean away from it
+        up /= np.linalg.norm(up)
+        near = seen @ up >= np.cos(np.radians(params.max_tilt_deg / 2))
+        up = seen[near].mean(axis=0) if near.any() else up
+    return FloorAttitudes(up / np.linalg.norm(up), normals)
