@@ -13,6 +13,7 @@ from yowo_bringup.run import EGO, FULL, plan_run
 from yowo_common import topics
 from yowo_common.ros.bag import BagWriter, list_topics, read_messages
 from yowo_common.rosconv import stamp_to_ns
+from yowo_ego.ego_messages import ego_map_msg
 from yowo_common.trajectory import Trajectory
 from yowo_ego.imu import CoverageWait, ImuBuffer, ImuCalibration, ImuSamples
 from yowo_ego.odometry import INTERPOLATED, SKIPPED
@@ -268,9 +269,11 @@ def test_use_imu_off_equals_a_recording_without_imu(tiny_bag, tmp_path):
     off, _ = map_bag(tiny_bag, EgoParams(odometry=replace(EgoParams().odometry, use_imu=False)))
     none, _ = map_bag(tmp_path / "no_imu")
     assert off.stats["imu_frames"] == 0 and none.stats["imu_frames"] == 0
+    assert not off.imu and not none.imu                 # the fusion is told (EgoMap.imu)
     np.testing.assert_array_equal(off.trajectories["odometry"], none.trajectories["odometry"])
     on, _ = map_bag(tiny_bag)
     # Every frame tracked after the first used the gyro (the others were skipped: OdometryParams.skip).
     assert on.stats["skipped_frames"] > 0
     assert on.stats["imu_frames"] == len(on.stamps_ns) - 1 - on.stats["skipped_frames"]
+    assert on.imu and ego_map_msg(on).imu
     assert not np.array_equal(on.trajectories["odometry"], off.trajectories["odometry"])

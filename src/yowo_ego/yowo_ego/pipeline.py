@@ -96,6 +96,7 @@ class EgoMapResult:
     # (F,) how each frame was tracked (yowo_ego.odometry statuses) and its overlap (TrackResult.fitness)
     tracking: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype="<U16"))
     tracking_fitness: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    imu: bool = False                    # frames were tracked with the gyro's rotation
 
     @property
     def keyframe_stamps_ns(self) -> np.ndarray:
@@ -334,7 +335,8 @@ class EgoMapper:
             np.array([k.frame_index for k in keyframes], dtype=int), np.array([W @ T for T in T_bundle]),
             transform_points(W, m.landmarks) if len(m.landmarks) else m.landmarks, m.descriptors, m.obs_keyframe,
             m.obs_landmark, raw_uv, points_w, colors, layout, rect, trajectories, stats, warnings,
-            np.array([r.status for r in tr.results]), np.array([r.fitness for r in tr.results], dtype=float))
+            np.array([r.status for r in tr.results]), np.array([r.fitness for r in tr.results], dtype=float),
+            tr.imu_frames > 0)
 
     def _imu_usable(self) -> bool:
         imu = self.tracker.imu

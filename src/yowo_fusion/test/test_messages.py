@@ -27,6 +27,10 @@ def test_tracking_reaches_the_fusion_and_its_absence_is_none():
     assert np.allclose(ego.tracking_fitness, [0.8, 0.9, 0.7, 0.0, 0.0])
     silent = ego_map_from_msg(_msg([], []))
     assert silent.tracking_measured is None and silent.tracking_fitness is None
+    assert not ego.imu
+    with_imu = _msg([TRACKING_CODES[s] for s in statuses], [0.8, 0.9, 0.7, 0.0, 0.0])
+    with_imu.imu = True
+    assert ego_map_from_msg(with_imu).imu
 
 
 def test_every_tracking_status_has_a_code():

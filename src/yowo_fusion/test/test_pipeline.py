@@ -338,3 +338,7 @@ def test_weak_ego_frames_from_landmark_support_and_gaps():
     weak, gap = weak_ego_frames(told, FusionParams())
     assert np.flatnonzero(weak).tolist() == [5, 12, 15, 30]
     assert np.flatnonzero(gap).tolist() == [30]
+    # With an ego IMU the gyro measured every step's rotation: only less overlap is weak.
+    fitness[15] = 0.3
+    weak_imu = weak_ego_frames(replace(told, tracking_fitness=fitness, imu=True), FusionParams())[0]
+    assert np.flatnonzero(weak_imu).tolist() == [5, 15, 30]

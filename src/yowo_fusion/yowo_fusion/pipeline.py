@@ -46,6 +46,7 @@ class EgoMapData:
     # gyro bridge), and its overlap; None: the ego stage did not say
     tracking_measured: np.ndarray | None = None
     tracking_fitness: np.ndarray | None = None
+    imu: bool = False                # the ego stage tracked with the gyro's rotation between frames
 
 
 @dataclass
@@ -122,6 +123,10 @@ class FusionParams:
     # 0.230 / 0.066; s0 without 0.076 / 0.064; dim_light s1 without 0.111 / 0.145...
     weak_keyframe_landmarks: int = 20
     weak_tracking_fitness: float = 0.5
+    # With an ego IMU the gyro measured each step's rotation: only a step with less overlap than
+    # this is weak (a loose step let a two-camera group bend a good map: small texture_poor s2
+    # with IMU, registration 0.104 m at 0.5, 0.034 at 0.4; without the IMU, 0.4 broke s1).
+    weak_tracking_fitness_imu: float = 0.4
     # ...or after a gap in its frames longer than this (lost track, rejected frames).
     weak_frame_gap_s: float = 0.3
     # A camera whose registration rests on a stretch of the ego map with more weak frames
@@ -239,7 +244,8 @@ def weak_ego_frames(ego: EgoMapData, params: FusionParams) -> tuple[np.ndarray, 
         last = np.searchsorted(keyframes, np.arange(n), side="right") - 1
         few = np.where(last >= 0, counts[keyframes[np.maximum(last, 0)]], 0) < params.weak_keyframe_landmarks
         if ego.tracking_fitness is not None:
-            few &= ego.tracking_fitness < params.weak_tracking_fitness
+            few &= ego.tracking_fitness < (params.weak_tracking_fitness_imu if ego.imu
+                                           else params.weak_tracking_fitness)
         weak |= few
     if ego.tracking_measured is not None:
         weak |= ~ego.tracking_measured
