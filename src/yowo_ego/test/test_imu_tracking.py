@@ -13,8 +13,8 @@ from yowo_bringup.run import EGO, FULL, plan_run
 from yowo_common import topics
 from yowo_common.ros.bag import BagWriter, list_topics, read_messages
 from yowo_common.rosconv import stamp_to_ns
-from yowo_ego.ego_messages import ego_map_msg
 from yowo_common.trajectory import Trajectory
+from yowo_ego.ego_messages import ego_map_msg
 from yowo_ego.imu import CoverageWait, ImuBuffer, ImuCalibration, ImuSamples
 from yowo_ego.odometry import INTERPOLATED, SKIPPED
 from yowo_ego.pipeline import EgoParams, map_recording

@@ -40,7 +40,7 @@ class DegeneracyParams:
     max_sigma_m: float = 0.003
 
 
-def _points(depth_mm: np.ndarray, K: np.ndarray, stride: int) -> tuple[np.ndarray, np.ndarray]:
+def depth_points(depth_mm: np.ndarray, K: np.ndarray, stride: int) -> tuple[np.ndarray, np.ndarray]:
     """(points (h, w, 3) camera frame, valid (h, w)) of every stride-th pixel."""
     z = depth_mm[::stride, ::stride].astype(float) / 1000.0
     v, u = np.mgrid[0:depth_mm.shape[0]:stride, 0:depth_mm.shape[1]:stride].astype(float)
@@ -59,7 +59,7 @@ def motion_information(source_color: np.ndarray, source_depth_mm: np.ndarray, ta
     depth and intensity terms at T_target_source, odometry-resolution images with
     intrinsics K."""
     s = params.stride
-    Ps, valid_s = _points(source_depth_mm, K, s)
+    Ps, valid_s = depth_points(source_depth_mm, K, s)
     Ps = Ps[valid_s]
     P = Ps @ T_target_source[:3, :3].T + T_target_source[:3, 3]
     h, w = target_depth_mm.shape

@@ -27,6 +27,7 @@ from scipy.spatial import cKDTree
 
 from yowo_common.geometry import inv_se3, rotation_aligning, se3, transform_points
 
+from .degeneracy import depth_points
 from .odometry import Keyframe
 
 
@@ -224,9 +225,8 @@ def floor_normal_in_view(depth_mm: np.ndarray, K: np.ndarray, up_cam: np.ndarray
     (along ``up_cam``, the up direction the keyframe's pose predicts) within
     ``max_tilt_deg`` of it."""
     s = params.stride
-    z = depth_mm[::s, ::s].astype(float) / 1000.0
-    v, u = np.mgrid[0:depth_mm.shape[0]:s, 0:depth_mm.shape[1]:s].astype(float)
-    P = np.dstack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z])[z > 0]
+    P, valid = depth_points(depth_mm, K, s)
+    P = P[valid]
     P = P[P @ up_cam <= -params.below_camera_m]
     if len(P) < params.min_points // (s * s):
         return None
