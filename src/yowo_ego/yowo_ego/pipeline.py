@@ -37,7 +37,7 @@ from .odometry import (IMU_BRIDGED, RECOVERED, SKIPPED, Keyframe, KeyframeTracke
 from .posegraph import LoopParams, MultiwayRegistration
 from .refine import BundleParams, BundleProblem, solve_bundle
 from .scene import (CloudParams, Rectification, find_floor, floor_attitudes, fuse_cloud, planar_patches, rectify,
-                    up_from_cameras)
+                    up_from_cameras, wall_attitudes)
 from .tracks import FilterParams, build_tracks, filter_matches
 
 
@@ -410,11 +410,15 @@ class EgoMapper:
         mw.pairs.clear()
         del tracks, accepted
         release_free_memory()
-        floor = None
+        floor = walls = None
         if inertial is None and p.bundle.floor.enabled:
             floor = floor_attitudes(self.tracker.keyframes, T_kf, self.tracker.odometry.K, p.bundle.floor)
             stats["floor_attitudes"] = len(floor.normals) if floor is not None else 0
-        ba = solve_bundle(problem, T_kf, self.ideal, p.bundle, mw.edges, inertial, floor)
+        if inertial is None and p.bundle.walls.enabled:
+            up = floor.up_odom if floor is not None else up_from_cameras(T_kf)
+            walls = wall_attitudes(self.tracker.keyframes, T_kf, self.tracker.odometry.K, up, p.bundle.walls)
+            stats["wall_attitudes"] = len(walls.walls) if walls is not None else 0
+        ba = solve_bundle(problem, T_kf, self.ideal, p.bundle, mw.edges, inertial, floor, walls)
         # Its factor graph's GBs (a 25-minute floor: 3.9 -> 7.3 GB) back before the cloud is fused.
         release_free_memory()
         # Landmarks that kept at least two observations after outlier removal.

@@ -31,7 +31,7 @@ from yowo_common.geometry import transform_points
 from .features import KeyframeFeatures, backproject
 from .imu import InertialTerms
 from .odometry import OdometryEdge
-from .scene import FloorAttitudeParams, FloorAttitudes
+from .scene import FloorAttitudeParams, FloorAttitudes, WallAttitudeParams, WallAttitudes
 from .tracks import Tracks
 
 
@@ -56,6 +56,8 @@ class BundleParams:
     max_observations: int = 500_000
     # Without an IMU: each keyframe's view of the floor as a prior on its tilt (FloorAttitudeParams).
     floor: FloorAttitudeParams = FloorAttitudeParams()
+    # Without an IMU: each keyframe's largest wall as a prior on its heading (WallAttitudeParams).
+    walls: WallAttitudeParams = WallAttitudeParams()
 
 
 @dataclass
@@ -144,17 +146,19 @@ def edge_factor(edge: OdometryEdge, params: BundleParams) -> gtsam.BetweenFactor
     return gtsam.BetweenFactorPose3(X(edge.target), X(edge.source), T, model)
 
 
-def gauge_model(T0: np.ndarray, up_odom: np.ndarray | None = None, tilt_deg: float = 0.0) -> gtsam.noiseModel.Base:
+def gauge_model(T0: np.ndarray, up_odom: np.ndarray | None = None, tilt_deg: float = 0.0,
+                turn_deg: float = 0.0) -> gtsam.noiseModel.Base:
     """The first keyframe's prior: fixed; with a vertical from other factors (``up_odom``:
     the IMU's gravity, the keyframes' floor) free to tilt by ``tilt_deg`` about the axes
     across it, so that those factors set the vertical rather than the first keyframe's
     pose (the IMU's initial guess of gravity, off by the accelerometer bias: ~0.5 deg; a
-    first keyframe tracked before the floor came into view)."""
+    first keyframe tracked before the floor came into view); with a heading from other
+    factors (the keyframes' walls) free to turn by ``turn_deg`` about it too."""
     if up_odom is None:
         return gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)
     u = np.asarray(up_odom, float)
-    tilt = np.radians(tilt_deg)
-    rot_nav = tilt ** 2 * (np.eye(3) - np.outer(u, u)) + FIXED_SIGMA ** 2 * np.outer(u, u)
+    tilt, turn = max(np.radians(tilt_deg), FIXED_SIGMA), max(np.radians(turn_deg), FIXED_SIGMA)
+    rot_nav = tilt ** 2 * (np.eye(3) - np.outer(u, u)) + turn ** 2 * np.outer(u, u)
     R = T0[:3, :3]            # tangent perturbations are in the keyframe's frame
     cov = np.zeros((6, 6))
     cov[:3, :3] = R.T @ rot_nav @ R
@@ -217,19 +221,22 @@ class BundleProblem:
 def bundle_adjust(tracks: Tracks, features: list[KeyframeFeatures], T_world_kf: list[np.ndarray],
                   camera: CameraModel, params: BundleParams = BundleParams(),
                   edges: list[OdometryEdge] = (), inertial: InertialTerms | None = None,
-                  floor: FloorAttitudes | None = None) -> BundleOutput:
+                  floor: FloorAttitudes | None = None, walls: WallAttitudes | None = None) -> BundleOutput:
     """Refine keyframe poses and landmarks; `camera` is the undistorted pinhole.
     ``edges``: the pose graph's (with ``params.pose_graph_factors``); ``inertial``:
-    preintegrated IMU between consecutive keyframes; ``floor``: each keyframe's view of the floor."""
+    preintegrated IMU between consecutive keyframes; ``floor`` / ``walls``: each keyframe's
+    view of the floor / its largest wall."""
     return solve_bundle(BundleProblem.from_tracks(tracks, features, T_world_kf, camera.K, params), T_world_kf,
-                        camera, params, edges, inertial, floor)
+                        camera, params, edges, inertial, floor, walls)
 
 
 def solve_bundle(problem: BundleProblem, T_world_kf: list[np.ndarray], camera: CameraModel,
                  params: BundleParams = BundleParams(), edges: list[OdometryEdge] = (),
-                 inertial: InertialTerms | None = None, floor: FloorAttitudes | None = None) -> BundleOutput:
+                 inertial: InertialTerms | None = None, floor: FloorAttitudes | None = None,
+                 walls: WallAttitudes | None = None) -> BundleOutput:
     """bundle_adjust on a BundleProblem; ``floor``: the keyframes' views of the floor, each an
-    attitude factor (GTSAM's AttitudeFactorPose3, Huber) towards the up direction they share."""
+    attitude factor (GTSAM's AttitudeFactorPose3, Huber) towards the up direction they share;
+    ``walls``: their largest walls, each one towards the building's axis it belongs to."""
     K = camera.K
     lm, kf, uv, depth, points = problem.landmark, problem.keyframe, problem.uv, problem.depth, problem.points
     cameras = [camera] * len(T_world_kf)
@@ -242,7 +249,10 @@ def solve_bundle(problem: BundleProblem, T_world_kf: list[np.ndarray], camera: C
     iterations = 0
     result = None
     vertical = ((inertial.up_odom, inertial.tilt_prior_deg) if inertial is not None and inertial.between
-                else (floor.up_odom, params.floor.tilt_prior_deg) if floor is not None else ())
+                else (floor.up_odom, params.floor.tilt_prior_deg) if floor is not None
+                else (walls.up_odom, 0.0) if walls is not None else ())
+    if walls is not None:
+        vertical += (params.walls.turn_prior_deg,)
     for rnd in range(params.rounds):
         if rnd > 0:
             res = reprojection_residuals(cameras, T, P, obs)
@@ -276,6 +286,11 @@ def solve_bundle(problem: BundleProblem, T_world_kf: list[np.ndarray], camera: C
                 huber, gtsam.noiseModel.Isotropic.Sigma(2, float(np.radians(params.floor.sigma_deg))))
             for i, n in floor.normals.items():
                 graph.add(gtsam.AttitudeFactorPose3(X(i), gtsam.Unit3(floor.up_odom), tilt, gtsam.Unit3(n)))
+        if walls is not None:
+            turn = gtsam.noiseModel.Robust.Create(
+                huber, gtsam.noiseModel.Isotropic.Sigma(2, float(np.radians(params.walls.sigma_deg))))
+            for i, (n, axis) in walls.walls.items():
+                graph.add(gtsam.AttitudeFactorPose3(X(i), gtsam.Unit3(axis), turn, gtsam.Unit3(n)))
         result, e0, e1, its = optimize(graph, values, params.max_iterations)
         if rnd == 0:
             initial_error = e0

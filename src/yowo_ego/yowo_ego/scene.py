@@ -269,3 +269,108 @@ def floor_attitudes(keyframes: list[Keyframe], T_odom_kf: list[np.ndarray], K: n
         near = seen @ up >= np.cos(np.radians(params.max_tilt_deg / 2))
         up = seen[near].mean(axis=0) if near.any() else up
     return FloorAttitudes(up / np.linalg.norm(up), normals)
+
+
+@dataclass(frozen=True)
+class WallAttitudeParams:
+    """Without an IMU, the walls each keyframe sees set its heading in the bundle adjustment
+    (yowo_ego.refine). Most buildings stand on two perpendicular horizontal axes (a Manhattan
+    world), so a keyframe whose largest wall turns against the axes the map's walls share was
+    tracked with a turn: dense odometry along bare walls turns by degrees where nothing else
+    sees it (small texture_poor s1: 8 deg, then 25 deg, over 13 s), and neither the floor nor
+    the agent track observes a turn about the vertical. Not the paper's (an extension, like
+    the floor's tilt). Whether the building is one is seen within single views, whatever the
+    tracking's turns: where a view holds two walls that are not parallel, they are
+    perpendicular in at least ``min_share`` of such views; otherwise no keyframe gets one."""
+
+    enabled: bool = True
+    sigma_deg: float = 1.0               # a keyframe's largest wall's normal (plane fit to its own depth)
+    turn_prior_deg: float = 5.0          # the map may turn this much (the first keyframe's prior)
+    max_tilt_deg: float = 10.0           # a wall's normal from horizontal (across the up direction)
+    max_turn_deg: float = 20.0           # a keyframe's wall from the nearest axis, as tracked
+    perpendicular_deg: float = 5.0       # two walls of one view are perpendicular within this
+    min_share: float = 0.7
+    min_corners: int = 3                 # views holding two walls that are not parallel, at least
+    max_planes: int = 3                  # planes tried per view, largest first
+    distance_m: float = 0.02             # RANSAC inlier distance of each plane fit
+    min_points: int = 3000               # inliers (of the 320x240 depth) for a plane to count
+    stride: int = 2                      # every stride-th pixel each way
+
+
+def wall_normals_in_view(depth_mm: np.ndarray, K: np.ndarray, up_cam: np.ndarray,
+                         params: WallAttitudeParams = WallAttitudeParams()) -> list[np.ndarray]:
+    """The normals (camera frame, either sign) of the walls in one depth image (intrinsics
+    K), largest first: of up to ``max_planes`` planes (RANSAC, then least squares over its
+    inliers, largest first) those whose normal lies within ``max_tilt_deg`` of horizontal
+    (across ``up_cam``, the up direction the keyframe's pose predicts)."""
+    s = params.stride
+    P, valid = depth_points(depth_mm, K, s)
+    P = P[valid]
+    o3d.utility.random.seed(0)          # the same recording gives the same map
+    walls = []
+    for _ in range(params.max_planes):
+        if len(P) * s * s < params.min_points:
+            break
+        _, inliers = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P)).segment_plane(params.distance_m, 3, 100)
+        if len(inliers) * s * s < params.min_points:
+            break
+        Q = P[inliers] - P[inliers].mean(axis=0)
+        n = np.linalg.svd(Q, full_matrices=False)[2][2]
+        if abs(n @ up_cam) <= np.sin(np.radians(params.max_tilt_deg)):
+            walls.append(n)
+        P = np.delete(P, inliers, axis=0)
+    return walls
+
+
+@dataclass
+class WallAttitudes:
+    """The building's horizontal axes in the odometry frame (the keyframes' walls' consensus:
+    ``axis_odom`` and its turn by 90 deg about ``up_odom``) and, by keyframe index, each
+    keyframe's largest wall (normal in the camera frame, the axis direction it belongs to in
+    the odometry frame)."""
+
+    up_odom: np.ndarray
+    axis_odom: np.ndarray
+    walls: dict[int, tuple[np.ndarray, np.ndarray]]
+
+
+def _fold(angle: np.ndarray) -> np.ndarray:
+    """An angle [rad] as the turn from the nearest multiple of 90 deg, in [-45, 45) deg."""
+    return (angle + np.pi / 4) % (np.pi / 2) - np.pi / 4
+
+
+def wall_attitudes(keyframes: list[Keyframe], T_odom_kf: list[np.ndarray], K: np.ndarray, up_odom: np.ndarray,
+                   params: WallAttitudeParams = WallAttitudeParams()) -> WallAttitudes | None:
+    """The keyframes' walls (``wall_normals_in_view``, K of their depth images) and the two
+    axes most of their largest walls agree on (mod 90 deg); None unless the building is a
+    Manhattan world by its views' corners (``WallAttitudeParams``). Each largest wall within
+    ``max_turn_deg`` of an axis, as tracked, belongs to it."""
+    up = np.asarray(up_odom, float) / np.linalg.norm(up_odom)
+    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(up, e1)
+    largest, headings, corners = {}, [], []
+    for i, (kf, T) in enumerate(zip(keyframes, T_odom_kf)):
+        walls = wall_normals_in_view(kf.depth_mm, K, T[:3, :3].T @ up, params)
+        if not walls:
+            continue
+        seen = np.array(walls) @ T[:3, :3].T
+        h = np.arctan2(seen @ e2, seen @ e1)
+        largest[i] = walls[0]
+        headings.append(h[0])
+        d = (h[1:] - h[0]) % np.pi
+        between = np.degrees(np.minimum(d, np.pi - d))      # the walls' lines: 0 parallel, 90 deg square
+        corners += [abs(b - 90.0) <= params.perpendicular_deg for b in between if b > params.max_turn_deg]
+    if len(corners) < params.min_corners or np.mean(corners) < params.min_share:
+        return None
+    heading = np.array(headings)
+    # Headings fold onto one axis mod 90 deg: the axis is a quarter of the mean of 4 x heading.
+    axis = np.angle(np.exp(4j * heading).mean()) / 4
+    for _ in range(3):       # the majority: keyframes tracked with a turn lean away from it
+        near = np.abs(_fold(heading - axis)) <= np.radians(params.max_turn_deg / 2)
+        axis = np.angle(np.exp(4j * heading[near]).mean()) / 4 if near.any() else axis
+    turn = _fold(heading - axis)
+    snapped = heading - turn
+    walls = {i: (n, np.cos(a) * e1 + np.sin(a) * e2)
+             for (i, n), a, t in zip(largest.items(), snapped, turn) if abs(t) <= np.radians(params.max_turn_deg)}
+    return WallAttitudes(up, np.cos(axis) * e1 + np.sin(axis) * e2, walls) if walls else None
