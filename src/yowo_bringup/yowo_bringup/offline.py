@@ -111,7 +111,8 @@ def ego_map_data(ego):
 
     return EgoMapData(ego.camera, ego.stamps_ns, ego.T_world_cam, ego.landmarks, "SIFT", ego.descriptors,
                       ego.keyframe_frames[ego.obs_keyframe], ego.obs_landmark, ego.obs_uv, ego.cloud_points,
-                      ego.cloud_colors, ego.layout, np.isin(ego.tracking, MEASURED), ego.tracking_fitness, ego.imu)
+                      ego.cloud_colors, ego.layout, np.isin(ego.tracking, MEASURED), ego.tracking_fitness, ego.imu,
+                      ego.attitude_held)
 
 
 @dataclass

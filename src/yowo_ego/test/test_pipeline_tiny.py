@@ -1,5 +1,7 @@
 """End to end on a generated 'tiny' recording: the ego stage reads the bag's ego
 topics only and is checked against the simulator's ground truth."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
@@ -10,6 +12,7 @@ from yowo_common.ros.bag import BagWriter
 from yowo_common.rosconv import encode_color_jpeg, encode_depth_png
 from yowo_eval.ego_bench import evaluate
 from yowo_eval.ground_truth import read_ground_truth
+from yowo_ego.pipeline import EgoParams
 from yowo_ego.recording import map_bag
 
 
@@ -70,3 +73,17 @@ def test_same_recording_maps_the_same(tiny):
     for stage, poses in first.trajectories.items():
         assert np.array_equal(poses, again.trajectories[stage]), stage
     assert np.array_equal(first.landmarks, again.landmarks)
+
+
+def test_without_the_imu_the_walls_hold_the_keyframes_headings(tiny_bag):
+    """The tiny room is rectangular: without the IMU most keyframes see a wall whose axis
+    holds their heading, the map stays within a centimetre, and every frame says whether its
+    keyframe's attitude was held (the fusion reads that from EgoMap.attitude_held)."""
+    params = EgoParams()
+    params = replace(params, odometry=replace(params.odometry, use_imu=False))
+    result, _ = map_bag(tiny_bag, params)
+    assert result.stats["imu_frames"] == 0 and result.stats["wall_attitudes"] >= len(result.keyframe_frames) / 2
+    assert len(result.attitude_held) == len(result.stamps_ns) and result.attitude_held.mean() > 0.5
+    assert evaluate(result, read_ground_truth(tiny_bag))["ate_bundle_m"] < 0.012
+    off = replace(params, bundle=replace(params.bundle, walls=replace(params.bundle.walls, enabled=False)))
+    assert not map_bag(tiny_bag, off)[0].attitude_held.any()

@@ -39,7 +39,8 @@ def ego_map_msg(r: EgoMapResult) -> EgoMap:
         obs_landmark_index=[int(i) for i in r.obs_landmark],
         obs_x=[float(v) for v in r.obs_uv[:, 0]], obs_y=[float(v) for v in r.obs_uv[:, 1]],
         tracking=[TRACKING_CODES[str(s)] for s in r.tracking],
-        tracking_fitness=[float(f) for f in r.tracking_fitness], imu=bool(r.imu))
+        tracking_fitness=[float(f) for f in r.tracking_fitness], imu=bool(r.imu),
+        attitude_held=[bool(h) for h in r.attitude_held])
 
 
 def path_msg(stamps_ns: np.ndarray, T_world_cam: np.ndarray) -> Path:

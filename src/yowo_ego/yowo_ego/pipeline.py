@@ -97,6 +97,9 @@ class EgoMapResult:
     tracking: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype="<U16"))
     tracking_fitness: np.ndarray = field(default_factory=lambda: np.zeros(0))
     imu: bool = False                    # frames were tracked with the gyro's rotation
+    # (F,) the keyframe each frame was tracked from had its attitude held to the building's
+    # walls (and floor) in the bundle adjustment (refine.solve_bundle's ``walls``)
+    attitude_held: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
     @property
     def keyframe_stamps_ns(self) -> np.ndarray:
@@ -287,11 +290,11 @@ class EgoMapper:
                      loops_kept=mw.loops_kept, relocalised=mw.relocalised, loops_retrieved=mw.loops_retrieved)
         T_kf = mw.T_odom_kf
 
-        T_bundle, scene_map, inertial_up = T_kf, _SceneMap.empty(), None
+        T_bundle, scene_map, inertial_up, held = T_kf, _SceneMap.empty(), None, np.zeros(len(keyframes), bool)
         if p.bundle_adjustment:
             t0 = time.perf_counter()
             inertial = self._inertial_terms(T_kf, stats, warnings) if p.inertial.bundle_factors else None
-            T_bundle, scene_map, inertial_up = self._refine(mw, features, T_kf, stats, warnings, inertial)
+            T_bundle, scene_map, inertial_up, held = self._refine(mw, features, T_kf, stats, warnings, inertial)
             stats["bundle_s"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
@@ -336,7 +339,7 @@ class EgoMapper:
             transform_points(W, m.landmarks) if len(m.landmarks) else m.landmarks, m.descriptors, m.obs_keyframe,
             m.obs_landmark, raw_uv, points_w, colors, layout, rect, trajectories, stats, warnings,
             np.array([r.status for r in tr.results]), np.array([r.fitness for r in tr.results], dtype=float),
-            tr.imu_frames > 0)
+            tr.imu_frames > 0, held[np.array([r.keyframe for r in tr.results], dtype=int)])
 
     def _imu_usable(self) -> bool:
         imu = self.tracker.imu
@@ -383,11 +386,12 @@ class EgoMapper:
 
     def _refine(self, mw, features: list[KeyframeFeatures], T_kf: list[np.ndarray], stats: dict,
                 warnings: list[str], inertial: InertialTerms | None = None
-                ) -> tuple[list[np.ndarray], "_SceneMap", np.ndarray | None]:
+                ) -> tuple[list[np.ndarray], "_SceneMap", np.ndarray | None, np.ndarray]:
         """Visual refinement: filtered matches of every registered keyframe pair ->
         tracks -> bundle adjustment (with the pose graph's edges and ``inertial``).
-        Returns the refined keyframe poses, the map and the up direction of the IMU
-        factors' gravity (None when none entered)."""
+        Returns the refined keyframe poses, the map, the up direction of the IMU
+        factors' gravity (None when none entered) and which keyframes had their heading
+        held to the building's walls."""
         p, K = self.params, self.ideal.K
         accepted, n_matches, n_epi, n_depth = [], 0, 0, 0
         for pair in mw.pairs:
@@ -403,7 +407,7 @@ class EgoMapper:
         stats.update(matches=n_matches, epipolar_rejected=n_epi, depth_rejected=n_depth, tracks=tracks.count)
         if tracks.count < MIN_TRACKS:
             warnings.append(f"only {tracks.count} feature tracks survived the filters; bundle adjustment skipped")
-            return T_kf, _SceneMap.empty(), None
+            return T_kf, _SceneMap.empty(), None, np.zeros(len(T_kf), bool)
         problem = BundleProblem.from_tracks(tracks, features, T_kf, K, p.bundle)
         # Nothing after reads the features or the matches: they go before the solve's GBs come.
         features.clear()
@@ -435,7 +439,8 @@ class EgoMapper:
                          imu_gyro_bias_dps=float(np.degrees(np.linalg.norm(b[:, 3:], axis=1).mean())))
         return (ba.T_world_kf, _SceneMap(ba.landmarks[keep], ba.descriptors[keep], ba.obs.camera[sel],
                                          remap[ba.obs.point[sel]], ba.obs.uv[sel]),
-                inertial.up_odom if inertial is not None and inertial.between else None)
+                inertial.up_odom if inertial is not None and inertial.between else None,
+                np.isin(np.arange(len(T_kf)), list(walls.walls) if walls is not None else []))
 
 
 @dataclass

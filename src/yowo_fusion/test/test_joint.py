@@ -5,7 +5,7 @@ from scipy.spatial.transform import Rotation
 
 from yowo_common.bundle import Observations
 from yowo_common.camera import CameraModel
-from yowo_common.geometry import inv_se3, look_at, se3
+from yowo_common.geometry import inv_se3, look_at, rotation_angle_deg, se3
 from yowo_fusion.joint import JointParams, JointProblem, solve_joint
 
 OFFSET = np.array([0.0, -0.11, -0.06])  # head top in the ego camera frame
@@ -222,3 +222,26 @@ def test_agent_track_repairs_a_broken_ego_map():
         repaired = rms_pos_err([res.T_world_ego[f] for f in after], [truth["T_ego"][f] for f in after])
         assert before_err > 0.4 and repaired < (0.04 if flagged else 0.1), (flagged, before_err, repaired)
         assert max_pos_err(res.T_world_cmc, truth["T_cmc"]) < 0.05
+
+
+def test_a_weak_step_between_held_attitudes_opens_in_translation_only():
+    """The ego map slid 0.3 m at a flagged step on a bare stretch (its attitude right: the
+    walls and floor held it) and one CMC sees the agent after it. The agent track puts the
+    piece back either way; where the ego map says it held both sides' attitude the step's
+    rotation stays measured and the piece comes back turned half as much."""
+    problem, truth = make_problem(seed=1, drift_scale=0.0)
+    n = len(truth["T_ego"])
+    at = n // 2
+    problem.T_world_ego = broken(truth["T_ego"], at, se3(np.eye(3), [0.25, -0.15, 0.0]))
+    problem.ego_obs = problem.ego_obs.subset(problem.ego_obs.camera < at)
+    late = problem.agent_stamps_ns[problem.cmc_agent_obs.point] >= problem.ego_stamps_ns[at]
+    problem.cmc_agent_obs = problem.cmc_agent_obs.subset(~late | (problem.cmc_agent_obs.camera == 1))
+    problem.ego_weak_frames = np.arange(n) == at
+    turned = []
+    for held in (None, np.ones(n, bool)):
+        problem.ego_attitude_held = held
+        res = solve_joint(problem)
+        assert rms_pos_err(res.T_world_ego[at:], truth["T_ego"][at:]) < 0.01
+        turned.append(max(rotation_angle_deg(res.T_world_ego[f][:3, :3], truth["T_ego"][f][:3, :3])
+                          for f in range(at, n)))
+    assert turned[1] < 0.6 * turned[0] and turned[1] < 0.35, turned

@@ -33,6 +33,15 @@ def test_tracking_reaches_the_fusion_and_its_absence_is_none():
     assert ego_map_from_msg(with_imu).imu
 
 
+def test_held_attitudes_reach_the_fusion_and_their_absence_is_none():
+    held = _msg([], [])
+    held.attitude_held = [True, False, True, True, False]
+    assert ego_map_from_msg(held).attitude_held.tolist() == [True, False, True, True, False]
+    assert ego_map_from_msg(_msg([], [])).attitude_held is None
+    held.attitude_held = [True, False]              # not one per pose: not said
+    assert ego_map_from_msg(held).attitude_held is None
+
+
 def test_every_tracking_status_has_a_code():
     assert set(TRACKING_CODES) == {TRACKED, RECOVERED, MAP_RELOCALISED, IMU_BRIDGED, LOST, INTERPOLATED}
     measured = (EgoMap.TRACKING_DENSE, EgoMap.TRACKING_MAP, EgoMap.TRACKING_INTERPOLATED)

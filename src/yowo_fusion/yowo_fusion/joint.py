@@ -63,6 +63,11 @@ class JointParams:
     # JO took a 0.021 m ego map to 0.203 m and registration 0.063 -> 0.137 m; at (0.05, 0.1) 0.028 /
     # 0.075 m; the other 13 hard small runs within +-0.003 m or better, BENCHMARKS.md).
     ego_weak_between_sigma: tuple[float, float] = (0.05, 0.1)
+    # (rad, m) such a step between two frames whose attitude the ego map held to the building's
+    # walls and floor (JointProblem.ego_attitude_held): its rotation is measured, only its
+    # translation is loose. The held keyframes' walls and floor fit to about 1 deg each, so
+    # a step between two of them to ~1.4 deg.
+    ego_held_weak_between_sigma: tuple[float, float] = (0.025, 0.1)
     # Huber threshold of the chain's whitened 6-DoF residual: above the ~sqrt(6) of a good
     # step, so the chain is Gaussian where the ego map holds and gives way at a break it missed.
     ego_between_huber_k: float = 5.0
@@ -109,6 +114,8 @@ class JointProblem:
     agent_chain: np.ndarray | None = None    # (K,) track id (CMC group) of each agent point; None: one track
     # (F,) True where the ego map's motion from the previous frame is unreliable; None: nowhere
     ego_weak_frames: np.ndarray | None = None
+    # (F,) True where the ego map held the frame's attitude to the building; None: nowhere
+    ego_attitude_held: np.ndarray | None = None
 
 
 @dataclass
@@ -322,15 +329,18 @@ def _chains(p: JointProblem) -> np.ndarray:
 
 def _add_ego_chain(graph, p: JointProblem, params: JointParams, anchors: np.ndarray) -> None:
     """The ego map's relative pose between consecutive anchors (Huber), loose where a frame
-    between them is one the ego map does not vouch for."""
+    between them is one the ego map does not vouch for (in translation only where the ego
+    map held both anchors' attitude to the building)."""
     T = np.asarray(p.T_world_ego)
     weak = np.zeros(len(T), bool) if p.ego_weak_frames is None else np.asarray(p.ego_weak_frames, bool)
+    held = np.zeros(len(T), bool) if p.ego_attitude_held is None else np.asarray(p.ego_attitude_held, bool)
     huber = gtsam.noiseModel.mEstimator.Huber.Create(params.ego_between_huber_k)
     models = [gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Diagonal.Sigmas(np.repeat(sigma, 3)))
-              for sigma in (params.ego_between_sigma, params.ego_weak_between_sigma)]
+              for sigma in (params.ego_between_sigma, params.ego_weak_between_sigma,
+                            params.ego_held_weak_between_sigma)]
     for f0, f1 in zip(anchors[:-1], anchors[1:]):
-        graph.add(gtsam.BetweenFactorPose3(X(int(f0)), X(int(f1)), pose3(inv_se3(T[f0]) @ T[f1]),
-                                           models[int(weak[f0 + 1:f1 + 1].any())]))
+        kind = 0 if not weak[f0 + 1:f1 + 1].any() else 2 if held[f0] and held[f1] else 1
+        graph.add(gtsam.BetweenFactorPose3(X(int(f0)), X(int(f1)), pose3(inv_se3(T[f0]) @ T[f1]), models[kind]))
 
 
 def _add_landmark_priors(graph, values, p: JointProblem, params: JointParams, landmarks: np.ndarray) -> None:

@@ -48,7 +48,8 @@ def ego_map_from_msg(msg: EgoMap, cloud=None, layout: SceneLayout | None = None)
         np.asarray(msg.obs_pose_index, dtype=int), np.asarray(msg.obs_landmark_index, dtype=int),
         np.column_stack([np.asarray(msg.obs_x, float), np.asarray(msg.obs_y, float)]).reshape(-1, 2),
         xyz, colors, layout_from_msg(layout) if layout is not None else None,
-        *_tracking(msg), bool(msg.imu))
+        *_tracking(msg), bool(msg.imu),
+        np.asarray(msg.attitude_held, dtype=bool) if len(msg.attitude_held) == len(msg.poses) else None)
 
 
 def _tracking(msg: EgoMap) -> tuple[np.ndarray | None, np.ndarray | None]:

@@ -47,6 +47,8 @@ class EgoMapData:
     tracking_measured: np.ndarray | None = None
     tracking_fitness: np.ndarray | None = None
     imu: bool = False                # the ego stage tracked with the gyro's rotation between frames
+    # (F,) the ego stage held the frame's attitude to the building (its walls and floor); None: not said
+    attitude_held: np.ndarray | None = None
 
 
 @dataclass
@@ -581,7 +583,7 @@ def _joint(grouped: _GroupedCmcs, scene_obs: Observations, ego: EgoMapData, idea
                                [c for c, k in zip(grouped.cams, cams) if k],
                                [T for T, k in zip(grouped.T_init, cams) if k], scene, grouped.agent.points[points],
                                grouped.agent.stamps_ns[points], grouped.agent.ids[points], agent_obs,
-                               grouped.head_offset, grouped.agent_chain[points], weak[0])
+                               grouped.head_offset, grouped.agent_chain[points], weak[0], ego.attitude_held)
         try:
             res = solve_joint(problem, params.joint)
         except RuntimeError as exc:  # GTSAM gave up on the system: keep the aligned poses
