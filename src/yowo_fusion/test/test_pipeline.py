@@ -342,3 +342,32 @@ def test_weak_ego_frames_from_landmark_support_and_gaps():
     fitness[15] = 0.3
     weak_imu = weak_ego_frames(replace(told, tracking_fitness=fitness, imu=True), FusionParams())[0]
     assert np.flatnonzero(weak_imu).tolist() == [5, 15, 30]
+
+
+def test_head_tops_one_camera_saw_anchor_a_broken_ego_map():
+    """From 5 s to the end of room A only a1 sees the agent (a2 and a3 lose it): the group
+    triangulates nothing there, and the ego map broke at 10 s (0.3 m, a gap). a1's head
+    tops alone, each tied to the head top the ego trajectory predicts, put the piece after
+    the break back, and with it room B's isolated camera; without them nothing holds that
+    piece but the guess across the gap."""
+    cams, tracks, ego = world()
+    truth, t0 = ego, ego.stamps_ns[0]
+    for tr in tracks:
+        if tr.name in ("a2", "a3"):
+            for kp, k in tr.tracks.items():
+                keep = (k.stamps_ns - t0 < 5 * 10**9) | (k.stamps_ns - t0 >= 25 * 10**9)
+                tr.tracks[kp] = replace(k, stamps_ns=k.stamps_ns[keep], uv=k.uv[keep], confidence=k.confidence[keep])
+    ego = broken_ego(ego, 10.0, 0.6, se3(np.eye(3), [0.3, 0.0, 0.0]))
+    grouping = calibrate_groups(tracks)
+    after = (ego.stamps_ns - t0 > 10.6e9)
+    kept = np.isin(truth.stamps_ns, ego.stamps_ns)
+    out = {}
+    for single in (True, False):
+        result = fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks},
+                      FusionParams(single_view_head_tops=single))
+        err = np.linalg.norm(result.T_world_ego[after, :3, 3] - truth.T_world_ego[kept][after, :3, 3], axis=1)
+        b1 = registration_errors({c.name: c.T_world_cam for c in result.cameras if c.name == "b1"},
+                                 {"b1": cams["b1"][1]})[0]
+        out[single] = (err.max(), b1.eps_pos_m)
+    assert out[True][0] < 0.03 and out[True][1] < 0.05, out
+    assert out[False][0] > 0.25 and out[False][1] > 0.25, out

@@ -19,8 +19,8 @@ from yowo_ego.scene import CloudParams
 
 from .alignment import AlignParams, ClockFit, align_group, estimate_clock_offset, interpolate_positions
 from .isolated import AgentTrack, IsolatedParams, refine_pose, register_by_agent
-from .joint import (UNKNOWN_COVARIANCE, JointParams, JointProblem, JointResult, covariance_unavailable, ros_covariance,
-                    solve_joint, solver_failure)
+from .joint import (TOP, UNKNOWN_COVARIANCE, JointParams, JointProblem, JointResult, covariance_unavailable,
+                    ros_covariance, solve_joint, solver_failure)
 from .refined_map import move_cloud, rebuild_layout
 from .scene_matching import SceneMatchParams, match_scene
 
@@ -150,6 +150,11 @@ class FusionParams:
     max_unexplained_track_rms_m: float = 0.3
     # Joint solves at most (each leaves one more such group out; a floor's solve takes minutes).
     max_joint_solves: int = 3
+    # A head top only one camera of a group saw at a stamp cannot be triangulated, yet with the
+    # head top the ego trajectory predicts it anchors the map across that camera's ray: such an
+    # observation enters the joint optimisation as an agent point of its own (started at the
+    # predicted head top). Our addition: the paper's agent points are the groups' triangulated ones.
+    single_view_head_tops: bool = True
 
 
 @dataclass
@@ -377,6 +382,7 @@ class _GroupedCmcs:
     agent: AgentTrack
     agent_obs: Observations
     agent_chain: np.ndarray
+    agent_single: np.ndarray             # (K,) a head top one camera saw (single_view_head_tops)
     head_offset: np.ndarray
     alignments: dict[str, Sim3]
     failed: dict[str, str]               # camera -> why it is not among the grouped ones
@@ -384,12 +390,18 @@ class _GroupedCmcs:
     chains: dict[str, tuple[int, CameraGroupResult]]   # group -> its agent_chain value and the group (ego clock)
     disputed: set[str]                   # cameras of a self-consistent group the ego stage's trajectory contradicts
 
+    @property
+    def fit_chain(self) -> np.ndarray:
+        """agent_chain with the single-view head tops in none: where they lie along their ray
+        follows the ego trajectory, so they say nothing of how a group's track fits it."""
+        return np.where(self.agent_single, -1, self.agent_chain)
+
 
 def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, str],
                    cmcs: dict[str, CmcInput], params: FusionParams, weak: tuple[np.ndarray, np.ndarray],
                    tracks: TrackParams) -> _GroupedCmcs:
     names, cams, T_init, group_of = [], [], [], {}
-    agent_pts, agent_ns, agent_ids, agent_chain = [], [], [], []
+    agent_pts, agent_ns, agent_ids, agent_chain, agent_single = [], [], [], [], []
     c_idx, p_idx, uv_obs, sig_obs = [], [], [], []
     alignments, chains = {}, {}
     failed: dict[str, str] = dict(ungrouped)
@@ -422,22 +434,33 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
         agent_ns.append(g.point_stamps_ns)
         agent_ids.append(g.point_ids)
         agent_chain.append(np.full(len(g.points), gi))
+        agent_single.append(np.zeros(len(g.points), bool))
         key = {(int(s), int(i)): base + k for k, (s, i) in enumerate(zip(g.point_stamps_ns, g.point_ids))}
         stamps = np.unique(g.point_stamps_ns)
+        lone_tops: dict[int, list] = {}          # stamp index -> (camera, uv, sigma) of untriangulated head tops
+        lone_own: list = []                       # (camera, stamp, uv, sigma) where the group has no point
         for n in g.names:
             if n not in cmcs:
                 failed[n] = "no keypoints received for this camera"
                 continue
             # The member's stamps onto the clock of the group's points (the ego's); once per
             # stamp (point_stamps_ns repeats a stamp for every keypoint id triangulated there).
-            ideal, samples = resample(cmcs[n].tracks.shifted(g.clock_offsets_s.get(n, 0.0) + ego_shift[g.group_id]),
-                                      stamps, tracks)
+            shifted = cmcs[n].tracks.shifted(g.clock_offsets_s.get(n, 0.0) + ego_shift[g.group_id])
+            # Its own head-top stamps where the group has no point (single_view_head_tops).
+            own = _away_from(shifted.tracks[TOP].stamps_ns, stamps) \
+                if params.single_view_head_tops and TOP in shifted.tracks else np.zeros(0, np.int64)
+            ideal, samples = resample(shifted, np.concatenate([stamps, own]), tracks)
             ci = len(names)
             names.append(n)
             cams.append(ideal)
             T_init.append(S.transform_pose(g.T_local_cam[n]))
             group_of[n] = g.group_id
             sigma = {i: g.sigma_px_by_id.get(i, params.joint.ego_sigma_px * 1.5) for i in samples}
+            if len(own):
+                uv, ok = samples[TOP]
+                lone_own += [(ci, int(s), uv[len(stamps) + k], sigma[TOP]) for k, s in enumerate(own)
+                             if ok[len(stamps) + k]]
+            samples = {i: (uv[:len(stamps)], ok[:len(stamps)]) for i, (uv, ok) in samples.items()}
             for kp_id, (uv, ok) in samples.items():
                 for k in np.flatnonzero(ok):
                     j = key.get((int(stamps[k]), kp_id))
@@ -446,14 +469,45 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
                         p_idx.append(j)
                         uv_obs.append(uv[k])
                         sig_obs.append(sigma[kp_id])
+                    elif kp_id == TOP:
+                        lone_tops.setdefault(int(k), []).append((ci, uv[k], sigma[kp_id]))
+        if params.single_view_head_tops:
+            # Seen by one member only (two that saw it and were not triangulated disagree).
+            single = [(ci, int(stamps[k]), uv, sigma_px) for k, seen in sorted(lone_tops.items()) if len(seen) == 1
+                      for ci, uv, sigma_px in seen] + lone_own
+            heads = np.einsum("nij,j->ni", ego.T_world_ego[:, :3, :3], head_offset) + ego.T_world_ego[:, :3, 3]
+            at = np.array([s for _, s, _, _ in single], np.int64)
+            predicted, near = interpolate_positions(ego.stamps_ns, heads, at, int(params.align.max_time_gap_s * 1e9))
+            base = sum(len(p) for p in agent_pts)
+            for n, (ci, _, uv, sigma_px) in enumerate(x for x, k in zip(single, near) if k):
+                c_idx.append(ci)
+                p_idx.append(base + n)
+                uv_obs.append(uv)
+                sig_obs.append(sigma_px)
+            agent_pts.append(predicted[near])
+            agent_ns.append(at[near])
+            agent_ids.append(np.full(int(near.sum()), TOP))
+            agent_chain.append(np.full(int(near.sum()), gi))
+            agent_single.append(np.ones(int(near.sum()), bool))
     agent = AgentTrack(np.concatenate(agent_ns or [np.zeros(0, np.int64)]),
                        np.concatenate(agent_ids or [np.zeros(0, int)]),
                        np.vstack(agent_pts or [np.zeros((0, 3))]))
     agent_obs = Observations(np.array(c_idx, int), np.array(p_idx, int), np.array(uv_obs).reshape(-1, 2),
                              np.array(sig_obs))
     return _GroupedCmcs(names, cams, T_init, group_of, agent, agent_obs,
-                        np.concatenate(agent_chain or [np.zeros(0, int)]), head_offset, alignments, failed, clocks,
+                        np.concatenate(agent_chain or [np.zeros(0, int)]),
+                        np.concatenate(agent_single or [np.zeros(0, bool)]), head_offset, alignments, failed, clocks,
                         chains, distrusted)
+
+
+def _away_from(query_ns: np.ndarray, grid_ns: np.ndarray) -> np.ndarray:
+    """The query stamps further than half the grid's step from every grid stamp (all of
+    them when the grid has fewer than two)."""
+    if len(grid_ns) < 2:
+        return np.asarray(query_ns, np.int64)
+    half = np.median(np.diff(grid_ns)) / 2
+    i = np.clip(np.searchsorted(grid_ns, query_ns), 1, len(grid_ns) - 1)
+    return query_ns[np.minimum(np.abs(query_ns - grid_ns[i - 1]), np.abs(grid_ns[i] - query_ns)) > half]
 
 
 def _on_ego_clock(groups: list[CameraGroupResult], ego: EgoMapData, params: AlignParams
@@ -531,7 +585,7 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
             rmse = _rmse(agent_res[own])
             status, reason = _verdict(rmse, covs[i], params, cov_failures[i])
             distrust = [jo.failure, jo.left_out.get(group_of[n], "")] + _group_distrust(
-                grouped.chains[group_of[n]], agent, grouped.agent_chain, ego, T_ego, head_offset, weak, params,
+                grouped.chains[group_of[n]], agent, grouped.fit_chain, ego, T_ego, head_offset, weak, params,
                 n in grouped.disputed)
             if any(distrust):
                 status, reason = WEAK, "; ".join(r for r in distrust + [reason] if r)
@@ -630,7 +684,7 @@ def _unreconciled(grouped: _GroupedCmcs, jo: _Joint, ego: EgoMapData, params: Fu
     agent = AgentTrack(grouped.agent.stamps_ns, grouped.agent.ids, jo.agent_points)
     worst, culprit = params.max_unexplained_track_rms_m, None
     for gid, (c, _) in sorted(grouped.chains.items()):
-        rms = head_top_rms(agent, grouped.agent_chain, c, ego.stamps_ns, np.asarray(res.T_world_ego), res.head_offset,
+        rms = head_top_rms(agent, grouped.fit_chain, c, ego.stamps_ns, np.asarray(res.T_world_ego), res.head_offset,
                            params.align.max_time_gap_s) if gid not in jo.left_out else float("nan")
         if np.isfinite(rms) and rms > worst:
             worst, culprit = rms, gid
