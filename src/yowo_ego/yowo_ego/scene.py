@@ -218,6 +218,15 @@ class FloorAttitudeParams:
     stride: int = 2                      # every stride-th pixel each way
 
 
+def _plane(P: np.ndarray, distance_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(unit normal, inlier indices) of the largest plane through points P: Open3D's RANSAC,
+    then least squares over its inliers."""
+    _, inliers = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P)).segment_plane(distance_m, 3, 100)
+    inliers = np.asarray(inliers, int)
+    Q = P[inliers] - P[inliers].mean(axis=0)
+    return np.linalg.svd(Q, full_matrices=False)[2][2], inliers
+
+
 def floor_normal_in_view(depth_mm: np.ndarray, K: np.ndarray, up_cam: np.ndarray,
                          params: FloorAttitudeParams = FloorAttitudeParams()) -> np.ndarray | None:
     """The floor's upward normal in the camera frame from one depth image (intrinsics K),
@@ -230,13 +239,10 @@ def floor_normal_in_view(depth_mm: np.ndarray, K: np.ndarray, up_cam: np.ndarray
     P = P[P @ up_cam <= -params.below_camera_m]
     if len(P) < params.min_points // (s * s):
         return None
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
     o3d.utility.random.seed(0)          # the same recording gives the same map
-    _, inliers = cloud.segment_plane(params.distance_m, 3, 100)
+    n, inliers = _plane(P, params.distance_m)
     if len(inliers) * s * s < params.min_points:
         return None
-    Q = P[inliers] - P[inliers].mean(axis=0)
-    n = np.linalg.svd(Q, full_matrices=False)[2][2]     # least squares over the RANSAC inliers
     n = n if n @ up_cam > 0 else -n
     return n if n @ up_cam >= np.cos(np.radians(params.max_tilt_deg)) else None
 
@@ -311,11 +317,9 @@ def wall_normals_in_view(depth_mm: np.ndarray, K: np.ndarray, up_cam: np.ndarray
     for _ in range(params.max_planes):
         if len(P) * s * s < params.min_points:
             break
-        _, inliers = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P)).segment_plane(params.distance_m, 3, 100)
+        n, inliers = _plane(P, params.distance_m)
         if len(inliers) * s * s < params.min_points:
             break
-        Q = P[inliers] - P[inliers].mean(axis=0)
-        n = np.linalg.svd(Q, full_matrices=False)[2][2]
         if abs(n @ up_cam) <= np.sin(np.radians(params.max_tilt_deg)):
             walls.append(n)
         P = np.delete(P, inliers, axis=0)

@@ -211,13 +211,18 @@ def head_offset_estimate(group: CameraGroupResult, ego: EgoMapData, params: Alig
                         int(params.max_time_gap_s * 1e9)), al.num_clusters
 
 
+def head_tops(T_world_ego: np.ndarray, head_offset: np.ndarray) -> np.ndarray:
+    """(F, 3) the head top each ego pose predicts: the ego camera's pose applied to the offset."""
+    return np.einsum("nij,j->ni", T_world_ego[:, :3, :3], head_offset) + T_world_ego[:, :3, 3]
+
+
 def align_to_world(group: CameraGroupResult, ego: EgoMapData, params: AlignParams, head_offset: np.ndarray) -> Sim3:
     """Rebalanced Umeyama against the head top predicted from the ego poses with the
     rig's head offset (one for all groups: a group that saw a short stretch of the walk
     estimates it badly on its own)."""
     stamps, local, ground = _group_tracks(group, params)
-    heads = np.einsum("nij,j->ni", ego.T_world_ego[:, :3, :3], head_offset) + ego.T_world_ego[:, :3, 3]
-    return align_group(stamps, local, ego.stamps_ns, heads, params, *ground).sim3_world_local
+    return align_group(stamps, local, ego.stamps_ns, head_tops(ego.T_world_ego, head_offset), params,
+                       *ground).sim3_world_local
 
 
 def weighted_median(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -339,8 +344,8 @@ def head_top_rms(agent: AgentTrack, chain: np.ndarray, c: int, ego_stamps_ns: np
     """RMS distance between a group's head-top points and the head top the ego trajectory
     predicts at their stamps."""
     sel = (chain == c) & (agent.ids == 0)
-    heads = np.einsum("nij,j->ni", T_world_ego[:, :3, :3], head_offset) + T_world_ego[:, :3, 3]
-    predicted, ok = interpolate_positions(ego_stamps_ns, heads, agent.stamps_ns[sel], int(max_gap_s * 1e9))
+    predicted, ok = interpolate_positions(ego_stamps_ns, head_tops(T_world_ego, head_offset), agent.stamps_ns[sel],
+                                          int(max_gap_s * 1e9))
     d = np.linalg.norm(agent.points[sel][ok] - predicted[ok], axis=1)
     return float(np.sqrt(np.mean(d ** 2))) if len(d) else float("nan")
 
@@ -423,6 +428,7 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
             distrusted.update(g.names if fault != GROUP else [])
     head_offset = weighted_median(np.array([o for o, _ in estimates.values()]),
                                   np.array([w for _, w in estimates.values()], float)) if estimates else np.zeros(3)
+    heads = head_tops(ego.T_world_ego, head_offset)
     for gi, g in enumerate(groups):
         if g.group_id not in estimates and g.group_id not in rescued:
             continue
@@ -475,7 +481,6 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
             # Seen by one member only (two that saw it and were not triangulated disagree).
             single = [(ci, int(stamps[k]), uv, sigma_px) for k, seen in sorted(lone_tops.items()) if len(seen) == 1
                       for ci, uv, sigma_px in seen] + lone_own
-            heads = np.einsum("nij,j->ni", ego.T_world_ego[:, :3, :3], head_offset) + ego.T_world_ego[:, :3, 3]
             at = np.array([s for _, s, _, _ in single], np.int64)
             predicted, near = interpolate_positions(ego.stamps_ns, heads, at, int(params.align.max_time_gap_s * 1e9))
             base = sum(len(p) for p in agent_pts)
@@ -720,7 +725,7 @@ def _group_distrust(chain: tuple[int, CameraGroupResult], agent: AgentTrack, age
 
 
 def ego_agent_track(T_world_ego: np.ndarray, stamps_ns: np.ndarray, head_offset: np.ndarray) -> AgentTrack:
-    top = np.einsum("nij,j->ni", T_world_ego[:, :3, :3], head_offset) + T_world_ego[:, :3, 3]
+    top = head_tops(T_world_ego, head_offset)
     bottom = top * [1.0, 1.0, 0.0]
     return AgentTrack(np.concatenate([stamps_ns, stamps_ns]), np.repeat([0, 1], len(stamps_ns)),
                       np.vstack([top, bottom]))
