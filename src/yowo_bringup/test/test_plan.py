@@ -32,3 +32,27 @@ def test_many_trackers_share_a_few_processes(tmp_path):
     # What a hosting process reads from its command line.
     assert hosted_node_names(["x", "--nodes", "a,b", "--ros-args", "-p", "q:=1"]) == ["a", "b"]
     assert hosted_node_names(["x", "--ros-args", "--nodes", "a"]) == []
+
+
+def test_a_run_id_that_looks_like_a_number_reaches_the_nodes_as_a_string(tmp_path):
+    """rcl reads the parameter file: an unquoted 138531451e07 (a hex run id) would be a
+    double, and a node declaring run_id as a string would refuse it."""
+    import rclpy
+    from rclpy.node import Node
+
+    from yowo_bringup.supervisor import write_params_file
+
+    plan = plan_live(["a", "b"], tmp_path)
+    for spec in plan.nodes:
+        spec.parameters["run_id"] = "138531451e07"
+    path = tmp_path / "params.yaml"
+    write_params_file(plan.nodes, path)
+    name = plan.nodes[0].name
+    context = rclpy.Context()
+    rclpy.init(args=["--ros-args", "--params-file", str(path)], context=context)
+    try:
+        node = Node(name, context=context)
+        assert node.declare_parameter("run_id", "").value == "138531451e07"
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)

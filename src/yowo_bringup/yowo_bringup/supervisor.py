@@ -108,10 +108,18 @@ def library_threads_env(env: dict, threads: int) -> dict:
 
 
 class _NoAliasDumper(yaml.SafeDumper):
-    """rcl's parameter parser does not support YAML aliases (&id001 / *id001)."""
+    """rcl's parameter parser does not support YAML aliases (&id001 / *id001), and it types a
+    plain scalar by its look, more eagerly than YAML: the run id 138531451e07 became a double
+    and the replay refused it. Every string is written quoted."""
 
     def ignore_aliases(self, data):
         return True
+
+    def represent_str(self, data):
+        return self.represent_scalar("tag:yaml.org,2002:str", data, style='"')
+
+
+_NoAliasDumper.add_representer(str, _NoAliasDumper.represent_str)
 
 
 def write_params_file(specs: list[NodeSpec], path: Path) -> None:
