@@ -1,7 +1,8 @@
 """Scene keypoints in a CMC view matched to the ego map's landmarks with a pose prior
 (paper: "integrate CMC 6-DoF pose priors to match these 2D keypoints to 3D scene
 keypoints"): features on the CMC's agent-free background image, candidates near each
-landmark's projection, descriptor ratio test, then PnP RANSAC verification."""
+landmark's projection, descriptor ratio test, then PnP RANSAC verification; kept only where
+the prior predicts the verified matches."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -23,6 +24,12 @@ class SceneMatchParams:
     pnp_px: float = 4.0
     min_inliers: int = 12
     max_features: int = 4000
+    # The verified matches this far (median) from where the prior projects their landmarks: a
+    # consistent set of wrong ones (a repeated pattern one period over, a look-alike wall) or a
+    # prior too far off for the guided search to tell: no match either way. On the 20 hard small
+    # runs right sets lie 0.6-13 px from their prior; small symmetric s1 without the IMU matched
+    # 29 landmarks one period over (27.6 px; PnP verified them 0.48 m from a prior 4 cm off).
+    max_prior_median_px: float = 20.0
 
 
 @dataclass
@@ -49,7 +56,8 @@ def _distances(desc_a: np.ndarray, desc_b: np.ndarray, kind: str) -> np.ndarray:
 def match_scene(rgb: np.ndarray, camera: CameraModel, T_world_cam_prior: np.ndarray, landmarks: np.ndarray,
                 descriptors: np.ndarray, kind: str, params: SceneMatchParams = SceneMatchParams()
                 ) -> SceneMatches | None:
-    """None when too few verified matches (the caller keeps the prior)."""
+    """None when too few verified matches, or the prior does not predict them (the caller
+    keeps the prior)."""
     if len(landmarks) == 0 or rgb is None:
         return None
     uv_raw, desc = detect_features(rgb, kind, params.max_features)
@@ -81,12 +89,14 @@ def match_scene(rgb: np.ndarray, camera: CameraModel, T_world_cam_prior: np.ndar
     T_cam_world = inv_se3(T_world_cam_prior)
     rvec0, _ = cv2.Rodrigues(T_cam_world[:3, :3])
     cv2.setRNGSeed(0)  # deterministic RANSAC: the same recording gives the same cameras
+    # The guess as (3, 1): OpenCV takes a (3,) translation guess as given and returns nonsense poses.
     ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-        landmarks[lm_idx], uv_feat[feat_idx], camera.K, None, rvec0.copy(), T_cam_world[:3, 3].copy(),
+        landmarks[lm_idx], uv_feat[feat_idx], camera.K, None, rvec0.copy(), T_cam_world[:3, 3].reshape(3, 1).copy(),
         useExtrinsicGuess=True, iterationsCount=1000, reprojectionError=params.pnp_px, confidence=0.999,
         flags=cv2.SOLVEPNP_ITERATIVE)
     if not ok or inliers is None or len(inliers) < params.min_inliers:
         return None
     keep = inliers.ravel()
-    T = inv_se3(se3(cv2.Rodrigues(rvec)[0], tvec.ravel()))
-    return SceneMatches(lm_idx[keep], uv_feat[feat_idx[keep]], T)
+    if np.median(np.linalg.norm(proj[lm_idx[keep]] - uv_feat[feat_idx[keep]], axis=1)) > params.max_prior_median_px:
+        return None
+    return SceneMatches(lm_idx[keep], uv_feat[feat_idx[keep]], inv_se3(se3(cv2.Rodrigues(rvec)[0], tvec.ravel())))
