@@ -17,8 +17,10 @@ from yowo_sim.presets import get_preset
 def test_tree_from_yaml_and_dotted_overrides(tmp_path):
     f = tmp_path / "site.yaml"
     f.write_text("ego:\n  odometry:\n    scale: 1\ncmc:\n  sfm:\n    ransac_px: 3\n")
-    cfg = load_config(f, ["ego.odometry.iterations=[4, 2]", "fusion.ok_rmse_px=4"])
+    cfg = load_config(f, ["ego.odometry.iterations=[4, 2]", "fusion.ok_rmse_px=4",
+                          "fusion.joint.relative_error_tol=1e-10"])
     assert cfg.ego.odometry.scale == 1 and cfg.ego.odometry.iterations == (4, 2)
+    assert cfg.fusion.joint.relative_error_tol == 1e-10     # YAML 1.1 reads 1e-10 as a string
     assert cfg.cmc.sfm.ransac_px == 3.0 and isinstance(cfg.cmc.sfm.ransac_px, float)
     assert cfg.fusion.ok_rmse_px == 4.0
     assert cfg.ego.odometry.depth_max_m == YowoConfig().ego.odometry.depth_max_m     # the rest: defaults
@@ -56,6 +58,8 @@ def test_each_setting_has_one_home_and_reaches_the_fusion_from_there():
     ("ego.odometry.scal=1", "unknown key ego.odometry.scal (did you mean ego.odometry.scale?)"),
     ("egg.odometry.scale=1", "unknown key egg"),
     ("ego.odometry.scale=fast", "ego.odometry.scale: expected int, got 'fast'"),
+    ("ego.odometry.scale=1e3", "ego.odometry.scale: expected int, got '1e3'"),
+    ("fusion.ok_rmse_px=3 px", "fusion.ok_rmse_px: expected float, got '3 px'"),
     ("ego.odometry=3", "ego.odometry: is a section of keys, got 3"),
     ("ego.odometry.scale", "expected section.key=value"),
 ])

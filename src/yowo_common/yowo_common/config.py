@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import re
 from typing import Any, TypeVar
 
 import dacite
@@ -18,8 +19,15 @@ class ConfigError(ValueError):
     pass
 
 
+# A decimal number in exponent notation without a dot (1e-10): YAML 1.1 reads it as a string.
+_EXPONENT = re.compile(r"[+-]?(\d+(\.\d*)?|\.\d+)[eE][+-]?\d+")
+
+
 def _number(value):
-    """An int where a float is expected (YAML writes 4 for 4.0); anything else is checked."""
+    """An int where a float is expected (YAML writes 4 for 4.0), or 1e-10 (YAML 1.1 gives the
+    string); anything else is checked."""
+    if isinstance(value, str) and _EXPONENT.fullmatch(value.strip()):
+        return float(value)
     return float(value) if isinstance(value, int) and not isinstance(value, bool) else value
 
 
