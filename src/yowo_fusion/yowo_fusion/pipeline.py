@@ -602,6 +602,7 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
             covs.append(cov)
             cov_failures.append(failure)
         agent_res = reprojection_residuals(cams, T_final, agent.points, agent_obs)
+        distrust_of: dict[str, list[str]] = {}      # a group's, the same for each of its cameras
         for i, n in enumerate(names):
             own = agent_obs.camera == i
             raw = cmcs[n].tracks.camera
@@ -609,9 +610,12 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
                                  raw.distort_pixels(agent_obs.uv[own] - agent_res[own])))
             rmse = _rmse(agent_res[own])
             status, reason = _verdict(rmse, covs[i], params, cov_failures[i])
-            distrust = [jo.failure, jo.left_out.get(group_of[n], "")] + _group_distrust(
-                grouped.chains[group_of[n]], agent, grouped.fit_chain, ego, T_ego, head_offset, weak, params,
-                n in grouped.disputed, fit_before[group_of[n]])
+            g = group_of[n]
+            if g not in distrust_of:
+                distrust_of[g] = [jo.failure, jo.left_out.get(g, "")] + _group_distrust(
+                    grouped.chains[g], agent, grouped.fit_chain, ego, T_ego, head_offset, weak, params,
+                    n in grouped.disputed, fit_before[g])
+            distrust = distrust_of[g]
             if any(distrust):
                 status, reason = WEAK, "; ".join(r for r in distrust + [reason] if r)
             registered.append(RegisteredCmc(n, group_of[n], GROUP_SFM, status, reason, T_final[i], covs[i],
