@@ -243,7 +243,7 @@ def full_case(bag: Path, images: bool, config: YowoConfig = YowoConfig()) -> dic
         return {c.name: c.T_world_cam for c in result.cameras if c.T_world_cam is not None}
 
     reg = {"YOWO without joint optimisation": registration(registered(no_jo)),
-           "YOWO": registration(registered(r.fusion))}
+           "YOWO": registration(registered(r.fusion)) | {"statuses": {c.name: c.status for c in r.fusion.cameras}}}
     # Cameras outside every group, registered one by one from the agent track (issue: within 0.2 m).
     outside = [c for c in r.fusion.cameras if not c.group]
     reg["YOWO, cameras outside groups"] = registration(

@@ -1,5 +1,6 @@
-"""The benchmark's clock-offset table: from the cases' per-camera offset errors and the
-same recordings' synchronised case (markdown rendering only)."""
+"""The benchmark's report tables (markdown rendering only): clock offsets, from the cases'
+per-camera offset errors and the same recordings' synchronised case; verdicts, from each
+camera's status and error."""
 from yowo_eval.bench_report import TRUE_CLOCKS, markdown
 
 ENV = {"cpu": "test", "cores": 2, "python": "3", "numpy": "2", "gtsam": "4", "date": "today"}
@@ -62,3 +63,22 @@ def test_clock_table_without_the_synchronised_case_says_so():
     text = markdown({"cases": cases, "presets": ["small"], "seeds": [0]}, "yowo bench", ENV)
     (row,) = clock_rows(text)
     assert row.split(" | ")[2:] == ["1", "1.0", "1.0", "1.00", "0", "n/a", "n/a", "n/a", "n/a", "n/a |"]
+
+
+def test_verdict_table_counts_statuses_and_the_ok_cameras_that_were_off():
+    def with_statuses(pos_errors: dict, statuses: dict) -> dict:
+        f = full(0.05, 0.05, {})
+        f["registration"]["YOWO"] |= {"errors": {n: [e, 0.1] for n, e in pos_errors.items()}, "statuses": statuses}
+        return f
+    cases = [case("texture_poor", 0, 0.01, full=with_statuses({"a": 0.02, "b": 0.14, "c": 0.30},
+                                                               {"a": "ok", "b": "ok", "c": "weak"})),
+             case("texture_poor", 1, 0.01, full=with_statuses({"a": 0.04, "b": 0.06},
+                                                               {"a": "ok", "b": "weak", "c": "failed"}))]
+    text = markdown({"cases": cases, "presets": ["small"], "seeds": [0, 1]}, "yowo bench", ENV)
+    section = text.split("## Verdicts")[1].split("\n## ")[0]
+    (row,) = [line for line in section.splitlines() if line.startswith("| small |")]
+    # ok: 0.02, 0.14, 0.04 (avg 0.0667, max 0.14, one beyond 0.10 m); weak: 0.30, 0.06 (avg 0.18)
+    assert row.split(" | ")[2:] == ["3 / 2 / 1", "0.0667", "0.1400", "1", "0.1800 |"]
+    old = markdown({"cases": [case("normal", 0, 0.01, full=full(0.05, 0.05, {}))], "presets": ["small"],
+                    "seeds": [0]}, "yowo bench", ENV)
+    assert "## Verdicts" not in old     # cases recorded before the statuses were
