@@ -127,8 +127,8 @@ def _verdict_row(preset: str, scenario: str, fulls: list[dict]) -> list[str]:
     ok = [e for st, e in statuses if st == OK and np.isfinite(e)]
     weak = [e for st, e in statuses if st == WEAK and np.isfinite(e)]
     counts = " / ".join(str(sum(st == k for st, _ in statuses)) for k in (OK, WEAK, FAILED))
-    return [preset, scenario, counts, f"{_mean(ok):.4f}", f"{max(ok, default=np.nan):.4f}",
-            str(sum(e > OK_BAR_M for e in ok)), f"{_mean(weak):.4f}"]
+    return [preset, scenario, counts, f"{_mean(ok):.4f}" if ok else "-", f"{max(ok):.4f}" if ok else "-",
+            str(sum(e > OK_BAR_M for e in ok)), f"{_mean(weak):.4f}" if weak else "-"]
 
 
 def _methods(cases: list[dict], key) -> list[str]:
