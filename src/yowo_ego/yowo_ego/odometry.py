@@ -138,14 +138,10 @@ class OdometryParams:
     keyframe_translation_m: float = 0.5
     keyframe_rotation_deg: float = 20.0
     info_distance_m: float = 0.07        # correspondence distance for edge information matrices
-    # Open3D's fitness is a share of all pixels, and the fitness thresholds above hold for a
-    # sensor with depth almost everywhere. Where the recording's frames so far have depth in
-    # fewer than this share of their pixels (median, DepthCoverage; a Kinect: ~70 %), fitness
-    # is scaled up by this share over theirs: unscaled, TUM fr1_rpy never reached
-    # keyframe_fitness and every one of its 694 frames became a keyframe. One frame's own share
-    # is not used: it falls where the view reaches beyond depth_max_m (a corridor), where
-    # less overlap rightly means a new keyframe (scaled per frame, the 25-minute floor's ego
-    # map drifted 0.021 m instead of 0.006).
+    # Open3D's fitness is a share of all pixels, and the fitness thresholds above hold for frames
+    # with depth almost everywhere. A frame with depth in fewer than this share of its pixels
+    # (a Kinect: ~70 %) has its fitness scaled up by this share over its own: unscaled, TUM
+    # fr1_rpy never reached keyframe_fitness and every one of its 694 frames became a keyframe.
     full_depth_fraction: float = 0.9
     # Re-tracking after a fast turn accepts weaker evidence than loop closures:
     # the dense check that follows rejects a wrong guess.
@@ -198,17 +194,13 @@ class Keyframe:
     fused: a 25-minute floor's 4,500 hold 1.7 GB as arrays. ``color`` / ``depth_mm``
     unpack them on each use."""
 
-    __slots__ = ("index", "frame_index", "stamp_ns", "T_odom_cam", "segment", "fitness_scale", "_color", "_depth")
+    __slots__ = ("index", "frame_index", "stamp_ns", "T_odom_cam", "segment", "_color", "_depth")
 
     def __init__(self, index: int, frame_index: int, stamp_ns: int, T_odom_cam: np.ndarray,
-                 color: np.ndarray | None, depth_mm: np.ndarray | None, segment: int, compress: bool = False,
-                 fitness_scale: float = 1.0):
+                 color: np.ndarray | None, depth_mm: np.ndarray | None, segment: int, compress: bool = False):
         self.index, self.frame_index, self.stamp_ns = index, frame_index, stamp_ns
         self.T_odom_cam = T_odom_cam         # chained odometry pose (odom = first camera frame)
         self.segment = segment               # increases after every tracking break
-        # The tracker's DepthCoverage.fitness_scale when it was made: loop closures checked on
-        # another thread take it from here, so a recording gives the same map in every run.
-        self.fitness_scale = fitness_scale
         self._color = None if color is None else PackedImage(color, compress)
         self._depth = None if depth_mm is None else PackedImage(depth_mm, compress)
 
@@ -228,8 +220,7 @@ class Keyframe:
 
     def moved(self, T_odom_cam: np.ndarray) -> "Keyframe":
         """The same keyframe (its images shared, not unpacked) at another pose."""
-        kf = Keyframe(self.index, self.frame_index, self.stamp_ns, T_odom_cam, None, None, self.segment,
-                      fitness_scale=self.fitness_scale)
+        kf = Keyframe(self.index, self.frame_index, self.stamp_ns, T_odom_cam, None, None, self.segment)
         kf._color, kf._depth = self._color, self._depth
         return kf
 
@@ -357,28 +348,6 @@ class _Level:
     full_depth: np.ndarray
 
 
-class DepthCoverage:
-    """The median share of pixels with depth over a recording's frames so far: the
-    sensor's coverage (a Kinect: ~70 %), which one frame's share is not (it also falls
-    with the view). A histogram in percent, so a long walk costs nothing."""
-
-    def __init__(self, full_depth_fraction: float):
-        self.full_depth_fraction = full_depth_fraction
-        self._counts = np.zeros(101, dtype=np.int64)
-
-    def add(self, depth_mm: np.ndarray) -> None:
-        self._counts[round(100 * np.count_nonzero(depth_mm) / depth_mm.size)] += 1
-
-    def median(self) -> float:
-        """1 before the first frame."""
-        n = int(self._counts.sum())
-        return 1.0 if n == 0 else float(np.searchsorted(np.cumsum(self._counts), (n + 1) // 2)) / 100
-
-    def fitness_scale(self) -> float:
-        """full_depth_fraction over the median coverage, at least 1."""
-        return max(1.0, self.full_depth_fraction / max(self.median(), 0.01))
-
-
 class RgbdOdometry:
     """Dense RGB-D odometry between pairs of images at one resolution."""
 
@@ -395,10 +364,10 @@ class RgbdOdometry:
         self._polish_criteria = [_odo.OdometryConvergenceCriteria(params.polish_iterations)]
 
     def register(self, source: o3d.t.geometry.RGBDImage, target: o3d.t.geometry.RGBDImage,
-                 init_target_source: np.ndarray, cascade: tuple[str, ...] = ("Hybrid",),
-                 fitness_scale: float = 1.0) -> tuple[np.ndarray, float, float]:
+                 init_target_source: np.ndarray, cascade: tuple[str, ...] = ("Hybrid",)
+                 ) -> tuple[np.ndarray, float, float]:
         """(T_target_source, fitness, inlier RMSE) after running the methods of
-        ``cascade`` in turn (fitness times ``fitness_scale``: DepthCoverage.fitness_scale);
+        ``cascade`` in turn (fitness scaled for a source with little depth, full_depth_fraction);
         fitness 0 when Open3D gives up."""
         T = init_target_source
         for method in cascade:
@@ -412,7 +381,12 @@ class RgbdOdometry:
             if not np.isfinite(T).all():
                 return init_target_source, 0.0, np.inf
             T = orthonormalize(T)
-        return T, float(r.fitness) * fitness_scale, float(r.inlier_rmse)
+        return T, float(r.fitness) * self._fitness_scale(source), float(r.inlier_rmse)
+
+    def _fitness_scale(self, source: o3d.t.geometry.RGBDImage) -> float:
+        """full_depth_fraction over the source's share of pixels with depth (inside the padding), at least 1."""
+        depth = source.depth.as_tensor().numpy()[ODOMETRY_PAD_PX:-ODOMETRY_PAD_PX, ODOMETRY_PAD_PX:-ODOMETRY_PAD_PX]
+        return max(1.0, self.params.full_depth_fraction * depth.size / max(np.count_nonzero(depth), 1))
 
     def polish(self, source: o3d.t.geometry.RGBDImage, target: o3d.t.geometry.RGBDImage,
                T_target_source: np.ndarray) -> np.ndarray:
@@ -460,7 +434,6 @@ class KeyframeTracker:
         self.params = params
         self.imu = imu if params.use_imu else None
         self.odometry = RgbdOdometry(K, params)
-        self.coverage = DepthCoverage(params.full_depth_fraction)
         self.on_keyframe = on_keyframe
         self.keyframes: list[Keyframe] = []
         self.edges: list[OdometryEdge] = []
@@ -560,7 +533,6 @@ class KeyframeTracker:
 
     def _level(self, index: int, frame: RgbdFrame, images: OdometryImages | None) -> _Level:
         im = images if images is not None else OdometryImages.of(frame, self.params.scale)
-        self.coverage.add(im.depth_mm)
         return _Level(index, frame.stamp_ns, im.color, im.depth_mm, im.rgbd, im.full_gray, frame.depth)
 
     def _slow(self, last_ns: int, stamp_ns: int, run: int) -> bool:
@@ -701,8 +673,7 @@ class KeyframeTracker:
         for n_init, init in enumerate(inits):
             accepted = []
             for n_cascade, cascade in enumerate(self.params.cascades):
-                T, fit, rmse = odo.register(level.rgbd, ref.rgbd, orthonormalize(init), cascade,
-                                            self.coverage.fitness_scale())
+                T, fit, rmse = odo.register(level.rgbd, ref.rgbd, orthonormalize(init), cascade)
                 if (fit < self.params.min_fitness or not self._plausible(inv_se3(T_ref_prev) @ T, dt_s)
                         or self._ambiguous(T, fit, inits[0])):
                     continue
@@ -771,8 +742,7 @@ class KeyframeTracker:
             if guess is not None and self._plausible(guess, dt_s):
                 status = RECOVERED
                 for cascade in p.cascades:
-                    T, fit, rmse = self.odometry.register(level.rgbd, self._kf.rgbd, guess, cascade,
-                                                          self.coverage.fitness_scale())
+                    T, fit, rmse = self.odometry.register(level.rgbd, self._kf.rgbd, guess, cascade)
                     if fit >= p.min_fitness and rmse <= p.max_inlier_rmse and self._plausible(T, dt_s):
                         best = (T, fit)
                         break
@@ -848,7 +818,7 @@ class KeyframeTracker:
         they are not dense tracking's (a gyro bridge's "imu", a map relocalisation's "map")."""
         segment = 0 if previous is None else previous.segment + (T_prev_cur is None)
         kf = Keyframe(len(self.keyframes), level.frame_index, level.stamp_ns, T_odom_cam, level.color,
-                      level.depth_mm, segment, self.params.compress_keyframes, self.coverage.fitness_scale())
+                      level.depth_mm, segment, self.params.compress_keyframes)
         self.keyframes.append(kf)
         # A break's guessed pose is not consistent with the keyframes before: the map restarts.
         self._chain = (self._chain + [kf])[-self.params.maploc.keyframes:] if T_prev_cur is not None else [kf]

@@ -159,7 +159,7 @@ def dense_edge(pair: PairMatches, kf_a: Keyframe, kf_b: Keyframe, odometry: Rgbd
     T_a_b = inv_se3(pair.pnp.T_b_a)
     src, tgt = o3d_rgbd(kf_b.color, kf_b.depth_mm), o3d_rgbd(kf_a.color, kf_a.depth_mm)
     for cascade in odometry.params.cascades:
-        T, fit, rmse = odometry.register(src, tgt, T_a_b, cascade, kf_b.fitness_scale)
+        T, fit, rmse = odometry.register(src, tgt, T_a_b, cascade)
         if (fit >= odometry.params.min_fitness and rmse <= odometry.params.max_inlier_rmse
                 and _agree(T, T_a_b, params, loose=kind == "loop")):
             return OdometryEdge(kf_b.index, kf_a.index, T, odometry.information(kf_b.depth_mm, kf_a.depth_mm, T),
