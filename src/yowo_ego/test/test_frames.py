@@ -75,6 +75,8 @@ def test_pairer_matches_stamps_and_drops_orphans():
     assert p.add_color(30_000, "c2") == []
     assert p.add_depth(30_000, "d2") == [(30_000, "c2", "d2")]
     assert p.dropped == 1                            # d1 is older than the last pair
+    assert p.problem("/c", "/d") == "1 /c / /d image(s) without a partner within 0.001 ms dropped, the first: /d @ 20000 ns"
+    assert StampPairer().problem("/c", "/d") == ""
 
 
 def test_undistortion_moves_depth_without_blending():

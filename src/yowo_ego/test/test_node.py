@@ -15,6 +15,9 @@ def node(make_node):
 
 def test_node_streams_odometry_and_publishes_the_map(node, tiny_bag):
     frames = 0
+    # A depth image whose colour never comes (stamp 1 ns, before the whole walk): dropped once
+    # the first pair forms, and reported.
+    node.on_pairs(node.pairer.add_depth(1, CompressedImage()))
     for topic, _, msg in read_messages(tiny_bag, [COLOR_TOPICS[1], DEPTH_TOPICS[1], INFO_TOPIC]):
         if frames == 45:                   # the first 3 s are enough for the wiring
             break
@@ -35,6 +38,8 @@ def test_node_streams_odometry_and_publishes_the_map(node, tiny_bag):
         assert node.published[topic] == 1
     assert (f"1 frame(s) rejected, the first: /ego/color/image_raw/compressed @ {10**19} ns: cannot decode the image"
             in summary)
+    assert (f"1 {COLOR_TOPICS[1]} / {DEPTH_TOPICS[1]} image(s) without a partner within 5 ms dropped, the first: "
+            f"{DEPTH_TOPICS[1]} @ 1 ns" in summary)
 
 
 def test_node_without_usable_camera_info_fails_with_the_reason(node):

@@ -199,13 +199,14 @@ class EgoMapperNode(StageNode):
         text = (f"{len(r.stamps_ns)} frames, {len(r.keyframe_frames)} keyframes, {len(r.landmarks)} landmarks, "
                 f"{len(r.cloud_points)} cloud points, {len(r.layout.floor_polygons)} floor polygon(s)")
         self.mapper = None                       # published: the keyframes' images can go
-        imu = []
+        # Input the map was made without: unpaired images (the offline reader reports the same) and the IMU.
+        lost = [self.pairer.problem(self.color_topic, self.depth_topic)] if self.pairer.dropped else []
         if self.imu_problem:
-            imu.append(self.imu_problem)
+            lost.append(self.imu_problem)
         if self.wait.released_without:
-            imu.append(f"{self.wait.released_without} frame(s) tracked without the IMU: {self.imu_topic} did not "
+            lost.append(f"{self.wait.released_without} frame(s) tracked without the IMU: {self.imu_topic} did not "
                        "cover their stamps")
-        return "; ".join([text, *r.warnings, *imu])
+        return "; ".join([text, *r.warnings, *lost])
 
 
 def main(args=None):

@@ -138,6 +138,15 @@ class StampPairer:
     def add_depth(self, stamp_ns: int, item) -> list[tuple[int, object, object]]:
         return self._add(self.depth, self.color, stamp_ns, item, color_first=False)
 
+    def problem(self, color_topic: str, depth_topic: str) -> str:
+        """The drops for a run's warnings ("" when none), naming both topics and the first dropped image."""
+        if not self.dropped:
+            return ""
+        stream, stamp = self.first_dropped
+        return (f"{self.dropped} {color_topic} / {depth_topic} image(s) without a partner within "
+                f"{self.tolerance_ns / 1e6:g} ms dropped, the first: "
+                f"{color_topic if stream == 'colour' else depth_topic} @ {stamp} ns")
+
     def _drop(self, queue: OrderedDict, stamp_ns: int) -> None:
         del queue[stamp_ns]
         self.dropped += 1

@@ -113,9 +113,7 @@ def read_ego_frames(bag, recording: EgoRecording, imu_wait_s: float = 0.5
         recording.problems.append(f"{wait.released_without} frame(s) tracked without the IMU: {t.imu} did not cover "
                                   f"their stamps within {imu_wait_s:g} s")
     if pairer.dropped:
-        stream, stamp = pairer.first_dropped
-        recording.problems.append(f"{pairer.dropped} {t.color} / {t.depth} image(s) without a partner within 5 ms "
-                                  f"dropped, the first: {t.color if stream == 'colour' else t.depth} @ {stamp} ns")
+        recording.problems.append(pairer.problem(t.color, t.depth))
 
 
 def prefetch(items: Iterator, depth: int = 8) -> Iterator:
