@@ -71,6 +71,9 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
     parts = log["peak_memory_by_process_mb"]
     assert "supervisor" in parts and set(parts) <= set(log["graph"]["processes"]) | {"supervisor"}, parts
     assert abs(sum(parts.values()) - log["peak_memory_mb"]) < 0.5 and min(parts.values()) > 5.0, parts
+    # The replay's start-up in order: created, every stage announced, subscribers matched (playing), done.
+    replay = log["timing"]["replay"]
+    assert 0 < replay["created_s"] <= replay["announced_s"] <= replay["playing_s"] < replay["played_s"], replay
     for topic, n in log["replay_published"].items():  # lossless: every message reached every stage
         assert log["received"][topic] and all(v == n for v in log["received"][topic].values()), topic
 

@@ -177,6 +177,7 @@ class ReplayNode(Node):
         them: a message published before a subscription matched would be lost to it."""
         deadline = time.monotonic() + self.wait_timeout_s
         expected = self._expected_subscribers(deadline) if self.stages else {t: 1 for t in self.wait_for}
+        self.timing.mark("announced")        # every stage's status is here (start-up: imports, discovery)
         missing = [t for t in expected if t in self.pubs]
         while missing and time.monotonic() < deadline:
             missing = [t for t in missing if self.pubs[t].get_subscription_count() < expected[t]]

@@ -40,7 +40,7 @@ TIMING = {"ego_mapper": {"spawned_s": 0.1, "created_s": 3.0, "finalize_start_s":
                          "topics": {"/a": {**TOPIC, "first_s": 9.0, "last_s": 38.0},
                                     "/b": {**TOPIC, "queue_wait_ms": {"p50": 1, "p95": 900.0, "max": 950.0},
                                            "first_s": 9.1, "last_s": 39.0}}},
-          "replay": {"spawned_s": 0.2, "created_s": 2.0, "playing_s": 8.9, "played_s": 37.0,
+          "replay": {"spawned_s": 0.2, "created_s": 2.0, "announced_s": 6.1, "playing_s": 8.9, "played_s": 37.0,
                      "seconds": {"ack_wait /a": 1.5, "ack_wait /b": 2.0}, "topics": {}}}
 
 
@@ -50,7 +50,7 @@ def test_the_timeline_says_when_each_stage_worked_and_how_long_inputs_waited():
     # Worst topic's p95 wait, callbacks summed over topics, finalisation's length.
     assert "| 0.1 / 3.0 | 9.0 / 39.0 | 12.5 | 52.5 | 900 | 1.0 |" in ego, ego
     replay = next(line for line in md.splitlines() if "| replay |" in line)
-    assert "playing 8.9 / done 37.0" in replay and "held back 3.5 s" in replay
+    assert "stages announced 6.1, playing 8.9 / done 37.0" in replay and "held back 3.5 s" in replay
 
 
 def test_hand_written_notes_inside_the_section_survive_a_new_table(tmp_path):

@@ -108,7 +108,8 @@ def timeline_markdown(cases: list[dict]) -> list[str]:
     """Where each case's wall time went: per stage (trackers: the latest of any camera) when
     its process was started and had imported (node created), its earliest and latest input,
     its finalisation, the p95 of the time its inputs waited in its queue (worst topic) and the
-    seconds in its input callbacks; the replay's start of playing, end, and the seconds it
+    seconds in its input callbacks; for the replay when every stage had announced itself (its
+    status: imports and discovery done), its start of playing (subscribers matched), end, and the seconds it
     was held back by flow control (unacknowledged messages: a stage behind)."""
     lines = ["Where the wall time goes (seconds since `yowo run` started the graph; run_log.yaml `timing`):", "",
              "| recording | source | stage | started / created | inputs from / to | finalize [s] | finished "
@@ -122,7 +123,8 @@ def timeline_markdown(cases: list[dict]) -> list[str]:
             created = f"{_max(t.get('spawned_s') for t in ts):.1f} / {_max(t.get('created_s') for t in ts):.1f}"
             if name == "replay":
                 held = sum(v for t in ts for k, v in t.get("seconds", {}).items() if k.startswith("ack_wait"))
-                lines.append(f"| {c['bag']} | {c['source']} | replay | {created} | playing {_max(t.get('playing_s') for t in ts):.1f}"
+                lines.append(f"| {c['bag']} | {c['source']} | replay | {created} | stages announced "
+                             f"{_max(t.get('announced_s') for t in ts):.1f}, playing {_max(t.get('playing_s') for t in ts):.1f}"
                              f" / done {_max(t.get('played_s') for t in ts):.1f} | - | - | held back {held:.1f} s | - |")
                 continue
             fin = _max((t.get("finalize_end_s") or 0) - (t.get("finalize_start_s") or 0) for t in ts)
