@@ -46,3 +46,27 @@ def test_node_without_usable_camera_info_fails_with_the_reason(node):
     node.on_info(CameraInfo(width=640, height=480))                 # K = 0
     with pytest.raises(ValueError, match="/ego/color/camera_info: .*focal"):
         node.finalize()
+
+
+def test_frames_before_the_first_camera_info_are_kept_up_to_a_bound_and_the_rest_reported(node, tiny_bag):
+    """CameraInfo late (here after 40 frame pairs): the last MAX_EARLY_FRAMES wait for it and
+    are mapped, the older ones are dropped and counted in the final status."""
+    from yowo_ego.ego_mapper_node import MAX_EARLY_FRAMES
+
+    pairs, before = 0, None
+    for topic, _, msg in read_messages(tiny_bag, [COLOR_TOPICS[1], DEPTH_TOPICS[1], INFO_TOPIC]):
+        if topic == INFO_TOPIC:
+            if pairs >= 40 and before is None:
+                before = pairs
+                node.on_info(msg)
+            continue
+        add = node.pairer.add_color if topic == COLOR_TOPICS[1] else node.pairer.add_depth
+        paired = add(stamp_to_ns(msg.header.stamp), msg)
+        pairs += len(paired)
+        node.on_pairs(paired)
+        if pairs == 75:
+            break
+    assert node.early_dropped == before - MAX_EARLY_FRAMES > 0
+    summary = node.finalize()
+    assert summary.startswith(f"{75 - node.early_dropped} frames")
+    assert f"{before - MAX_EARLY_FRAMES} frame(s) before the first usable {INFO_TOPIC} dropped" in summary

@@ -62,6 +62,7 @@ class EgoMapperNode(StageNode):
         self.mapper: EgoMapper | None = None
         self.info_problem = ""
         self.early: list[tuple[int, object, object]] = []
+        self.early_dropped = 0                   # frames beyond MAX_EARLY_FRAMES before the first CameraInfo
         self.pairer = StampPairer()
         # Decoding, undistorting and downsampling a frame (EgoMapper.prepare) on a thread of its
         # own overlaps the previous frame's tracking (OpenCV and Open3D release the GIL);
@@ -118,7 +119,13 @@ class EgoMapperNode(StageNode):
 
     def on_pairs(self, pairs) -> None:
         if self.mapper is None:
-            self.early = (self.early + list(pairs))[-MAX_EARLY_FRAMES:]
+            self.early += pairs
+            if len(self.early) > MAX_EARLY_FRAMES:
+                if not self.early_dropped:
+                    self.get_logger().warning(f"no usable {self.info_topic} yet: keeping the last {MAX_EARLY_FRAMES} "
+                                              "frames, dropping older ones")
+                self.early_dropped += len(self.early) - MAX_EARLY_FRAMES
+                self.early = self.early[-MAX_EARLY_FRAMES:]
             return
         for stamp, color_msg, depth_msg in pairs:
             try:
@@ -188,7 +195,9 @@ class EgoMapperNode(StageNode):
         self._track_prepared(keep=0)
         self.preparer.shutdown()
         if self.mapper is None:
-            raise ValueError(self.info_problem or f"no usable {self.info_topic} received; no ego map")
+            waited = len(self.early) + self.early_dropped
+            raise ValueError(self.info_problem or f"no usable {self.info_topic} received ({waited} frame(s) waited "
+                             "for it); no ego map")
         r = self.mapper.finish()                 # tracks a skipped frame that ends the walk
         for result in self.mapper.settled():
             self.pub_odom.publish(self._odometry(result))
@@ -201,6 +210,9 @@ class EgoMapperNode(StageNode):
         self.mapper = None                       # published: the keyframes' images can go
         # Input the map was made without: unpaired images (the offline reader reports the same) and the IMU.
         lost = [self.pairer.problem(self.color_topic, self.depth_topic)] if self.pairer.dropped else []
+        if self.early_dropped:
+            lost.append(f"{self.early_dropped} frame(s) before the first usable {self.info_topic} dropped "
+                        f"(the last {MAX_EARLY_FRAMES} were kept)")
         if self.imu_problem:
             lost.append(self.imu_problem)
         if self.wait.released_without:
