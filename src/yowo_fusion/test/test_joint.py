@@ -245,3 +245,19 @@ def test_a_weak_step_between_held_attitudes_opens_in_translation_only():
         turned.append(max(rotation_angle_deg(res.T_world_ego[f][:3, :3], truth["T_ego"][f][:3, :3])
                           for f in range(at, n)))
     assert turned[1] < 0.6 * turned[0] and turned[1] < 0.35, turned
+
+
+def test_a_gyro_tracked_ego_map_keeps_its_rotation():
+    """An ego map tracked with the gyro drifts in translation, hardly in rotation: told so
+    (ego_imu, JointParams.ego_between_sigma_imu), the JO bends its chain's rotation less
+    and the ego poses keep their attitude better, while the cameras are placed as well."""
+    problem, truth = make_problem(seed=3)
+    problem.T_world_ego = drifted(truth["T_ego"], np.random.default_rng(7), step_deg=0.003, step_m=0.002)
+
+    def worst_attitude_deg(res):
+        return max(rotation_angle_deg(a[:3, :3], b[:3, :3]) for a, b in zip(res.T_world_ego, truth["T_ego"]))
+
+    plain, gyro = solve_joint(problem), solve_joint(replace(problem, ego_imu=True))
+    assert worst_attitude_deg(gyro) < 0.8 * worst_attitude_deg(plain), (worst_attitude_deg(gyro),
+                                                                         worst_attitude_deg(plain))
+    assert max_pos_err(gyro.T_world_cmc, truth["T_cmc"]) < 0.02

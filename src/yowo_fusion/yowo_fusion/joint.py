@@ -56,6 +56,11 @@ class JointParams:
     ego_sigma_px: float = 1.0
     landmark_prior_sigma_m: float = 0.05     # depth-derived position of each ego landmark
     ego_between_sigma: tuple[float, float] = (0.001, 0.002)  # (rad, m) its motion between consecutive anchors
+    # The same for an ego map tracked with the gyro (JointProblem.ego_imu): its rotation between anchors is what
+    # the ego stage measures best, with gyro factors and walls-and-floor attitudes the JO does not carry. At 1 mrad
+    # a step the 26-minute floor's ego map (0.0075 m ATE) came out of the JO at 0.0153 m; at 0.2 mrad at 0.0123 m,
+    # and its registration 0.0175 -> 0.0166 m avg, 0.100 -> 0.071 max (BENCHMARKS.md, session 32).
+    ego_between_sigma_imu: tuple[float, float] = (0.0002, 0.002)
     # (rad, m) an anchor step over a frame the ego map does not vouch for (JointProblem.ego_weak_frames):
     # a break joined by a guess, or tracking on next to no landmarks. Loose, not free: a true break
     # still opens through the Huber kernel, while tracked low-overlap steps (mostly right) are not
@@ -116,6 +121,7 @@ class JointProblem:
     ego_weak_frames: np.ndarray | None = None
     # (F,) True where the ego map held the frame's attitude to the building; None: nowhere
     ego_attitude_held: np.ndarray | None = None
+    ego_imu: bool = False                    # the ego map was tracked with the gyro (ego_between_sigma_imu)
 
 
 @dataclass
@@ -215,7 +221,7 @@ def _broken_steps(p: JointProblem, params: JointParams, anchors: np.ndarray, res
     ego_break_sigmas off the ego map's relative pose."""
     T = np.asarray(p.T_world_ego)
     weak = np.zeros(len(T), bool) if p.ego_weak_frames is None else np.asarray(p.ego_weak_frames, bool)
-    sigma = np.repeat(params.ego_between_sigma, 3)
+    sigma = np.repeat(_between_sigma(p, params), 3)
     out = []
     for f0, f1 in zip(anchors[:-1], anchors[1:]):
         if weak[f0 + 1:f1 + 1].any():
@@ -327,6 +333,10 @@ def _chains(p: JointProblem) -> np.ndarray:
     return np.zeros(len(p.agent_ids), int) if p.agent_chain is None else np.asarray(p.agent_chain)
 
 
+def _between_sigma(p: JointProblem, params: JointParams) -> tuple[float, float]:
+    return params.ego_between_sigma_imu if p.ego_imu else params.ego_between_sigma
+
+
 def _add_ego_chain(graph, p: JointProblem, params: JointParams, anchors: np.ndarray) -> None:
     """The ego map's relative pose between consecutive anchors (Huber), loose where a frame
     between them is one the ego map does not vouch for (in translation only where the ego
@@ -336,7 +346,7 @@ def _add_ego_chain(graph, p: JointProblem, params: JointParams, anchors: np.ndar
     held = np.zeros(len(T), bool) if p.ego_attitude_held is None else np.asarray(p.ego_attitude_held, bool)
     huber = gtsam.noiseModel.mEstimator.Huber.Create(params.ego_between_huber_k)
     models = [gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Diagonal.Sigmas(np.repeat(sigma, 3)))
-              for sigma in (params.ego_between_sigma, params.ego_weak_between_sigma,
+              for sigma in (_between_sigma(p, params), params.ego_weak_between_sigma,
                             params.ego_held_weak_between_sigma)]
     for f0, f1 in zip(anchors[:-1], anchors[1:]):
         kind = 0 if not weak[f0 + 1:f1 + 1].any() else 2 if held[f0] and held[f1] else 1

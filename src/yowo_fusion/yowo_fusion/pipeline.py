@@ -666,7 +666,8 @@ def _joint(grouped: _GroupedCmcs, scene_obs: Observations, ego: EgoMapData, idea
                                [c for c, k in zip(grouped.cams, cams) if k],
                                [T for T, k in zip(grouped.T_init, cams) if k], scene, grouped.agent.points[points],
                                grouped.agent.stamps_ns[points], grouped.agent.ids[points], agent_obs,
-                               grouped.head_offset, grouped.agent_chain[points], weak[0], ego.attitude_held)
+                               grouped.head_offset, grouped.agent_chain[points], weak[0], ego.attitude_held,
+                               bool(ego.imu))
         try:
             res = solve_joint(problem, params.joint)
         except RuntimeError as exc:  # GTSAM gave up on the system: keep the aligned poses
