@@ -5,6 +5,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage
 
 from yowo_common.ros.bag import read_messages
 from yowo_common.rosconv import stamp_to_ns
+from yowo_ego.ego_mapper_node import MAX_EARLY_FRAMES
 from yowo_ego.recording import COLOR_TOPICS, DEPTH_TOPICS, INFO_TOPIC
 
 
@@ -51,8 +52,6 @@ def test_node_without_usable_camera_info_fails_with_the_reason(node):
 def test_frames_before_the_first_camera_info_are_kept_up_to_a_bound_and_the_rest_reported(node, tiny_bag):
     """CameraInfo late (here after 40 frame pairs): the last MAX_EARLY_FRAMES wait for it and
     are mapped, the older ones are dropped and counted in the final status."""
-    from yowo_ego.ego_mapper_node import MAX_EARLY_FRAMES
-
     pairs, before = 0, None
     for topic, _, msg in read_messages(tiny_bag, [COLOR_TOPICS[1], DEPTH_TOPICS[1], INFO_TOPIC]):
         if topic == INFO_TOPIC:
