@@ -3,6 +3,7 @@ and running the yowo CLI in its own process."""
 import contextlib
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
@@ -57,14 +58,15 @@ def log_tails(out, nodes, lines=25) -> str:
     return "\n".join(parts)
 
 
-def yowo(*args, env, timeout=300):
+def yowo(*args, env, timeout=300, cwd=None):
     """The yowo CLI in its own process. Graph verbs get their own --timeout inside ours,
-    so a hung graph is stopped (and its nodes reaped) by the supervisor, not orphaned."""
+    so a hung graph is stopped (and its nodes reaped) by the supervisor, not orphaned.
+    Started in `cwd`, it is the installed `yowo` command, as a user starts it there."""
     args = [str(a) for a in args]
     if args[0] in ("run", "calibrate-cmc") and "--timeout" not in args:
         args += ["--timeout", str(max(timeout - 60, timeout // 2))]
-    return subprocess.run([sys.executable, "-m", "yowo_bringup.cli", *args], env=env,
-                          capture_output=True, text=True, timeout=timeout)
+    cmd = [str(Path(sys.executable).parent / "yowo")] if cwd else [sys.executable, "-m", "yowo_bringup.cli"]
+    return subprocess.run([*cmd, *args], env=env, cwd=cwd, capture_output=True, text=True, timeout=timeout)
 
 
 @contextlib.contextmanager

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from yowo_common import topics
@@ -16,12 +17,13 @@ from .plugins import add_verbs, evaluator
 def cmd_info(args) -> int:
     """Summarise a recording: topics, types, counts, and the CMCs found."""
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     from .contract import discover_inputs
 
     console = Console()
-    inputs = discover_inputs(args.bag)
+    inputs = discover_inputs(args.bag, config_from_args(args).inputs)
     table = Table(title=str(args.bag))
     for col in ("topic", "type", "messages"):
         table.add_column(col)
@@ -31,8 +33,18 @@ def cmd_info(args) -> int:
     console.print(f"ego camera: {'yes' if inputs.has_ego else 'no'}; "
                   f"CMCs ({len(inputs.cmc_names)}): {', '.join(inputs.cmc_names) or '-'}; "
                   f"ground truth: {'yes' if inputs.has_ground_truth else 'no'}")
+    if inputs.map.renamed:
+        mapping = Table(title="inputs (YOWO's name <- recorded topic)")
+        for col in ("input", "recorded topic"):
+            mapping.add_column(col)
+        for name, recorded in sorted(inputs.map.roles.items()):
+            if recorded != name:
+                mapping.add_row(name, recorded)
+        console.print(mapping)
+    for note in inputs.map.notes:
+        console.print(f"found: {escape(note)}")
     for problem in inputs.problems:
-        console.print(f"[yellow]warning:[/] {problem}")
+        console.print(f"[yellow]warning:[/] {escape(problem)}")
     return 0
 
 
@@ -62,6 +74,12 @@ def _execute(args, mode: str):
         domain = args.domain or (SHARED if args.linger > 0 else PRIVATE)
     plan.select(args.nodes)
     network = graph_network(domain if domain in (PRIVATE, SHARED) else int(domain))
+    for note in plan.inputs.get("layout", []):
+        print(f"input: {note}")
+    if "imu" in plan.inputs:
+        imu = plan.inputs["imu"]
+        print("ego IMU: " + (f"{', '.join(imu['topics'])}; extrinsics from {imu['extrinsics']}; noise from "
+                             f"{imu['noise']}" if imu["used"] else f"not used: {imu['reason']}"))
     for w in plan.warnings:
         print(f"warning: {w}", file=sys.stderr)
     print(f"{what}: {len(plan.cameras)} CMCs ({', '.join(plan.cameras) or 'none'}), "
@@ -146,11 +164,23 @@ def config_from_args(args):
     shorthands = [f"replay.rate={args.rate}"] if getattr(args, "rate", None) is not None else []
     if getattr(args, "max_restarts", None) is not None:
         shorthands.append(f"supervisor.max_restarts={args.max_restarts}")
-    return load_config(args.config, (args.set or []) + shorthands)
+    config = load_config(args.config, (args.set or []) + shorthands)
+    if getattr(args, "remap", None):          # -r rules add to the configuration's inputs.remap
+        config = replace(config, inputs=replace(config.inputs, remap=config.inputs.remap + tuple(args.remap)))
+    return config
+
+
+def _add_input_options(p) -> None:
+    p.add_argument("bag", help="rosbag2 directory or .mcap file")
+    p.add_argument("-r", "--remap", action="append", metavar="INPUT:=TOPIC",
+                   help="which recorded topic is one of YOWO's inputs, ROS remapping style, e.g. "
+                        "-r /ego/color/image_raw:=/cam/rgb/image_raw (repeatable; adds to inputs.remap). Common "
+                        "driver layouts (realsense2_camera, Azure Kinect / Orbbec, ZED) and image_transport camera "
+                        "namespaces are found without it; 'yowo info' shows what was found")
 
 
 def _add_run_options(p) -> None:
-    p.add_argument("bag", help="rosbag2 directory or .mcap file")
+    _add_input_options(p)
     p.add_argument("-o", "--output", required=True, help="results directory")
     p.add_argument("--rate", type=float, help="replay speed (x real time; 0 = as fast as possible): replay.rate")
     add_config_options(p)
@@ -221,7 +251,8 @@ def build_parser() -> argparse.ArgumentParser:
     verbs = parser.add_subparsers(dest="verb", required=True, metavar="VERB")
 
     p = verbs.add_parser("info", help="list a recording's topics and the cameras YOWO finds in it")
-    p.add_argument("bag", help="rosbag2 directory or .mcap file")
+    _add_input_options(p)
+    add_config_options(p)
     p.set_defaults(func=cmd_info)
 
     p = verbs.add_parser("run", help="map the scene and register every CMC in it (the full node graph)")

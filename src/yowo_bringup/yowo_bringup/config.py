@@ -18,6 +18,7 @@ from yowo_common.config import ConfigError, dump, load, to_dict
 from yowo_ego.pipeline import EgoParams
 from yowo_fusion.pipeline import UPSTREAM_HOMES, FusionParams, UpstreamParams
 
+from .layouts import InputParams
 from .replay import ReplayParams
 
 __all__ = ["ConfigError", "YowoConfig", "SupervisorParams", "fusion_upstream", "load_config", "node_config",
@@ -45,6 +46,7 @@ class SupervisorParams:
 
 @dataclass(frozen=True)
 class YowoConfig:
+    inputs: InputParams = field(default_factory=InputParams)
     replay: ReplayParams = field(default_factory=ReplayParams)
     ego: EgoParams = field(default_factory=EgoParams)
     cmc: CmcParams = field(default_factory=CmcParams)

@@ -43,26 +43,26 @@ def read_cmc_inputs(bag, source: str = "auto", params: CmcParams | None = None, 
 
     params = params or CmcParams()
     inputs = discover_inputs(bag)
-    present = {t.name for t in inputs.topics if t.count > 0}
+    present, recorded = set(inputs.map.roles), inputs.map.recorded
     acc, detectors, samplers, by_topic, unusable = {}, {}, {}, {}, set()
     for n in inputs.cmc_names:
         kind, keypoints, image = cmc_source(n, present, source)
         if not kind:
             continue
         acc[n] = TrackAccumulator(n)
-        by_topic[cmc_info_topic(n)] = n
+        by_topic[recorded(cmc_info_topic(n))] = n
         if kind in ("images", "pose"):
             detectors[n] = (ImageKeypointSource(n, params.detector, params.max_pending_frames) if kind == "images"
                             else PoseOrDetectorSource(n, params.pose, params.pose_min_frames, params.detector,
                                                       params.max_pending_frames))
-            by_topic[image] = n
+            by_topic[recorded(image)] = n
             if kind == "pose" and backgrounds:       # the pose model has no background model of its own
                 samplers[n] = BackgroundSampler(params.background_period_s)
         else:
-            by_topic[keypoints] = n
+            by_topic[recorded(keypoints)] = n
             if image and backgrounds:
                 samplers[n] = BackgroundSampler(params.background_period_s)
-                by_topic[image] = n
+                by_topic[recorded(image)] = n
     for topic, _, msg in read_messages(bag, by_topic):
         n = by_topic[topic]
         a, detector = acc[n], detectors.get(n)

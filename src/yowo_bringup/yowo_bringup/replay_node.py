@@ -28,7 +28,8 @@ from std_msgs.msg import Header
 from yowo_msgs.msg import ReplayStatus, StageStatus
 
 from yowo_common import topics
-from yowo_common.ros.bag import BagError, list_topics, message_class, read_raw, recording_damage
+from yowo_common.ros.bag import (BagError, list_topics, message_class, read_raw, recording_damage,
+                                 unknown_type_reason)
 from yowo_common.config import describe_changes, load
 from yowo_common.ros.context import ros_context
 from yowo_common.ros.stage import LATCHED, RunFilter
@@ -205,7 +206,11 @@ class ReplayNode(Node):
             self.state, self.error = ReplayStatus.STATE_FINISHED, str(exc)
             self._status()
             return 2
-        played = select_topics([t.name for t in topics], self.include, self.exclude)
+        for t in topics:
+            if why := unknown_type_reason(t.msgtype):
+                self.get_logger().warning(f"{t.name}: skipped, {why}")
+        played = select_topics([t.name for t in topics if not unknown_type_reason(t.msgtype)],
+                               self.include, self.exclude)
         self.counts = {t: 0 for t in played}
         for t in topics:
             if t.name in played:

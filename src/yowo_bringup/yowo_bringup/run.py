@@ -14,6 +14,7 @@ from yowo_cmc.group_sfm import CameraGroupResult
 from yowo_common import topics
 
 from .config import YowoConfig, node_config
+from .imu_source import resolve_imu
 from .contract import (EGO_COLOR, EGO_DEPTH, EGO_INFO, cmc_image_topics, cmc_info_topic, cmc_keypoints_topic,
                        discover_inputs)
 from .results import clock_entry, intrinsics_entry, keypoint_noise_entry, pose_entry
@@ -51,6 +52,7 @@ class RunPlan:
     replay_messages: int = 0               # what the replay will publish (0: live)
     mode_reason: str = ""                  # why the run is in its mode when the user did not choose it
     cmc_problems: list[str] = field(default_factory=list)   # why each CMC of the recording is not used
+    inputs: dict = field(default_factory=dict)             # which recorded topics fill which role, the IMU's source
 
     @property
     def stages(self) -> list[str]:
@@ -143,11 +145,12 @@ def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, s
     `source`: where CMC agent keypoints come from (auto, keypoints or images); `run_id`:
     the same on every host of a split run (a new one by default)."""
     config = config or YowoConfig()
-    inputs = discover_inputs(bag)
-    present = {t.name for t in inputs.topics if t.count > 0}
+    inputs = discover_inputs(bag, config.inputs)
+    imap = inputs.map
+    present = set(imap.roles)
     problems = list(inputs.problems)
     if not present:
-        raise ValueError(f"{bag}: the recording holds no messages")
+        raise ValueError(f"{bag}: the recording holds no messages YOWO reads")
     if mode == FULL and not inputs.has_ego:
         raise ValueError(f"{bag}: no complete ego camera ({'; '.join(p for p in problems if 'ego' in p)}); "
                          "use 'yowo calibrate-cmc' for the CMC-only relative calibration")
@@ -163,8 +166,10 @@ def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, s
         # External keypoints use images only for the background (scene keypoints: full runs).
         image = image if kind in ("images", "pose") or mode == FULL else ""
         cameras.append(c)
-        trackers.append((c, kind, image))
-        played += [cmc_info_topic(c)] + [t for t in (keypoints, image) if t]
+        roles = {"image_topic": imap.recorded(image), "info_topic": imap.recorded(cmc_info_topic(c)),
+                 "keypoints_topic": imap.recorded(keypoints)}
+        trackers.append((c, kind, roles))
+        played += [t for t in roles.values() if t]
     cmc_problems = [p for p in problems if p.startswith("CMC ")]
     mode, reason = _mode_for(mode, cameras, inputs.cmc_names, cmc_problems)
     if mode == CMC and len(cameras) < MIN_GROUP_CMCS:
@@ -173,13 +178,14 @@ def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, s
     if mode == FULL and len(cameras) < MIN_GROUP_CMCS:
         problems.append(f"only one usable CMC ({cameras[0]}): a single camera forms no group; it is registered "
                         "as an isolated camera from the agent track the ego trajectory implies")
-    ego = (_first_present(EGO_COLOR, present), _first_present(EGO_DEPTH, present), EGO_INFO)
-    # The IMU helps the ego tracking only with its calibration (extrinsics), and if it is to be used.
-    imu = topics.EGO_IMU if config.ego.odometry.use_imu and {topics.EGO_IMU, topics.EGO_IMU_CALIBRATION} <= present \
-        else ""
+    ego = tuple(imap.recorded(n) for n in (_first_present(EGO_COLOR, present), _first_present(EGO_DEPTH, present),
+                                            EGO_INFO))
+    summary = {"layout": list(imap.notes), "mapping": {n: t for n, t in sorted(imap.roles.items()) if n != t}}
+    imu_params: dict[str, str] = {}
     if mode in (FULL, EGO):
-        played += list(ego) + ([topics.EGO_IMU, topics.EGO_IMU_CALIBRATION] if imu else [])
-    nodes, final, outputs = _stage_nodes(mode, trackers, ego, imu)
+        imu_params, summary["imu"] = plan_ego_imu(bag, imap, config, ego[0])
+        played += list(ego) + [t for k, t in imu_params.items() if k.endswith("_topic") and t]
+    nodes, final, outputs = _stage_nodes(mode, trackers, ego, imu_params)
     # The replay waits for the stages that read its topics (the others match late: their
     # inputs are durable), not for the slowest process of the graph to start.
     readers = [n.name for n in nodes if n.module not in DOWNSTREAM]
@@ -189,7 +195,56 @@ def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, s
     _stamp_run(nodes, run_id, True, config)
     total = sum(t.count for t in inputs.topics if t.name in played)
     return RunPlan(Path(bag), Path(out_dir), mode, cameras, nodes, final, outputs, problems, run_id, config=config,
-                   replay_messages=total, mode_reason=reason, cmc_problems=cmc_problems)
+                   replay_messages=total, mode_reason=reason, cmc_problems=cmc_problems, inputs=summary)
+
+
+def plan_ego_imu(bag, imap, config: YowoConfig, color_topic: str) -> tuple[dict[str, str], dict]:
+    """The ego mapper's IMU parameters (topics, and the calibration text where the recording
+    carries none on /ego/imu/calibration) and what the run log says of the IMU."""
+    united, gyro, accel = (imap.recorded(n) for n in (topics.EGO_IMU, topics.EGO_GYRO, topics.EGO_ACCEL))
+    if not united and not (gyro and accel):
+        what = "no IMU topic" if not (gyro or accel) else f"only {gyro or accel} (gyro and accelerometer both needed)"
+        return {}, {"used": False, "reason": what}
+    if not config.ego.odometry.use_imu:
+        return {}, {"used": False, "reason": "ego.odometry.use_imu is false"}
+    stream = {"imu_topic": united} if united else {"gyro_topic": gyro, "accel_topic": accel}
+    where = {"topics": [t for t in (united, gyro, accel) if t]}
+    recorded_cal = imap.recorded(topics.EGO_IMU_CALIBRATION)
+    cfg = config.inputs
+    if recorded_cal and not cfg.imu_camchain and not cfg.imu_noise:
+        return ({**stream, "imu_calibration_topic": recorded_cal},
+                {"used": True, **where, "extrinsics": recorded_cal, "noise": recorded_cal})
+    camera_frame, imu_frame, rate_hz, tf_edges = recorded_frames(bag, color_topic, united or gyro)
+    found = resolve_imu(camchain=cfg.imu_camchain, imu_yaml=cfg.imu_noise, defaults=cfg.imu_noise_defaults,
+                        rate_hz=rate_hz, camera_frame=camera_frame, imu_frame=imu_frame, tf_edges=tf_edges,
+                        camera_topic=color_topic)
+    if not found.calibration_yaml:
+        return {}, {**where, **found.describe()}
+    return {**stream, "imu_calibration": found.calibration_yaml}, {**where, **found.describe()}
+
+
+def recorded_frames(bag, color_topic: str, imu_topic: str, samples: int = 200):
+    """(colour frame id, IMU frame id, IMU rate [Hz], /tf_static edges (parent, child,
+    T_parent_child)) from the start of a recording."""
+    from yowo_common.ros.bag import read_messages
+    from yowo_common.rosconv import stamp_to_ns, transform_to_matrix
+
+    camera_frame, imu_frame, stamps, edges, first_ns = "", "", [], [], None
+    for topic, log_ns, msg in read_messages(bag, [color_topic, imu_topic, topics.TF_STATIC]):
+        first_ns = log_ns if first_ns is None else first_ns
+        if topic == topics.TF_STATIC:
+            edges += [(tf.header.frame_id, tf.child_frame_id, transform_to_matrix(tf.transform))
+                      for tf in msg.transforms]
+        elif topic == color_topic:
+            camera_frame = camera_frame or msg.header.frame_id
+        else:
+            imu_frame = imu_frame or msg.header.frame_id
+            stamps.append(stamp_to_ns(msg.header.stamp))
+        if camera_frame and (len(stamps) >= samples or (stamps and log_ns - first_ns > 5e9)):
+            break
+    steps = np.diff(stamps)
+    rate_hz = 1e9 / float(np.median(steps[steps > 0])) if np.any(steps > 0) else 0.0
+    return camera_frame, imu_frame, rate_hz, edges
 
 
 def _mode_for(mode: str, cameras: list[str], found: list[str], cmc_problems: list[str]) -> tuple[str, str]:
@@ -214,8 +269,8 @@ def plan_live(cameras: list[str], out_dir, mode: str = FULL, source: str = "keyp
         raise ValueError(f"live run: {len(cameras)} CMC(s) given; needs at least 2")
     if source not in CMC_SOURCES[1:]:
         raise ValueError(f"live run: CMC keypoint source '{source}' ({', '.join(CMC_SOURCES[1:])})")
-    trackers = [(c, source, topics.cmc_topic(c, image_topic) if source != "keypoints" or mode == FULL else "")
-                for c in cameras]
+    trackers = [(c, source, {"image_topic": topics.cmc_topic(c, image_topic) if source != "keypoints" or mode == FULL
+                             else ""}) for c in cameras]
     config = config or YowoConfig()
     nodes, final, outputs = _stage_nodes(mode, trackers, ego_topics)
     run_id = run_id or new_run_id()
@@ -228,17 +283,19 @@ EGO_OUTPUTS = {topics.EGO_MAP: "yowo_msgs/msg/EgoMap", topics.EGO_PATH: "nav_msg
                topics.LAYOUT: "yowo_msgs/msg/SceneLayout", topics.MAP_POINTS: "sensor_msgs/msg/PointCloud2"}
 
 
-def _stage_nodes(mode: str, trackers: list[tuple[str, str, str]], ego: tuple[str, str, str], imu: str = ""
-                 ) -> tuple[list[NodeSpec], str, dict[str, str]]:
-    """The stage processes (trackers: (camera, source, image topic)), the final stage and
-    the latched outputs the runner collects. `imu`: the ego IMU's topic ("": none)."""
-    ego_params = {"color_topic": ego[0], "depth_topic": ego[1], "info_topic": ego[2], "imu_topic": imu}
+def _stage_nodes(mode: str, trackers: list[tuple[str, str, dict[str, str]]], ego: tuple[str, str, str],
+                 imu: dict[str, str] | None = None) -> tuple[list[NodeSpec], str, dict[str, str]]:
+    """The stage processes (trackers: (camera, source, its topic parameters)), the final stage
+    and the latched outputs the runner collects. `imu`: the ego mapper's IMU parameters (none:
+    no IMU)."""
+    ego_params = {"color_topic": ego[0], "depth_topic": ego[1], "info_topic": ego[2], **(imu or {})}
     if mode == EGO:             # the map alone: its stage publishes the map, path, cloud and layout
         return ([NodeSpec("ego_mapper", STAGE_MODULES["ego_mapper"], ego_params)], "ego_mapper",
                 dict(EGO_OUTPUTS))
     cameras = [c for c, _, _ in trackers]
     nodes = [NodeSpec(f"keypoint_tracker_{c}", STAGE_MODULES["keypoint_tracker"],
-                      {"camera": c, "source": kind, "image_topic": image}) for c, kind, image in trackers]
+                      {"camera": c, "source": kind, **{k: t for k, t in roles.items() if t}})
+             for c, kind, roles in trackers]
     nodes.append(NodeSpec("group_sfm", STAGE_MODULES["group_sfm"], {"cameras": cameras}))
     final = "group_sfm"
     outputs = {topics.GROUPS: "yowo_msgs/msg/CameraGroupArray"}
@@ -293,7 +350,7 @@ def write_run_results(plan: RunPlan, outputs: dict, status: dict, replay, second
             received.setdefault(t, {})[stage] = int(n)
     (out / "run_log.yaml").write_text(yaml.safe_dump({
         "bag": str(plan.bag or "live"), "mode": plan.mode, **({"mode_reason": plan.mode_reason} if plan.mode_reason else {}),
-        "seconds": round(seconds, 2), "failure": failure,
+        "seconds": round(seconds, 2), "failure": failure, "inputs": plan.inputs,
         "warnings": plan.warnings, "stages": {s: status[s].message if s in status else "no status received" for s in plan.stages},
         "replay_published": published, "received": received,
         "replay_resent": int(replay.resent_messages) if replay is not None else 0,

@@ -155,10 +155,12 @@ class Supervisor:
             Path(profile_dir).mkdir(parents=True, exist_ok=True)
 
     def _popen(self, spec: NodeSpec, incarnation: int, mode: str) -> subprocess.Popen:
+        # -P: the folder the user started in is not on the node's import path, so no file
+        # there can stand in for a module the node imports.
         if spec.hosted:
-            cmd = [sys.executable, "-m", spec.module, NODES_ARG, ",".join(spec.hosted), "--ros-args"]
+            cmd = [sys.executable, "-P", "-m", spec.module, NODES_ARG, ",".join(spec.hosted), "--ros-args"]
         else:
-            cmd = [sys.executable, "-m", spec.module, "--ros-args", "-r", f"__node:={spec.name}"]
+            cmd = [sys.executable, "-P", "-m", spec.module, "--ros-args", "-r", f"__node:={spec.name}"]
         if self.params_file is not None and (spec.parameters or spec.hosted):
             cmd += ["--params-file", str(self.params_file)]
         if incarnation:

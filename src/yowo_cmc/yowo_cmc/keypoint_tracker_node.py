@@ -39,6 +39,9 @@ class KeypointTrackerNode(StageNode):
         self.camera = camera
         self.source = self.declare_parameter("source", "keypoints").value
         image_topic = self.declare_parameter("image_topic", "").value
+        # Recorded or driver names of the camera's topics (the planner's input mapping).
+        self.info_topic = self.declare_parameter("info_topic", topics.cmc_info_topic(camera)).value
+        keypoints_topic = self.declare_parameter("keypoints_topic", topics.cmc_keypoints_topic(camera)).value
         if self.source not in SOURCES:
             raise ValueError(f"camera '{camera}': unknown source '{self.source}' (choose from {', '.join(SOURCES)})")
         if self.source in ("images", "pose") and not image_topic:
@@ -50,7 +53,7 @@ class KeypointTrackerNode(StageNode):
         self.pub = self.output(AgentKeypoints, topics.tracker_keypoints(camera))
         self.pub_background = self.output(Image, topics.tracker_background(camera), LATCHED)
         self.pub_info = self.output(CameraInfo, topics.tracker_camera_info(camera), LATCHED)
-        self.stream_input(CameraInfo, topics.cmc_info_topic(camera), self.on_info)
+        self.stream_input(CameraInfo, self.info_topic, self.on_info)
         self.detector = (ImageKeypointSource(camera, params.detector, params.max_pending_frames)
                          if self.source == "images" else
                          PoseOrDetectorSource(camera, params.pose, params.pose_min_frames, params.detector,
@@ -58,7 +61,7 @@ class KeypointTrackerNode(StageNode):
         if self.source == "pose" and self.detector.problem:
             self.get_logger().error(self.detector.problem)
         if self.detector is None:
-            self.stream_input(AgentKeypoints, topics.cmc_keypoints_topic(camera), self.on_keypoints)
+            self.stream_input(AgentKeypoints, keypoints_topic, self.on_keypoints)
         # With external keypoints, images (when recorded) only give the background for scene keypoints.
         self.background = BackgroundSampler(params.background_period_s)
         if image_topic:
@@ -81,7 +84,7 @@ class KeypointTrackerNode(StageNode):
             try:
                 self.acc.camera = camera_info_to_model(msg)
             except ValueError as exc:
-                self.info_problem = f"{topics.cmc_info_topic(self.camera)}: {exc}"
+                self.info_problem = f"{self.info_topic}: {exc}"
                 self.get_logger().error(self.info_problem)
                 return
             self.pub_info.publish(msg)

@@ -7,6 +7,10 @@ EGO_COLOR = ("/ego/color/image_raw", "/ego/color/image_raw/compressed")
 EGO_DEPTH = ("/ego/depth/image_raw", "/ego/depth/image_raw/compressedDepth")
 EGO_INFO = "/ego/color/camera_info"
 EGO_IMU = "/ego/imu"
+# A driver's separate gyro and accelerometer streams (sensor_msgs/Imu each, their own rates),
+# where it publishes no united /ego/imu.
+EGO_GYRO = "/ego/gyro/sample"
+EGO_ACCEL = "/ego/accel/sample"
 # std_msgs/String, latched: the IMU's Kalibr-style calibration as YAML (imu.yaml's noise
 # densities and random walks, rate, T_cam_imu, timeshift_cam_imu); T_cam_imu is on /tf_static too.
 EGO_IMU_CALIBRATION = "/ego/imu/calibration"

@@ -24,7 +24,7 @@ from yowo_common.rosconv import camera_info_to_model, decode_color, decode_depth
 
 from .ego_messages import cloud_msg, ego_map_msg, layout_msg, path_msg
 from .frames import FrameError, StampPairer
-from .imu import CoverageWait, ImuBuffer, ImuCalibration
+from .imu import CoverageWait, ImuBuffer, ImuCalibration, ImuUniter
 from .pipeline import EgoMapper, EgoParams
 
 MAX_EARLY_FRAMES = 30  # frames kept while waiting for the first CameraInfo
@@ -50,13 +50,20 @@ class EgoMapperNode(StageNode):
         self.color_topic = self.declare_parameter("color_topic", topics.EGO_COLOR[1]).value
         self.depth_topic = self.declare_parameter("depth_topic", topics.EGO_DEPTH[1]).value
         self.info_topic = self.declare_parameter("info_topic", topics.EGO_INFO).value
-        # "": no IMU (the planner names it when the recording has /ego/imu and its calibration).
+        # "": no IMU. The planner names one united Imu topic, or a driver's separate gyro and
+        # accelerometer topics, when it knows the IMU's calibration.
         self.imu_topic = self.declare_parameter("imu_topic", "").value
+        self.gyro_topic = self.declare_parameter("gyro_topic", "").value
+        self.accel_topic = self.declare_parameter("accel_topic", "").value
         self.imu_calibration_topic = self.declare_parameter("imu_calibration_topic",
                                                             topics.EGO_IMU_CALIBRATION).value
+        # The calibration as text (Kalibr's keys), when the planner found it elsewhere than on
+        # imu_calibration_topic (Kalibr files, /tf_static).
+        imu_calibration = self.declare_parameter("imu_calibration", "").value
         self.params = self.section(EgoParams, "ego")
-        use_imu = bool(self.imu_topic) and self.params.odometry.use_imu
+        use_imu = bool(self.imu_topic or (self.gyro_topic and self.accel_topic)) and self.params.odometry.use_imu
         self.imu = ImuBuffer() if use_imu else None
+        self.uniter = ImuUniter()
         self.imu_problem = ""
         self.wait = CoverageWait(self.imu, None)
         self.mapper: EgoMapper | None = None
@@ -83,18 +90,38 @@ class EgoMapperNode(StageNode):
         self.stream_input(image_type(self.depth_topic), self.depth_topic,
                           lambda m: self.on_waiting(self.pairer.add_depth(stamp_to_ns(m.header.stamp), m)))
         if self.imu is not None:
-            self.stream_input(Imu, self.imu_topic, self.on_imu)
-            self.stream_input(String, self.imu_calibration_topic, self.on_imu_calibration)
+            if self.imu_topic:
+                self.stream_input(Imu, self.imu_topic, self.on_imu)
+            else:
+                self.stream_input(Imu, self.gyro_topic, self.on_gyro)
+                self.stream_input(Imu, self.accel_topic, self.on_accel)
+            if imu_calibration:
+                self.on_imu_calibration(String(data=imu_calibration), "the run's IMU calibration")
+            else:
+                self.stream_input(String, self.imu_calibration_topic, self.on_imu_calibration)
 
     def on_imu(self, msg: Imu) -> None:
         v, a = msg.angular_velocity, msg.linear_acceleration
-        self.imu.add(stamp_to_ns(msg.header.stamp), (v.x, v.y, v.z), (a.x, a.y, a.z))
-        self.on_pairs(self.wait.ready())
+        self._add_imu([(stamp_to_ns(msg.header.stamp), (v.x, v.y, v.z), (a.x, a.y, a.z))])
 
-    def on_imu_calibration(self, msg: String) -> None:
+    def on_gyro(self, msg: Imu) -> None:
+        v = msg.angular_velocity
+        self._add_imu(self.uniter.add_gyro(stamp_to_ns(msg.header.stamp), (v.x, v.y, v.z)))
+
+    def on_accel(self, msg: Imu) -> None:
+        a = msg.linear_acceleration
+        self._add_imu(self.uniter.add_accel(stamp_to_ns(msg.header.stamp), (a.x, a.y, a.z)))
+
+    def _add_imu(self, samples) -> None:
+        for stamp_ns, gyro, accel in samples:
+            self.imu.add(stamp_ns, gyro, accel)
+        if samples:
+            self.on_pairs(self.wait.ready())
+
+    def on_imu_calibration(self, msg: String, where: str = "") -> None:
         if self.imu.calibration is None and not self.imu_problem:
             try:
-                self.imu.calibration = ImuCalibration.from_yaml(msg.data, self.imu_calibration_topic)
+                self.imu.calibration = ImuCalibration.from_yaml(msg.data, where or self.imu_calibration_topic)
             except ValueError as exc:
                 self.imu_problem = f"{exc}; the IMU is not used"
                 self.get_logger().error(self.imu_problem)
@@ -216,8 +243,9 @@ class EgoMapperNode(StageNode):
         if self.imu_problem:
             lost.append(self.imu_problem)
         if self.wait.released_without:
-            lost.append(f"{self.wait.released_without} frame(s) tracked without the IMU: {self.imu_topic} did not "
-                       "cover their stamps")
+            imu = self.imu_topic or f"{self.gyro_topic} with {self.accel_topic}"
+            lost.append(f"{self.wait.released_without} frame(s) tracked without the IMU: {imu} did not "
+                        "cover their stamps")
         return "; ".join([text, *r.warnings, *lost])
 
 

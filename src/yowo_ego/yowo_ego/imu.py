@@ -115,6 +115,43 @@ class ImuCalibration:
                               number("update_rate", positive=True), shift)
 
 
+class ImuUniter:
+    """Separate gyro and accelerometer streams (a driver's at different rates) as one: each
+    gyro sample with the accelerometer interpolated linearly at its stamp, as
+    realsense2_camera's unite_imu_method=linear_interpolation publishes them. A gyro sample
+    is released once an accelerometer sample at or after its stamp has arrived; gyro samples
+    before the first accelerometer sample have nothing to pair with and are counted."""
+
+    def __init__(self):
+        self._gyro: deque[tuple[int, tuple]] = deque()
+        self._accel: deque[tuple[int, tuple]] = deque(maxlen=64)
+        self.unpaired = 0
+
+    def add_gyro(self, stamp_ns: int, gyro) -> list[tuple[int, tuple, tuple]]:
+        self._gyro.append((stamp_ns, tuple(gyro)))
+        return self._release()
+
+    def add_accel(self, stamp_ns: int, accel) -> list[tuple[int, tuple, tuple]]:
+        if self._accel and stamp_ns <= self._accel[-1][0]:
+            return []
+        self._accel.append((stamp_ns, tuple(accel)))
+        return self._release()
+
+    def _release(self) -> list[tuple[int, tuple, tuple]]:
+        out = []
+        while self._gyro and self._accel and self._gyro[0][0] <= self._accel[-1][0]:
+            t, w = self._gyro.popleft()
+            stamps = [s for s, _ in self._accel]
+            if t < stamps[0]:
+                self.unpaired += 1
+                continue
+            k = max(1, int(np.searchsorted(stamps, t, side="left")))
+            (t0, a0), (t1, a1) = self._accel[k - 1], self._accel[min(k, len(stamps) - 1)]
+            f = 0.0 if t1 == t0 else (t - t0) / (t1 - t0)
+            out.append((t, w, tuple(float(x0 + f * (x1 - x0)) for x0, x1 in zip(a0, a1))))
+        return out
+
+
 class ImuBuffer:
     """The IMU samples of a walk as they arrive, the calibration (None until known) and
     the running gyro bias estimate (IMU frame, rad/s)."""

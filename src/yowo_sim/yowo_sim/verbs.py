@@ -2,7 +2,17 @@
 by yowo_bringup.plugins): `simulate` and `demo`."""
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
+
+# --layout choices: YOWO's own names, or a real driver's (yowo_sim.driver_layout.LAYOUTS).
+LAYOUT_HELP = {
+    "yowo": "YOWO's own topics (/ego/..., /cmc/<name>/...)",
+    "realsense": "realsense2_camera 4.x: /camera/camera/color, aligned_depth_to_color, gyro/sample + accel/sample",
+    "realsense_united": "realsense2_camera with unite_imu_method 2: one /camera/camera/imu",
+    "azure": "Azure Kinect / Orbbec Femto driver: /rgb, /depth_to_rgb, /imu",
+    "zed": "zed-ros2-wrapper: /zed/zed_node/rgb/image_rect_color, 32FC1 depth_registered in metres, imu/data",
+}
 
 
 def cmd_simulate(args) -> int:
@@ -11,6 +21,16 @@ def cmd_simulate(args) -> int:
 
     from yowo_sim.capture import generate
     from yowo_sim.presets import get_preset
+
+    output = Path(args.output)
+    if args.no_camera_info and args.layout == "yowo":
+        raise ValueError("--no-camera-info needs a driver --layout")
+    if output.exists():
+        raise ValueError(f"{output}: already exists; refusing to overwrite a recording")
+    # A driver layout is converted from YOWO's, simulated beside the output (same disk) and then removed.
+    recording = output if args.layout == "yowo" else output.with_name(f".{output.name}.yowo-layout")
+    if recording != output:
+        shutil.rmtree(recording, ignore_errors=True)     # left by an interrupted run
 
     overrides = {}
     if args.no_cmc_images:
@@ -28,8 +48,17 @@ def cmd_simulate(args) -> int:
     preset = get_preset(args.preset, **overrides)
     with Progress() as bar:
         task = bar.add_task(f"simulating '{args.preset}' (seed {args.seed})", total=None)
-        summary = generate(preset, args.seed, args.output,
-                           progress=lambda done, total: bar.update(task, completed=done, total=total))
+        try:
+            summary = generate(preset, args.seed, recording,
+                               progress=lambda done, total: bar.update(task, completed=done, total=total))
+            if recording != output:
+                from yowo_sim.driver_layout import write_driver_layout
+
+                bar.update(task, description=f"writing the '{args.layout}' layout")
+                write_driver_layout(recording, output, args.layout, args.no_camera_info)
+        finally:
+            if recording != output:
+                shutil.rmtree(recording, ignore_errors=True)
     if args.preview:
         from yowo_sim.capture import build_capture
         from yowo_sim.preview import render_preview
@@ -37,7 +66,7 @@ def cmd_simulate(args) -> int:
         render_preview(build_capture(preset, args.seed), args.preview)
         print(f"preview: {args.preview}")
     fps = summary.rendered_frames / max(summary.render_seconds, 1e-9)
-    print(f"wrote {summary.path}: {summary.duration_s:.1f} s walk, {summary.ego_frames} ego frames, "
+    print(f"wrote {output} ({args.layout} layout): {summary.duration_s:.1f} s walk, {summary.ego_frames} ego frames, "
           f"{summary.cmc_frames} CMC frames ({summary.cmc_frames_with_agent} with the agent detected), "
           f"{len(summary.cmcs)} CMCs, {summary.imu_samples} IMU samples; rendering {fps:.1f} frames/s")
     return 0
@@ -75,6 +104,13 @@ def add_verbs(verbs) -> None:
                    help="unsynchronised CMC clocks: each off the ego's by up to +-S seconds (default 0)")
     p.add_argument("--no-imu", action="store_true", help="record no /ego/imu (an RGB-D camera without an IMU)")
     p.add_argument("--preview", metavar="PNG", help="also write a picture: ego frame, CMC frame, top view")
+    p.add_argument("--layout", choices=list(LAYOUT_HELP), default="yowo",
+                   help="topic names, frames and encodings as written by: "
+                        + "; ".join(f"{k}: {v}" for k, v in LAYOUT_HELP.items())
+                        + ". Driver layouts put the CMCs under /cctv/<name>/ (image_transport compressed, PNG for "
+                          "--raw) and record no /ego/imu/calibration (default: yowo)")
+    p.add_argument("--no-camera-info", nargs="+", default=[], metavar="CAM",
+                   help="record no camera_info for these CMCs (cam00, ...; needs a driver --layout)")
     p.set_defaults(func=cmd_simulate)
 
     p = verbs.add_parser("demo", help="generate a sample recording, run the full graph, print the metrics")

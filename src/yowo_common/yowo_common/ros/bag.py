@@ -8,6 +8,7 @@ import importlib
 import io
 import mmap
 import os
+import re
 import struct
 import sys
 from collections.abc import Iterable, Iterator
@@ -65,8 +66,32 @@ def msgtype_of(msg) -> str:
     return f"{type(msg).__module__.split('.')[0]}/msg/{type(msg).__name__}"
 
 
+# The interface packages whose message classes a recording's type names may select: the ROS
+# message packages YOWO depends on and its own. A type name is untrusted text from a file;
+# importing whatever module it names would run code planted beside the recording.
+KNOWN_INTERFACE_PACKAGES = frozenset({
+    "builtin_interfaces", "std_msgs", "sensor_msgs", "geometry_msgs", "nav_msgs", "visualization_msgs",
+    "tf2_msgs", "rosgraph_msgs", "diagnostic_msgs", "stereo_msgs", "shape_msgs", "trajectory_msgs",
+    "statistics_msgs", "rcl_interfaces", "unique_identifier_msgs", "action_msgs", "lifecycle_msgs",
+    *OWN_INTERFACE_PACKAGES})
+_MSGTYPE = re.compile(r"^(?P<pkg>[a-z][a-z0-9_]*)/msg/(?P<name>[A-Z][A-Za-z0-9]*)$")
+
+
+def unknown_type_reason(msgtype: str) -> str:
+    """Why a recording's message type is not read ('' when it is a known type)."""
+    m = _MSGTYPE.match(msgtype)
+    if m is None:
+        return f"'{msgtype}' is not a ROS 2 message type name (package/msg/Name)"
+    if m["pkg"] not in KNOWN_INTERFACE_PACKAGES:
+        return f"'{msgtype}' is not from an interface package YOWO reads ({m['pkg']})"
+    return ""
+
+
 @functools.cache
 def message_class(msgtype: str):
+    """The rosidl class of a known message type; BagError for any other."""
+    if why := unknown_type_reason(msgtype):
+        raise BagError(f"unknown message type: {why}")
     pkg, kind, name = msgtype.split("/")
     try:
         return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
@@ -305,8 +330,11 @@ def read_raw(path, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
 
 
 def read_messages(path, topics: Iterable[str] | None = None) -> Iterator[tuple[str, int, object]]:
-    """Yield (topic, log time [ns], message object) in log-time order."""
-    for raw in read_raw(path, topics):
+    """Yield (topic, log time [ns], message object) in log-time order; topics of unknown
+    message types (see unknown_type_reason) are not read."""
+    known = [t.name for t in list_topics(path) if not unknown_type_reason(t.msgtype)]
+    wanted = known if topics is None else [t for t in topics if t in set(known)]
+    for raw in read_raw(path, wanted):
         yield raw.topic, raw.log_time_ns, deserialize_message(raw.data, message_class(raw.msgtype))
 
 
