@@ -165,9 +165,14 @@ def config_from_args(args):
     if getattr(args, "max_restarts", None) is not None:
         shorthands.append(f"supervisor.max_restarts={args.max_restarts}")
     config = load_config(args.config, (args.set or []) + shorthands)
-    if getattr(args, "remap", None):          # -r rules add to the configuration's inputs.remap
-        config = replace(config, inputs=replace(config.inputs, remap=config.inputs.remap + tuple(args.remap)))
-    return config
+    # Input options add to the configuration's inputs section.
+    inputs = config.inputs
+    for option, key in (("remap", "remap"), ("intrinsics", "intrinsics"), ("cmc_video", "videos")):
+        if getattr(args, option, None):
+            inputs = replace(inputs, **{key: getattr(inputs, key) + tuple(getattr(args, option))})
+    if getattr(args, "cmc_videos", None):
+        inputs = replace(inputs, video_list=args.cmc_videos)
+    return replace(config, inputs=inputs)
 
 
 def _add_input_options(p) -> None:
@@ -177,6 +182,16 @@ def _add_input_options(p) -> None:
                         "-r /ego/color/image_raw:=/cam/rgb/image_raw (repeatable; adds to inputs.remap). Common "
                         "driver layouts (realsense2_camera, Azure Kinect / Orbbec, ZED) and image_transport camera "
                         "namespaces are found without it; 'yowo info' shows what was found")
+    p.add_argument("--intrinsics", action="append", metavar="CAMERA=FILE",
+                   help="a ceiling camera's intrinsics from a calibration file: camera_calibration_parsers YAML, "
+                        "Kalibr camchain, COLMAP cameras.txt or OpenCV YAML/XML (repeatable; inputs.intrinsics). A "
+                        "camera without CameraInfo or file has its intrinsics estimated")
+    p.add_argument("--cmc-video", action="append", metavar="CAMERA=FILE[@START]",
+                   help="a ceiling camera's footage as a video file; START: seconds since the epoch or ISO 8601 "
+                        "(default: the file's creation_time); may be seconds off, the clock offsets are estimated "
+                        "(repeatable; inputs.videos)")
+    p.add_argument("--cmc-videos", metavar="YAML", help="a list of {name, file, start} video entries "
+                                                        "(inputs.video_list)")
 
 
 def _add_run_options(p) -> None:

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from yowo_common.ros.bag import BagTopic, list_topics, recording_damage, unknown_type_reason
+from yowo_common.ros.bag import BagTopic, list_topics, recording_damage, recording_span, unknown_type_reason
 
 from yowo_common.topics import (EGO_COLOR, EGO_DEPTH, EGO_INFO, GT_PREFIX, cmc_image_topics,  # noqa: F401
                                 cmc_info_topic, cmc_keypoints_topic, parse_cmc_topic)
 
-from .layouts import InputMap, InputParams, map_inputs
+from .layouts import InputMap, InputMapError, InputParams, map_inputs
+from .video import VideoError, VideoInput, probe_video, video_rules
 
 
 @dataclass
@@ -23,6 +24,11 @@ class RecordingInputs:
     has_ground_truth: bool
     problems: list[str] = field(default_factory=list)
     map: InputMap = field(default_factory=InputMap)
+    videos: list[VideoInput] = field(default_factory=list)
+    # camera -> intrinsics file ('' where they come from CameraInfo), and the cameras whose
+    # intrinsics are estimated (no CameraInfo, no file).
+    intrinsics_files: dict[str, str] = field(default_factory=dict)
+    estimated_intrinsics: list[str] = field(default_factory=list)
 
     def count(self, name: str) -> int:
         """Messages recorded for an input name."""
@@ -42,6 +48,8 @@ def discover_inputs(bag, params: InputParams | None = None) -> RecordingInputs:
     readable = [t.name for t in topics if t.count > 0 and not unknown_type_reason(t.msgtype)]
     imap = map_inputs(readable, params.remap, params.ego_namespace)
     problems += imap.problems
+    videos = [probe_video(rule) for rule in video_rules(params.videos, params.video_list)]
+    problems += _add_videos(videos, imap, topics, recording_span(bag), params.video_clock_error_s)
 
     def present(name):
         return name in imap.roles
@@ -61,15 +69,55 @@ def discover_inputs(bag, params: InputParams | None = None) -> RecordingInputs:
         cmc = parse_cmc_topic(name)
         if cmc:
             kinds.setdefault(cmc[0], set()).add(cmc[1].split("/")[0])
-    cmc_names = []
+    files = _intrinsics_files(params.intrinsics, set(kinds))
+    cmc_names, estimated = [], []
     for name in sorted(kinds):
-        source = imap.recorded(cmc_image_topics(name)[0]) or imap.recorded(cmc_image_topics(name)[1])
-        if "camera_info" not in kinds[name]:
-            where = f" ({source.rsplit('/image_raw', 1)[0]}/camera_info)" if source else ""
-            problems.append(f"CMC '{name}': no {cmc_info_topic(name)}{where}; the camera is skipped")
-        elif not kinds[name] & {"image_raw", "agent_keypoints"}:
+        if not kinds[name] & {"image_raw", "agent_keypoints"}:
             problems.append(f"CMC '{name}': neither images nor agent keypoints; the camera is skipped")
+        elif "camera_info" not in kinds[name] and name not in files:
+            problems.append(f"CMC '{name}': no {cmc_info_topic(name)}; give its intrinsics with --intrinsics "
+                            f"{name}=FILE; the camera is skipped")
         else:
             cmc_names.append(name)
     has_gt = any(t.name.startswith(GT_PREFIX) for t in topics)
-    return RecordingInputs(topics, has_ego, cmc_names, has_gt, problems, imap)
+    return RecordingInputs(topics, has_ego, cmc_names, has_gt, problems, imap, videos, files, estimated)
+
+
+def _intrinsics_files(rules, cameras: set[str]) -> dict[str, str]:
+    """camera -> file of the NAME=FILE rules; InputMapError for a rule that names no camera."""
+    files = {}
+    for rule in rules:
+        name, sep, path = str(rule).partition("=")
+        if not sep or not path:
+            raise InputMapError(f"intrinsics '{rule}': expected NAME=FILE")
+        if name not in cameras:
+            raise InputMapError(f"intrinsics '{rule}': no camera '{name}' in this recording "
+                                f"({', '.join(sorted(cameras)) or 'none'})")
+        files[name] = path
+    return files
+
+
+def _add_videos(videos: list[VideoInput], imap: InputMap, topics: list[BagTopic], span: tuple[int, int],
+                clock_error_s: float) -> list[str]:
+    """Each video as its camera's image topic; what is wrong with their timing."""
+    problems = []
+    for v in videos:
+        if v.topic in imap.roles or cmc_image_topics(v.camera)[1] in imap.roles:
+            raise VideoError(f"video {v.path}: camera '{v.camera}' already has images in the recording "
+                             f"({imap.recorded(v.topic) or imap.recorded(cmc_image_topics(v.camera)[1])}); "
+                             "give the video another name")
+        topics.append(BagTopic(v.topic, "sensor_msgs/msg/Image", v.frames))
+        imap.roles[v.topic] = v.topic
+        imap.notes.append(f"CMC {v.camera}: video {v.path} ({v.frames} frames, {v.width}x{v.height}, {v.duration_s:.1f} s; "
+                          f"start from {v.start_from})")
+        if span == (0, 0):
+            continue
+        walk_s, margin = (span[1] - span[0]) / 1e9, int(clock_error_s * 1e9)
+        if v.start_ns > span[1] + margin or v.start_ns + v.duration_s * 1e9 < span[0] - margin:
+            raise VideoError(f"video {v.path}: {v.duration_s:.1f} s from {v.start_ns / 1e9:.3f} s never overlaps the "
+                             f"recording ({span[0] / 1e9:.3f}..{span[1] / 1e9:.3f} s), even {clock_error_s:g} s off; "
+                             f"give its start as {v.camera}={v.path}@START")
+        if v.duration_s < 0.9 * walk_s:
+            problems.append(f"CMC '{v.camera}': video {v.path} lasts {v.duration_s:.1f} s of the {walk_s:.1f} s "
+                            "recording; the camera sees only that part of the walk")
+    return problems

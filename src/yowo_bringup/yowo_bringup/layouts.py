@@ -58,6 +58,17 @@ class InputParams:
     imu_camchain: str = ""         # Kalibr camchain-imucam.yaml: the ego IMU's T_cam_imu, timeshift_cam_imu
     imu_noise: str = ""            # Kalibr imu.yaml: the ego IMU's noise densities and random walks
     imu_noise_defaults: ImuNoiseDefaults = field(default_factory=ImuNoiseDefaults)   # without imu_noise
+    # NAME=FILE: a ceiling camera's intrinsics from a calibration file (camera_calibration_parsers
+    # YAML, Kalibr camchain, COLMAP cameras.txt, OpenCV YAML/XML), over its CameraInfo if any;
+    # also yowo run --intrinsics. A camera with neither has its intrinsics estimated.
+    intrinsics: tuple[str, ...] = ()
+    # NAME=FILE[@START]: a ceiling camera's footage as a video file; START in seconds since the
+    # epoch or ISO 8601, else the file's creation_time; also yowo run --cmc-video.
+    videos: tuple[str, ...] = ()
+    video_list: str = ""           # a YAML list of {name, file, start} (start optional) beside `videos`
+    # How far a video's start may be off the recording's clock [s]: with videos, the clock-offset
+    # searches (cmc.clock.max_offset_s, fusion.align.max_clock_offset_s) cover it.
+    video_clock_error_s: float = 10.0
 
 
 class InputMapError(ValueError):

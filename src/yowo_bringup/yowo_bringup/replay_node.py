@@ -28,8 +28,7 @@ from std_msgs.msg import Header
 from yowo_msgs.msg import ReplayStatus, StageStatus
 
 from yowo_common import topics
-from yowo_common.ros.bag import (BagError, list_topics, message_class, read_raw, recording_damage,
-                                 unknown_type_reason)
+from yowo_common.ros.bag import BagError, BagTopic, list_topics, message_class, recording_damage, unknown_type_reason
 from yowo_common.config import describe_changes, load
 from yowo_common.ros.context import ros_context
 from yowo_common.ros.stage import LATCHED, RunFilter
@@ -37,6 +36,7 @@ from yowo_common.ros.timing import NodeTiming
 from yowo_common.rosconv import ns_to_time
 
 from .replay import Pacer, ReplayParams, select_topics
+from .video import VideoError, played_messages, probe_video
 
 # Fast DDS acknowledges only on its heartbeat (3 s by default); this profile shortens it.
 FASTDDS_PROFILE = Path(__file__).parent / "config" / "replay_fastdds.xml"
@@ -56,6 +56,9 @@ class ReplayNode(Node):
         self.wait_timeout_s, self.ack_timeout_s, self.linger_s = p.wait_timeout_s, p.ack_timeout_s, p.linger_s
         self.ack_window = max(1, p.ack_window)
         self.include = list(self.declare_parameter("topics", [""]).value or [])
+        # CCTV video files played as camera image topics: NAME=FILE@START (see video.py).
+        self.video_rules = [r for r in self.declare_parameter("videos", [""]).value or [] if r]
+        self.videos = []
         self.wait_for = list(self.declare_parameter("wait_for_topics", [""]).value or [])
         # Stages whose subscriptions must all be matched before playing: their status
         # lists their inputs, so each topic waits for exactly its subscribers.
@@ -150,7 +153,7 @@ class ReplayNode(Node):
         sent = dict.fromkeys(todo, 0)
         last_status = time.monotonic()
         if todo:
-            for raw in read_raw(self.bag, list(todo)):
+            for raw in played_messages(self.bag, list(todo), self.videos):
                 if sent[raw.topic] >= todo[raw.topic]:
                     if all(sent[t] >= n for t, n in todo.items()):
                         break
@@ -199,9 +202,11 @@ class ReplayNode(Node):
 
     def run(self) -> int:
         try:
-            topics = list_topics(self.bag)
+            self.videos = [probe_video(rule) for rule in self.video_rules]
+            topics = list_topics(self.bag) + [BagTopic(v.topic, "sensor_msgs/msg/Image", v.frames)
+                                              for v in self.videos]
             self.recovered = recording_damage(self.bag)
-        except BagError as exc:
+        except (BagError, VideoError) as exc:
             self.get_logger().error(str(exc))
             self.state, self.error = ReplayStatus.STATE_FINISHED, str(exc)
             self._status()
@@ -225,7 +230,7 @@ class ReplayNode(Node):
                                f"{'max' if self.rate <= 0 else f'{self.rate:g}x'} speed"
                                f"{' (lossless)' if self.lossless else ''}")
         try:
-            for raw in read_raw(self.bag, played):
+            for raw in played_messages(self.bag, played, self.videos):
                 self._spin_now_and_then()
                 for stage in self._restarted_stages():
                     paused = time.monotonic()
@@ -241,7 +246,7 @@ class ReplayNode(Node):
                 if time.monotonic() - last_status > 1.0:
                     self._status()
                     last_status = time.monotonic()
-        except BagError as exc:
+        except (BagError, VideoError) as exc:
             self.error = str(exc)
             self.get_logger().error(f"{self.error}; finishing with what was played")
         self.error = self.error or self.recovered

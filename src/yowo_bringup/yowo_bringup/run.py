@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import fnmatch
 import uuid
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -166,10 +166,13 @@ def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, s
         # External keypoints use images only for the background (scene keypoints: full runs).
         image = image if kind in ("images", "pose") or mode == FULL else ""
         cameras.append(c)
+        # info_topic "": no CameraInfo (intrinsics from `camera_info`, a file's, or estimated).
         roles = {"image_topic": imap.recorded(image), "info_topic": imap.recorded(cmc_info_topic(c)),
                  "keypoints_topic": imap.recorded(keypoints)}
-        trackers.append((c, kind, roles))
         played += [t for t in roles.values() if t]
+        if c in inputs.intrinsics_files:
+            roles["info_topic"], roles["camera_info"] = "", intrinsics_text(inputs.intrinsics_files[c], c)
+        trackers.append((c, kind, roles))
     cmc_problems = [p for p in problems if p.startswith("CMC ")]
     mode, reason = _mode_for(mode, cameras, inputs.cmc_names, cmc_problems)
     if mode == CMC and len(cameras) < MIN_GROUP_CMCS:
@@ -185,17 +188,40 @@ def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, s
     if mode in (FULL, EGO):
         imu_params, summary["imu"] = plan_ego_imu(bag, imap, config, ego[0])
         played += list(ego) + [t for k, t in imu_params.items() if k.endswith("_topic") and t]
-    nodes, final, outputs = _stage_nodes(mode, trackers, ego, imu_params)
+    estimated = [c for c in inputs.estimated_intrinsics if c in cameras]
+    nodes, final, outputs = _stage_nodes(mode, trackers, ego, imu_params, estimated)
+    if inputs.videos:
+        config = _video_clock_search(config)
+        summary["videos"] = {v.camera: {"file": str(v.path), "start_s": round(v.start_ns / 1e9, 9),
+                                        "start_from": v.start_from} for v in inputs.videos}
     # The replay waits for the stages that read its topics (the others match late: their
     # inputs are durable), not for the slowest process of the graph to start.
     readers = [n.name for n in nodes if n.module not in DOWNSTREAM]
     nodes.append(NodeSpec("replay", STAGE_MODULES["replay"], {  # last: it waits for the stages' subscriptions
-        "bag": str(bag), "topics": played, "wait_for_topics": played, "stages": readers}))
+        "bag": str(bag), "topics": played, "wait_for_topics": played, "stages": readers,
+        **({"videos": [v.rule for v in inputs.videos]} if inputs.videos else {})}))
     run_id = run_id or new_run_id()
     _stamp_run(nodes, run_id, True, config)
     total = sum(t.count for t in inputs.topics if t.name in played)
     return RunPlan(Path(bag), Path(out_dir), mode, cameras, nodes, final, outputs, problems, run_id, config=config,
                    replay_messages=total, mode_reason=reason, cmc_problems=cmc_problems, inputs=summary)
+
+
+def intrinsics_text(path: str, camera: str) -> str:
+    """A camera's intrinsics file as camera_calibration_parsers YAML (what the tracker reads);
+    ValueError naming the file when it cannot be used."""
+    from yowo_common.intrinsics_io import camera_info_yaml, read_intrinsics
+
+    return camera_info_yaml(read_intrinsics(path, camera), camera)
+
+
+def _video_clock_search(config: YowoConfig) -> YowoConfig:
+    """The clock-offset searches widened to cover a video's start inputs.video_clock_error_s off:
+    a pair of cameras up to twice that apart, a group and the ego camera once."""
+    err = config.inputs.video_clock_error_s
+    clock = replace(config.cmc.clock, max_offset_s=max(config.cmc.clock.max_offset_s, 2 * err + 0.5))
+    align = replace(config.fusion.align, max_clock_offset_s=max(config.fusion.align.max_clock_offset_s, err + 0.5))
+    return replace(config, cmc=replace(config.cmc, clock=clock), fusion=replace(config.fusion, align=align))
 
 
 def plan_ego_imu(bag, imap, config: YowoConfig, color_topic: str) -> tuple[dict[str, str], dict]:
@@ -284,24 +310,25 @@ EGO_OUTPUTS = {topics.EGO_MAP: "yowo_msgs/msg/EgoMap", topics.EGO_PATH: "nav_msg
 
 
 def _stage_nodes(mode: str, trackers: list[tuple[str, str, dict[str, str]]], ego: tuple[str, str, str],
-                 imu: dict[str, str] | None = None) -> tuple[list[NodeSpec], str, dict[str, str]]:
+                 imu: dict[str, str] | None = None, estimated: list[str] | None = None
+                 ) -> tuple[list[NodeSpec], str, dict[str, str]]:
     """The stage processes (trackers: (camera, source, its topic parameters)), the final stage
     and the latched outputs the runner collects. `imu`: the ego mapper's IMU parameters (none:
-    no IMU)."""
+    no IMU); `estimated`: the cameras whose intrinsics the group SfM and fusion estimate."""
+    unknown = {"estimate_intrinsics": list(estimated)} if estimated else {}
     ego_params = {"color_topic": ego[0], "depth_topic": ego[1], "info_topic": ego[2], **(imu or {})}
     if mode == EGO:             # the map alone: its stage publishes the map, path, cloud and layout
         return ([NodeSpec("ego_mapper", STAGE_MODULES["ego_mapper"], ego_params)], "ego_mapper",
                 dict(EGO_OUTPUTS))
     cameras = [c for c, _, _ in trackers]
     nodes = [NodeSpec(f"keypoint_tracker_{c}", STAGE_MODULES["keypoint_tracker"],
-                      {"camera": c, "source": kind, **{k: t for k, t in roles.items() if t}})
-             for c, kind, roles in trackers]
-    nodes.append(NodeSpec("group_sfm", STAGE_MODULES["group_sfm"], {"cameras": cameras}))
+                      {"camera": c, "source": kind, **roles}) for c, kind, roles in trackers]
+    nodes.append(NodeSpec("group_sfm", STAGE_MODULES["group_sfm"], {"cameras": cameras, **unknown}))
     final = "group_sfm"
     outputs = {topics.GROUPS: "yowo_msgs/msg/CameraGroupArray"}
     if mode == FULL:
         nodes.append(NodeSpec("ego_mapper", STAGE_MODULES["ego_mapper"], ego_params))
-        nodes.append(NodeSpec("fusion", STAGE_MODULES["fusion"], {"cameras": cameras}))
+        nodes.append(NodeSpec("fusion", STAGE_MODULES["fusion"], {"cameras": cameras, **unknown}))
         final = "fusion"
         outputs.update({topics.CMC_POSES: "yowo_msgs/msg/RegisteredCameraArray", topics.TF_STATIC: "tf2_msgs/msg/TFMessage",
                         topics.LAYOUT_MARKERS: "visualization_msgs/msg/MarkerArray", **EGO_OUTPUTS,

@@ -23,12 +23,16 @@ def cmd_simulate(args) -> int:
     from yowo_sim.presets import get_preset
 
     output = Path(args.output)
-    if args.no_camera_info and args.layout == "yowo":
-        raise ValueError("--no-camera-info needs a driver --layout")
+    if args.no_camera_info and args.layout == "yowo" and not args.cmc_videos:
+        raise ValueError("--no-camera-info needs a driver --layout or --cmc-videos")
+    if args.cmc_videos and args.layout != "yowo":
+        raise ValueError("--cmc-videos writes YOWO's own layout beside the videos; leave out --layout")
     if output.exists():
         raise ValueError(f"{output}: already exists; refusing to overwrite a recording")
-    # A driver layout is converted from YOWO's, simulated beside the output (same disk) and then removed.
-    recording = output if args.layout == "yowo" else output.with_name(f".{output.name}.yowo-layout")
+    # A driver layout or videos are converted from YOWO's layout, simulated beside the output
+    # (same disk) and then removed.
+    converted = args.layout != "yowo" or args.cmc_videos
+    recording = output.with_name(f".{output.name}.yowo-layout") if converted else output
     if recording != output:
         shutil.rmtree(recording, ignore_errors=True)     # left by an interrupted run
 
@@ -51,7 +55,12 @@ def cmd_simulate(args) -> int:
         try:
             summary = generate(preset, args.seed, recording,
                                progress=lambda done, total: bar.update(task, completed=done, total=total))
-            if recording != output:
+            if args.cmc_videos:
+                from yowo_sim.cmc_video import write_cmc_videos
+
+                bar.update(task, description=f"writing the CMC videos into {args.cmc_videos}")
+                write_cmc_videos(recording, output, args.cmc_videos, args.video_start_error, args.no_camera_info or ())
+            elif recording != output:
                 from yowo_sim.driver_layout import write_driver_layout
 
                 bar.update(task, description=f"writing the '{args.layout}' layout")
@@ -110,7 +119,12 @@ def add_verbs(verbs) -> None:
                         + ". Driver layouts put the CMCs under /cctv/<name>/ (image_transport compressed, PNG for "
                           "--raw) and record no /ego/imu/calibration (default: yowo)")
     p.add_argument("--no-camera-info", nargs="+", default=[], metavar="CAM",
-                   help="record no camera_info for these CMCs (cam00, ...; needs a driver --layout)")
+                   help="record no camera_info for these CMCs (cam00, ...; needs a driver --layout or --cmc-videos)")
+    p.add_argument("--cmc-videos", metavar="DIR",
+                   help="the CMCs' images as OpenCV-written video files in DIR (<name>.mp4, and videos.yaml with "
+                        "each start as an NVR's clock gives it), the recording without their images and keypoints")
+    p.add_argument("--video-start-error", type=float, default=3.0, metavar="S",
+                   help="how far each video's start in videos.yaml is off the recording's clock (default 3 s)")
     p.set_defaults(func=cmd_simulate)
 
     p = verbs.add_parser("demo", help="generate a sample recording, run the full graph, print the metrics")

@@ -161,6 +161,16 @@ def recording_damage(path) -> str:
     return getattr(reader, "damage", "")
 
 
+def recording_span(path) -> tuple[int, int]:
+    """Log times [ns] of a recording's first and last message ((0, 0) when unknown or empty)."""
+    reader = open_reader(path)
+    try:
+        start, end = getattr(reader, "start_time", 0), getattr(reader, "end_time", 0)
+    finally:
+        reader.close()
+    return (int(start), int(end)) if 0 < start <= end else (0, 0)
+
+
 def list_topics(path) -> list[BagTopic]:
     reader = open_reader(path)
     try:

@@ -1,0 +1,128 @@
+"""A user's own recording as it comes: a RealSense driver's topic names with its split IMU and
+/tf_static extrinsics, ceiling cameras under their own image_transport namespaces, CCTV
+footage as video files; and the clear messages when such input cannot be used."""
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from e2e_helpers import yowo
+from yowo_bringup.config import load_config
+from yowo_bringup.run import plan_run
+from yowo_common.ros.bag import BagWriter, read_messages
+from yowo_sim.capture import generate
+from yowo_sim.cmc_video import write_cmc_videos
+from yowo_sim.driver_layout import write_driver_layout
+from yowo_sim.presets import get_preset
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory):
+    """One tiny capture in YOWO's layout, the same as realsense2_camera and a NVR would give it."""
+    root = tmp_path_factory.mktemp("user")
+    generate(get_preset("tiny"), 0, root / "own")
+    write_driver_layout(root / "own", root / "realsense", "realsense")
+    write_cmc_videos(root / "own", root / "with_videos", root / "videos", start_error_s=3.0)
+    return root
+
+
+def _eval(out, bag, env):
+    r = yowo("eval", out, "--bag", bag, env=env)
+    assert r.returncode == 0, r.stderr
+    return json.loads((out / "metrics.json").read_text())["registration"]["summary"]
+
+
+def test_realsense_layout_runs_as_recorded_and_matches_the_own_layout(recordings, tmp_path, ros_env):
+    runs = {}
+    for name in ("own", "realsense"):
+        out = tmp_path / name
+        r = yowo("run", recordings / name, "-o", out, env=ros_env)
+        assert r.returncode == 0, r.stdout + r.stderr
+        cams = yaml.safe_load((out / "cameras.yaml").read_text())["cameras"]
+        assert [c["status"] for c in cams] == ["ok"] * 3, cams
+        runs[name] = (_eval(out, recordings / name, ros_env), yaml.safe_load((out / "run_log.yaml").read_text()))
+    (own, _), (rs, log) = runs["own"], runs["realsense"]
+    imu = log["inputs"]["imu"]
+    assert imu["used"] and imu["topics"] == ["/camera/camera/gyro/sample", "/camera/camera/accel/sample"]
+    assert imu["extrinsics"].startswith("/tf_static") and "defaults" in imu["noise"]
+    assert "ego camera: realsense2_camera under /camera/camera" in log["inputs"]["layout"]
+    # The same recording under other names: the same quality (different IMU noise model, accel interpolated).
+    assert rs["pos_avg"] <= 2.0 * own["pos_avg"] + 0.005, (rs, own)
+
+
+def test_cctv_videos_started_seconds_off_register_every_camera(recordings, tmp_path, ros_env):
+    out = tmp_path / "out"
+    r = yowo("run", recordings / "with_videos", "--cmc-videos", recordings / "videos" / "videos.yaml", "-o", out,
+             env=ros_env, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    cams = yaml.safe_load((out / "cameras.yaml").read_text())["cameras"]
+    assert all(c["T_world_camera"] for c in cams) and len(cams) == 3, cams
+    # Each video started 3 s off the recording's clock: the offsets found say so.
+    offsets = [c["clock_offset_s"] for c in cams]
+    assert np.allclose(offsets, 3.0, atol=0.06), offsets
+    log = yaml.safe_load((out / "run_log.yaml").read_text())
+    assert sorted(log["inputs"]["videos"]) == ["cam00", "cam01", "cam02"]
+
+
+def _config(**inputs):
+    return load_config(None, [f"inputs.{k}={json.dumps(v)}" for k, v in inputs.items()])
+
+
+def test_input_problems_name_the_topic_or_file_and_the_option(recordings, tmp_path, ros_env):
+    rs = recordings / "realsense"
+    # A mapping to a topic the recording does not have.
+    r = yowo("run", rs, "-o", tmp_path / "a", "-r", "/ego/color/image_raw:=/camera/rgb", env=ros_env)
+    assert r.returncode == 2 and "no topic /camera/rgb" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    # Two devices that could be the ego camera: both named with the option that picks one.
+    two = tmp_path / "two"
+    with BagWriter(two) as bag:
+        for topic, log_ns, msg in read_messages(rs):
+            bag.write(topic, msg, log_ns)
+            if topic.startswith("/camera/camera/") and "gyro" not in topic and "accel" not in topic:
+                bag.write(topic.replace("/camera/camera/", "/head/"), msg, log_ns)
+    r = yowo("info", two, env=ros_env)
+    said = " ".join(r.stdout.split())
+    assert "--set inputs.ego_namespace=/camera/camera" in said and "--set inputs.ego_namespace=/head" in said, said
+    r = yowo("run", two, "-o", tmp_path / "b", env=ros_env)
+    assert r.returncode == 2 and "inputs.ego_namespace" in r.stderr, r.stderr
+    plan = plan_run(two, tmp_path / "c", config=_config(ego_namespace="/head"))
+    assert plan.inputs["mapping"]["/ego/color/camera_info"] == "/head/color/camera_info"
+    # An IMU whose extrinsics are nowhere: not used, and the run log says why and what to pass.
+    no_tf = tmp_path / "no_tf"
+    with BagWriter(no_tf) as bag:
+        for topic, log_ns, msg in read_messages(rs):
+            if topic != "/tf_static":
+                bag.write(topic, msg, log_ns)
+    imu = plan_run(no_tf, tmp_path / "d").inputs["imu"]
+    assert not imu["used"] and "no extrinsics" in imu["reason"] and "inputs.imu_camchain" in imu["reason"], imu
+    # A video that cannot be decoded, and one shorter than the walk.
+    bad = tmp_path / "bad.mp4"
+    bad.write_bytes(b"\x00\x00\x00\x18ftypmp42" + bytes(range(256)) * 8)
+    own = recordings / "with_videos"
+    r = yowo("run", own, "-o", tmp_path / "e", "--cmc-video", f"cam00={bad}@1700000000", env=ros_env)
+    assert r.returncode == 2 and str(bad) in r.stderr and "Traceback" not in r.stderr, r.stderr
+    short = tmp_path / "short.mp4"
+    _cut_video(recordings / "videos" / "cam00.mp4", short, frames=30)
+    start = yaml.safe_load((recordings / "videos" / "videos.yaml").read_text())["videos"][0]["start"]
+    plan = plan_run(own, tmp_path / "f", config=_config(videos=[f"cam00={short}@{start}"]))
+    assert any(str(short) in w and "sees only that part of the walk" in w for w in plan.warnings), plan.warnings
+    # A video without a start time in its metadata (OpenCV writes none) and none given.
+    r = yowo("info", own, "--cmc-video", f"cam00={short}", env=ros_env)
+    assert r.returncode == 2 and "no start time" in r.stderr and "cam00=" in r.stderr, r.stderr
+
+
+def _cut_video(src, dst, frames):
+    import cv2
+
+    cap = cv2.VideoCapture(str(src))
+    fps = cap.get(cv2.CAP_PROP_FPS)
+    out = None
+    for _ in range(frames):
+        ok, bgr = cap.read()
+        assert ok
+        if out is None:
+            out = cv2.VideoWriter(str(dst), cv2.VideoWriter_fourcc(*"mp4v"), fps, (bgr.shape[1], bgr.shape[0]))
+        out.write(bgr)
+    out.release()
+    cap.release()
