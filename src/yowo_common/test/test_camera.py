@@ -51,6 +51,13 @@ def test_problems_name_what_is_wrong():
     assert any("focal" in p for p in bad.problems())
     weird = CameraModel(640, 480, np.eye(3) * 300, [0.1, 0, 0, 0], "kannala_brandt_custom")
     assert any("not supported" in p for p in weird.problems())
+    good = CameraModel.from_fov(640, 480, 60)
+    assert any("last row 0 0 1" in p for p in CameraModel(640, 480, good.K.T).problems())   # transposed
+    assert any("non-finite" in p for p in CameraModel(640, 480, good.K, [0.1, np.nan, 0, 0, 0]).problems())
+    assert any("D has 6 coefficients; plumb_bob takes 4 or 5" in p
+               for p in CameraModel(640, 480, good.K, [0.1] * 6).problems())
+    assert any("equidistant takes 4" in p for p in CameraModel(640, 480, good.K, [0.1] * 5, "equidistant").problems())
+    assert CameraModel(640, 480, good.K, [0.1, 0.01, 0, 0, 0.001, 0.1, 0, 0], "rational_polynomial").problems() == []
 
 
 def test_rays_beyond_the_distortion_fold_are_outside_the_model():

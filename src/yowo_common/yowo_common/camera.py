@@ -12,6 +12,8 @@ from .geometry import inv_se3, transform_points
 PLUMB_BOB = "plumb_bob"
 RATIONAL_POLYNOMIAL = "rational_polynomial"
 EQUIDISTANT = "equidistant"
+# Coefficient counts OpenCV's models take for each (k1 k2 p1 p2 [k3 [k4 k5 k6 [s1..s4 [tx ty]]]]).
+DISTORTION_LENGTHS = {PLUMB_BOB: (4, 5), RATIONAL_POLYNOMIAL: (8, 12, 14), EQUIDISTANT: (4,)}
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 
 
@@ -55,10 +57,21 @@ class CameraModel:
             out.append(f"image size {self.width}x{self.height} is empty")
         if not np.isfinite(self.K).all():
             out.append("K has non-finite entries")
-        elif self.K[0, 0] <= 0 or self.K[1, 1] <= 0:
-            out.append(f"K has focal lengths fx={self.K[0, 0]:g}, fy={self.K[1, 1]:g} (must be > 0)")
-        if self.has_distortion and self.distortion_model not in (PLUMB_BOB, RATIONAL_POLYNOMIAL, EQUIDISTANT):
-            out.append(f"distortion model '{self.distortion_model}' is not supported")
+        else:
+            if self.K[0, 0] <= 0 or self.K[1, 1] <= 0:
+                out.append(f"K has focal lengths fx={self.K[0, 0]:g}, fy={self.K[1, 1]:g} (must be > 0)")
+            if not np.allclose(self.K[2], (0.0, 0.0, 1.0)) or self.K[1, 0] != 0.0:
+                out.append(f"K is not an upper-triangular camera matrix with last row 0 0 1 "
+                           f"(rows {self.K[1].tolist()}, {self.K[2].tolist()}; transposed?)")
+        if not np.isfinite(self.D).all():
+            out.append(f"D has non-finite entries ({self.D.tolist()})")
+        elif self.has_distortion:
+            lengths = DISTORTION_LENGTHS.get(self.distortion_model)
+            if lengths is None:
+                out.append(f"distortion model '{self.distortion_model}' is not supported")
+            elif len(self.D) not in lengths:
+                out.append(f"D has {len(self.D)} coefficients; {self.distortion_model} takes "
+                           f"{' or '.join(map(str, lengths))}")
         return out
 
     @property
