@@ -54,3 +54,93 @@ def test_a_recordings_type_names_import_nothing(tmp_path, ros_env):
     assert "/cmc/c1/imu: skipped" in replay_log and "/planted: skipped" in replay_log, replay_log
     cams = {c["name"]: c for c in yaml.safe_load((work / "out" / "cameras.yaml").read_text())["cameras"]}
     assert all(cams[n]["status"] == "ok" for n in ("c1", "c2", "c3")), cams
+
+
+def test_results_folders_hold_one_run_and_never_an_older_ones(tmp_path, ros_env):
+    from yowo_bringup.outdir import claimed_output
+
+    three_camera_recording(tmp_path / "rec", duration_s=12.0)
+    out = tmp_path / "out"
+    r = yowo("calibrate-cmc", tmp_path / "rec", "-o", out, env=ros_env)
+    assert r.returncode == 0, r.stderr
+    (out / "old_note.txt").write_text("left by the first run's user")
+    # Another run into it is refused, and nothing of the first is touched.
+    r = yowo("calibrate-cmc", tmp_path / "rec", "-o", out, env=ros_env)
+    assert r.returncode == 2 and "earlier run's results" in r.stderr and "--replace" in r.stderr, r.stderr
+    assert (out / "old_note.txt").exists() and (out / "cameras.yaml").exists()
+    first_id = yaml.safe_load((out / "run_log.yaml").read_text())["run_id"]
+    # While a run holds the folder, a second one is refused.
+    with claimed_output(out, replace=True):
+        r = yowo("calibrate-cmc", tmp_path / "rec", "-o", out, "--replace", env=ros_env)
+    assert r.returncode == 2 and "another run (pid" in r.stderr, r.stderr
+    # --replace: the old results are gone before the new ones appear.
+    r = yowo("calibrate-cmc", tmp_path / "rec", "-o", out, "--replace", env=ros_env)
+    assert r.returncode == 0, r.stderr
+    assert not (out / "old_note.txt").exists() and not (out / ".yowo.partial").exists()
+    assert yaml.safe_load((out / "run_log.yaml").read_text())["run_id"] != first_id
+    # A folder of somebody else's files is never cleared.
+    foreign = tmp_path / "photos"
+    foreign.mkdir()
+    (foreign / "holiday.jpg").write_bytes(b"\xff\xd8")
+    r = yowo("calibrate-cmc", tmp_path / "rec", "-o", foreign, "--replace", env=ros_env)
+    assert r.returncode == 2 and "not a YOWO run's results" in r.stderr and (foreign / "holiday.jpg").exists()
+
+
+def test_ctrl_c_stops_every_node_and_the_run_log_says_so(tmp_path, ros_env):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    three_camera_recording(tmp_path / "rec", duration_s=60.0)
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "yowo_bringup.cli", "calibrate-cmc", str(tmp_path / "rec"),
+                             "-o", str(out), "--rate", "1", "--timeout", "240"], env=ros_env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        replay_log = out / "logs" / "replay.log"
+        while time.monotonic() < deadline and not (replay_log.exists() and "playing" in replay_log.read_text()):
+            time.sleep(0.5)
+        time.sleep(2.0)
+        proc.send_signal(signal.SIGINT)
+        _, stderr = proc.communicate(timeout=90)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode != 0 and "interrupted (Ctrl-C)" in stderr and "Traceback" not in stderr, stderr
+    log = yaml.safe_load((out / "run_log.yaml").read_text())
+    assert log["failure"].startswith("interrupted (Ctrl-C)"), log["failure"]
+    for pid_file in (out / "logs").glob("*.pid"):
+        pid = int(pid_file.read_text().split()[0])
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            continue
+        status = open(f"/proc/{pid}/stat").read().split()[2]
+        assert status == "Z", f"{pid_file.stem} (pid {pid}) still runs after Ctrl-C"
+
+
+def test_the_real_reason_reaches_the_console_and_the_run_log(tmp_path, ros_env):
+    """An ego CameraInfo with K = 0: the ego stage fails; the console and run_log.yaml name it
+    (the report of a run without any result used to fail and hide it)."""
+    from yowo_common.ros.bag import BagWriter, read_messages
+    from yowo_common.topics import EGO_INFO
+    from yowo_sim.capture import generate
+    from yowo_sim.presets import get_preset
+
+    generate(get_preset("tiny"), 1, tmp_path / "good")
+    with BagWriter(tmp_path / "rec") as bag:
+        for topic, log_ns, msg in read_messages(tmp_path / "good"):
+            if topic == EGO_INFO:
+                msg.k = [0.0] * 9
+            bag.write(topic, msg, log_ns)
+    out = tmp_path / "out"
+    r = yowo("run", tmp_path / "rec", "-o", out, env=ros_env)
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stdout + r.stderr
+    said = " ".join(r.stderr.split())
+    assert f"{EGO_INFO}: K has focal lengths fx=0, fy=0" in said, said
+    log = yaml.safe_load((out / "run_log.yaml").read_text())
+    assert f"{EGO_INFO}: K has focal lengths" in log["failure"], log["failure"]

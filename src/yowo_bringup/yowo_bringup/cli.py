@@ -51,6 +51,7 @@ def cmd_info(args) -> int:
 def _execute(args, mode: str):
     """Plan and run the graph; returns the outcome or None (message printed) on failure."""
     from .isolation import PRIVATE, SHARED, graph_network
+    from .outdir import claimed_output
     from .progress import console_progress
     from .run import plan_live, plan_run
     from .run_node import RunFailed, execute
@@ -86,14 +87,15 @@ def _execute(args, mode: str):
           f"{len(plan.local_nodes)} nodes in {len(plan.local_processes)} processes here; graph on "
           f"{network.describe()}; "
           f"logs in {Path(args.output) / 'logs'}")
-    progress = console_progress(f"{args.verb} {plan.run_id}")
-    try:
-        return execute(plan, timeout_s=args.timeout, network=network, linger_s=getattr(args, "linger", 0.0),
-                       progress=progress, profile_dir=Path(args.profile) if args.profile else None)
-    except RunFailed as exc:
-        failure = exc
-    finally:
-        progress.close()        # before the message: a live bar would redraw over it
+    with claimed_output(args.output, args.replace):
+        progress = console_progress(f"{args.verb} {plan.run_id}")
+        try:
+            return execute(plan, timeout_s=args.timeout, network=network, linger_s=getattr(args, "linger", 0.0),
+                           progress=progress, profile_dir=Path(args.profile) if args.profile else None)
+        except RunFailed as exc:
+            failure = exc
+        finally:
+            progress.close()        # before the message: a live bar would redraw over it
     print(f"yowo {args.verb}: {failure}\n(partial results, if any, are in {args.output})", file=sys.stderr)
     return None
 
@@ -215,6 +217,9 @@ def _add_run_options(p) -> None:
 
 
 def _add_graph_options(p) -> None:
+    p.add_argument("--replace", action="store_true",
+                   help="the results folder holds an earlier run's results: remove them first (without it such a "
+                        "folder is refused)")
     p.add_argument("--run-id", help="the run's id, in every status message (default: a new one); give every host "
                                     "of a split run the same")
     p.add_argument("--nodes", nargs="+", metavar="PATTERN",

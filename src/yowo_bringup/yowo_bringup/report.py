@@ -111,7 +111,7 @@ def top_view_png(cameras: list[RegisteredCmc], ego_xy: np.ndarray | None, floors
             ax.plot(G[0], G[1], "x", color="k", ms=6)
     if ego_xy is not None and len(ego_xy):
         extent.append(ego_xy)
-    pts = np.vstack(extent)
+    pts = np.vstack(extent) if extent else np.zeros((1, 2))     # nothing to draw: an empty metre around 0
     lo, hi = pts.min(axis=0) - 0.5, pts.max(axis=0) + 0.5
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])

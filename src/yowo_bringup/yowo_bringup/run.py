@@ -116,6 +116,7 @@ class RunOutcome:
     published: dict[str, int]
     received: dict[str, dict[str, int]]
     mode: str = FULL                       # the plan's (a full run without usable CMCs is an ego run)
+    failure: str = ""                      # why the run failed ('' when it did not)
 
 
 def _first_present(candidates, present: set[str]) -> str:
@@ -358,25 +359,39 @@ def write_group_calibration(path: Path, groups: list[CameraGroupResult], ungroup
 
 def write_run_results(plan: RunPlan, outputs: dict, status: dict, replay, seconds: float, failure: str,
                       graph: dict | None = None) -> RunOutcome:
-    """Everything a run produced into plan.out_dir (partial results when a stage failed);
-    `graph`: the run's network, restarts and stray messages, for the run log."""
+    """Everything a run produced into plan.out_dir (partial results when a stage failed),
+    written aside and moved into place; `graph`: the run's network, restarts and stray
+    messages, for the run log. The run log is written whatever else fails, with the reason."""
+    import traceback
+
     from yowo_cmc.messages import groups_from_msg
 
-    out, files = plan.out_dir, []
-    groups, ungrouped = groups_from_msg(outputs[topics.GROUPS]) if topics.GROUPS in outputs else ([], {})
-    cameras: list = groups
-    if plan.mode == CMC and topics.GROUPS in outputs:
-        write_group_calibration(out / "cameras.yaml", groups, ungrouped)
-        files.append(out / "cameras.yaml")
-    if plan.mode in (FULL, EGO):
-        cameras = _write_full_results(plan, outputs, files)
+    from .outdir import publish_staged, staging_dir
+
+    staged = replace(plan, out_dir=staging_dir(plan.out_dir))
+    out, files = staged.out_dir, []
+    groups, ungrouped, cameras = [], {}, []
+    try:
+        groups, ungrouped = groups_from_msg(outputs[topics.GROUPS]) if topics.GROUPS in outputs else ([], {})
+        cameras = groups
+        if plan.mode == CMC and topics.GROUPS in outputs:
+            write_group_calibration(out / "cameras.yaml", groups, ungrouped)
+            files.append(out / "cameras.yaml")
+        if plan.mode in (FULL, EGO):
+            cameras = _write_full_results(staged, outputs, files)
+    except Exception as exc:      # a result that cannot be written must not hide the run's own outcome
+        written = f"writing the results failed ({type(exc).__name__}: {exc}); details in logs/results.log"
+        failure = f"{failure}; {written}" if failure else written
+        (plan.out_dir / "logs").mkdir(parents=True, exist_ok=True)
+        (plan.out_dir / "logs" / "results.log").write_text(traceback.format_exc())
     published = dict(zip(replay.topics, map(int, replay.published_counts))) if replay is not None else {}
     received: dict[str, dict[str, int]] = {}
     for stage, msg in status.items():
         for t, n in zip(msg.input_topics, msg.received_counts):
             received.setdefault(t, {})[stage] = int(n)
     (out / "run_log.yaml").write_text(yaml.safe_dump({
-        "bag": str(plan.bag or "live"), "mode": plan.mode, **({"mode_reason": plan.mode_reason} if plan.mode_reason else {}),
+        "bag": str(plan.bag or "live"), "run_id": plan.run_id, "mode": plan.mode,
+        **({"mode_reason": plan.mode_reason} if plan.mode_reason else {}),
         "seconds": round(seconds, 2), "failure": failure, "inputs": plan.inputs,
         "warnings": plan.warnings, "stages": {s: status[s].message if s in status else "no status received" for s in plan.stages},
         "replay_published": published, "received": received,
@@ -384,7 +399,9 @@ def write_run_results(plan: RunPlan, outputs: dict, status: dict, replay, second
         "replay_error": replay.error if replay is not None else "no replay status",
         **(graph or {})}, sort_keys=False))
     files.append(out / "run_log.yaml")
-    return RunOutcome(files, cameras, ungrouped, published, received, plan.mode)
+    publish_staged(plan.out_dir)
+    files = [plan.out_dir / f.relative_to(out) for f in files]
+    return RunOutcome(files, cameras, ungrouped, published, received, plan.mode, failure)
 
 
 def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list:

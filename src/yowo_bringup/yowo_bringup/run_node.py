@@ -2,6 +2,7 @@
 status topics, collect the latched outputs and hand them to the results writer."""
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from pathlib import Path
@@ -122,6 +123,7 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
     stages = plan.stages
     t0, t0_wall = time.monotonic(), time.time()
     failure, outcome, notes = "", None, set()
+    outputs, status, replay, graph = {}, {}, None, {}
     saved_env = {k: os.environ.get(k) for k in DDS_ENV}
     os.environ.update({k: network.env[k] for k in DDS_ENV if k in network.env})  # this process's own node
     for k in DDS_ENV:
@@ -144,7 +146,9 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
                 # Seconds since the run started; queue waits and handling per input topic.
                 "timing": node_timing(sup, t0_wall)}
     try:
-        with ros_context([]):
+        # Ctrl-C (and SIGTERM) as KeyboardInterrupt, not rclpy's shutdown: the nodes are stopped
+        # and the run log says the run was interrupted.
+        with ros_context([], signal_handlers=False), _interrupted(lambda: time.monotonic() - t0) as stop:
             monitor = RunMonitor(stages, plan.outputs, plan.run_id)
             try:
                 for spec in plan.local_processes:  # replay last: it waits for the stages' subscriptions
@@ -174,7 +178,10 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
                         final.state == StageStatus.STATE_FAILED or all(t in monitor.outputs for t in plan.outputs))
                     if finished_at is not None and (settled or time.monotonic() - finished_at > grace):
                         if final.state == StageStatus.STATE_FAILED:
-                            failure = f"stage '{plan.final_stage}' failed: {final.message}"
+                            # The first cause too: a final stage fails for want of an upstream one's output.
+                            upstream = [f"stage '{s}' failed: {m.message}" for s, m in monitor.status.items()
+                                        if s != plan.final_stage and m.state == StageStatus.STATE_FAILED]
+                            failure = "; ".join([*upstream, f"stage '{plan.final_stage}' failed: {final.message}"])
                         break
                     if time.monotonic() - t0 > timeout_s:
                         failure = (f"no result after {timeout_s:.0f} s; "
@@ -211,11 +218,26 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
             else:
                 os.environ[k] = v
         network.release()
+    failure = stop.reason or failure
     if outcome is None:
         outcome = write_run_results(plan, outputs, status, replay, time.monotonic() - t0, failure, graph)
-    if failure:
-        raise RunFailed(failure)
+    if outcome.failure:
+        raise RunFailed(outcome.failure)
     return outcome
+
+
+class _Interruption:
+    reason = ""
+
+
+@contextlib.contextmanager
+def _interrupted(elapsed_s):
+    """Takes a Ctrl-C (KeyboardInterrupt) and remembers it in `.reason`."""
+    stop = _Interruption()
+    try:
+        yield stop
+    except KeyboardInterrupt:
+        stop.reason = f"interrupted (Ctrl-C) after {elapsed_s():.0f} s"
 
 
 def node_timing(sup: Supervisor, t0_wall: float) -> dict:

@@ -21,17 +21,14 @@ NOTES_BEGIN, NOTES_END = markers("graph-speed-notes")   # hand-written notes ins
 
 
 def recording_seconds(bag: Path) -> float:
-    from yowo_common.ros.bag import open_reader
+    from yowo_common.ros.bag import recording_span
 
-    reader = open_reader(bag)
-    try:
-        return (reader.end_time - reader.start_time) / 1e9
-    finally:
-        reader.close()
+    start, end = recording_span(bag)
+    return (end - start) / 1e9
 
 
 def graph_case(bag: Path, out: Path, source: str, extra: list[str], timeout_s: float = 7200.0) -> dict:
-    cmd = [sys.executable, "-m", "yowo_bringup.cli", "run", str(bag), "-o", str(out), "--rate", "0",
+    cmd = [sys.executable, "-m", "yowo_bringup.cli", "run", str(bag), "-o", str(out), "--replace", "--rate", "0",
            "--cmc-source", source, "--timeout", str(timeout_s), *extra]
     t0 = time.monotonic()
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s + 120)
