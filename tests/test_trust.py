@@ -5,7 +5,7 @@ from rosbags.rosbag2 import Writer
 from sensor_msgs.msg import Imu
 
 from e2e_helpers import three_camera_recording, yowo
-from yowo_common.ros.bag import read_raw, typestore
+from yowo_common.ros.bag import read_messages, read_raw, typestore
 
 # Imported, each of these writes its own name into the file PLANTED in the working folder.
 PLANTED_MODULES = ("redmod", "this_is_planted", "rclpy", "yaml", "sensor_msgs")
@@ -144,3 +144,26 @@ def test_the_real_reason_reaches_the_console_and_the_run_log(tmp_path, ros_env):
     assert f"{EGO_INFO}: K has focal lengths fx=0, fy=0" in said, said
     log = yaml.safe_load((out / "run_log.yaml").read_text())
     assert f"{EGO_INFO}: K has focal lengths" in log["failure"], log["failure"]
+
+
+def test_a_topic_of_the_wrong_type_is_named_at_start_and_options_get_their_verbs_usage(tmp_path, ros_env):
+    from sensor_msgs.msg import CompressedImage
+
+    from yowo_common.ros.bag import BagWriter
+    from yowo_common.topics import EGO_COLOR
+
+    cams, _ = three_camera_recording(tmp_path / "good", duration_s=6.0)
+    with BagWriter(tmp_path / "rec") as bag:
+        for topic, log_ns, msg in read_messages(tmp_path / "good"):
+            bag.write(topic, msg, log_ns)
+        bag.write(EGO_COLOR[0], CompressedImage(format="jpeg"), log_ns)
+        bag.write("/cmc/c1/camera_info", CompressedImage(format="jpeg"), log_ns + 1)
+    r = yowo("info", tmp_path / "rec", env=ros_env)
+    said = " ".join(r.stdout.split())
+    assert (f"{EGO_COLOR[0]}: type sensor_msgs/msg/CompressedImage, but as {EGO_COLOR[0]} it must be "
+            "sensor_msgs/msg/Image; not used") in said, said
+    r = yowo("run", tmp_path / "rec", "-o", tmp_path / "out", env=ros_env, timeout=120)
+    assert r.returncode == 2 and "it must be sensor_msgs/msg/Image" in r.stderr, r.stderr
+    r = yowo("calibrate-cmc", tmp_path / "rec", "-o", tmp_path / "out2", "--no-such-option", env=ros_env)
+    assert r.returncode == 2 and "yowo calibrate-cmc: error: unrecognized arguments: --no-such-option" in r.stderr
+    assert "usage: yowo calibrate-cmc" in r.stderr, r.stderr

@@ -26,3 +26,22 @@ def test_lines_are_rate_limited():
     for i in range(5):
         show(RunProgress(float(i), i, 10))
     assert len(lines) == 1 and lines[0].startswith("[   0.0 s] replayed")
+
+
+def test_the_live_bar_fits_80_columns_with_share_eta_and_stages():
+    import io
+
+    from rich.console import Console
+
+    from yowo_bringup.progress import ProgressBar
+
+    bar = ProgressBar("run 1234567890ab")
+    bar(RunProgress(elapsed_s=12.0, played=500, total=1000, playing_since_s=1.0, resent=3,
+                    stages={f"keypoint_tracker_cam{i:02d}": "running" for i in range(40)} | {"fusion": "done"}))
+    table = bar._bar.make_tasks_table(bar._bar.tasks)
+    bar.close()
+    console = Console(file=io.StringIO(), width=80)
+    console.print(table)
+    (row,) = [line for line in console.file.getvalue().splitlines() if line.strip()]
+    assert len(row) <= 80 and "━" in row and "50%" in row and "replay ETA" in row, row
+    assert "1/41 stages, 3 re-sent" in row, row

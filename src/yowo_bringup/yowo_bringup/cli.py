@@ -48,8 +48,25 @@ def cmd_info(args) -> int:
     return 0
 
 
+# The default time limit of a recording's run: start-up and finalisations, plus a multiple of
+# its length well above the slowest measured processing rate.
+TIMEOUT_BASE_S, TIMEOUT_PER_S = 600.0, 10.0
+
+
+def _timeout_s(args) -> float:
+    if args.timeout is not None:
+        return args.timeout
+    from yowo_common.ros.bag import recording_span
+
+    start, end = recording_span(args.bag)
+    return TIMEOUT_BASE_S + TIMEOUT_PER_S * (end - start) / 1e9
+
+
 def _execute(args, mode: str):
     """Plan and run the graph; returns the outcome or None (message printed) on failure."""
+    import time
+
+    args.started = time.monotonic()
     from .isolation import PRIVATE, SHARED, graph_network
     from .outdir import claimed_output
     from .progress import console_progress
@@ -90,7 +107,8 @@ def _execute(args, mode: str):
     with claimed_output(args.output, args.replace):
         progress = console_progress(f"{args.verb} {plan.run_id}")
         try:
-            return execute(plan, timeout_s=args.timeout, network=network, linger_s=getattr(args, "linger", 0.0),
+            timeout_s = args.timeout if args.verb == "live" else _timeout_s(args)
+            return execute(plan, timeout_s=timeout_s, network=network, linger_s=getattr(args, "linger", 0.0),
                            progress=progress, profile_dir=Path(args.profile) if args.profile else None)
         except RunFailed as exc:
             failure = exc
@@ -98,6 +116,13 @@ def _execute(args, mode: str):
             progress.close()        # before the message: a live bar would redraw over it
     print(f"yowo {args.verb}: {failure}\n(partial results, if any, are in {args.output})", file=sys.stderr)
     return None
+
+
+def _elapsed(args) -> str:
+    import time
+
+    seconds = time.monotonic() - args.started
+    return f"done in {int(seconds // 60)} min {seconds % 60:.0f} s; "
 
 
 def cmd_run(args) -> int:
@@ -115,7 +140,7 @@ def cmd_run(args) -> int:
     if out.mode == EGO:
         if metrics.exists() and ev is not None:
             ev.print_tables(json.loads(metrics.read_text()), Console())
-        print(f"results: {args.output}/ (ego-only: ego_trajectory.tum, map.ply, layout.json, report.html, result.mcap; "
+        print(f"{_elapsed(args)}results: {args.output}/ (ego-only: ego_trajectory.tum, map.ply, layout.json, report.html, result.mcap; "
               "cameras.yaml says why no camera was registered)")
         return 0 if (Path(args.output) / "ego_trajectory.tum").exists() else 1
     table = Table(title="registered cameras (map frame)")
@@ -127,7 +152,7 @@ def cmd_run(args) -> int:
     Console().print(table)
     if metrics.exists() and ev is not None:
         ev.print_tables(json.loads(metrics.read_text()), Console())
-    print(f"results: {args.output}/ (report.html, cameras.yaml, ego_trajectory.tum, map.ply, layout.json after the "
+    print(f"{_elapsed(args)}results: {args.output}/ (report.html, cameras.yaml, ego_trajectory.tum, map.ply, layout.json after the "
           "joint optimisation; ego_trajectory_ego.tum, map_ego.ply, layout_ego.json the ego stage's; result.mcap)")
     return 0 if any(c.T_world_cam is not None for c in out.cameras) else 1
 
@@ -139,7 +164,7 @@ def cmd_live(args) -> int:
     out = _execute(args, CMC if args.cmc_only else FULL)
     if out is None:
         return 1
-    print(f"results: {args.output}/ ({len(out.cameras)} of the cameras calibrated; see cameras.yaml)")
+    print(f"{_elapsed(args)}results: {args.output}/ ({len(out.cameras)} of the cameras calibrated; see cameras.yaml)")
     return 0
 
 
@@ -154,7 +179,7 @@ def cmd_calibrate_cmc(args) -> int:
         print(f"group {g.group_id}: " + ", ".join(f"{n} ({g.rmse_px[n]:.2f} px)" for n in g.names))
     for name, why in out.ungrouped.items():
         print(f"not calibrated: {name}: {why}")
-    print(f"results in {args.output}/cameras.yaml")
+    print(f"{_elapsed(args)}results in {args.output}/cameras.yaml")
     return 0 if out.cameras else 1
 
 
@@ -201,7 +226,9 @@ def _add_run_options(p) -> None:
     p.add_argument("-o", "--output", required=True, help="results directory")
     p.add_argument("--rate", type=float, help="replay speed (x real time; 0 = as fast as possible): replay.rate")
     add_config_options(p)
-    p.add_argument("--timeout", type=float, default=3600.0, help="give up after this many seconds")
+    p.add_argument("--timeout", type=float,
+                   help=f"give up after this many seconds (default: {TIMEOUT_BASE_S:.0f} s plus {TIMEOUT_PER_S:g} "
+                        "times the recording's length)")
     p.add_argument("--linger", type=float, default=0.0,
                    help="keep the graph up this many seconds after the results are written (late /tf_static "
                         "subscribers)")
@@ -310,13 +337,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_config)
 
     add_verbs(verbs)            # of installed extensions (yowo_sim: simulate, demo; yowo_eval: bench, eval)
+    for verb_parser in verbs.choices.values():   # a wrong option gets its own verb's usage
+        verb_parser.set_defaults(verb_parser=verb_parser)
     return parser
 
 
 def main(argv=None) -> int:
     from .isolation import NoFreeDomain
 
-    args = build_parser().parse_args(argv)
+    args, unknown = build_parser().parse_known_args(argv)
+    if unknown:
+        args.verb_parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     try:
         return args.func(args)
     except (BagError, ValueError, NoFreeDomain) as exc:

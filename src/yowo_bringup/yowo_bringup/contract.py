@@ -6,8 +6,9 @@ from dataclasses import dataclass, field
 
 from yowo_common.ros.bag import BagTopic, list_topics, recording_damage, recording_span, unknown_type_reason
 
-from yowo_common.topics import (EGO_COLOR, EGO_DEPTH, EGO_INFO, GT_PREFIX, cmc_image_topics,  # noqa: F401
-                                cmc_info_topic, cmc_keypoints_topic, parse_cmc_topic)
+from yowo_common.topics import (EGO_ACCEL, EGO_COLOR, EGO_DEPTH, EGO_GYRO, EGO_IMU,  # noqa: F401
+                                EGO_IMU_CALIBRATION, EGO_INFO, GT_PREFIX, cmc_image_topics, cmc_info_topic,
+                                cmc_keypoints_topic, parse_cmc_topic)
 
 from .layouts import InputMap, InputMapError, InputParams, map_inputs
 from .video import VideoError, VideoInput, probe_video, video_rules
@@ -36,6 +37,27 @@ class RecordingInputs:
         return next((t.count for t in self.topics if t.name == recorded), 0)
 
 
+IMAGE, COMPRESSED, INFO, IMU = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage",
+                                "sensor_msgs/msg/CameraInfo", "sensor_msgs/msg/Imu")
+# The message type each input role takes (CMC roles by their kind under /cmc/<name>/).
+ROLE_TYPES = {EGO_COLOR[0]: IMAGE, EGO_COLOR[1]: COMPRESSED, EGO_DEPTH[0]: IMAGE, EGO_DEPTH[1]: COMPRESSED,
+              EGO_INFO: INFO, EGO_IMU: IMU, EGO_GYRO: IMU, EGO_ACCEL: IMU, EGO_IMU_CALIBRATION: "std_msgs/msg/String"}
+CMC_KIND_TYPES = {"image_raw": IMAGE, "image_raw/compressed": COMPRESSED, "camera_info": INFO,
+                  "agent_keypoints": "yowo_msgs/msg/AgentKeypoints"}
+
+
+def _wrong_types(imap: InputMap, types: dict[str, str]) -> list[str]:
+    """Roles filled by a topic of another type: removed from the map, each named."""
+    problems = []
+    for name, recorded in sorted(imap.roles.items()):
+        cmc = parse_cmc_topic(name)
+        expected = CMC_KIND_TYPES[cmc[1]] if cmc else ROLE_TYPES.get(name)
+        if expected and types.get(recorded, expected) != expected:
+            problems.append(f"{recorded}: type {types[recorded]}, but as {name} it must be {expected}; not used")
+            del imap.roles[name]
+    return problems
+
+
 def discover_inputs(bag, params: InputParams | None = None) -> RecordingInputs:
     """The recording's inputs, found by YOWO's own names, the drivers' layouts and the
     mapping in `params`; InputMapError for a mapping that names a missing topic."""
@@ -47,7 +69,7 @@ def discover_inputs(bag, params: InputParams | None = None) -> RecordingInputs:
     problems += [f"{t.name}: skipped, {why}" for t in topics if (why := unknown_type_reason(t.msgtype))]
     readable = [t.name for t in topics if t.count > 0 and not unknown_type_reason(t.msgtype)]
     imap = map_inputs(readable, params.remap, params.ego_namespace)
-    problems += imap.problems
+    problems += imap.problems + _wrong_types(imap, {t.name: t.msgtype for t in topics})
     videos = [probe_video(rule) for rule in video_rules(params.videos, params.video_list)]
     problems += _add_videos(videos, imap, topics, recording_span(bag), params.video_clock_error_s)
 

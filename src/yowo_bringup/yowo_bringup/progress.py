@@ -63,23 +63,23 @@ class ProgressLines:
 
 
 class ProgressBar:
-    """rich's live bar: replay share with ETA, and the stages' states below it."""
+    """rich's live bar, within 80 columns: replay share, elapsed time, the replay's ETA and
+    how many stages are done (which ones: the line form, the logs)."""
 
     def __init__(self, description: str):
         from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeElapsedColumn, \
             TimeRemainingColumn
 
-        self._bar = Progress(TextColumn("{task.description}"), BarColumn(), TaskProgressColumn(),
-                             TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
+        self._bar = Progress(TextColumn("{task.description}"), BarColumn(bar_width=16), TaskProgressColumn(),
+                             TimeElapsedColumn(), TextColumn("replay ETA"), TimeRemainingColumn(),
                              TextColumn("{task.fields[stages]}"), transient=False)
-        self._task = self._bar.add_task(description, total=None, stages="")
+        self._task = self._bar.add_task(description.split()[0], total=None, stages="")
         self._bar.start()
 
     def __call__(self, p: RunProgress) -> None:
         done = sum(s in (DONE, FAILED) for s in p.stages.values())
-        stages = f"stages {done}/{len(p.stages)}" + (f" ({p.stage_summary()})" if p.stages else "")
         self._bar.update(self._task, completed=p.played, total=p.total or None,
-                         stages=stages + (f", {p.resent} re-sent" if p.resent else ""))
+                         stages=f"{done}/{len(p.stages)} stages" + (f", {p.resent} re-sent" if p.resent else ""))
 
     def close(self) -> None:
         self._bar.stop()
