@@ -41,7 +41,7 @@ def test_truncated_recording_is_played_up_to_its_last_readable_message(tmp_path,
         assert 0.55 * full[topic] < n < full[topic], (topic, n, full[topic])
         assert log["received"][topic] == {f"keypoint_tracker_{topic.split('/')[2]}": n}
     assert "recovered" in log["replay_error"]
-    r = yowo("eval", tmp_path / "out", "--bag", tmp_path / "rec", env=ros_env)
+    r = yowo("eval", tmp_path / "out", "--bag", tmp_path / "rec", "--metrics", tmp_path / "out" / "metrics.json", env=ros_env)
     assert r.returncode == 0, r.stderr
     rel = json.loads((tmp_path / "out" / "metrics.json").read_text())["relative"]["summary"]
     assert rel["count"] == len(cams) and rel["pos_max"] < 0.05, rel
@@ -116,7 +116,7 @@ def test_killed_stages_are_restarted_and_every_camera_is_calibrated(tmp_path, ro
     # ... in order: it kept every frame (none "not after the previous frame")
     for c in ("c1", "c3"):
         assert log["stages"][f"keypoint_tracker_{c}"] == log["stages"]["keypoint_tracker_c2"].replace("c2", c)
-    r = yowo("eval", out, "--bag", tmp_path / "rec", env=ros_env)
+    r = yowo("eval", out, "--bag", tmp_path / "rec", "--metrics", out / "metrics.json", env=ros_env)
     assert r.returncode == 0, r.stderr
     rel = json.loads((out / "metrics.json").read_text())["relative"]["summary"]
     assert rel["count"] == 3 and rel["pos_max"] < 0.03, rel

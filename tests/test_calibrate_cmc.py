@@ -40,7 +40,7 @@ def test_calibrate_cmc_graph(tmp_path, ros_env):
         assert c["clock_offset_s"] is None and set(c["keypoint_noise"]["sigma_px_by_keypoint_id"]) == {0, 1}
         # the BA's residual noise of the smoothed tracks: below the 0.7 px put on the raw keypoints
         assert all(0.1 < s < 0.7 for s in c["keypoint_noise"]["sigma_px_by_keypoint_id"].values()), c["keypoint_noise"]
-    r = subprocess.run([sys.executable, "-m", "yowo_bringup.cli", "eval", str(out), "--bag", str(tmp_path / "rec")],
+    r = subprocess.run([sys.executable, "-m", "yowo_bringup.cli", "eval", str(out), "--bag", str(tmp_path / "rec"), "--metrics", str(out / "metrics.json")],
                        env=ros_env, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     rel = json.loads((out / "metrics.json").read_text())["relative"]["summary"]

@@ -40,7 +40,7 @@ def test_calibrate_cmc_reports_the_clock_offsets(tmp_path, ros_env):
         assert abs(c["offset_s"] - true) < 0.08, (name, c, true)
     assert all(c["clock_offset_s"] is None for c in doc)
     assert all(c["applied"] for c in reported.values())
-    r = subprocess.run([sys.executable, "-m", "yowo_bringup.cli", "eval", str(out), "--bag", str(bag)], env=ros_env,
+    r = subprocess.run([sys.executable, "-m", "yowo_bringup.cli", "eval", str(out), "--bag", str(bag), "--metrics", str(out / "metrics.json")], env=ros_env,
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     rel = json.loads((out / "metrics.json").read_text())["relative"]["summary"]

@@ -51,7 +51,7 @@ def test_ego_only_run_through_the_graph(recordings, ros_env):
     assert "No camera registered (ego-only run)" in (out / "report.html").read_text()
     # The trajectory against the simulator's ground truth: the full run on this walk reaches
     # ~7 mm; a broken ego graph is off by decimetres.
-    r = yowo("eval", out, "--bag", bag, env=ros_env, timeout=120)
+    r = yowo("eval", out, "--bag", bag, "--metrics", out / "metrics.json", env=ros_env, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["ego"]["matched"] == 133 and metrics["ego"]["ate_rmse_m"] < 0.03, metrics["ego"]

@@ -17,7 +17,7 @@ def test_calibrate_cmc_from_images_only(tmp_path, ros_env):
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     doc = yaml.safe_load((out / "cameras.yaml").read_text())["cameras"]
     assert sorted(c["name"] for c in doc if c["status"] == "ok") == ["cam00", "cam01", "cam02"], doc
-    r = yowo("eval", out, "--bag", bag, env=ros_env, timeout=120)
+    r = yowo("eval", out, "--bag", bag, "--metrics", out / "metrics.json", env=ros_env, timeout=120)
     assert r.returncode == 0, r.stderr
     rel = json.loads((out / "metrics.json").read_text())["relative"]["summary"]
     # Offline on this bag: 5.5 cm / 2.5 deg avg (the detector's ground point carries a

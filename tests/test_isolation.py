@@ -10,7 +10,7 @@ from e2e_helpers import three_camera_recording, yowo, yowo_background
 
 
 def _relative_errors(out, bag, env):
-    r = yowo("eval", out, "--bag", bag, env=env)
+    r = yowo("eval", out, "--bag", bag, "--metrics", out / "metrics.json", env=env)
     assert r.returncode == 0, r.stderr
     return json.loads((out / "metrics.json").read_text())["relative"]["summary"]
 

@@ -49,7 +49,7 @@ def test_live_cmc_calibration_ends_on_end_walk(tmp_path, ros_env):
     # The intrinsics are the ones the live CameraInfo gave the trackers (the groups carry them).
     for c in doc:
         assert np.allclose(c["K"], cams[c["name"]][0].K, atol=1e-5) and c["image_width"] == 640, c
-    r = yowo("eval", out, "--bag", tmp_path / "rec", env=ros_env, timeout=120)
+    r = yowo("eval", out, "--bag", tmp_path / "rec", "--metrics", out / "metrics.json", env=ros_env, timeout=120)
     assert r.returncode == 0, r.stderr
     rel = json.loads((out / "metrics.json").read_text())["relative"]["summary"]
     assert rel["count"] == 3 and rel["pos_max"] < 0.03 and rel["rot_max"] < 0.3

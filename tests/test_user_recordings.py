@@ -28,7 +28,7 @@ def recordings(tmp_path_factory):
 
 
 def _eval(out, bag, env):
-    r = yowo("eval", out, "--bag", bag, env=env)
+    r = yowo("eval", out, "--bag", bag, "--metrics", out / "metrics.json", env=env)
     assert r.returncode == 0, r.stderr
     return json.loads((out / "metrics.json").read_text())["registration"]["summary"]
 
@@ -43,6 +43,20 @@ def test_realsense_layout_runs_as_recorded_and_matches_the_own_layout(recordings
         assert [c["status"] for c in cams] == ["ok"] * 3, cams
         runs[name] = (_eval(out, recordings / name, ros_env), yaml.safe_load((out / "run_log.yaml").read_text()))
     (own, _), (rs, log) = runs["own"], runs["realsense"]
+    # evo against the ground truth as `yowo eval` writes it in the map frame: no alignment needed.
+    gt = tmp_path / "gt.tum"
+    (tmp_path / "own" / "metrics.json").unlink()
+    r = yowo("eval", tmp_path / "own", "--bag", recordings / "own", "--gt-tum", gt, env=ros_env)
+    assert r.returncode == 0 and not (tmp_path / "own" / "metrics.json").exists(), r.stderr  # written when asked
+    from evo.core import metrics, sync
+    from evo.tools import file_interface
+
+    ref, est = sync.associate_trajectories(file_interface.read_tum_trajectory_file(str(gt)),
+                                           file_interface.read_tum_trajectory_file(
+                                               str(tmp_path / "own" / "ego_trajectory.tum")))
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((ref, est))
+    assert ape.get_statistic(metrics.StatisticsType.rmse) < 0.03
     imu = log["inputs"]["imu"]
     assert imu["used"] and imu["topics"] == ["/camera/camera/gyro/sample", "/camera/camera/accel/sample"]
     assert imu["extrinsics"].startswith("/tf_static") and "defaults" in imu["noise"]

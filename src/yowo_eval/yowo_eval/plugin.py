@@ -38,7 +38,19 @@ def cmd_eval(args) -> int:
 
     metrics = evaluate(args.results, args.bag)
     print_tables(metrics, Console())
-    write_metrics(metrics, Path(args.results) / "metrics.json")
+    if args.metrics:
+        write_metrics(metrics, Path(args.metrics))
+        print(f"metrics: {args.metrics}")
+    if args.gt_tum:
+        from yowo_common.trajectory import write_tum
+
+        from .ground_truth import read_ground_truth
+
+        gt = read_ground_truth(args.bag)      # in the map frame already (evaluation compares there)
+        if gt.ego is None:
+            raise ValueError(f"{args.bag}: no ground-truth ego trajectory (/gt/ego/pose) to write")
+        write_tum(Path(args.gt_tum), gt.ego)
+        print(f"ground-truth ego trajectory in the map frame (for evo): {args.gt_tum}")
     return 0
 
 
@@ -141,6 +153,10 @@ def add_verbs(verbs) -> None:
     p = verbs.add_parser("eval", help="metric tables of a results directory against a bag's ground truth")
     p.add_argument("results", help="results directory of yowo run / calibrate-cmc")
     p.add_argument("--bag", required=True, help="the recording, with /gt topics")
+    p.add_argument("--metrics", metavar="JSON", help="also write the metrics to this file (e.g. RESULTS/metrics.json)")
+    p.add_argument("--gt-tum", metavar="TUM", help="write the recording's ground-truth ego trajectory in YOWO's map "
+                                                  "frame (origin and heading of the first ego pose, z up, floor at "
+                                                  "z = 0), for evo_ape against ego_trajectory.tum")
     p.set_defaults(func=cmd_eval)
 
     add_import_verbs(verbs)     # import-tum: it writes ground truth, which only evaluation reads
