@@ -43,6 +43,10 @@ def test_realsense_layout_runs_as_recorded_and_matches_the_own_layout(recordings
         assert [c["status"] for c in cams] == ["ok"] * 3, cams
         runs[name] = (_eval(out, recordings / name, ros_env), yaml.safe_load((out / "run_log.yaml").read_text()))
     (own, _), (rs, log) = runs["own"], runs["realsense"]
+    # result.mcap carries each registered camera's intrinsics in its optical frame (frustums in Foxglove).
+    infos = {t: m for t, _, m in read_messages(tmp_path / "own" / "result.mcap") if t.endswith("/camera_info")}
+    assert sorted(infos) == [f"/cmc/cam0{i}/camera_info" for i in range(3)], sorted(infos)
+    assert infos["/cmc/cam01/camera_info"].header.frame_id == "cam01_optical_frame"
     # evo against the ground truth as `yowo eval` writes it in the map frame: no alignment needed.
     gt = tmp_path / "gt.tum"
     (tmp_path / "own" / "metrics.json").unlink()

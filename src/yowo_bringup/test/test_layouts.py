@@ -123,3 +123,15 @@ def test_imu_extrinsics_from_tf_static_and_kalibr(tmp_path):
     imu.write_text("update_rate: 200\n")
     with pytest.raises(ValueError, match="missing gyroscope_noise_density"):
         kalibr_imu_noise(str(imu))
+
+
+@pytest.mark.parametrize("topic, suggested", [
+    ("/cmc/../image_raw", "/cmc/camera/image_raw"), ("/cmc/a/../../x/image_raw", "/cmc/a_______x/image_raw"),
+    ("/cmc/caméra/camera_info", "/cmc/cam_ra/camera_info"), ("/cmc/1st/agent_keypoints", "/cmc/cam_1st/agent_keypoints"),
+    ("/cmc/" + "x" * 300 + "/image_raw/compressed", "/cmc/" + "x" * 63 + "/image_raw/compressed")])
+def test_camera_names_that_cannot_be_used_are_named_with_a_remapping(topic, suggested):
+    why = topics.unusable_cmc_topic(topic)
+    assert "cannot be a camera name" in why and f"-r {suggested}:={topic}" in why, why
+    assert topics.parse_cmc_topic(topic) is None
+    assert topics.parse_cmc_topic(suggested) is not None
+    assert not topics.unusable_cmc_topic("/cmc/lobby_2/image_raw") and not topics.unusable_cmc_topic("/other")

@@ -8,7 +8,7 @@ from yowo_common.ros.bag import BagTopic, list_topics, recording_damage, recordi
 
 from yowo_common.topics import (EGO_ACCEL, EGO_COLOR, EGO_DEPTH, EGO_GYRO, EGO_IMU,  # noqa: F401
                                 EGO_IMU_CALIBRATION, EGO_INFO, GT_PREFIX, cmc_image_topics, cmc_info_topic,
-                                cmc_keypoints_topic, parse_cmc_topic)
+                                cmc_keypoints_topic, parse_cmc_topic, unusable_cmc_topic)
 
 from .layouts import InputMap, InputMapError, InputParams, map_inputs
 from .video import VideoError, VideoInput, probe_video, video_rules
@@ -67,6 +67,7 @@ def discover_inputs(bag, params: InputParams | None = None) -> RecordingInputs:
     if not topics or all(t.count == 0 for t in topics):
         problems.append(f"{bag}: the recording holds no messages")
     problems += [f"{t.name}: skipped, {why}" for t in topics if (why := unknown_type_reason(t.msgtype))]
+    problems += [why for t in topics if (why := unusable_cmc_topic(t.name))]
     readable = [t.name for t in topics if t.count > 0 and not unknown_type_reason(t.msgtype)]
     imap = map_inputs(readable, params.remap, params.ego_namespace)
     problems += imap.problems + _wrong_types(imap, {t.name: t.msgtype for t in topics})

@@ -160,16 +160,16 @@ def _ego_candidates(recorded: set[str]) -> list[tuple[DriverLayout, str, dict[st
 
 def _camera_name(ns: str, taken: set[str]) -> str:
     """A CMC name from an image namespace: its last part (the whole path where that is taken),
-    letters, digits and underscores only, not starting with a digit (a ROS name token)."""
-    parts = [re.sub(r"[^A-Za-z0-9_]", "_", p) for p in ns.strip("/").split("/") if p]
-    parts = [f"cam_{p}" if p[0].isdigit() else p for p in parts]
-    for name in (parts[-1], "_".join(parts)):
-        if name and name not in taken:
+    made a usable camera name (topics.usable_camera_name)."""
+    parts = [p for p in ns.strip("/").split("/") if p]
+    last = topics.usable_camera_name(parts[-1])
+    for name in (last, topics.usable_camera_name("_".join(parts))):
+        if name not in taken:
             return name
     n = 2
-    while f"{parts[-1]}_{n}" in taken:
+    while f"{last}_{n}" in taken:
         n += 1
-    return f"{parts[-1]}_{n}"
+    return f"{last}_{n}"
 
 
 def map_inputs(recorded_topics, remaps=(), ego_namespace: str = "") -> InputMap:

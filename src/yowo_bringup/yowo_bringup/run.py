@@ -408,7 +408,9 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     from yowo_cmc.messages import groups_from_msg
     from yowo_common.ros.bag import BagWriter
     from yowo_common.rosconv import pointcloud2_to_xyz_rgb, points_to_array, pose_to_matrix, stamp_to_ns
-    from yowo_common.rosconv import decode_color
+    from std_msgs.msg import Header
+
+    from yowo_common.rosconv import decode_color, model_to_camera_info, ns_to_time
     from yowo_fusion.messages import agent_fits_from_msg, ego_map_from_msg, registered_from_msg
 
     from yowo_common.trajectory import Trajectory, write_tum
@@ -476,6 +478,11 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     with BagWriter(staging) as bag:
         for topic, msg in outputs.items():
             bag.write(topic, msg, stamp, latched=True)       # every collected output is latched
+        # Each registered camera's intrinsics in its optical frame: Foxglove / RViz draw its frustum.
+        for c in cameras:
+            if c.camera is not None and c.T_world_cam is not None:
+                info = model_to_camera_info(c.camera, Header(stamp=ns_to_time(stamp), frame_id=f"{c.name}_optical_frame"))
+                bag.write(topics.cmc_info_topic(c.name), info, stamp, latched=True)
     # One MCAP file (its channels carry the QoS, latched ones transient-local), not a folder.
     (written,) = staging.glob("*.mcap")
     written.rename(result_bag)

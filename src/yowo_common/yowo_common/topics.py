@@ -33,7 +33,28 @@ def cmc_keypoints_topic(name: str) -> str:
     return f"/cmc/{name}/agent_keypoints"
 
 
-_CMC_TOPIC = re.compile(r"^/cmc/(?P<name>[A-Za-z0-9_]+)/(?P<kind>image_raw(/compressed)?|camera_info|agent_keypoints)$")
+# A camera's name is one ROS name token (a letter first), short enough for its node and topic names.
+CAMERA_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,62}$")
+_CMC_KINDS = r"(?P<kind>image_raw(/compressed)?|camera_info|agent_keypoints)"
+_CMC_TOPIC = re.compile(r"^/cmc/(?P<name>[A-Za-z][A-Za-z0-9_]{0,62})/" + _CMC_KINDS + "$")
+_CMC_ANY = re.compile(r"^/cmc/(?P<name>.+)/" + _CMC_KINDS + "$")
+
+
+def usable_camera_name(name: str) -> str:
+    """A usable camera name close to `name` (letters, digits, '_'; a letter first; at most 63)."""
+    cleaned = re.sub(r"[^A-Za-z0-9_]", "_", name).strip("_") or "camera"
+    return (cleaned if cleaned[0].isalpha() else f"cam_{cleaned}")[:63]
+
+
+def unusable_cmc_topic(topic: str) -> str:
+    """Why a /cmc/<name>/<kind> topic's name cannot be a camera's, with the remapping that
+    renames it ('' for a usable one and any other topic)."""
+    m = _CMC_ANY.match(topic)
+    if m is None or _CMC_TOPIC.match(topic):
+        return ""
+    good = usable_camera_name(m["name"])
+    return (f"{topic}: '{m['name'][:80]}' cannot be a camera name (letters, digits and '_', a letter first, at most 63 "
+            f"characters); rename it, e.g. -r {cmc_topic(good, m['kind'])}:={topic}")
 
 
 def parse_cmc_topic(topic: str) -> tuple[str, str] | None:
