@@ -1,4 +1,6 @@
-"""Untrusted recordings: what a recording holds never selects code to run."""
+"""Trust at first contact: what a recording holds never selects code to run, results folders
+hold one run, the real reason of a failure is told, bad input and settings are refused up front."""
+import pytest
 import yaml
 from rclpy.serialization import serialize_message
 from rosbags.rosbag2 import Writer
@@ -167,3 +169,14 @@ def test_a_topic_of_the_wrong_type_is_named_at_start_and_options_get_their_verbs
     r = yowo("calibrate-cmc", tmp_path / "rec", "-o", tmp_path / "out2", "--no-such-option", env=ros_env)
     assert r.returncode == 2 and "yowo calibrate-cmc: error: unrecognized arguments: --no-such-option" in r.stderr
     assert "usage: yowo calibrate-cmc" in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("setting", ["supervisor.tracker_processes=-1", "ego.odometry.scale=100000000",
+                                     "replay.rate=1e-300", "replay.rate=.inf", "fusion.joint.relative_error_tol=-1e-6"])
+def test_configuration_values_out_of_range_are_refused_before_anything_starts(setting, tmp_path, ros_env):
+    from yowo_bringup.config import ConfigError, load_config
+
+    with pytest.raises(ConfigError, match=setting.split("=")[0].replace(".", r"\.") + ".*outside its range"):
+        load_config(None, [setting])
+    r = yowo("run", tmp_path / "no_such_bag", "-o", tmp_path / "out", "--set", setting, env=ros_env, timeout=60)
+    assert r.returncode == 2 and "outside its range" in r.stderr and not (tmp_path / "out").exists(), r.stderr

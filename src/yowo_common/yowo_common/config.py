@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import math
 import re
 from typing import Any, TypeVar
 
@@ -45,11 +46,31 @@ def to_dict(obj) -> dict:
     return plain(dataclasses.asdict(obj))
 
 
+# Every number's range unless its field says otherwise: finite, not negative (no default is),
+# 0 or within RANGE_FACTOR of its default either way (of 1 for a default of 0).
+# Values beyond are typing errors (1e26 for 2); a stage given one hangs or overflows.
+RANGE_FACTOR = 1e6
+
+
+def check_ranges(obj, where: str = "") -> None:
+    """ConfigError naming the first number of the tree outside its range."""
+    defaults = type(obj)()
+    for f in dataclasses.fields(obj):
+        value, default, key = getattr(obj, f.name), getattr(defaults, f.name), _key(where, f.name)
+        if dataclasses.is_dataclass(value):
+            check_ranges(value, key)
+        elif isinstance(value, (int, float)) and not isinstance(value, bool) and value != default:
+            lo, hi = f.metadata.get("range", ((abs(default) or 1.0) / RANGE_FACTOR, max(abs(default), 1.0) * RANGE_FACTOR))
+            if not math.isfinite(value) or value < 0 or value > hi or 0 < value < lo:
+                raise ConfigError(f"{key}={value!r}: outside its range (0 or {lo:g} .. {hi:g}; default {default!r})")
+
+
 def from_dict(cls: type[T], data: dict | None, where: str = "") -> T:
-    """`cls` with `data` over its defaults (nested sections may be partial)."""
+    """`cls` with `data` over its defaults (nested sections may be partial), every number
+    within its range (check_ranges)."""
     merged = _merge(to_dict(cls()), data or {}, where)
     try:
-        return dacite.from_dict(cls, merged, config=_DACITE)
+        obj = dacite.from_dict(cls, merged, config=_DACITE)
     except dacite.UnexpectedDataError as exc:
         raise ConfigError(f"unknown key(s) {', '.join(_key(where, k) for k in sorted(exc.keys))}") from exc
     except dacite.WrongTypeError as exc:
@@ -57,6 +78,8 @@ def from_dict(cls: type[T], data: dict | None, where: str = "") -> T:
                           f"got {exc.value!r}") from exc
     except dacite.DaciteError as exc:
         raise ConfigError(f"{where or 'configuration'}: {exc}") from exc
+    check_ranges(obj, where)
+    return obj
 
 
 def _key(where: str, key: str) -> str:
