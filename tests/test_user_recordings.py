@@ -23,6 +23,7 @@ def recordings(tmp_path_factory):
     root = tmp_path_factory.mktemp("user")
     generate(get_preset("tiny"), 0, root / "own")
     write_driver_layout(root / "own", root / "realsense", "realsense")
+    write_driver_layout(root / "own", root / "no_info", "realsense", no_camera_info=["cam02"])
     write_cmc_videos(root / "own", root / "with_videos", root / "videos", start_error_s=3.0)
     return root
 
@@ -144,3 +145,39 @@ def _cut_video(src, dst, frames):
         out.write(bgr)
     out.release()
     cap.release()
+
+
+def test_a_cctv_without_camera_info_gets_its_intrinsics_from_a_file_or_estimated(recordings, tmp_path, ros_env):
+    from yowo_common.intrinsics_io import camera_info_yaml
+    from yowo_common.rosconv import camera_info_to_model
+
+    truth = next(camera_info_to_model(m) for _, _, m in read_messages(recordings / "own", ["/cmc/cam02/camera_info"]))
+    bag = recordings / "no_info"
+    # Estimated: every camera registered, the focal close to the truth, marked as estimated.
+    out = tmp_path / "estimated"
+    r = yowo("run", bag, "-o", out, env=ros_env)
+    assert r.returncode == 0, r.stdout + r.stderr
+    cams = {c["name"]: c for c in yaml.safe_load((out / "cameras.yaml").read_text())["cameras"]}
+    assert all(c["status"] == "ok" for c in cams.values()), cams
+    est = cams["cam02"]
+    assert est["intrinsics_estimated"] and est["focal_sigma_px"] > 0
+    assert not cams["cam00"]["intrinsics_estimated"]
+    f = est["K"][0][0]
+    assert abs(f / truth.K[0, 0] - 1) < 0.05, (f, truth.K[0, 0])
+    # Measured 0.042-0.052 m on this recording (the others 0.008-0.027): its focal is about 2 % off.
+    errors = {e["name"]: e["eps_pos_m"] for e in _eval_cameras(out, bag, ros_env)}
+    assert errors["cam02"] < 0.08, errors
+    # From a file (what cameracalibrator writes): used as given.
+    calib = tmp_path / "cam02.yaml"
+    calib.write_text(camera_info_yaml(truth, "cam02"))
+    out = tmp_path / "from_file"
+    r = yowo("run", bag, "-o", out, "--intrinsics", f"cam02={calib}", env=ros_env)
+    assert r.returncode == 0, r.stdout + r.stderr
+    cams = {c["name"]: c for c in yaml.safe_load((out / "cameras.yaml").read_text())["cameras"]}
+    assert not cams["cam02"]["intrinsics_estimated"] and np.allclose(cams["cam02"]["K"], truth.K, atol=1e-5)
+
+
+def _eval_cameras(out, bag, env):
+    r = yowo("eval", out, "--bag", bag, "--metrics", out / "metrics.json", env=env)
+    assert r.returncode == 0, r.stderr
+    return json.loads((out / "metrics.json").read_text())["registration"]["cameras"]

@@ -97,11 +97,15 @@ def discover_inputs(bag, params: InputParams | None = None) -> RecordingInputs:
     for name in sorted(kinds):
         if not kinds[name] & {"image_raw", "agent_keypoints"}:
             problems.append(f"CMC '{name}': neither images nor agent keypoints; the camera is skipped")
-        elif "camera_info" not in kinds[name] and name not in files:
-            problems.append(f"CMC '{name}': no {cmc_info_topic(name)}; give its intrinsics with --intrinsics "
-                            f"{name}=FILE; the camera is skipped")
+        elif "camera_info" not in kinds[name] and name not in files and "image_raw" not in kinds[name]:
+            problems.append(f"CMC '{name}': no {cmc_info_topic(name)} and no images to estimate its intrinsics "
+                            f"from; give them with --intrinsics {name}=FILE; the camera is skipped")
         else:
             cmc_names.append(name)
+            if "camera_info" not in kinds[name] and name not in files:
+                estimated.append(name)
+                imap.notes.append(f"CMC {name}: no CameraInfo, its intrinsics are estimated (or give them with "
+                                  f"--intrinsics {name}=FILE)")
     has_gt = any(t.name.startswith(GT_PREFIX) for t in topics)
     return RecordingInputs(topics, has_ego, cmc_names, has_gt, problems, imap, videos, files, estimated)
 

@@ -10,6 +10,7 @@ import numpy as np
 import yaml
 
 from yowo_cmc.group_sfm import CameraGroupResult
+from yowo_cmc.intrinsics import EstimatedCamera
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import quat_xyzw_from_rotation, rotation_from_quat_xyzw, se3
 from yowo_fusion.pipeline import RegisteredCmc
@@ -58,13 +59,26 @@ def clock_entry(name: str, group: CameraGroupResult | None, camera: RegisteredCm
 
 
 def intrinsics_entry(camera: CameraModel | None) -> dict:
-    """The CameraInfo intrinsics a camera was registered with (None: no CameraInfo arrived)."""
+    """The intrinsics a camera was registered with: its CameraInfo's (None: no CameraInfo
+    arrived), or those its group SfM estimated (intrinsics.EstimatedCamera) with their sigmas."""
     if camera is None:
         return {"image_width": None, "image_height": None, "K": None, "distortion_model": None,
                 "distortion_coefficients": None}
-    return {"image_width": int(camera.width), "image_height": int(camera.height),
-            "K": np.asarray(camera.K).round(6).tolist(), "distortion_model": camera.distortion_model,
-            "distortion_coefficients": [round(float(v), 9) for v in camera.D]}
+    entry = {"image_width": int(camera.width), "image_height": int(camera.height),
+             "K": np.asarray(camera.K).round(6).tolist(), "distortion_model": camera.distortion_model,
+             "distortion_coefficients": [round(float(v), 9) for v in camera.D],
+             "intrinsics_estimated": isinstance(camera, EstimatedCamera)}
+    if isinstance(camera, EstimatedCamera):
+        entry["focal_sigma_px"] = round(camera.focal_sigma_px, 4)
+        entry["k1_sigma"] = round(camera.k1_sigma, 6) if np.isfinite(camera.k1_sigma) else None
+    return entry
+
+
+def group_intrinsics(camera: CameraModel | None, group: CameraGroupResult | None, name: str) -> CameraModel | None:
+    """A registered camera's intrinsics: its group's estimate if the group SfM made one
+    (registration messages carry a plain CameraInfo), else `camera`."""
+    estimated = group.cameras.get(name) if group is not None else None
+    return estimated if isinstance(estimated, EstimatedCamera) else camera
 
 
 def keypoint_noise_entry(group: CameraGroupResult | None) -> dict:
@@ -97,7 +111,8 @@ def write_cameras_yaml(path: Path, cameras: list[RegisteredCmc], groups: list[Ca
             entry["covariance"] = np.asarray(c.covariance).round(12).tolist() if sig is not None else None
             entry["sigma"] = "unknown (see reason)" if sig is None else {
                 "position_m": sig[:3].round(5).tolist(), "rotation_deg": np.degrees(sig[3:]).round(4).tolist()}
-        entry.update({**intrinsics_entry(c.camera), **clock_entry(c.name, group_by_id.get(c.group), c),
+        entry.update({**intrinsics_entry(group_intrinsics(c.camera, group_by_id.get(c.group), c.name)),
+                      **clock_entry(c.name, group_by_id.get(c.group), c),
                       **keypoint_noise_entry(group_by_id.get(c.group)),
                       "reprojection_rmse_px": round(float(c.rmse_px), 4),
                       "num_agent_observations": int(c.num_agent), "num_scene_observations": int(c.num_scene)})

@@ -164,8 +164,9 @@ def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, s
             problems.append(f"CMC '{c}': no {wanted.get(source, wanted['keypoints'] + ' or images')}; "
                             "the camera is skipped")
             continue
-        # External keypoints use images only for the background (scene keypoints: full runs).
-        image = image if kind in ("images", "pose") or mode == FULL else ""
+        # External keypoints use images only for the background (scene keypoints: full runs) and the
+        # image size of a camera whose intrinsics are estimated.
+        image = image if kind in ("images", "pose") or mode == FULL or c in inputs.estimated_intrinsics else ""
         cameras.append(c)
         # info_topic "": no CameraInfo (intrinsics from `camera_info`, a file's, or estimated).
         roles = {"image_topic": imap.recorded(image), "info_topic": imap.recorded(cmc_info_topic(c)),
@@ -315,7 +316,7 @@ def _stage_nodes(mode: str, trackers: list[tuple[str, str, dict[str, str]]], ego
                  ) -> tuple[list[NodeSpec], str, dict[str, str]]:
     """The stage processes (trackers: (camera, source, its topic parameters)), the final stage
     and the latched outputs the runner collects. `imu`: the ego mapper's IMU parameters (none:
-    no IMU); `estimated`: the cameras whose intrinsics the group SfM and fusion estimate."""
+    no IMU); `estimated`: the cameras whose intrinsics the group SfM estimates."""
     unknown = {"estimate_intrinsics": list(estimated)} if estimated else {}
     ego_params = {"color_topic": ego[0], "depth_topic": ego[1], "info_topic": ego[2], **(imu or {})}
     if mode == EGO:             # the map alone: its stage publishes the map, path, cloud and layout
@@ -329,7 +330,7 @@ def _stage_nodes(mode: str, trackers: list[tuple[str, str, dict[str, str]]], ego
     outputs = {topics.GROUPS: "yowo_msgs/msg/CameraGroupArray"}
     if mode == FULL:
         nodes.append(NodeSpec("ego_mapper", STAGE_MODULES["ego_mapper"], ego_params))
-        nodes.append(NodeSpec("fusion", STAGE_MODULES["fusion"], {"cameras": cameras, **unknown}))
+        nodes.append(NodeSpec("fusion", STAGE_MODULES["fusion"], {"cameras": cameras}))
         final = "fusion"
         outputs.update({topics.CMC_POSES: "yowo_msgs/msg/RegisteredCameraArray", topics.TF_STATIC: "tf2_msgs/msg/TFMessage",
                         topics.LAYOUT_MARKERS: "visualization_msgs/msg/MarkerArray", **EGO_OUTPUTS,

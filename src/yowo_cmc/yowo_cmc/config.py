@@ -23,3 +23,6 @@ class CmcParams:
     estimate_clock_offsets: bool = True
     background_period_s: float = 1.0      # recorded images sampled this often for the agent-free background
     max_pending_frames: int = 300         # detector frames that may wait for the camera's CameraInfo
+    # A camera without CameraInfo or intrinsics file starts from this horizontal field of view
+    # [deg] (a typical CCTV lens) at its first image's size; the group SfM estimates its intrinsics.
+    nominal_hfov_deg: float = 90.0

@@ -6,7 +6,7 @@ the cheirality check, triangulation, next camera by overlap + PnP RANSAC, and
 group bundle adjustment (eq. cmc_bd) with per-keypoint-id noise re-estimation."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import networkx as nx
@@ -17,6 +17,7 @@ from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3, se3
 from yowo_common.pnp import sqpnp_ransac
 
+from .intrinsics import EstimatedCamera, centred, focal_from_fundamental, pnp_unknown_focal, solve_with_intrinsics
 from .params import SfmParams, TrackParams
 from .tracks import CameraTracks, noise_scale, resample, sigma_factors
 
@@ -70,7 +71,8 @@ class CameraGroupResult:
     num_observations: dict[str, int]
     sigma_px_by_id: dict[int, float]
     initial_pair: tuple[str, str]
-    cameras: dict[str, CameraModel] = field(default_factory=dict)   # each member's intrinsics with distortion
+    # each member's intrinsics with distortion (intrinsics.EstimatedCamera: estimated by the group)
+    cameras: dict[str, CameraModel] = field(default_factory=dict)
     # Estimated clock offsets (yowo_cmc.clock): member's clock - the reference camera's [s].
     clock_offsets_s: dict[str, float] = field(default_factory=dict)
     clock_sigmas_s: dict[str, float] = field(default_factory=dict)
@@ -270,6 +272,26 @@ def view_residuals_px(X: np.ndarray, cameras: list[CameraModel], poses: list[np.
     return [float(np.linalg.norm(cam.project_world(T, X[None])[0][0] - uv)) for cam, T, uv in zip(cameras, poses, uvs)]
 
 
+def ideal_view(model: CameraModel, raw: dict[int, np.ndarray]) -> tuple[CameraModel, dict[int, np.ndarray]]:
+    """A camera's pinhole model and its observations {key: uv} undistorted by `model`."""
+    if not model.has_distortion:
+        return CameraModel(model.width, model.height, model.K), raw
+    keys = list(raw)
+    ideal = model.undistort_pixels(np.array([raw[k] for k in keys]).reshape(-1, 2))
+    return CameraModel(model.width, model.height, model.K), dict(zip(keys, ideal))
+
+
+def with_estimates(obs: GridObservations, result: CameraGroupResult) -> GridObservations:
+    """The observations as the group's intrinsics estimates see them (obs itself if it has none)."""
+    estimated = {obs.names.index(n): c for n, c in result.cameras.items() if isinstance(c, EstimatedCamera)}
+    if not estimated:
+        return obs
+    cameras, per_camera = list(obs.cameras), list(obs.per_camera)
+    for c, model in estimated.items():
+        cameras[c], per_camera[c] = ideal_view(model, obs.per_camera[c])
+    return replace(obs, cameras=cameras, per_camera=per_camera)
+
+
 def _translation_given_rotation(R_cam_world: np.ndarray, X: np.ndarray, xn: np.ndarray) -> np.ndarray:
     """Least-squares t of x ~ R X + t from normalised image points: linear once R is known."""
     RX = X @ R_cam_world.T
@@ -284,8 +306,14 @@ class IncrementalSfm:
     """Incremental reconstruction of one group in its local frame (reference camera = identity)."""
 
     def __init__(self, obs: GridObservations, members: list[int], params: SfmParams,
-                 id_gate_scale: dict[int, float] | None = None):
-        self.obs, self.members, self.params = obs, members, params
+                 id_gate_scale: dict[int, float] | None = None, unknown: frozenset[int] = frozenset()):
+        # Its own lists of intrinsics and observations: those of a camera of unknown intrinsics
+        # (`unknown`) change with each estimate (pinhole K, pixels undistorted by its k1).
+        self.obs = replace(obs, cameras=list(obs.cameras), per_camera=list(obs.per_camera))
+        self.raw = obs.per_camera
+        self.members, self.params = members, params
+        self.unknown = unknown & set(members)
+        self.estimated: dict[int, CameraModel] = {}   # unknown camera -> its current estimate (with k1)
         # keypoint id -> factor on the triangulation gates (at least the camera's noise scale)
         self.id_gate_scale = id_gate_scale or {}
         self.poses: dict[int, np.ndarray] = {}
@@ -293,10 +321,29 @@ class IncrementalSfm:
         self.failed: dict[int, str] = {}
 
     def initialise(self, pair: PairGeometry) -> None:
+        if {pair.a, pair.b} & self.unknown:
+            self._pair_focals(pair)
         self.poses[pair.a] = np.eye(4)
         candidates = self._relative_candidates(pair.a, pair.b, pair.keys[pair.inliers], pair.F)
         self.poses[pair.b] = max(candidates, key=lambda T: self._verify(pair.b, T))
         self.triangulate_new()
+
+    def _pair_focals(self, pair: PairGeometry) -> None:
+        """Initial focal lengths of the pair's unknown cameras from its fundamental matrix."""
+        a, b, F = pair.a, pair.b, pair.F
+        if a in self.unknown and b not in self.unknown:
+            a, b, F = b, a, F.T
+        size = {c: (self.obs.cameras[c].width, self.obs.cameras[c].height) for c in (a, b)}
+        fa, fb = focal_from_fundamental(F, None if a in self.unknown else self.obs.cameras[a].K, size[a], size[b],
+                                        self.params.hfov_range_deg)
+        for c, f in ((a, fa), (b, fb)):
+            if c in self.unknown:
+                self._set_intrinsics(c, centred(*size[c], f))
+
+    def _set_intrinsics(self, c: int, model: CameraModel) -> None:
+        """A new estimate of unknown camera c's intrinsics: its pinhole model and pixels follow."""
+        self.estimated[c] = model
+        self.obs.cameras[c], self.obs.per_camera[c] = ideal_view(model, self.raw[c])
 
     def _relative_candidates(self, a: int, b: int, keys: np.ndarray, F: np.ndarray | None = None
                              ) -> list[np.ndarray]:
@@ -412,9 +459,22 @@ class IncrementalSfm:
     def register(self, c: int) -> bool:
         keys = [k for k in self.obs.per_camera[c] if k in self.points]
         obj = np.array([self.points[k] for k in keys])
+        gate = self.params.pnp_px * self.obs.noise_scale[c]
+        if c in self.unknown:
+            cam = self.obs.cameras[c]
+            found = pnp_unknown_focal(obj, np.array([self.raw[c][k] for k in keys]), (cam.width, cam.height),
+                                      self.params.hfov_range_deg, self.params.focal_steps, gate, self.params.min_pnp,
+                                      self.params.estimate_k1, RANSAC_SEED)
+            if found is None:
+                self.failed[c] = (f"PnP with unknown focal length found no focal with {self.params.min_pnp} "
+                                  "consistent agent points")
+                return False
+            model, rvec, tvec, idx = found
+            self._set_intrinsics(c, model)
+        else:
+            rvec, tvec, idx = sqpnp_ransac(obj, np.array([self.obs.per_camera[c][k] for k in keys]),
+                                           self.obs.cameras[c].K, gate, seed=RANSAC_SEED)
         img = np.array([self.obs.per_camera[c][k] for k in keys])
-        rvec, tvec, idx = sqpnp_ransac(obj, img, self.obs.cameras[c].K,
-                                       self.params.pnp_px * self.obs.noise_scale[c], seed=RANSAC_SEED)
         if len(idx) < self.params.min_pnp:
             self.failed[c] = f"PnP found {len(idx)} consistent agent points (needs {self.params.min_pnp})"
             return False
@@ -447,13 +507,14 @@ class IncrementalSfm:
         index = {c: i for i, c in enumerate(cams)}
         keys = np.array(sorted(self.points), dtype=np.int64)
         kidx = {int(k): i for i, k in enumerate(keys)}
-        cam_i, pt_i, uv, sig = [], [], [], []
+        cam_i, pt_i, uv, raw, sig = [], [], [], [], []
         for c in cams:
             for k, p in self.obs.per_camera[c].items():
                 if k in kidx:
                     cam_i.append(index[c])
                     pt_i.append(kidx[k])
                     uv.append(p)
+                    raw.append(self.raw[c][k])
                     sig.append(sigma_by_id.get(k % MAX_IDS, self.params.initial_sigma_px * self.obs.noise_scale[c])
                                * self.obs.sigma_factor[c].get(k, 1.0))
         obs = Observations(np.array(cam_i, dtype=int), np.array(pt_i, dtype=int), np.array(uv).reshape(-1, 2),
@@ -465,7 +526,15 @@ class IncrementalSfm:
                                 # The scale gauge only (a prior on a centre would also pin the
                                 # baseline's direction to its noisy initial estimate).
                                 baseline_prior=(index[reference], index[second], baseline, 1e-4 * baseline))
-        res = solve(problem)
+        unknown = {index[c]: self.estimated.get(c, self.obs.cameras[c]) for c in cams if c in self.unknown}
+        if unknown:
+            res, estimated = solve_with_intrinsics(problem, unknown, np.array(raw).reshape(-1, 2),
+                                                   self.params.estimate_k1)
+            for c in cams:
+                if index[c] in estimated:
+                    self._set_intrinsics(c, estimated[index[c]])
+        else:
+            res = solve(problem)
         for c in cams:
             self.poses[c] = res.T_world_cam[index[c]]
         for k, i in kidx.items():
@@ -492,11 +561,13 @@ def geometric_gate_scales(sigma_by_id: dict[int, float], params: SfmParams) -> d
 
 
 def reconstruct_group(obs: GridObservations, members: list[int], pairs: list[PairGeometry], group_id: str,
-                      params: SfmParams) -> tuple[CameraGroupResult | None, dict[int, str]]:
+                      params: SfmParams, unknown: frozenset[int] = frozenset()
+                      ) -> tuple[CameraGroupResult | None, dict[int, str]]:
+    """One group's reconstruction; `unknown`: the cameras whose intrinsics it estimates."""
     inside = [p for p in pairs if p.a in members and p.b in members and p.F is not None and strong_edge(p, params)]
     if not inside:
         return None, {c: "no camera pair of its group has enough matches" for c in members}
-    result, failed, keys = _reconstruct(obs, members, inside, group_id, params, {})
+    result, failed, keys = _reconstruct(obs, members, inside, group_id, params, {}, unknown)
     # Our addition: the gates are tuned for keypoints whose views agree to ~1 px. Real pose
     # keypoints disagree between views by 3-5 px per class (view-dependent errors that the
     # temporal noise scale does not see), and the 6 px gate then keeps only the views that
@@ -507,7 +578,7 @@ def reconstruct_group(obs: GridObservations, members: list[int], pairs: list[Pai
     # many cameras and explain the first reconstruction's own points nearly as well.
     scales = geometric_gate_scales(result.sigma_px_by_id, params) if result is not None else {}
     if params.geometric_gates and scales:
-        again, failed_again, _ = _reconstruct(obs, members, inside, group_id, params, scales)
+        again, failed_again, _ = _reconstruct(obs, members, inside, group_id, params, scales, unknown)
         if again is not None and len(again.names) >= len(result.names):
             before, after = agreement_px(obs, keys, result), agreement_px(obs, keys, again)
             if after <= params.max_agreement_ratio * before:
@@ -519,7 +590,8 @@ def reconstruct_group(obs: GridObservations, members: list[int], pairs: list[Pai
 def agreement_px(obs: GridObservations, keys: np.ndarray, result: CameraGroupResult) -> float:
     """Median reprojection residual (px) of the agent points `keys`, each triangulated from
     its views among the group's cameras with the group's poses: how well the poses explain
-    those points, in any gauge."""
+    those points, in any gauge (raw pixels of estimated cameras through the group's estimates)."""
+    obs = with_estimates(obs, result)
     poses = {obs.names.index(n): T for n, T in result.T_local_cam.items()}
     residuals = []
     for key in keys:
@@ -535,14 +607,16 @@ def agreement_px(obs: GridObservations, keys: np.ndarray, result: CameraGroupRes
 
 
 def _reconstruct(obs: GridObservations, members: list[int], inside: list[PairGeometry], group_id: str,
-                 params: SfmParams, id_gate_scale: dict[int, float]
+                 params: SfmParams, id_gate_scale: dict[int, float], unknown: frozenset[int] = frozenset()
                  ) -> tuple[CameraGroupResult | None, dict[int, str], np.ndarray]:
     """One incremental reconstruction and its robust rounds: the group, the reasons of the
     cameras left out, and the keys of the agent points in its final bundle adjustment."""
-    ranked = sorted(inside, key=lambda p: match_score(p) if params.overlap_ordering else p.num_inliers,
+    # A pair of known intrinsics first: its relative pose needs no focal estimate.
+    ranked = sorted(inside, key=lambda p: (-len({p.a, p.b} & unknown),
+                                           match_score(p) if params.overlap_ordering else p.num_inliers),
                     reverse=True)
     for init in ranked:
-        sfm = IncrementalSfm(obs, members, params, id_gate_scale)
+        sfm = IncrementalSfm(obs, members, params, id_gate_scale, unknown)
         sfm.initialise(init)
         # A wrong decomposition triangulates few of the pair's inliers in front of both
         # cameras: then try the next pair (paper: geometric verification of the solution).
@@ -578,17 +652,20 @@ def _reconstruct(obs: GridObservations, members: list[int], inside: list[PairGeo
     stamps, ids = obs.stamp_and_id(ba["keys"])
     result = CameraGroupResult(group_id, obs.names[init.a], names, {obs.names[c]: sfm.poses[c] for c in ba["cams"]},
                                stamps, ids, np.array([sfm.points[int(k)] for k in ba["keys"]]), rmse, counts,
-                               sigma_by_id, (obs.names[init.a], obs.names[init.b]))
+                               sigma_by_id, (obs.names[init.a], obs.names[init.b]),
+                               {obs.names[c]: m for c, m in sfm.estimated.items() if c in sfm.poses})
     return result, sfm.failed, ba["keys"]
 
 
 def calibrate_groups(cams: list[CameraTracks], params: SfmParams = SfmParams(),
-                     clock_components: dict[str, str] | None = None) -> GroupingResult:
+                     clock_components: dict[str, str] | None = None, estimate: frozenset[str] = frozenset()
+                     ) -> GroupingResult:
     """All CMCs -> groups with relative poses + local agent tracks, and the rest with reasons.
     `clock_components`: camera -> the reference of its clock (yowo_cmc.clock); two cameras
     on different clocks whose offset is unknown are not matched (their stamps do not
     relate: a room walked after another would pair the end of one with the start of the
-    other)."""
+    other). `estimate`: the cameras whose intrinsics are unknown (their CameraTracks carry a
+    nominal model of the right image size): the group SfM estimates them."""
     if not cams:
         return GroupingResult([], {}, [])
     obs = sample_on_grid(cams, params.tracks)
@@ -603,10 +680,11 @@ def calibrate_groups(cams: list[CameraTracks], params: SfmParams = SfmParams(),
     groups, reasons = group_cameras(obs, pairs, params)
     results = []
     for members in groups:
-        result, failed = reconstruct_group(obs, members, pairs, f"g{len(results)}", params)
+        unknown = frozenset(c for c in members if obs.names[c] in estimate)
+        result, failed = reconstruct_group(obs, members, pairs, f"g{len(results)}", params, unknown)
         reasons.update(failed)
         if result is not None and len(result.names) >= 2:
-            result.cameras = {c.name: c.camera for c in cams if c.name in result.names}
+            result.cameras = {c.name: result.cameras.get(c.name, c.camera) for c in cams if c.name in result.names}
             results.append(result)
         elif result is not None:
             reasons.update({obs.names.index(n): "its group fell apart (too few registered cameras)"

@@ -1,6 +1,8 @@
 """group_sfm_node: gathers every CMC's validated agent keypoints and CameraInfo,
 and when the streams are complete computes the CMC groups and their relative
-calibration; publishes yowo_msgs/CameraGroupArray on /yowo/cmc/groups (latched)."""
+calibration; publishes yowo_msgs/CameraGroupArray on /yowo/cmc/groups (latched).
+Parameter `estimate_intrinsics`: the cameras without intrinsics (their tracker published a
+nominal model); the group SfM estimates their focal length (and k1)."""
 from __future__ import annotations
 
 from sensor_msgs.msg import CameraInfo
@@ -12,6 +14,7 @@ from yowo_common.ros.stage import LATCHED, StageNode
 from yowo_common.rosconv import camera_info_to_model
 
 from .config import CmcParams
+from .intrinsics import EstimatedCamera
 from .pipeline import calibrate_cmcs
 from .keypoint_input import TrackAccumulator, frame_from_msg
 from .messages import groups_to_msg
@@ -23,6 +26,10 @@ class GroupSfmNode(StageNode):
         cameras = [c for c in self.declare_parameter("cameras", [""]).value if c]
         if not cameras:
             raise ValueError("group_sfm_node needs the parameter cameras:=[name, ...]")
+        self.estimate = frozenset(c for c in self.declare_parameter("estimate_intrinsics", [""]).value if c)
+        unknown = sorted(self.estimate - set(cameras))
+        if unknown:
+            raise ValueError(f"group_sfm_node: estimate_intrinsics names cameras not in cameras: {', '.join(unknown)}")
         self.cmc = self.section(CmcParams, "cmc")
         self.params = self.cmc.sfm
         self.acc = {c: TrackAccumulator(c) for c in cameras}
@@ -50,12 +57,12 @@ class GroupSfmNode(StageNode):
         usable = [a for a in self.acc.values() if a.camera is not None]
         unusable = {a.name: "no usable CameraInfo" for a in self.acc.values() if a.camera is None}
         tracks = [a.tracks() for a in usable]
-        result = calibrate_cmcs(tracks, self.cmc)
+        result = calibrate_cmcs(tracks, self.cmc, self.estimate)
         result.ungrouped.update(unusable)
         self.pub.publish(groups_to_msg(result, self.last_stamp))
         lines = [f"{g.group_id}: {', '.join(g.names)} (initial pair {'/'.join(g.initial_pair)}, RMSE "
-                 + ", ".join(f"{n} {g.rmse_px[n]:.2f}px" for n in g.names) + widened_gates(g) + ")"
-                 for g in result.groups]
+                 + ", ".join(f"{n} {g.rmse_px[n]:.2f}px" for n in g.names) + widened_gates(g)
+                 + estimated_intrinsics(g) + ")" for g in result.groups]
         lines += [f"{name}: {why}" for name, why in result.ungrouped.items()]
         return "; ".join(lines)
 
@@ -66,6 +73,11 @@ def widened_gates(group) -> str:
     scales = group.gate_scales.values()
     return (f"; reconstructed again with the gates of {len(scales)} noisier keypoint ids widened "
             f"x{min(scales):.1f}-{max(scales):.1f}")
+
+
+def estimated_intrinsics(group) -> str:
+    cams = {n: c for n, c in group.cameras.items() if isinstance(c, EstimatedCamera)}
+    return "".join(f"; {n} focal estimated {c.K[0, 0]:.1f} +- {c.focal_sigma_px:.1f} px" for n, c in cams.items())
 
 
 def main(args=None):

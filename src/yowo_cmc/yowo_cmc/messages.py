@@ -5,10 +5,22 @@ import numpy as np
 from std_msgs.msg import Header
 from yowo_msgs.msg import CameraGroup, CameraGroupArray
 
+from yowo_common.camera import CameraModel
 from yowo_common.rosconv import (array_to_points, camera_info_to_model, matrix_to_pose, model_to_camera_info,
                                  ns_to_time, points_to_array, pose_to_matrix, stamp_to_ns)
 
 from .group_sfm import CameraGroupResult, GroupingResult
+from .intrinsics import EstimatedCamera
+
+NAN = float("nan")
+
+
+def _estimated(camera: CameraModel, focal_sigma_px: float, k1_sigma: float) -> CameraModel:
+    """The camera as the group SfM estimated it, when its focal has a sigma (NaN: from CameraInfo)."""
+    if not np.isfinite(focal_sigma_px):
+        return camera
+    return EstimatedCamera(camera.width, camera.height, camera.K, camera.D, camera.distortion_model,
+                           focal_sigma_px=focal_sigma_px, k1_sigma=k1_sigma)
 
 
 def groups_to_msg(result: GroupingResult, stamp_ns: int) -> CameraGroupArray:
@@ -21,6 +33,8 @@ def groups_to_msg(result: GroupingResult, stamp_ns: int) -> CameraGroupArray:
             reprojection_rmse_px=[float(g.rmse_px[n]) for n in g.names],
             num_observations=[int(g.num_observations[n]) for n in g.names],
             camera_infos=[model_to_camera_info(g.cameras[n]) for n in g.names if n in g.cameras],
+            focal_sigmas_px=[float(getattr(g.cameras.get(n), "focal_sigma_px", NAN)) for n in g.names],
+            k1_sigmas=[float(getattr(g.cameras.get(n), "k1_sigma", NAN)) for n in g.names],
             clock_offsets_s=[float(g.clock_offsets_s.get(n, np.nan)) for n in g.names],
             clock_sigmas_s=[float(g.clock_sigmas_s.get(n, np.nan)) for n in g.names], clocks_applied=g.clocks_applied,
             sigma_keypoint_ids=[int(i) for i in g.sigma_px_by_id], sigma_px=[float(s) for s in g.sigma_px_by_id.values()],
@@ -45,9 +59,15 @@ def groups_from_msg(msg: CameraGroupArray) -> tuple[list[CameraGroupResult], dic
             {int(i): float(s) for i, s in zip(g.sigma_keypoint_ids, g.sigma_px)},
             (g.reference_camera, g.initial_pair_camera),
             # a group without them (an older message) has no intrinsics to give
-            {n: camera_info_to_model(i) for n, i in zip(names, g.camera_infos)} if len(g.camera_infos) == len(names)
-            else {},
+            {n: _estimated(camera_info_to_model(i), s, k)
+             for n, i, s, k in zip(names, g.camera_infos, _or_nan(g.focal_sigmas_px, names), _or_nan(g.k1_sigmas, names))}
+            if len(g.camera_infos) == len(names) else {},
             {n: float(o) for n, o in zip(names, g.clock_offsets_s) if np.isfinite(o)},
             {n: float(s) for n, s, o in zip(names, g.clock_sigmas_s, g.clock_offsets_s) if np.isfinite(o)},
             g.clocks_applied))
     return groups, dict(zip(msg.ungrouped_cameras, msg.ungrouped_reasons))
+
+
+def _or_nan(values, names) -> list[float]:
+    """A per-camera array, NaN for every camera when the message has none (an older one)."""
+    return list(values) if len(values) == len(names) else [NAN] * len(names)

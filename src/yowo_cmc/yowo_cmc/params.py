@@ -95,6 +95,13 @@ class SfmParams:
     # rooms seen together by one camera 0.215; Pose2Sim's demo 0.63, caliscope's 0.70 (4
     # cameras around one person). 0: never split.
     max_cut_conductance: float = 0.1
+    # Cameras without intrinsics (group_sfm_node's estimate_intrinsics): their focal length is
+    # searched between these horizontal fields of view [deg] (pair: two-view geometry; PnP:
+    # focal_steps values, log spaced) and refined in the group bundle adjustment.
+    hfov_range_deg: tuple[float, float] = (20.0, 150.0)
+    focal_steps: int = 24
+    # ... with their radial distortion k1 (False: held at 0, which biases the focal of a distorted lens)
+    estimate_k1: bool = True
 
 
 @dataclass(frozen=True)

@@ -5,6 +5,8 @@ offsets refined per group with its poses and points, and the group SfM once more
 refined stamps. What the group SfM node and the offline API both run."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 from .clock import attach_to_groups, estimate_clock_offsets, refine_group_offsets
 from .config import CmcParams
 from .group_sfm import GroupingResult, calibrate_groups
@@ -16,15 +18,18 @@ def significant(offsets: dict[str, float], sigmas: dict[str, float], k: float) -
     return {n: o if abs(o) > k * sigmas.get(n, 0.0) else 0.0 for n, o in offsets.items()}
 
 
-def calibrate_cmcs(tracks: list[CameraTracks], params: CmcParams = CmcParams()) -> GroupingResult:
+def calibrate_cmcs(tracks: list[CameraTracks], params: CmcParams = CmcParams(),
+                   estimate_intrinsics: frozenset[str] = frozenset()) -> GroupingResult:
     """Groups with relative poses and agent tracks. Each group's points are stamped on
     its reference camera's clock, and `clock_offsets_s` says how far each member's clock
-    is from it (member's stamp of an instant = reference's + offset)."""
+    is from it (member's stamp of an instant = reference's + offset). `estimate_intrinsics`:
+    the cameras whose intrinsics the group SfM estimates (their tracks carry a nominal model)."""
+    unknown = frozenset(estimate_intrinsics)
     if not params.estimate_clock_offsets:
-        return calibrate_groups(tracks, params.sfm)
+        return calibrate_groups(tracks, params.sfm, estimate=unknown)
     estimate = estimate_clock_offsets(tracks, params.clock, params.sfm)
     if not params.clock.apply:
-        grouping = calibrate_groups(tracks, params.sfm)
+        grouping = calibrate_groups(tracks, params.sfm, estimate=unknown)
         attach_to_groups(grouping.groups, estimate)
         return grouping
     # Each camera's offset to the reference camera of its co-visibility component
@@ -35,9 +40,11 @@ def calibrate_cmcs(tracks: list[CameraTracks], params: CmcParams = CmcParams()) 
     components = {n: c.reference for n, c in estimate.cameras.items() if c.reference is not None}
     offsets = significant(offsets, sigmas, params.clock.min_significance)
     corrected = [t.shifted(offsets.get(t.name, 0.0)) for t in tracks]
-    grouping = calibrate_groups(corrected, params.sfm, components)
+    grouping = calibrate_groups(corrected, params.sfm, components, unknown)
     if params.clock.refine and grouping.groups:
-        shifted = {t.name: t for t in corrected}
+        # The refinement projects with each member's intrinsics: the group's estimates where it made them.
+        estimated = {n: c for g in grouping.groups for n, c in g.cameras.items() if n in unknown}
+        shifted = {t.name: replace(t, camera=estimated.get(t.name, t.camera)) for t in corrected}
         applied = dict(offsets)
         # Only clocks that some pair's cost curve pinned: where none has a clear minimum (a
         # seated person), the refinement's sigma takes view-dependent keypoint errors for
@@ -55,7 +62,7 @@ def calibrate_cmcs(tracks: list[CameraTracks], params: CmcParams = CmcParams()) 
                 sigmas[n], sigmas[g.reference] = sigma, 0.0
         if offsets != applied:
             grouping = calibrate_groups([t.shifted(offsets.get(t.name, 0.0)) for t in tracks], params.sfm,
-                                        components)
+                                        components, unknown)
     for g in grouping.groups:
         ref = offsets.get(g.reference, 0.0)
         # The group's points onto its reference camera's own clock.

@@ -57,11 +57,16 @@ def read_intrinsics(path: str | Path, camera: str = "") -> CameraModel:
     except UnicodeDecodeError:
         raise IntrinsicsError(f"{path}: not a text file (COLMAP's cameras.bin: convert the model with "
                               "`colmap model_converter --output_type TXT`)") from None
-    where = str(path)
+    return intrinsics_from_text(text, str(path), camera, path.suffix.lower())
+
+
+def intrinsics_from_text(text: str, where: str, camera: str = "", suffix: str = "") -> CameraModel:
+    """The intrinsics in a calibration file's text (see read_intrinsics; `where` names it in
+    messages, `suffix` is its file extension if any)."""
     first = _first_data_line(text)
     if text.lstrip().startswith(("<", "%YAML:")) or "!!opencv-" in text:
         model = _from_mapping(_filestorage(text, where), where)
-    elif _COLMAP_LINE.match(first) or (path.suffix.lower() == ".txt" and ":" not in first):
+    elif _COLMAP_LINE.match(first) or (suffix == ".txt" and ":" not in first):
         model, where = _colmap(text, camera, where)
     else:
         data = _yaml(text, where)

@@ -94,6 +94,15 @@ def cmd_bench_graph(args) -> int:
     return 0 if all(c["exit"] == 0 for c in cases) else 1
 
 
+def cmd_bench_layouts(args) -> int:
+    """One generated recording in every input layout through a plain `yowo run`."""
+    from .layout_bench import run_layout_bench
+
+    cases = run_layout_bench(args.preset, args.seed, args.cmc_source, Path(args.output),
+                             Path(args.markdown) if args.markdown else None, _config_arguments(args))
+    return 0 if all(c["exit"] == 0 for c in cases) else 1
+
+
 def cmd_bench_tum(args) -> int:
     """TUM RGB-D sequences through the real graph with no CMCs: ATE beside published numbers."""
     from .tum_bench import run_tum_bench
@@ -130,6 +139,17 @@ def add_verbs(verbs) -> None:
     p.add_argument("--from-results", action="store_true",
                    help="run nothing: render the tables again from OUTPUT/results.json (e.g. after a report change)")
     p.set_defaults(func=cmd_bench)
+
+    p = verbs.add_parser("bench-layouts", help="one generated recording in YOWO's, the RGB-D drivers' and a video "
+                                               "layout through a plain yowo run -> BENCHMARKS.md")
+    p.add_argument("--preset", default="small")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--cmc-source", default="pose", choices=("pose", "images"),
+                   help="CMC keypoints for every layout (video files carry none): the pose model or the detector")
+    p.add_argument("-o", "--output", default="bench/layouts", help="directory for the recordings and runs")
+    p.add_argument("--markdown", help="put the table into this file (e.g. BENCHMARKS.md), replacing an earlier one")
+    add_config_options(p)
+    p.set_defaults(func=cmd_bench_layouts)
 
     p = verbs.add_parser("bench-graph", help="the real graph's speed (yowo run --rate 0) per stage -> BENCHMARKS.md")
     p.add_argument("--preset", nargs="+", default=["small"])

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from yowo_cmc.group_sfm import CameraGroupResult
+from yowo_cmc.intrinsics import EstimatedCamera
 from yowo_cmc.tracks import CameraTracks, TrackParams, resample
 from yowo_common.bundle import Observations, pose_covariance, reprojection_residuals
 from yowo_common.camera import CameraModel
@@ -562,6 +563,10 @@ def _on_ego_clock(groups: list[CameraGroupResult], ego: EgoMapData, params: Alig
 
 def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, str], cmcs: dict[str, CmcInput],
          params: FusionParams = FusionParams(), upstream: UpstreamParams = UpstreamParams()) -> FusionResult:
+    # A camera without CameraInfo is projected with the intrinsics its group SfM estimated.
+    estimated = {n: c for g in groups for n, c in g.cameras.items() if isinstance(c, EstimatedCamera)}
+    cmcs = {n: replace(c, tracks=replace(c.tracks, camera=estimated[n])) if n in estimated else c
+            for n, c in cmcs.items()}
     ideal_ego = CameraModel(ego.camera.width, ego.camera.height, ego.camera.K)
     ego_obs = Observations(ego.obs_pose.astype(int), ego.obs_landmark.astype(int),
                            ego.camera.undistort_pixels(ego.obs_uv), np.full(len(ego.obs_pose), params.joint.ego_sigma_px))
