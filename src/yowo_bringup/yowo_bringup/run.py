@@ -316,7 +316,8 @@ def _stage_nodes(mode: str, trackers: list[tuple[str, str, dict[str, str]]], ego
                  ) -> tuple[list[NodeSpec], str, dict[str, str]]:
     """The stage processes (trackers: (camera, source, its topic parameters)), the final stage
     and the latched outputs the runner collects. `imu`: the ego mapper's IMU parameters (none:
-    no IMU); `estimated`: the cameras whose intrinsics the group SfM estimates."""
+    no IMU); `estimated`: the cameras whose intrinsics the group SfM estimates (the fusion
+    registers them only in a group)."""
     unknown = {"estimate_intrinsics": list(estimated)} if estimated else {}
     ego_params = {"color_topic": ego[0], "depth_topic": ego[1], "info_topic": ego[2], **(imu or {})}
     if mode == EGO:             # the map alone: its stage publishes the map, path, cloud and layout
@@ -330,7 +331,7 @@ def _stage_nodes(mode: str, trackers: list[tuple[str, str, dict[str, str]]], ego
     outputs = {topics.GROUPS: "yowo_msgs/msg/CameraGroupArray"}
     if mode == FULL:
         nodes.append(NodeSpec("ego_mapper", STAGE_MODULES["ego_mapper"], ego_params))
-        nodes.append(NodeSpec("fusion", STAGE_MODULES["fusion"], {"cameras": cameras}))
+        nodes.append(NodeSpec("fusion", STAGE_MODULES["fusion"], {"cameras": cameras, **unknown}))
         final = "fusion"
         outputs.update({topics.CMC_POSES: "yowo_msgs/msg/RegisteredCameraArray", topics.TF_STATIC: "tf2_msgs/msg/TFMessage",
                         topics.LAYOUT_MARKERS: "visualization_msgs/msg/MarkerArray", **EGO_OUTPUTS,

@@ -104,3 +104,12 @@ def test_group_estimates_an_unknown_focal_and_k1(unknown):
     assert isinstance(back.cameras[unknown], EstimatedCamera)
     assert back.cameras[unknown].focal_sigma_px == pytest.approx(est.focal_sigma_px)
     assert not isinstance(back.cameras["b"], EstimatedCamera)
+
+
+def test_a_group_with_no_known_intrinsics_is_not_calibrated():
+    cams = rig()
+    tracks = observe(cams, WALK, 40.0, sigma_px=1.0, seed=3)
+    result = calibrate_groups(nominal(tracks, {"a", "b", "c"}), SfmParams(), estimate=frozenset({"a", "b", "c"}))
+    assert not result.groups
+    assert sorted(result.ungrouped) == ["a", "b", "c"]
+    assert all("no camera of its group has known intrinsics" in why for why in result.ungrouped.values())

@@ -13,7 +13,7 @@ from yowo_common.camera import CameraModel
 from yowo_common.geometry import se3
 from yowo_ego.layout import Layout
 from yowo_fusion.alignment import AlignParams, estimate_clock_offset
-from yowo_fusion.pipeline import (GROUP_SFM, ISOLATED_PNP, OK, WEAK, CmcInput, EgoMapData, FusionParams, fuse,
+from yowo_fusion.pipeline import (FAILED, GROUP_SFM, ISOLATED_PNP, OK, WEAK, CmcInput, EgoMapData, FusionParams, fuse,
                                  weak_ego_frames)
 
 OFFSET = np.array([0.0, -0.10, -0.08])
@@ -415,3 +415,17 @@ def test_a_camera_on_a_stretch_the_joint_optimisation_moved_is_never_ok():
         assert c.status == WEAK and "the joint optimisation moved it by" in c.reason, (c.name, c.reason)
     lax = fuse(drift, grouping.groups, grouping.ungrouped, inputs, FusionParams(ok_map_moved_m=np.inf))
     assert {c.name: c.status for c in lax.cameras}["b1"] == OK, [(c.name, c.reason) for c in lax.cameras]
+
+
+def test_an_isolated_camera_without_intrinsics_is_failed_with_the_reason():
+    """b1 has no CameraInfo (its tracker's model is nominal) and no group to estimate it in:
+    placing it by its nominal focal length would be garbage, so it is failed and says why."""
+    cams, tracks, ego = world()
+    grouping = calibrate_groups(tracks)
+    result = fuse(ego, grouping.groups, grouping.ungrouped,
+                  {t.name: CmcInput(t, intrinsics_known=t.name != "b1") for t in tracks},
+                  FusionParams(joint_optimisation=False))
+    by_name = {c.name: c for c in result.cameras}
+    assert by_name["b1"].status == FAILED and by_name["b1"].T_world_cam is None
+    assert "--intrinsics" in by_name["b1"].reason, by_name["b1"].reason
+    assert all(by_name[n].status == OK for n in ("a1", "a2", "a3"))

@@ -30,6 +30,8 @@ class FusionNode(StageNode):
     def __init__(self):
         super().__init__(topics.FUSION_STAGE)
         cameras = [c for c in self.declare_parameter("cameras", [""]).value if c]
+        # Cameras without intrinsics: their trackers' models are nominal (registered only in a group).
+        self.estimated = {c for c in self.declare_parameter("estimate_intrinsics", [""]).value if c}
         self.params = self.section(FusionParams, "fusion")
         defaults = UpstreamParams()
         self.upstream = UpstreamParams(**{field: self.section(type(getattr(defaults, field)), home, field)
@@ -70,7 +72,8 @@ class FusionNode(StageNode):
         if self.groups is None:
             raise ValueError("no CMC groups arrived (the group SfM failed)")
         groups, ungrouped = groups_from_msg(self.groups)
-        cmcs = {n: CmcInput(a.tracks(), decode_color(self.backgrounds[n]) if n in self.backgrounds else None)
+        cmcs = {n: CmcInput(a.tracks(), decode_color(self.backgrounds[n]) if n in self.backgrounds else None,
+                            n not in self.estimated)
                 for n, a in self.acc.items() if a.camera is not None}
         ungrouped.update({n: "no usable CameraInfo" for n, a in self.acc.items() if a.camera is None})
         ego = ego_map_from_msg(self.ego_map, self.cloud, self.layout)

@@ -56,6 +56,7 @@ class EgoMapData:
 class CmcInput:
     tracks: CameraTracks             # raw keypoints + camera model with distortion
     background: np.ndarray | None = None   # agent-free RGB image, for scene keypoints
+    intrinsics_known: bool = True    # False: the camera model is a nominal one its group SfM estimates
 
 
 @dataclass
@@ -809,6 +810,10 @@ def _register_isolated(name: str, why: str, cmc: CmcInput | None, agent: AgentTr
     registration now rests on (never ok)."""
     if cmc is None:
         return RegisteredCmc(name, "", NONE, FAILED, why, None, None, None, float("nan"), 0, 0)
+    if not cmc.intrinsics_known:     # its nominal model would place it wherever its focal length says
+        return RegisteredCmc(name, "", NONE, FAILED, f"{why}; without CameraInfo or an intrinsics file it is "
+                             "calibrated only within a group (give them with --intrinsics)", None, None, None,
+                             float("nan"), 0, 0)
     pnp, reason = register_by_agent(cmc.tracks, agent, params.isolated, tracks)
     if pnp is None:
         return RegisteredCmc(name, "", NONE, FAILED, f"{why}; isolated registration failed: {reason}", None, None,
