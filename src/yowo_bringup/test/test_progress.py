@@ -45,3 +45,22 @@ def test_the_live_bar_fits_80_columns_with_share_eta_and_stages():
     (row,) = [line for line in console.file.getvalue().splitlines() if line.strip()]
     assert len(row) <= 80 and "━" in row and "50%" in row and "replay ETA" in row, row
     assert "1/41 stages, 3 re-sent" in row, row
+
+
+def test_a_stage_that_receives_nothing_of_a_played_topic_is_named_once():
+    from yowo_msgs.msg import ReplayStatus, StageStatus
+
+    from yowo_bringup.run_node import silent_inputs
+
+    replay = ReplayStatus(topics=["/cmc/a/image_raw", "/ego/color/image_raw"], published_counts=[40, 0])
+    statuses = {"keypoint_tracker_a": StageStatus(state=StageStatus.STATE_RUNNING, input_topics=["/cmc/a/image_raw"],
+                                                  received_counts=[0]),
+                "ego_mapper": StageStatus(state=StageStatus.STATE_RUNNING, input_topics=["/ego/color/image_raw"],
+                                          received_counts=[0]),       # nothing played on it yet: not silent
+                "keypoint_tracker_b": StageStatus(state=StageStatus.STATE_RUNNING, input_topics=["/cmc/a/image_raw"],
+                                                  received_counts=[3])}
+    seen, told = {}, set()
+    assert silent_inputs(replay, statuses, seen, told, now_s=10.0, after_s=60.0) == []
+    (said,) = silent_inputs(replay, statuses, seen, told, now_s=71.0, after_s=60.0)
+    assert "keypoint_tracker_a" in said and "none of the 40 messages" in said and "/cmc/a/image_raw" in said
+    assert silent_inputs(replay, statuses, seen, told, now_s=200.0, after_s=60.0) == []     # said once

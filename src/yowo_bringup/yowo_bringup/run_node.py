@@ -41,6 +41,33 @@ class RunFailed(RuntimeError):
     pass
 
 
+# A stage that receives none of a replayed topic's messages this long is named on the console.
+SILENT_INPUT_S = 60.0
+
+
+def silent_inputs(replay, statuses: dict, unreceived: dict, told: set, now_s: float,
+                  after_s: float = SILENT_INPUT_S) -> list[str]:
+    """Once each (`told`): a running stage that has received none of a topic's messages
+    `after_s` seconds after it first saw the replay had published some (`unreceived`:
+    (stage, topic) -> then); such messages never reach it."""
+    if replay is None:
+        return []
+    played = dict(zip(replay.topics, replay.published_counts))
+    said = []
+    for stage, msg in statuses.items():
+        if msg.state != StageStatus.STATE_RUNNING:
+            continue
+        for topic, received in zip(msg.input_topics, msg.received_counts):
+            if received or not played.get(topic):
+                continue
+            since = unreceived.setdefault((stage, topic), now_s)
+            if now_s - since > after_s and (stage, topic) not in told:
+                told.add((stage, topic))
+                said.append(f"stage '{stage}' has received none of the {played[topic]} messages the replay "
+                            f"published on {topic} in {now_s - since:.0f} s (see logs/{stage}.log)")
+    return said
+
+
 class RunMonitor(Node):
     def __init__(self, stages: list[str], outputs: dict[str, str], run_id: str = ""):
         super().__init__("yowo_run")
@@ -55,6 +82,8 @@ class RunMonitor(Node):
         self._relay = None
         self._announced = None
         self._playing_since: float | None = None
+        self._unreceived: dict[tuple[str, str], float] = {}    # (stage, topic) -> when first seen unreceived
+        self._told: set[tuple[str, str]] = set()
         for topic, msgtype in outputs.items():
             self.create_subscription(message_class(msgtype), topic,
                                      lambda m, t=topic: self.outputs.__setitem__(t, m), LATCHED)
@@ -93,6 +122,9 @@ class RunMonitor(Node):
                          else FAILED if msg.state == StageStatus.STATE_FAILED else DONE)
         return RunProgress(elapsed_s, played, total, self.replay.resent_messages if self.replay else 0,
                            self._playing_since, states)
+
+    def silent_inputs(self, now_s: float) -> list[str]:
+        return silent_inputs(self.replay, self.status, self._unreceived, self._told, now_s)
 
     def strays(self) -> dict[str, int]:
         """Status messages of other runs each node heard and ignored."""
@@ -188,6 +220,8 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
                                    + ", ".join(f"{s}={'done' if monitor.finished(s) else 'running'}" for s in stages))
                         break
                     progress(monitor.progress(stages, time.monotonic() - t0, plan.replay_messages))
+                    for silent in monitor.silent_inputs(time.monotonic() - t0):
+                        log(f"warning: {silent}")
                     if time.monotonic() - last_sample >= SAMPLE_S:
                         memory = time.monotonic() - last_memory >= MEMORY_SAMPLE_S
                         sup.sample(memory)
