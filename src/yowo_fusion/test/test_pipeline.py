@@ -429,3 +429,18 @@ def test_an_isolated_camera_without_intrinsics_is_failed_with_the_reason():
     assert by_name["b1"].status == FAILED and by_name["b1"].T_world_cam is None
     assert "--intrinsics" in by_name["b1"].reason, by_name["b1"].reason
     assert all(by_name[n].status == OK for n in ("a1", "a2", "a3"))
+
+
+def test_poses_no_ceiling_camera_can_have_are_named():
+    from yowo_fusion.pipeline import absurd_pose
+
+    params = FusionParams()
+    cam, T = ceiling_camera(0.3, 0.3, (3.0, 2.5))
+    walker = np.array([[3.0, 2.5, 1.0], [2.5, 2.0, 0.0], [3.5, 3.0, 1.7]])
+    assert absurd_pose(T, walker, params) == ""
+    below = T.copy()
+    below[2, 3] = -1.0
+    assert "1.00 m below the floor" in absurd_pose(below, walker, params)
+    flipped = T @ se3(Rotation.from_euler("z", 180, degrees=True).as_matrix(), np.zeros(3))
+    assert "upside down" in absurd_pose(flipped, walker, params)
+    assert "100 % of the walker's positions it saw are behind it" in absurd_pose(T, 2 * T[:3, 3] - walker, params)

@@ -14,7 +14,7 @@ from yowo_cmc.intrinsics import EstimatedCamera
 from yowo_cmc.tracks import CameraTracks, TrackParams, resample
 from yowo_common.bundle import Observations, pose_covariance, reprojection_residuals
 from yowo_common.camera import CameraModel
-from yowo_common.geometry import Sim3
+from yowo_common.geometry import Sim3, inv_se3, transform_points
 from yowo_ego.layout import Layout, LayoutParams
 from yowo_ego.scene import CloudParams
 
@@ -143,6 +143,10 @@ class FusionParams:
     # held `ok` cameras 0.12-0.17 m off; dim_light s1 without the IMU 0.10 / 0.14 m (cameras
     # 0.015-0.10 m off); the other 16 hard small runs, with the IMU or without, at most 0.08 m.
     ok_map_moved_m: float = 0.10
+    # A registered pose this far below the floor [m], or whose image up points below the
+    # horizontal by more than this cosine (upside down), is refused.
+    absurd_margin_m: float = 0.5
+    max_upside_down_cos: float = 0.5
     # A group's head-top track and the head top the ego trajectory predicts differ by more than
     # this (RMS): one of the two is wrong. After the joint optimisation it says so; before it
     # (the group as aligned, the ego map as the ego stage made it) the joint optimisation had to
@@ -633,8 +637,41 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
     for n, why in sorted(grouped.failed.items()):
         registered.append(_register_isolated(n, why, cmcs.get(n), track, ego, T_ego, landmarks, params,
                                              upstream.tracks, weak, n in grouped.disputed))
+    # The agent points each grouped camera observed (an isolated one's PnP had them in front).
+    seen = {n: agent.points[agent_obs.point[agent_obs.camera == i]] for i, n in enumerate(names)}
+    registered = [_refuse_absurd(r, seen.get(r.name, np.zeros((0, 3))), params) for r in registered]
     return FusionResult(sorted(registered, key=lambda r: r.name), T_ego, landmarks, agent, head_offset, cloud,
                         ego.cloud_colors, layout, grouped.alignments, fits)
+
+
+def absurd_pose(T_world_cam: np.ndarray, agent_points: np.ndarray, params: FusionParams) -> str:
+    """Why a camera pose cannot be a ceiling camera's that saw the walker ('' when it can):
+    below the floor (z = 0), image upside down, or with most of the agent points it saw behind
+    it. (Above the ceiling is not checked: the ego map need not hold the ceiling.)"""
+    z = float(T_world_cam[2, 3])
+    if z < -params.absurd_margin_m:
+        return f"{-z:.2f} m below the floor"
+    up = -T_world_cam[:3, 1]                  # the image's up direction in the world
+    if up[2] < -params.max_upside_down_cos:
+        return f"its image is upside down (image up {np.degrees(np.arccos(np.clip(up[2], -1, 1))):.0f} deg from the vertical)"
+    if len(agent_points):
+        in_cam = transform_points(inv_se3(T_world_cam), agent_points)
+        behind = float(np.mean(in_cam[:, 2] <= 0))
+        if behind > 0.5:
+            return f"{100 * behind:.0f} % of the walker's positions it saw are behind it"
+    return ""
+
+
+def _refuse_absurd(r: RegisteredCmc, seen: np.ndarray, params: FusionParams) -> RegisteredCmc:
+    """A registration no ceiling camera can have is failed with the reason (never published)."""
+    if r.T_world_cam is None or r.status == FAILED:
+        return r
+    why = absurd_pose(r.T_world_cam, seen, params)
+    if not why:
+        return r
+    where = ", ".join(f"{v:.2f}" for v in r.T_world_cam[:3, 3])
+    return replace(r, status=FAILED, reason=f"rejected: {why} (at {where} m)" + (f"; {r.reason}" if r.reason else ""),
+                   T_world_cam=None, covariance=None)
 
 
 @dataclass
