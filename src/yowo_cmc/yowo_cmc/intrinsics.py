@@ -12,7 +12,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import K as CAL, L, X
 
-from yowo_common.bundle import FIXED_SIGMA, BundleProblem, BundleResult, optimize, pose3
+from yowo_common.bundle import FIXED_SIGMA, BundleProblem, BundleResult, optimize, problem_graph
 from yowo_common.camera import CameraModel
 from yowo_common.pnp import sqpnp_ransac
 
@@ -102,18 +102,7 @@ def solve_with_intrinsics(problem: BundleProblem, unknown: dict[int, CameraModel
     """yowo_common.bundle.solve with a calibration variable (focal, k1) per camera in
     `unknown` (its current estimate): the observations of those cameras are raw pixels
     (`raw_uv`, parallel to problem.obs). k2 is held at 0, and k1 too unless estimate_k1."""
-    graph = gtsam.NonlinearFactorGraph()
-    values = gtsam.Values()
-    for i, T in enumerate(problem.T_world_cam):
-        values.insert(X(i), pose3(T))
-        if i in problem.fixed_cameras:
-            graph.add(gtsam.PriorFactorPose3(X(i), pose3(T), gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)))
-    if problem.baseline_prior is not None:
-        a, b, dist, sigma = problem.baseline_prior
-        graph.add(gtsam.RangeFactorPose3(X(a), X(b), dist, gtsam.noiseModel.Isotropic.Sigma(1, sigma)))
-    used = np.unique(problem.obs.point)
-    for j in used:
-        values.insert(L(int(j)), gtsam.Point3(*problem.points[j]))
+    graph, values = problem_graph(problem)
     # Cal3Bundler: (f, k1, k2) with the principal point fixed at the centre; the prior pins
     # what is not estimated (k2, and k1 unless asked) and leaves f free.
     free = 1e6
@@ -138,7 +127,7 @@ def solve_with_intrinsics(problem: BundleProblem, unknown: dict[int, CameraModel
     result, initial_error, final_error, iterations = optimize(graph, values, max_iterations)
     T_out = [result.atPose3(X(i)).matrix() for i in range(len(problem.T_world_cam))]
     points = problem.points.copy()
-    for j in used:
+    for j in np.unique(problem.obs.point):
         points[j] = result.atPoint3(L(int(j)))
     marginals = gtsam.Marginals(graph, result)
     estimated = {}

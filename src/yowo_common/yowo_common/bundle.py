@@ -69,7 +69,8 @@ class BundleResult:
 FIXED_SIGMA = 1e-6
 
 
-def solve(problem: BundleProblem, max_iterations: int = 100) -> BundleResult:
+def problem_graph(problem: BundleProblem) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    """The problem's poses and points with their priors (every factor but the projections)."""
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     for i, T in enumerate(problem.T_world_cam):
@@ -87,11 +88,16 @@ def solve(problem: BundleProblem, max_iterations: int = 100) -> BundleResult:
         values.insert(L(int(j)), gtsam.Point3(*problem.points[j]))
     for j, (xyz, sigma) in problem.point_priors.items():
         graph.add(gtsam.PriorFactorPoint3(L(j), gtsam.Point3(*xyz), gtsam.noiseModel.Isotropic.Sigma(3, sigma)))
+    return graph, values
+
+
+def solve(problem: BundleProblem, max_iterations: int = 100) -> BundleResult:
+    graph, values = problem_graph(problem)
     add_projection_factors(graph, problem.obs, problem.cameras, X, L, problem.huber_k)
     result, initial_error, final_error, iterations = optimize(graph, values, max_iterations)
     T_out = [result.atPose3(X(i)).matrix() for i in range(len(problem.T_world_cam))]
     points = problem.points.copy()
-    for j in used:
+    for j in np.unique(problem.obs.point):
         points[j] = result.atPoint3(L(int(j)))
     return BundleResult(T_out, points, reprojection_residuals(problem.cameras, T_out, points, problem.obs),
                         initial_error, final_error, iterations)
