@@ -43,7 +43,7 @@ ROSDEP = {"cv2": "python3-opencv", "numpy": "python3-numpy", "scipy": "python3-s
           "gtsam": "gtsam", "rosbags": "python3-rosbags-pip", "mcap": "mcap-ros2-support",
           "shapely": "python3-shapely", "open3d": "python3-open3d-pip", "networkx": "python3-networkx",
           "matplotlib": "python3-matplotlib", "rich": "python3-rich", "dacite": None, "lz4": None, "ai_edge_litert": None,
-          "zstandard": None}
+          "zstandard": None, "av": "python3-av"}
 ROS_PACKAGES = {"rclpy", "builtin_interfaces", "geometry_msgs", "nav_msgs", "sensor_msgs", "std_msgs", "tf2_msgs",
                 "visualization_msgs", "rosgraph_msgs", "yowo_msgs", "yowo_common", "yowo_ego", "yowo_cmc",
                 "yowo_fusion", "yowo_bringup", "yowo_sim", "yowo_eval"}

@@ -185,25 +185,33 @@ def _copy(src, dst, keep) -> None:
 
 def test_planner_plays_the_imu_when_recorded(tiny_bag, tmp_path):
     """Full and ego-only plans play /ego/imu and its calibration to the ego mapper when the
-    recording has both; a recording without them plays what it did before."""
+    recording has both; without the calibration topic its extrinsics come from /tf_static;
+    with neither, or without the IMU, the plan plays what it did before."""
     _copy(tiny_bag, tmp_path / "no_cmc", lambda t: not t.startswith("/cmc/"))
     _copy(tiny_bag, tmp_path / "no_imu", lambda t: t not in IMU_TOPICS)
     _copy(tiny_bag, tmp_path / "no_calibration", lambda t: t != topics.EGO_IMU_CALIBRATION)
-    for bag, mode, imu in (("full", FULL, True), ("no_cmc", EGO, True), ("no_imu", FULL, False),
-                           ("no_calibration", FULL, False)):
+    _copy(tiny_bag, tmp_path / "no_extrinsics", lambda t: t not in (topics.EGO_IMU_CALIBRATION, topics.TF_STATIC))
+    for bag, mode, imu, calibration in (("full", FULL, True, "topic"), ("no_cmc", EGO, True, "topic"),
+                                        ("no_imu", FULL, False, ""), ("no_calibration", FULL, True, "tf"),
+                                        ("no_extrinsics", FULL, False, "")):
         plan = plan_run(tiny_bag if bag == "full" else tmp_path / bag, tmp_path / f"out_{bag}")
         assert plan.mode == mode, bag
         nodes = {n.name: n for n in plan.nodes}
+        ego = nodes["ego_mapper"].parameters
         played = set(nodes["replay"].parameters["topics"])
-        assert ({topics.EGO_IMU, topics.EGO_IMU_CALIBRATION} <= played) == imu, bag
+        assert (topics.EGO_IMU in played) == imu and (topics.EGO_IMU_CALIBRATION in played) == (calibration == "topic")
         assert not any(t.startswith(topics.GT_PREFIX) for t in played)
-        assert nodes["ego_mapper"].parameters["imu_topic"] == (topics.EGO_IMU if imu else ""), bag
+        assert ego.get("imu_topic", "") == (topics.EGO_IMU if imu else ""), bag
+        assert bool(ego.get("imu_calibration")) == (calibration == "tf"), bag
+        assert plan.inputs["imu"]["used"] == imu, plan.inputs
         assert plan.replay_messages == sum(t.count for t in list_topics(plan.bag) if t.name in played)
+    assert "no extrinsics" in plan.inputs["imu"]["reason"]
     # Told not to use it, the graph neither plays nor waits for it.
     off = plan_run(tiny_bag, tmp_path / "out_off", config=YowoConfig(ego=EgoParams(
         odometry=replace(EgoParams().odometry, use_imu=False))))
     nodes = {n.name: n for n in off.nodes}
-    assert topics.EGO_IMU not in nodes["replay"].parameters["topics"] and nodes["ego_mapper"].parameters["imu_topic"] == ""
+    assert topics.EGO_IMU not in nodes["replay"].parameters["topics"]
+    assert not nodes["ego_mapper"].parameters.get("imu_topic")
 
 
 @pytest.fixture
