@@ -218,13 +218,15 @@ def intrinsics_text(path: str, camera: str) -> str:
 
 
 def _video_clock_search(config: YowoConfig) -> YowoConfig:
-    """The ego-clock fit widened to cover a video's start inputs.video_clock_error_s off. The
+    """The ego-clock fits (a group's, an isolated camera's) widened to cover a video's start
+    inputs.video_clock_error_s off. The
     videos of one NVR share its clock, so the search between cameras keeps its range: widened to
     twice that, walks through rooms seconds apart matched cameras of different rooms (small
     seed 0: a group of four across two rooms, 96 px RMSE)."""
     err = config.inputs.video_clock_error_s
     align = replace(config.fusion.align, max_clock_offset_s=max(config.fusion.align.max_clock_offset_s, err + 0.5))
-    return replace(config, fusion=replace(config.fusion, align=align))
+    isolated = replace(config.fusion.isolated, clock_search_s=max(config.fusion.isolated.clock_search_s, err + 0.5))
+    return replace(config, fusion=replace(config.fusion, align=align, isolated=isolated))
 
 
 def plan_ego_imu(bag, imap, config: YowoConfig, color_topic: str) -> tuple[dict[str, str], dict]:

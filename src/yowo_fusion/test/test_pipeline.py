@@ -444,3 +444,25 @@ def test_poses_no_ceiling_camera_can_have_are_named():
     flipped = T @ se3(Rotation.from_euler("z", 180, degrees=True).as_matrix(), np.zeros(3))
     assert "upside down" in absurd_pose(flipped, walker, params)
     assert "100 % of the walker's positions it saw are behind it" in absurd_pose(T, 2 * T[:3, 3] - walker, params)
+
+
+def test_an_isolated_camera_whose_clock_is_seconds_off_is_registered_at_its_offset():
+    """Every camera's stamps 3 s ahead of the ego clock (one NVR's videos whose start is off):
+    the group's fit finds the offset, and b1, isolated, is searched near it; without the
+    search (stamps taken as the ego clock's) it is registered nowhere near its pose."""
+    cams, tracks, ego = world()
+    tracks = [t.shifted(-3.0) for t in tracks]
+    grouping = calibrate_groups(tracks)
+    params = FusionParams(joint_optimisation=False)
+    videos = replace(params, align=replace(params.align, max_clock_offset_s=3.5),
+                     isolated=replace(params.isolated, clock_search_s=3.5))
+    by_name = {c.name: c for c in fuse(ego, grouping.groups, grouping.ungrouped,
+                                       {t.name: CmcInput(t) for t in tracks}, videos).cameras}
+    b1 = by_name["b1"]
+    assert abs(b1.clock_offset_s - 3.0) < 0.03 and abs(by_name["a1"].clock_offset_s - 3.0) < 0.03, b1.clock_offset_s
+    err = registration_errors({"b1": b1.T_world_cam}, {"b1": cams["b1"][1]})[0]
+    assert err.eps_pos_m < 0.08 and err.eps_rot_deg < 1.0, err
+    unsearched = {c.name: c for c in fuse(ego, grouping.groups, grouping.ungrouped,
+                                          {t.name: CmcInput(t) for t in tracks}, params).cameras}["b1"]
+    assert unsearched.T_world_cam is None or registration_errors(
+        {"b1": unsearched.T_world_cam}, {"b1": cams["b1"][1]})[0].eps_pos_m > 0.2

@@ -20,6 +20,14 @@ class IsolatedParams:
     pnp_px: float = 4.0
     min_spread_m: float = 0.05       # RMS spread of the 3D points below which no pose is attempted
     max_gap_s: float = 0.25          # the world track is interpolated only between samples this close
+    # The camera's clock offset to the ego clock is searched within +- this [s] (0: its stamps are on
+    # the ego clock; `yowo run` sets it for CCTV video files, whose start can be seconds off), on a
+    # grid of clock_step_s, then around the best shift at a tenth of it. Where groups found their
+    # offsets, the search is within +- clock_near_groups_s of theirs (one NVR's videos share its
+    # clock): over +-10 s, walks along the same paths seconds apart gave wrong poses (small seed 0).
+    clock_search_s: float = 0.0
+    clock_step_s: float = 0.1
+    clock_near_groups_s: float = 1.0
 
 
 @dataclass
@@ -86,6 +94,38 @@ def register_by_agent(cam: CameraTracks, track: AgentTrack, params: IsolatedPara
         return None, f"PnP on {len(P)} agent correspondences found no consistent pose"
     _, T, idx = best
     return PnpResult(T, P[idx], uv[idx], ideal), ""
+
+
+def register_over_clock(cam: CameraTracks, track: AgentTrack, params: IsolatedParams = IsolatedParams(),
+                        tracks: TrackParams = TrackParams(), groups_offset_s: float | None = None
+                        ) -> tuple[PnpResult | None, str, float]:
+    """register_by_agent at the clock offset (camera's clock - the ego clock) whose pose has the
+    most agent inliers, then the lowest reprojection error: within params.clock_search_s, or
+    within clock_near_groups_s of `groups_offset_s` (the groups' offset to the ego clock) where
+    known; a best offset at the edge of the search is none. (result, why not, offset [s])."""
+    if params.clock_search_s <= 0:
+        return (*register_by_agent(cam, track, params, tracks), 0.0)
+    centre, half = ((0.0, params.clock_search_s) if groups_offset_s is None
+                    else (groups_offset_s, params.clock_near_groups_s))
+
+    def best_of(shifts):
+        found = []
+        for s in shifts:
+            pnp, _ = register_by_agent(cam.shifted(float(s)), track, params, tracks)
+            if pnp is not None:
+                err = np.linalg.norm(pnp.camera.project_world(pnp.T_world_cam, pnp.points)[0] - pnp.uv, axis=1)
+                found.append(((len(pnp.points), -float(np.mean(err))), float(s)))
+        return max(found)[1] if found else None
+
+    step = params.clock_step_s
+    grid = centre + np.arange(-half, half + step / 2, step)
+    coarse = best_of(grid)
+    if coarse is None or coarse in (grid[0], grid[-1]):
+        where = "no pose" if coarse is None else f"the best pose at the edge ({coarse:+.1f} s)"
+        return None, f"{where} of its clock offset search ({centre:+.1f} +- {half:g} s)", 0.0
+    offset = best_of(coarse + np.arange(-step, step + step / 20, step / 10))
+    pnp, why = register_by_agent(cam.shifted(offset), track, params, tracks)
+    return pnp, why, offset
 
 
 def _score(P, uv, camera: CameraModel, rvec, tvec, params: IsolatedParams):

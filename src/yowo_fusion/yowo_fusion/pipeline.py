@@ -19,7 +19,7 @@ from yowo_ego.layout import Layout, LayoutParams
 from yowo_ego.scene import CloudParams
 
 from .alignment import AlignParams, ClockFit, align_group, estimate_clock_offset, interpolate_positions
-from .isolated import AgentTrack, IsolatedParams, refine_pose, register_by_agent
+from .isolated import AgentTrack, IsolatedParams, refine_pose, register_over_clock
 from .joint import (TOP, UNKNOWN_COVARIANCE, JointParams, JointProblem, JointResult, covariance_unavailable,
                     ros_covariance, solve_joint, solver_failure)
 from .refined_map import move_cloud, rebuild_layout
@@ -634,9 +634,11 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
     # track implied by the ego trajectory (head top = T_world_ego * o, ground point under it
     # on the floor z = 0) -- an extension: the paper needs a group to have seen the agent.
     track = merge_tracks(agent, ego_agent_track(T_ego, ego.stamps_ns, head_offset), params.isolated.max_gap_s)
+    known = [c[0] for c in grouped.clocks.values() if c[0] is not None]
+    groups_offset = float(np.median(known)) if known else None
     for n, why in sorted(grouped.failed.items()):
         registered.append(_register_isolated(n, why, cmcs.get(n), track, ego, T_ego, landmarks, params,
-                                             upstream.tracks, weak, n in grouped.disputed))
+                                             upstream.tracks, weak, n in grouped.disputed, groups_offset))
     # The agent points each grouped camera observed (an isolated one's PnP had them in front).
     seen = {n: agent.points[agent_obs.point[agent_obs.camera == i]] for i, n in enumerate(names)}
     registered = [_refuse_absurd(r, seen.get(r.name, np.zeros((0, 3))), params) for r in registered]
@@ -842,19 +844,23 @@ def _scene_observations(names, cams, T_init, cmcs, ego: EgoMapData, params: Fusi
 
 def _register_isolated(name: str, why: str, cmc: CmcInput | None, agent: AgentTrack, ego: EgoMapData,
                        T_world_ego: np.ndarray, landmarks: np.ndarray, params: FusionParams, tracks: TrackParams,
-                       weak: tuple[np.ndarray, np.ndarray], disputed: bool = False) -> RegisteredCmc:
+                       weak: tuple[np.ndarray, np.ndarray], disputed: bool = False,
+                       groups_offset_s: float | None = None) -> RegisteredCmc:
     """disputed: the camera's self-consistent group contradicts the ego trajectory its
-    registration now rests on (never ok)."""
+    registration now rests on (never ok); groups_offset_s: the groups' clock offset to the ego
+    clock, where the clock search (params.isolated.clock_search_s) looks first."""
     if cmc is None:
         return RegisteredCmc(name, "", NONE, FAILED, why, None, None, None, float("nan"), 0, 0)
     if not cmc.intrinsics_known:     # its nominal model would place it wherever its focal length says
         return RegisteredCmc(name, "", NONE, FAILED, f"{why}; without CameraInfo or an intrinsics file it is "
                              "calibrated only within a group (give them with --intrinsics)", None, None, None,
                              float("nan"), 0, 0)
-    pnp, reason = register_by_agent(cmc.tracks, agent, params.isolated, tracks)
+    pnp, reason, offset = register_over_clock(cmc.tracks, agent, params.isolated, tracks, groups_offset_s)
     if pnp is None:
         return RegisteredCmc(name, "", NONE, FAILED, f"{why}; isolated registration failed: {reason}", None, None,
                              cmc.tracks.camera, float("nan"), 0, 0)
+    clock = ((offset, params.isolated.clock_step_s / 10, "this camera's clock minus the ego camera's, the offset "
+              "its isolated registration fits best") if params.isolated.clock_search_s > 0 else (None, None, ""))
     P, uv, T = pnp.points, pnp.uv, pnp.T_world_cam
     n_agent, n_scene = len(P), 0
     if params.use_scene_keypoints:
@@ -877,4 +883,4 @@ def _register_isolated(name: str, why: str, cmc: CmcInput | None, agent: AgentTr
     elif disputed:
         status = WEAK
     return RegisteredCmc(name, "", ISOLATED_PNP, status, "; ".join(r for r in (f"isolated: {why}", reason) if r),
-                         T, cov, cmc.tracks.camera, rmse, n_agent, n_scene)
+                         T, cov, cmc.tracks.camera, rmse, n_agent, n_scene, *clock)
