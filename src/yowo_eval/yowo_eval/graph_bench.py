@@ -157,6 +157,16 @@ def keep_section(old_text: str, new_text: str) -> str:
     return keep_sections(old_text, new_text, ("graph-speed",))
 
 
+def write_cases(out_dir: Path, files: tuple[str, str], cases: list[dict], section: str, markdown_path: Path | None,
+                name: str = "graph-speed") -> None:
+    """A bench's cases and its markdown section into `files` (JSON, markdown) of `out_dir`
+    and, when asked, the section in place in `markdown_path`."""
+    (out_dir / files[0]).write_text(json.dumps(cases, indent=1))
+    (out_dir / files[1]).write_text(section)
+    if markdown_path is not None:
+        replace_section(markdown_path, section, name)
+
+
 def run_graph_bench(presets: list[str], seeds: list[int], sources: list[str], out_dir: Path,
                     markdown_path: Path | None, extra: list[str], log=print) -> list[dict]:
     command = "yowo " + " ".join(shlex.quote(a) for a in sys.argv[1:])
@@ -169,9 +179,5 @@ def run_graph_bench(presets: list[str], seeds: list[int], sources: list[str], ou
                 log(f"{bag.name} ({source}): {case['wall_s']:.0f} s for {case['recording_s']:.0f} s of recording "
                     f"({case['ratio']:.2f}), exit {case['exit']}")
                 cases.append(case)
-                (out_dir / "graph_cases.json").write_text(json.dumps(cases, indent=1))
-                section = speed_markdown(cases, command)
-                (out_dir / "GRAPH_SPEED.md").write_text(section)
-                if markdown_path is not None:
-                    replace_section(markdown_path, section)
+                write_cases(out_dir, ("graph_cases.json", "GRAPH_SPEED.md"), cases, speed_markdown(cases, command), markdown_path)
     return cases

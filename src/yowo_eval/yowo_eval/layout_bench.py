@@ -3,7 +3,6 @@ with its ceiling cameras as video files, each through a plain `yowo run`: the sa
 should give the same result whatever names its topics have."""
 from __future__ import annotations
 
-import json
 import shlex
 import sys
 from pathlib import Path
@@ -13,7 +12,7 @@ from yowo_sim.driver_layout import write_driver_layout
 
 from .bench import bag_for
 from .bench_report import markers
-from .graph_bench import graph_case, replace_section
+from .graph_bench import graph_case, write_cases
 
 SECTION = "layouts"
 BEGIN, END = markers(SECTION)
@@ -69,9 +68,5 @@ def run_layout_bench(preset: str, seed: int, source: str, out_dir: Path, markdow
                      extra: list[str], log=print) -> list[dict]:
     command = "yowo " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     cases = layout_cases(preset, seed, out_dir, source, extra, log)
-    (out_dir / "layout_cases.json").write_text(json.dumps(cases, indent=1))
-    section = layouts_markdown(cases, command)
-    (out_dir / "LAYOUTS.md").write_text(section)
-    if markdown_path is not None:
-        replace_section(markdown_path, section, SECTION)
+    write_cases(out_dir, ("layout_cases.json", "LAYOUTS.md"), cases, layouts_markdown(cases, command), markdown_path, SECTION)
     return cases

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 from .bench_report import markers
-from .graph_bench import graph_case, replace_section
+from .graph_bench import graph_case, write_cases
 
 SECTION = "tum-rgbd"
 
@@ -79,11 +79,7 @@ def run_tum_bench(folders: list[Path], out_dir: Path, markdown_path: Path | None
         log(f"{case['sequence']}: ATE {case['ego_ate_m']} m, {case['wall_s']:.0f} s for {case['recording_s']:.0f} s "
             f"of recording, exit {case['exit']}" + (f": {case['error']}" if case["exit"] else ""))
         cases.append(case)
-        (out_dir / "tum_cases.json").write_text(json.dumps(cases, indent=1))
-        section = tum_markdown(cases, command)
-        (out_dir / "TUM_RGBD.md").write_text(section)
-        if markdown_path is not None:
-            replace_section(markdown_path, section, SECTION)
+        write_cases(out_dir, ("tum_cases.json", "TUM_RGBD.md"), cases, tum_markdown(cases, command), markdown_path, SECTION)
     return cases
 
 
