@@ -301,12 +301,15 @@ class EgoMapper:
         points, colors = fuse_cloud(keyframes, T_bundle, tr.odometry.K, p.cloud)
         cams = np.array([T[:3, 3] for T in T_bundle])
         patches, small, small_normals = planar_patches(points, cams, p.cloud)
+        # The IMU's gravity where there is one: a head looking down much of the walk has its mean
+        # image-up too far from the vertical for the floor's patches (tiny s0, split IMU: 5 deg off).
+        up, up_from = self._up_guess(T_bundle, inertial_up)
         try:
-            n, c, support = find_floor(patches, small, small_normals, cams, up_from_cameras(T_bundle), p.cloud)
+            n, c, support = find_floor(patches, small, small_normals, cams, up, p.cloud)
         except ValueError as exc:
-            # No floor plane: fall back to the head's mean up direction and the lowest points.
-            warnings.append(f"{exc}; using the camera's mean up direction instead")
-            n = up_from_cameras(T_bundle)
+            # No floor plane: fall back to the up direction and the lowest points.
+            warnings.append(f"{exc}; using {up_from} instead")
+            n = up
             c = small[np.argmin(small @ n)] if len(small) else cams[0] - 1.6 * n
             support = 0
         rect = rectify(n, c, T_bundle[0], support)
@@ -365,6 +368,17 @@ class EgoMapper:
                                         up, self.params.inertial)
         stats.update(imu_factors=len(terms.between), imu_intervals_skipped=len(terms.skipped))
         return terms
+
+    def _up_guess(self, T_bundle: list[np.ndarray], inertial_up: np.ndarray | None) -> tuple[np.ndarray, str]:
+        """The odometry frame's up direction to look for the floor along, and what it is."""
+        if self._imu_usable():
+            if inertial_up is not None:
+                return inertial_up, "the IMU's gravity"
+            try:
+                return up_from_accelerometer(self.tracker.imu, *self._odom_frames(T_bundle)), "the IMU's gravity"
+            except ValueError:
+                pass
+        return up_from_cameras(T_bundle), "the camera's mean up direction"
 
     def _check_gravity(self, W: np.ndarray, T_bundle: list[np.ndarray], up: np.ndarray | None, stats: dict,
                        warnings: list[str]) -> None:
