@@ -15,6 +15,7 @@ is, then resumes. Only one stage reads each replayed topic (tracker or ego mappe
 so nobody else sees the repetition."""
 from __future__ import annotations
 
+import heapq
 import os
 import time
 from pathlib import Path
@@ -23,12 +24,14 @@ import rclpy
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header
 from yowo_msgs.msg import ReplayStatus, StageStatus
 
 from yowo_common import topics
-from yowo_common.ros.bag import BagError, BagTopic, list_topics, message_class, recording_damage, unknown_type_reason
+from yowo_common.ros.bag import (BagError, BagTopic, RawMessage, list_topics, message_class, read_raw, recording_damage,
+                                 unknown_type_reason)
 from yowo_common.config import describe_changes, load
 from yowo_common.ros.context import ros_context
 from yowo_common.ros.stage import LATCHED, RunFilter
@@ -36,7 +39,7 @@ from yowo_common.ros.timing import NodeTiming
 from yowo_common.rosconv import ns_to_time
 
 from .replay import Pacer, ReplayParams, select_topics
-from .video import VideoError, played_messages, probe_video
+from .video import VideoError, VideoInput, probe_video, video_images
 
 # Fast DDS acknowledges only on its heartbeat (3 s by default); this profile shortens it.
 FASTDDS_PROFILE = Path(__file__).parent / "config" / "replay_fastdds.xml"
@@ -272,6 +275,18 @@ class ReplayNode(Node):
     def _stages_done(self) -> bool:
         return all(s in self.stage_status and self.stage_status[s].state != StageStatus.STATE_RUNNING
                    for s in self.stages)
+
+
+def played_messages(bag, wanted: list[str], videos: list[VideoInput]):
+    """The recording's messages on `wanted` topics and the frames of the videos among them, as
+    serialised messages in log-time order (a frame's log time is its stamp)."""
+    def frames(video):
+        for stamp_ns, msg in video_images(video):
+            yield RawMessage(video.topic, "sensor_msgs/msg/Image", stamp_ns, serialize_message(msg), False)
+
+    from_videos = [v for v in videos if v.topic in wanted]
+    recorded = read_raw(bag, [t for t in wanted if t not in {v.topic for v in from_videos}])
+    return heapq.merge(recorded, *map(frames, from_videos), key=lambda raw: raw.log_time_ns)
 
 
 def main(args=None):

@@ -151,20 +151,3 @@ def video_images(video: VideoInput) -> Iterator[tuple[int, object]]:
     except av.error.FFmpegError as exc:
         raise VideoError(f"{video.path}: decoding stopped after {decoded} frames ({exc})") from exc
 
-
-def played_messages(bag, wanted: list[str], videos: list[VideoInput]):
-    """The recording's messages on `wanted` topics and the frames of the videos among them, as
-    serialised messages in log-time order (a frame's log time is its stamp)."""
-    import heapq
-
-    from rclpy.serialization import serialize_message
-
-    from yowo_common.ros.bag import RawMessage, read_raw
-
-    def frames(video):
-        for stamp_ns, msg in video_images(video):
-            yield RawMessage(video.topic, "sensor_msgs/msg/Image", stamp_ns, serialize_message(msg), False)
-
-    from_videos = [v for v in videos if v.topic in wanted]
-    recorded = read_raw(bag, [t for t in wanted if t not in {v.topic for v in from_videos}])
-    return heapq.merge(recorded, *map(frames, from_videos), key=lambda raw: raw.log_time_ns)
