@@ -18,7 +18,7 @@ from yowo_common.rosconv import matrix_to_pose, model_to_camera_info, ns_to_time
 def write_keypoint_bag(path, cams, tracks):
     with BagWriter(path) as bag:
         t0 = min(int(t.stamps_ns.min()) for ct in tracks for t in ct.tracks.values())
-        for name, (cam, T) in cams.items():
+        for name, (_, T) in cams.items():
             bag.write(f"/gt/cmc/{name}/pose", PoseStamped(header=Header(stamp=ns_to_time(t0), frame_id="map"),
                                                           pose=matrix_to_pose(T)), t0)
         frames = []

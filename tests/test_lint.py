@@ -46,7 +46,7 @@ ROSDEP = {"cv2": "python3-opencv", "numpy": "python3-numpy", "scipy": "python3-s
           "zstandard": None, "av": "python3-av"}
 ROS_PACKAGES = {"rclpy", "builtin_interfaces", "geometry_msgs", "nav_msgs", "sensor_msgs", "std_msgs", "tf2_msgs",
                 "visualization_msgs", "rosgraph_msgs", "yowo_msgs", "yowo_common", "yowo_ego", "yowo_cmc",
-                "yowo_fusion", "yowo_bringup", "yowo_sim", "yowo_eval"}
+                "yowo_fusion", "yowo_bringup", "yowo_sim", "yowo_eval", "launch", "launch_ros", "ament_index_python"}
 PYTHON_PACKAGES = RUNTIME + ("yowo_sim", "yowo_eval")
 
 
@@ -56,7 +56,9 @@ def test_package_xml_declares_what_the_code_imports():
     problems = []
     for pkg in PYTHON_PACKAGES:
         declared = {e.text for e in ET.parse(ROOT / "src" / pkg / "package.xml").getroot().iter("exec_depend")}
-        imported = {m.split(".")[0] for p in (ROOT / "src" / pkg / pkg).rglob("*.py") for m in imported_modules(p)}
+        # the package's modules and its launch files (installed with it)
+        sources = [*(ROOT / "src" / pkg / pkg).rglob("*.py"), *(ROOT / "src" / pkg / "launch").glob("*.py")]
+        imported = {m.split(".")[0] for p in sources for m in imported_modules(p)}
         imported -= set(sys.stdlib_module_names) | {pkg}
         unknown = sorted(m for m in imported if m not in ROSDEP and m not in ROS_PACKAGES)
         needed = {ROSDEP.get(m, m) for m in imported if m not in unknown} - {None}

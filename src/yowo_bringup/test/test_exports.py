@@ -11,7 +11,7 @@ import yaml
 from sensor_msgs.msg import CameraInfo
 
 from cmc_synthetic import ceiling_camera
-from yowo_bringup.exports import write_exports
+from yowo_bringup.exports import ExportImages, write_exports
 from yowo_bringup.results import pose_from_entry, write_cameras_yaml
 from yowo_cmc.group_sfm import CameraGroupResult
 from yowo_common.camera import EQUIDISTANT, RATIONAL_POLYNOMIAL, CameraModel
@@ -67,8 +67,19 @@ def _ego() -> EgoMapData:
         obs_pose += [f] * len(seen)
         obs_lm += seen.tolist()
         obs_uv.append(uv[seen])
+    # The map's cloud: a point 1 mm from each landmark but the last, in a colour of its own.
+    cloud = landmarks[:-1] + [0.001, 0.0, 0.0]
+    colours = rng.uniform(0, 1, (len(cloud), 3))
     return EgoMapData(cam, np.array([10**18, 10**18 + 10**8, 10**18 + 2 * 10**8]), np.array(poses), landmarks, "ORB",
-                      np.zeros((30, 32), np.uint8), np.array(obs_pose), np.array(obs_lm), np.vstack(obs_uv))
+                      np.zeros((30, 32), np.uint8), np.array(obs_pose), np.array(obs_lm), np.vstack(obs_uv),
+                      cloud_points=cloud, cloud_colors=colours)
+
+
+def _images(cameras, ego) -> ExportImages:
+    """A background per registered CMC; pixels for two of the three keyframes."""
+    rng = np.random.default_rng(2)
+    return ExportImages(cmc={c.name: rng.integers(0, 255, (480, 640, 3), dtype=np.uint8) for c in cameras[:4]},
+                        ego={int(s): rng.integers(0, 255, (240, 320, 3), dtype=np.uint8) for s in ego.stamps_ns[:2]})
 
 
 @pytest.fixture(scope="module")
@@ -77,9 +88,10 @@ def written(tmp_path_factory):
     cameras, ego = _cameras(), _ego()
     group = _group(cameras)
     write_cameras_yaml(out / "cameras.yaml", cameras, [group])
-    files = write_exports(out / "export", cameras, [group], ego)
+    images = _images(cameras, ego)
+    files = write_exports(out / "export", cameras, [group], ego, images)
     doc = {c["name"]: c for c in yaml.safe_load((out / "cameras.yaml").read_text())["cameras"]}
-    return out, files, doc, cameras, ego
+    return out, files, doc, cameras, ego, images
 
 
 def _model_from_cameras_yaml(entry: dict) -> CameraModel:
@@ -92,7 +104,7 @@ def _target_in(entry: dict) -> np.ndarray:
 
 
 def test_cameras_yaml_intrinsics_clock_and_noise(written):
-    _, _, doc, cameras, _ = written
+    _, _, doc, cameras, _, _ = written
     for c in cameras[:4]:
         e = doc[c.name]
         assert (e["image_width"], e["image_height"]) == (640, 480) and e["distortion_model"] == c.camera.distortion_model
@@ -126,7 +138,7 @@ def read_calibration_yml(path) -> CameraInfo:
 
 
 def test_camera_info_yaml_loads_as_the_registered_camera(written):
-    out, _, doc, cameras, _ = written
+    out, _, doc, cameras, _, _ = written
     for c in cameras[:5]:
         info = read_calibration_yml(out / "export" / "camera_info" / f"{c.name}.yaml")
         model = camera_info_to_model(info)
@@ -140,7 +152,7 @@ def test_camera_info_yaml_loads_as_the_registered_camera(written):
 
 def test_colmap_model_reads_back_with_pycolmap(written):
     import pycolmap    # in requirements.txt: a missing one is a failure, not a skip
-    out, _, doc, _, ego = written
+    out, _, doc, _, ego, _ = written
     rec = pycolmap.Reconstruction(str(out / "export" / "colmap"))
     images = {im.name: im for im in rec.images.values()}
     models = {"a_pinhole": "PINHOLE", "b_radtan": "OPENCV", "c_fisheye": "OPENCV_FISHEYE", "d_rational": "FULL_OPENCV"}
@@ -169,6 +181,26 @@ def test_colmap_model_reads_back_with_pycolmap(written):
     assert rec.compute_mean_reprojection_error() < 1e-4
 
 
+def test_colmap_images_are_written_and_points_coloured_from_the_map(written):
+    import cv2
+    import pycolmap
+
+    out, _, _, _, ego, images = written
+    folder = out / "export" / "colmap"
+    rec = pycolmap.Reconstruction(str(folder))
+    named = sorted(im.name for im in rec.images.values())
+    written_png = sorted(str(p.relative_to(folder)) for p in folder.rglob("*.png"))
+    missing = f"ego/{int(ego.stamps_ns[2])}.png"
+    assert written_png == sorted(set(named) - {missing}), (named, written_png)
+    for name, rgb in images.cmc.items():
+        np.testing.assert_array_equal(cv2.imread(str(folder / f"cmc/{name}.png"))[:, :, ::-1], rgb)
+    assert "1 of the 7 images named in images.txt have no pixels" in (out / "export" / "README.md").read_text()
+    # Each landmark in its cloud point's colour; the last, with none near, grey.
+    colours = np.array([rec.points3D[j + 1].color for j in range(len(ego.landmarks))])
+    np.testing.assert_array_equal(colours[:-1], np.round(ego.cloud_colors * 255).astype(np.uint8))
+    np.testing.assert_array_equal(colours[-1], [128, 128, 128])
+
+
 def _static_tf_parser() -> argparse.ArgumentParser:
     """The named arguments of Jazzy's static_transform_publisher."""
     p = argparse.ArgumentParser()
@@ -180,7 +212,7 @@ def _static_tf_parser() -> argparse.ArgumentParser:
 
 
 def test_static_tf_yaml_and_launch_file(written):
-    out, _, doc, _, _ = written
+    out, _, doc, _, _, _ = written
     tf = yaml.safe_load((out / "export" / "static_tf.yaml").read_text())["transforms"]
     source = (out / "export" / "static_tf.launch.py").read_text()
     compile(source, "static_tf.launch.py", "exec")
@@ -200,7 +232,7 @@ def test_static_tf_yaml_and_launch_file(written):
 
 
 def test_kalibr_camchain(written):
-    out, _, doc, _, _ = written
+    out, _, doc, _, _, _ = written
     path = out / "export" / "camchain_g0.yaml"
     text = path.read_text()
     chain = yaml.safe_load(text)

@@ -13,6 +13,17 @@ def test_share_eta_and_states():
     assert "stages done 2/4" in line and "running: ego_mapper" in line and "waiting: group_sfm" in line
 
 
+def test_the_eta_follows_the_slowest_stage_past_the_replay():
+    stages = {"ego_mapper": RUNNING, "group_sfm": RUNNING}
+    # The replay is over after 20 s of playing; the ego mapper has taken in half of it: 20 s more.
+    p = RunProgress(30.0, 1000, 1000, playing_since_s=10.0, stages=stages, consumed={"ego_mapper": 0.5, "group_sfm": 1.0})
+    assert abs(p.eta_s - 20.0) < 1e-9 and "ETA 20 s" in p.line()
+    # Halfway through the replay, a stage a quarter of the way through its share sets the pace.
+    p = RunProgress(30.0, 500, 1000, playing_since_s=10.0, stages=stages, consumed={"ego_mapper": 0.25})
+    assert abs(p.eta_s - 20.0 * (1 - 0.125) / 0.125) < 1e-9
+    assert RunProgress(30.0, 1000, 1000, playing_since_s=10.0, stages=stages, consumed={"ego_mapper": 1.0}).eta_s is None
+
+
 def test_no_eta_before_playing_or_when_live():
     assert RunProgress(5.0, 0, 1000).eta_s is None
     assert RunProgress(5.0, 1000, 1000, playing_since_s=1.0).eta_s is None      # the replay is over
@@ -37,13 +48,14 @@ def test_the_live_bar_fits_80_columns_with_share_eta_and_stages():
 
     bar = ProgressBar("run 1234567890ab")
     bar(RunProgress(elapsed_s=12.0, played=500, total=1000, playing_since_s=1.0, resent=3,
-                    stages={f"keypoint_tracker_cam{i:02d}": "running" for i in range(40)} | {"fusion": "done"}))
+                    stages={f"keypoint_tracker_cam{i:02d}": "running" for i in range(40)} | {"fusion": "done"},
+                    consumed={"keypoint_tracker_cam00": 0.5}))
     table = bar._bar.make_tasks_table(bar._bar.tasks)
     bar.close()
     console = Console(file=io.StringIO(), width=80)
     console.print(table)
     (row,) = [line for line in console.file.getvalue().splitlines() if line.strip()]
-    assert len(row) <= 80 and "━" in row and "50%" in row and "replay ETA" in row, row
+    assert len(row) <= 80 and "━" in row and "50%" in row and "ETA 0:33" in row, row
     assert "1/41 stages, 3 re-sent" in row, row
 
 

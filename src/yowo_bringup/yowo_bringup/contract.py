@@ -116,7 +116,7 @@ def _intrinsics_files(rules, cameras: set[str]) -> dict[str, str]:
     for rule in rules:
         name, sep, path = str(rule).partition("=")
         if not sep or not path:
-            raise InputMapError(f"intrinsics '{rule}': expected NAME=FILE")
+            raise InputMapError(f"--intrinsics {rule} (inputs.intrinsics): expected CAMERA=FILE")
         if name not in cameras:
             raise InputMapError(f"intrinsics '{rule}': no camera '{name}' in this recording "
                                 f"({', '.join(sorted(cameras)) or 'none'})")

@@ -5,6 +5,7 @@ file of static_transform_publisher), and a kalibr camchain per CMC group."""
 from __future__ import annotations
 
 import shutil
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -78,11 +79,24 @@ def _colmap_pose(T_world_cam: np.ndarray) -> str:
     return " ".join(f"{v:.12g}" for v in (w, x, y, z, *T[:3, 3]))
 
 
-def write_colmap_model(folder: Path, cameras: list[RegisteredCmc], ego: EgoMapData | None) -> list[str]:
+@dataclass(frozen=True, kw_only=True)
+class ExportImages:
+    """The pixels of the images a COLMAP model names (RGB uint8 arrays)."""
+
+    cmc: dict[str, np.ndarray] = field(default_factory=dict)     # camera name -> its background
+    ego: dict[int, np.ndarray] = field(default_factory=dict)     # keyframe stamp [ns] -> its colour image
+
+
+# A landmark takes the colour of the map's nearest cloud point within this distance [m].
+COLOUR_RADIUS_M = 0.05
+
+
+def write_colmap_model(folder: Path, cameras: list[RegisteredCmc], ego: EgoMapData | None,
+                       images: ExportImages = ExportImages()) -> list[str]:
     """cameras.txt, images.txt, points3D.txt: one camera and one image per registered CMC
-    (cmc/<name>.png, no 2D points), the ego camera and its keyframes (ego/<stamp_ns>.png)
-    with their landmark observations; points3D are the ego map's landmarks. Returns what
-    was left out and why."""
+    (cmc/<name>.png, its background; no 2D points), the ego camera and its keyframes
+    (ego/<stamp_ns>.png) with their landmark observations; points3D are the ego map's
+    landmarks, coloured from the map's cloud. Returns what was left out and why."""
     folder.mkdir(parents=True, exist_ok=True)
     skipped, cam_lines, image_lines, point_lines = [], [], [], []
     for c in cameras:
@@ -112,7 +126,38 @@ def write_colmap_model(folder: Path, cameras: list[RegisteredCmc], ego: EgoMapDa
                                        + "".join(line + "\n" for line in image_lines))
     (folder / "points3D.txt").write_text(header + "# POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as "
                                          "(IMAGE_ID, POINT2D_IDX)\n" + "".join(line + "\n" for line in point_lines))
-    return skipped
+    return skipped + _write_images(folder, image_lines, images)
+
+
+def _write_images(folder: Path, image_lines: list[str], images: ExportImages) -> list[str]:
+    """The PNG of every image images.txt names; what has no pixels is said."""
+    import cv2
+
+    missing = []
+    for line in image_lines[::2]:
+        name = line.rsplit(" ", 1)[1]
+        kind, stem = name[:-len(".png")].split("/")
+        rgb = images.cmc.get(stem) if kind == "cmc" else images.ego.get(int(stem))
+        if rgb is None:
+            missing.append(name)
+            continue
+        (folder / kind).mkdir(exist_ok=True)
+        cv2.imwrite(str(folder / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    return [f"{len(missing)} of the {len(image_lines) // 2} images named in images.txt have no pixels in this run "
+            f"(e.g. {missing[0]}: the recording holds no image of it)"] if missing else []
+
+
+def _landmark_colours(ego: EgoMapData) -> np.ndarray:
+    """(P, 3) uint8: each landmark's colour, that of the map's nearest cloud point (grey
+    where none is within COLOUR_RADIUS_M)."""
+    from scipy.spatial import cKDTree
+
+    colours = np.full((len(ego.landmarks), 3), 128, np.uint8)
+    if len(ego.cloud_points) and len(ego.landmarks):
+        dist, idx = cKDTree(ego.cloud_points).query(ego.landmarks, distance_upper_bound=COLOUR_RADIUS_M)
+        near = np.isfinite(dist)
+        colours[near] = np.clip(np.round(ego.cloud_colors[idx[near]] * 255), 0, 255).astype(np.uint8)
+    return colours
 
 
 def _ego_images_and_points(ego: EgoMapData, camera_id: int, first_image_id: int, image_lines: list[str]) -> list[str]:
@@ -132,10 +177,10 @@ def _ego_images_and_points(ego: EgoMapData, camera_id: int, first_image_id: int,
         image_lines.append(f"{image_id} {_colmap_pose(T)} {camera_id} ego/{int(stamp)}.png")
         image_lines.append(" ".join(f"{x + 0.5:.6f} {y + 0.5:.6f} {int(j) + 1}" for (x, y), j in zip(uv, lm)))
     lines = []
-    for j, X in enumerate(ego.landmarks):
+    for j, (X, rgb) in enumerate(zip(ego.landmarks, _landmark_colours(ego))):
         track = tracks.get(j, [])
         err = float(np.sqrt(np.mean(sq_err[j]))) if track else -1.0
-        lines.append(f"{j + 1} {X[0]:.9g} {X[1]:.9g} {X[2]:.9g} 128 128 128 {err:.6g} "
+        lines.append(f"{j + 1} {X[0]:.9g} {X[1]:.9g} {X[2]:.9g} {rgb[0]} {rgb[1]} {rgb[2]} {err:.6g} "
                      + " ".join(f"{i} {k}" for i, k in track))
     return lines
 
@@ -229,7 +274,7 @@ def _overlap(group: CameraGroupResult, a: RegisteredCmc, b: RegisteredCmc) -> bo
 
 
 def write_exports(folder: Path, cameras: list[RegisteredCmc], groups: list[CameraGroupResult],
-                  ego: EgoMapData | None) -> list[Path]:
+                  ego: EgoMapData | None, images: ExportImages = ExportImages()) -> list[Path]:
     """Every export of a full run into folder; README.md lists them and what was left out."""
     shutil.rmtree(folder, ignore_errors=True)   # a previous run's cameras would stay mixed in
     folder.mkdir(parents=True)
@@ -243,7 +288,7 @@ def write_exports(folder: Path, cameras: list[RegisteredCmc], groups: list[Camer
         # flow-style matrices, as camera_calibration_parsers writes them
         (info_dir / f"{c.name}.yaml").write_text(yaml.safe_dump(camera_info_yaml(c.name, c.camera), sort_keys=False,
                                                                 default_flow_style=None))
-    notes += [f"colmap: {s}" for s in write_colmap_model(folder / "colmap", cameras, ego)]
+    notes += [f"colmap: {s}" for s in write_colmap_model(folder / "colmap", cameras, ego, images)]
     write_static_tf(folder, cameras)
     by_name = {c.name: c for c in cameras}
     for g in groups:
@@ -267,8 +312,8 @@ EXPORT_README = """# Exports of this run (written by yowo)
 - `camera_info/<name>.yaml`: the CameraInfo each CMC was registered with, camera_calibration_parsers
   layout (`camera_info_url:=file:///.../<name>.yaml` for camera_info_manager).
 - `colmap/`: COLMAP text model (`pycolmap.Reconstruction("colmap")`, `colmap gui --import_path`): one image
-  per registered CMC (`cmc/<name>.png`, no 2D points) and per ego keyframe (`ego/<stamp_ns>.png`), the ego
-  map's landmarks as points3D. COLMAP's pixel convention: principal point and 2D points are +0.5 px from ROS's.
+  per registered CMC (`cmc/<name>.png`, its background without the walker; no 2D points) and per ego
+  keyframe (`ego/<stamp_ns>.png`), the ego map's landmarks as points3D coloured from the map. COLMAP's pixel convention: principal point and 2D points are +0.5 px from ROS's.
 - `static_tf.yaml`, `static_tf.launch.py`: map -> `<name>_optical_frame` per registered CMC
   (`ros2 launch static_tf.launch.py`).
 - `camchain_<group>.yaml`: kalibr camchain per CMC group (pinhole; radtan k1 k2 p1 p2 or equidistant).

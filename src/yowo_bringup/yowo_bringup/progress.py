@@ -1,5 +1,5 @@
 """How far a run is, for the console: the share of the recording replayed, each
-stage's state and the replay's ETA; as a live bar on a terminal, as a line every few
+stage's state and the ETA of the slowest stage; as a live bar on a terminal, as a line every few
 seconds otherwise (logs, CI). No ROS here: the run monitor fills RunProgress."""
 from __future__ import annotations
 
@@ -18,6 +18,8 @@ class RunProgress:
     resent: int = 0                  # sent again to restarted stages
     playing_since_s: float | None = None   # elapsed time when the first message was played
     stages: dict[str, str] = field(default_factory=dict)   # stage -> WAITING | RUNNING | DONE | FAILED
+    # running stage -> the share of the replayed messages meant for it that it has taken in
+    consumed: dict[str, float] = field(default_factory=dict)
 
     @property
     def share(self) -> float | None:
@@ -25,11 +27,15 @@ class RunProgress:
 
     @property
     def eta_s(self) -> float | None:
-        """Seconds until the replay ends, at the pace so far (the stages finish after it)."""
+        """Seconds until every stage has taken in the whole recording, at the pace so far of
+        the slowest (a stage behind the replay sets it; the stages' last steps come after)."""
         share = self.share
-        if not share or self.playing_since_s is None or share >= 1.0:
+        if not share or self.playing_since_s is None:
             return None
-        return (self.elapsed_s - self.playing_since_s) * (1.0 - share) / share
+        behind = min([share, *(share * c for c in self.consumed.values())])
+        if behind >= 1.0 or behind <= 0.0:
+            return None
+        return (self.elapsed_s - self.playing_since_s) * (1.0 - behind) / behind
 
     def stage_summary(self) -> str:
         by_state: dict[str, list[str]] = {}
@@ -41,7 +47,7 @@ class RunProgress:
         played = (f"replayed {100 * self.share:3.0f} % ({self.played}/{self.total} messages)" if self.total
                   else "live")
         resent = f", {self.resent} re-sent" if self.resent else ""
-        eta = f", replay ETA {self.eta_s:.0f} s" if self.eta_s is not None else ""
+        eta = f", ETA {self.eta_s:.0f} s" if self.eta_s is not None else ""
         done = sum(s in (DONE, FAILED) for s in self.stages.values())
         return (f"[{self.elapsed_s:6.1f} s] {played}{resent}{eta}; stages done {done}/{len(self.stages)} "
                 f"({self.stage_summary()})")
@@ -63,22 +69,23 @@ class ProgressLines:
 
 
 class ProgressBar:
-    """rich's live bar, within 80 columns: replay share, elapsed time, the replay's ETA and
-    how many stages are done (which ones: the line form, the logs)."""
+    """rich's live bar, within 80 columns: replay share, elapsed time, the ETA of the slowest
+    stage and how many stages are done (which ones: the line form, the logs)."""
 
     def __init__(self, description: str):
-        from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeElapsedColumn, \
-            TimeRemainingColumn
+        from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeElapsedColumn
 
         self._bar = Progress(TextColumn("{task.description}"), BarColumn(bar_width=16), TaskProgressColumn(),
-                             TimeElapsedColumn(), TextColumn("replay ETA"), TimeRemainingColumn(),
+                             TimeElapsedColumn(), TextColumn("{task.fields[eta]}"),
                              TextColumn("{task.fields[stages]}"), transient=False)
-        self._task = self._bar.add_task(description.split()[0], total=None, stages="")
+        self._task = self._bar.add_task(description.split()[0], total=None, stages="", eta="")
         self._bar.start()
 
     def __call__(self, p: RunProgress) -> None:
         done = sum(s in (DONE, FAILED) for s in p.stages.values())
+        eta = p.eta_s
         self._bar.update(self._task, completed=p.played, total=p.total or None,
+                         eta=f"ETA {int(eta // 60)}:{int(eta % 60):02d}" if eta is not None else "",
                          stages=f"{done}/{len(p.stages)} stages" + (f", {p.resent} re-sent" if p.resent else ""))
 
     def close(self) -> None:

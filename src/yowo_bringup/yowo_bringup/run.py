@@ -151,7 +151,8 @@ def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, s
     present = set(imap.roles)
     problems = list(inputs.problems)
     if not present:
-        raise ValueError(f"{bag}: the recording holds no messages YOWO reads")
+        raise ValueError(f"{bag}: the recording holds no messages YOWO reads"
+                         + (f" ({'; '.join(problems)})" if problems else ""))
     if mode == FULL and not inputs.has_ego:
         raise ValueError(f"{bag}: no complete ego camera ({'; '.join(p for p in problems if 'ego' in p)}); "
                          "use 'yowo calibrate-cmc' for the CMC-only relative calibration")
@@ -434,7 +435,8 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     elif cameras:
         write_cameras_yaml(out / "cameras.yaml", cameras, groups)
         files.append(out / "cameras.yaml")
-        files += write_exports(out / "export", cameras, groups, _export_ego_keyframes(outputs))
+        ego = _export_ego_keyframes(outputs)
+        files += write_exports(out / "export", cameras, groups, ego, _export_images(plan, outputs, ego))
 
     def final_and_ego(refined: str, ego_only: str, stem: str, ext: str) -> list[tuple[Path, str]]:
         """The fusion's output (at the jointly optimised ego poses) as stem.ext and the ego
@@ -508,6 +510,26 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
         ev.write_metrics(metrics, out / "metrics.json")
         files.append(out / "metrics.json")
     return cameras
+
+
+def _export_images(plan: RunPlan, outputs: dict, ego):
+    """The pixels the COLMAP export names: each CMC's background (the fusion's agent fits
+    carry it) and the ego keyframes' colour images, read again from the recording."""
+    from yowo_common.ros.bag import read_messages
+    from yowo_common.rosconv import decode_color, stamp_to_ns
+    from yowo_fusion.messages import agent_fits_from_msg
+
+    from .exports import ExportImages
+
+    fits = agent_fits_from_msg(outputs[topics.AGENT_FIT]) if topics.AGENT_FIT in outputs else []
+    cmc = {f.name: decode_color(bg) for f, _, bg in fits if bg is not None}
+    keyframes, frames = set() if ego is None else {int(s) for s in ego.stamps_ns}, {}
+    mapper = next((n for n in plan.nodes if n.name == "ego_mapper"), None)
+    if keyframes and mapper is not None and plan.bag is not None:
+        for _, _, msg in read_messages(plan.bag, [mapper.parameters["color_topic"]]):
+            if stamp_to_ns(msg.header.stamp) in keyframes:
+                frames[stamp_to_ns(msg.header.stamp)] = decode_color(msg)
+    return ExportImages(cmc=cmc, ego=frames)
 
 
 def _export_ego_keyframes(outputs: dict):

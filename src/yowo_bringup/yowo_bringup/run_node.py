@@ -115,13 +115,19 @@ class RunMonitor(Node):
         played = sum(self.replay.published_counts) if self.replay else 0
         if played and self._playing_since is None:
             self._playing_since = elapsed_s
-        states = {}
+        states, consumed = {}, {}
+        published = dict(zip(self.replay.topics, self.replay.published_counts)) if self.replay else {}
         for s in stages:
             msg = self.status.get(s)
             states[s] = (WAITING if msg is None else RUNNING if msg.state == StageStatus.STATE_RUNNING
                          else FAILED if msg.state == StageStatus.STATE_FAILED else DONE)
+            if states[s] == RUNNING:
+                # Of the replayed messages meant for it, how many it has taken in.
+                mine = [(int(n), published[t]) for t, n in zip(msg.input_topics, msg.received_counts) if t in published]
+                if sum(p for _, p in mine):
+                    consumed[s] = min(1.0, sum(n for n, _ in mine) / sum(p for _, p in mine))
         return RunProgress(elapsed_s, played, total, self.replay.resent_messages if self.replay else 0,
-                           self._playing_since, states)
+                           self._playing_since, states, consumed)
 
     def silent_inputs(self, now_s: float) -> list[str]:
         return silent_inputs(self.replay, self.status, self._unreceived, self._told, now_s)

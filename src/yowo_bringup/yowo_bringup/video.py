@@ -54,7 +54,7 @@ def parse_video_rule(rule: str) -> tuple[str, Path, str]:
     or an ISO 8601 time with its zone."""
     name, sep, rest = str(rule).partition("=")
     if not sep or not rest:
-        raise VideoError(f"video '{rule}': expected NAME=FILE[@START]")
+        raise VideoError(f"--cmc-video {rule} (inputs.videos): expected CAMERA=FILE[@START]")
     if not _NAME.match(name):
         raise VideoError(f"video '{rule}': camera name '{name}' must be letters, digits and '_', starting with a "
                          f"letter (e.g. {re.sub(r'[^A-Za-z0-9_]', '_', name).lstrip('0123456789_') or 'cam1'})")

@@ -11,7 +11,6 @@ from yowo_msgs.msg import AgentKeypoints, CameraGroupArray
 from yowo_common import topics
 from yowo_common.ros.context import spin_node
 from yowo_common.ros.stage import LATCHED, StageNode
-from yowo_common.rosconv import camera_info_to_model
 
 from .config import CmcParams
 from .intrinsics import EstimatedCamera
@@ -36,17 +35,10 @@ class GroupSfmNode(StageNode):
         self.last_stamp = 0
         self.pub = self.output(CameraGroupArray, topics.GROUPS, LATCHED)
         for cam in cameras:
-            self.stream_input(CameraInfo, topics.tracker_camera_info(cam), lambda m, c=cam: self.on_info(c, m),
+            self.stream_input(CameraInfo, topics.tracker_camera_info(cam), self.acc[cam].take_camera_info,
                               upstream=topics.tracker_stage(cam))
             self.stream_input(AgentKeypoints, topics.tracker_keypoints(cam), lambda m, c=cam: self.on_keypoints(c, m),
                               upstream=topics.tracker_stage(cam))
-
-    def on_info(self, camera: str, msg: CameraInfo) -> None:
-        if self.acc[camera].camera is None:
-            try:
-                self.acc[camera].camera = camera_info_to_model(msg)
-            except ValueError:
-                pass  # the tracker reports bad CameraInfo; this camera ends up ungrouped
 
     def on_keypoints(self, camera: str, msg: AgentKeypoints) -> None:
         frame = frame_from_msg(msg)
@@ -55,7 +47,7 @@ class GroupSfmNode(StageNode):
 
     def finalize(self) -> str:
         usable = [a for a in self.acc.values() if a.camera is not None]
-        unusable = {a.name: "no usable CameraInfo" for a in self.acc.values() if a.camera is None}
+        unusable = {a.name: a.unusable_reason() for a in self.acc.values() if a.camera is None}
         tracks = [a.tracks() for a in usable]
         result = calibrate_cmcs(tracks, self.cmc, self.estimate)
         result.ungrouped.update(unusable)

@@ -33,7 +33,21 @@ class TrackAccumulator:
     frames: list[KeypointFrame] = field(default_factory=list)
     rejected: Counter = field(default_factory=Counter)
     received: int = 0
+    camera_problem: str = ""          # why the CameraInfo received is unusable
     _last_stamp: int = -1
+
+    def take_camera_info(self, msg) -> None:
+        """The intrinsics of the first usable CameraInfo; an unusable one's reason is kept."""
+        from yowo_common.rosconv import camera_info_to_model
+
+        if self.camera is None:
+            try:
+                self.camera, self.camera_problem = camera_info_to_model(msg), ""
+            except ValueError as exc:
+                self.camera_problem = str(exc)
+
+    def unusable_reason(self) -> str:
+        return "no usable CameraInfo" + (f": {self.camera_problem}" if self.camera_problem else "")
 
     def add(self, frame: KeypointFrame) -> KeypointFrame | None:
         """Validate and keep a frame; returns the accepted (possibly reduced) frame or None."""

@@ -115,6 +115,7 @@ class KeypointTrackerNode(StageNode):
             except ValueError as exc:
                 self.info_problem = f"{self.info_topic}: {exc}"
                 self.get_logger().error(self.info_problem)
+                self.pub_info.publish(msg)    # relayed: the stages downstream report the reason
 
     def set_camera(self, camera: CameraModel, msg: CameraInfo | None = None) -> None:
         """The camera's intrinsics, published latched (the received CameraInfo as it came)."""

@@ -18,12 +18,34 @@ def significant(offsets: dict[str, float], sigmas: dict[str, float], k: float) -
     return {n: o if abs(o) > k * sigmas.get(n, 0.0) else 0.0 for n, o in offsets.items()}
 
 
+def alone_in_time(tracks: list[CameraTracks], max_offset_s: float) -> dict[str, str]:
+    """Cameras that saw the agent at no instant another camera did, even with their clocks
+    up to `max_offset_s` apart (a clock set wrong, stamps of zero): no group can hold them,
+    and the groups' common time grid would stretch over the gap."""
+    if len(tracks) < 2:
+        return {}
+    spans = {t.name: t.span_ns() for t in tracks}
+    slack = round(max_offset_s * 1e9)
+    out = {}
+    for name, span in spans.items():
+        others = [s for n, s in spans.items() if n != name and s is not None]
+        if span is not None and not any(span[0] <= o[1] + slack and o[0] <= span[1] + slack for o in others):
+            out[name] = (f"saw the walker at no instant another camera did (its keypoint stamps "
+                         f"{span[0] / 1e9:.3f}..{span[1] / 1e9:.3f} s)")
+    return out
+
+
 def calibrate_cmcs(tracks: list[CameraTracks], params: CmcParams = CmcParams(),
                    estimate_intrinsics: frozenset[str] = frozenset()) -> GroupingResult:
     """Groups with relative poses and agent tracks. Each group's points are stamped on
     its reference camera's clock, and `clock_offsets_s` says how far each member's clock
     is from it (member's stamp of an instant = reference's + offset). `estimate_intrinsics`:
     the cameras whose intrinsics the group SfM estimates (their tracks carry a nominal model)."""
+    apart = alone_in_time(tracks, params.clock.max_offset_s)
+    if apart:
+        grouping = calibrate_cmcs([t for t in tracks if t.name not in apart], params, estimate_intrinsics)
+        grouping.ungrouped.update(apart)
+        return grouping
     unknown = frozenset(estimate_intrinsics)
     if not params.estimate_clock_offsets:
         return calibrate_groups(tracks, params.sfm, estimate=unknown)

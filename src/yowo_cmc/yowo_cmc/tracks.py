@@ -43,6 +43,13 @@ class CameraTracks:
     def num_observations(self) -> int:
         return sum(len(t) for t in self.tracks.values())
 
+    def span_ns(self) -> tuple[int, int] | None:
+        """First and last stamp at which the agent was seen (None: never)."""
+        stamps = [t.stamps_ns for t in self.tracks.values() if len(t.stamps_ns)]
+        if not stamps:
+            return None
+        return int(min(s.min() for s in stamps)), int(max(s.max() for s in stamps))
+
     def shifted(self, offset_s: float) -> "CameraTracks":
         """These tracks on a clock `offset_s` behind this camera's own (stamps - offset)."""
         d = round(offset_s * 1e9)

@@ -132,6 +132,8 @@ def load(cls: type[T], text_or_dict: str | dict | None = None, overrides: list[s
          where: str = "") -> T:
     """`cls` from YAML text (or a dict), then dotted overrides on top."""
     data = yaml.safe_load(text_or_dict) if isinstance(text_or_dict, str) else text_or_dict
+    if data is not None and not isinstance(data, dict):
+        raise ConfigError(f"expected a mapping of sections ({where or 'replay, ego, ...'}), got {data!r}")
     return from_dict(cls, _merge(data or {}, dotted(overrides or []), where, known=False), where)
 
 

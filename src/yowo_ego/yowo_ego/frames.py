@@ -18,6 +18,9 @@ from yowo_common.camera import EQUIDISTANT, CameraModel
 
 # Depth images with fewer valid pixels than this fraction cannot be tracked.
 MIN_VALID_DEPTH_FRACTION = 0.05
+# No RGB-D sensor measures a median depth beyond this [m]: such an image holds millimetres
+# (a 32FC1 image, which holds metres by REP 118, written from a 16-bit one unscaled).
+MAX_MEDIAN_DEPTH_M = 50.0
 # Colour images with fewer textured pixels than this fraction (a covered lens, a
 # failed exposure, a bare wall close up) give neither photometric odometry nor
 # features; indoor views have 10 % and more. They are tracked by their depth alone
@@ -105,6 +108,10 @@ def validate_frame(color: np.ndarray, depth: np.ndarray, camera: CameraModel, co
     if valid.mean() < MIN_VALID_DEPTH_FRACTION:
         raise FrameError(depth_topic, f"too few valid depth pixels (need {100 * MIN_VALID_DEPTH_FRACTION:.0f} %)",
                          f": {100 * valid.mean():.1f} %", stamp_ns)
+    median = float(np.median(depth[valid]))
+    if median > MAX_MEDIAN_DEPTH_M:
+        raise FrameError(depth_topic, "depth beyond any RGB-D sensor's range (millimetres in an image of metres? "
+                         "32FC1 depth holds metres)", f": median {median:.0f}", stamp_ns)
 
 
 def make_frame(stamp_ns: int, color: np.ndarray, depth: np.ndarray, camera: CameraModel,

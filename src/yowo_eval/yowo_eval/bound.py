@@ -79,7 +79,7 @@ def relative_pose_bound(bag: Path, groups: dict[str, list[str]], preset) -> dict
             values.insert(X(i), pose3(gt[n]))
         for key, views in enumerate(v for v in obs.values() if len({i for i, *_ in v}) >= 2):
             values.insert(L(key), gtsam.Point3(*views[0][2]))  # shared point: the grid slot's first sample
-            for i, n, P, kp in views:
+            for i, n, _, kp in views:
                 sigma = spec.sigma_px.get(kp, spec.sigma_body_px)
                 graph.add(gtsam.GenericProjectionFactorCal3_S2(
                     gtsam.Point2(*cams[n].project_world(gt[n], views[0][2][None])[0][0]),

@@ -444,6 +444,15 @@ def test_poses_no_ceiling_camera_can_have_are_named():
     flipped = T @ se3(Rotation.from_euler("z", 180, degrees=True).as_matrix(), np.zeros(3))
     assert "upside down" in absurd_pose(flipped, walker, params)
     assert "100 % of the walker's positions it saw are behind it" in absurd_pose(T, 2 * T[:3, 3] - walker, params)
+    # Above a ceiling the map holds over it: refused; beside that ceiling's patch: not judged.
+    from yowo_ego.layout import KIND_CEILING, LayoutPlane
+
+    height = T[2, 3] - 1.0
+    patch = np.array([[-1.0, -1.0, height], [1.5, -1.0, height], [1.5, 1.5, height], [-1.0, 1.5, height]])
+    ceiling = LayoutPlane(KIND_CEILING, np.array([0.0, 0.0, -1.0, height]), patch, 500)
+    assert "1.00 m above the ceiling the map holds over it" in absurd_pose(T, walker, params, [ceiling])
+    assert absurd_pose(T, walker, params, [replace(ceiling, boundary=patch + [3.0, 3.0, 0.0])]) == ""
+    assert absurd_pose(T, walker, params, [replace(ceiling, coefficients=np.array([0.0, 0.0, -1.0, T[2, 3]]))]) == ""
 
 
 def test_an_isolated_camera_whose_clock_is_seconds_off_is_registered_at_its_offset():

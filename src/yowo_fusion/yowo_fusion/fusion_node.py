@@ -18,7 +18,7 @@ from yowo_cmc.messages import groups_from_msg
 from yowo_common import topics
 from yowo_common.ros.context import spin_node
 from yowo_common.ros.stage import LATCHED, StageNode
-from yowo_common.rosconv import camera_info_to_model, decode_color
+from yowo_common.rosconv import decode_color
 from yowo_ego.ego_messages import path_msg, points_msg, scene_layout_msg
 
 from .messages import agent_fits_to_msg, ego_map_from_msg, layout_markers, registered_to_msg, tf_static
@@ -52,19 +52,12 @@ class FusionNode(StageNode):
         self.stream_input(CameraGroupArray, topics.GROUPS, lambda m: setattr(self, "groups", m),
                           upstream=topics.GROUP_SFM_STAGE)
         for cam in cameras:
-            self.stream_input(CameraInfo, topics.tracker_camera_info(cam), lambda m, c=cam: self.on_info(c, m),
+            self.stream_input(CameraInfo, topics.tracker_camera_info(cam), self.acc[cam].take_camera_info,
                               upstream=topics.tracker_stage(cam))
             self.stream_input(AgentKeypoints, topics.tracker_keypoints(cam),
                               lambda m, c=cam: self.acc[c].add(frame_from_msg(m)), upstream=topics.tracker_stage(cam))
             self.stream_input(Image, topics.tracker_background(cam),
                               lambda m, c=cam: self.backgrounds.__setitem__(c, m), upstream=topics.tracker_stage(cam))
-
-    def on_info(self, camera: str, msg: CameraInfo) -> None:
-        if self.acc[camera].camera is None:
-            try:
-                self.acc[camera].camera = camera_info_to_model(msg)
-            except ValueError:
-                pass  # reported by the tracker; the camera ends up failed
 
     def finalize(self) -> str:
         if self.ego_map is None:
@@ -75,7 +68,7 @@ class FusionNode(StageNode):
         cmcs = {n: CmcInput(a.tracks(), decode_color(self.backgrounds[n]) if n in self.backgrounds else None,
                             n not in self.estimated)
                 for n, a in self.acc.items() if a.camera is not None}
-        ungrouped.update({n: "no usable CameraInfo" for n, a in self.acc.items() if a.camera is None})
+        ungrouped.update({n: a.unusable_reason() for n, a in self.acc.items() if a.camera is None})
         ego = ego_map_from_msg(self.ego_map, self.cloud, self.layout)
         result = fuse(ego, groups, ungrouped, cmcs, self.params, self.upstream)
         stamp = max((f.stamp_ns for a in self.acc.values() for f in a.frames), default=0)

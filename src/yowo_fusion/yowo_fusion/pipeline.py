@@ -15,7 +15,7 @@ from yowo_cmc.tracks import CameraTracks, TrackParams, resample
 from yowo_common.bundle import Observations, pose_covariance, reprojection_residuals
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import Sim3, inv_se3, transform_points
-from yowo_ego.layout import Layout, LayoutParams
+from yowo_ego.layout import KIND_CEILING, Layout, LayoutParams, LayoutPlane
 from yowo_ego.scene import CloudParams
 
 from .alignment import AlignParams, ClockFit, align_group, estimate_clock_offset, interpolate_positions
@@ -143,8 +143,8 @@ class FusionParams:
     # held `ok` cameras 0.12-0.17 m off; dim_light s1 without the IMU 0.10 / 0.14 m (cameras
     # 0.015-0.10 m off); the other 16 hard small runs, with the IMU or without, at most 0.08 m.
     ok_map_moved_m: float = 0.10
-    # A registered pose this far below the floor [m], or whose image up points below the
-    # horizontal by more than this cosine (upside down), is refused.
+    # A registered pose this far below the floor or above a ceiling over it [m], or whose image
+    # up points below the horizontal by more than this cosine (upside down), is refused.
     absurd_margin_m: float = 0.5
     max_upside_down_cos: float = 0.5
     # A group's head-top track and the head top the ego trajectory predicts differ by more than
@@ -641,18 +641,27 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
                                              upstream.tracks, weak, n in grouped.disputed, groups_offset))
     # The agent points each grouped camera observed (an isolated one's PnP had them in front).
     seen = {n: agent.points[agent_obs.point[agent_obs.camera == i]] for i, n in enumerate(names)}
-    registered = [_refuse_absurd(r, seen.get(r.name, np.zeros((0, 3))), params) for r in registered]
+    ceilings = [p for p in (layout.planes if layout is not None else []) if p.kind == KIND_CEILING]
+    registered = [_refuse_absurd(r, seen.get(r.name, np.zeros((0, 3))), params, ceilings) for r in registered]
     return FusionResult(sorted(registered, key=lambda r: r.name), T_ego, landmarks, agent, head_offset, cloud,
                         ego.cloud_colors, layout, grouped.alignments, fits)
 
 
-def absurd_pose(T_world_cam: np.ndarray, agent_points: np.ndarray, params: FusionParams) -> str:
+def absurd_pose(T_world_cam: np.ndarray, agent_points: np.ndarray, params: FusionParams,
+                ceilings: list[LayoutPlane] = ()) -> str:
     """Why a camera pose cannot be a ceiling camera's that saw the walker ('' when it can):
-    below the floor (z = 0), image upside down, or with most of the agent points it saw behind
-    it. (Above the ceiling is not checked: the ego map need not hold the ceiling.)"""
+    below the floor (z = 0), above a ceiling the map holds right over it, image upside down,
+    or with most of the agent points it saw behind it."""
+    from shapely.geometry import Point, Polygon
+
     z = float(T_world_cam[2, 3])
     if z < -params.absurd_margin_m:
         return f"{-z:.2f} m below the floor"
+    over = Point(T_world_cam[:2, 3])
+    for c in ceilings:
+        height = -float(c.coefficients[3] / c.coefficients[2])      # the plane n . p + d = 0 at x, y
+        if z > height + params.absurd_margin_m and len(c.boundary) >= 3 and Polygon(c.boundary[:, :2]).contains(over):
+            return f"{z - height:.2f} m above the ceiling the map holds over it (at {height:.2f} m)"
     up = -T_world_cam[:3, 1]                  # the image's up direction in the world
     if up[2] < -params.max_upside_down_cos:
         return f"its image is upside down (image up {np.degrees(np.arccos(np.clip(up[2], -1, 1))):.0f} deg from the vertical)"
@@ -664,11 +673,12 @@ def absurd_pose(T_world_cam: np.ndarray, agent_points: np.ndarray, params: Fusio
     return ""
 
 
-def _refuse_absurd(r: RegisteredCmc, seen: np.ndarray, params: FusionParams) -> RegisteredCmc:
+def _refuse_absurd(r: RegisteredCmc, seen: np.ndarray, params: FusionParams,
+                   ceilings: list[LayoutPlane]) -> RegisteredCmc:
     """A registration no ceiling camera can have is failed with the reason (never published)."""
     if r.T_world_cam is None or r.status == FAILED:
         return r
-    why = absurd_pose(r.T_world_cam, seen, params)
+    why = absurd_pose(r.T_world_cam, seen, params, ceilings)
     if not why:
         return r
     where = ", ".join(f"{v:.2f}" for v in r.T_world_cam[:3, 3])

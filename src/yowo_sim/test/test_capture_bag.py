@@ -39,7 +39,7 @@ def test_opens_with_mcap_reader(tiny_bag):
     with open(mcap_file, "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         n = 0
-        for _, channel, _, msg in reader.iter_decoded_messages(topics=["/cmc/cam00/agent_keypoints"]):
+        for _, _, _, msg in reader.iter_decoded_messages(topics=["/cmc/cam00/agent_keypoints"]):
             n += 1
             assert msg.camera_name == "cam00"
     assert n > 0

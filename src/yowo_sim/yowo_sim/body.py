@@ -237,7 +237,7 @@ def agent_mesh(position_xy, heading_rad: float, height_m: float, phase: float) -
     add(*_ellipsoid(head["nose"] - 0.01 * H * f + 0.008 * H * up, (f, lf, up), (0.013 * H, 0.009 * H, 0.016 * H), 8, 4),
         solid(SKIN_SHADE))
     add(*_ellipsoid(head["mouth"] - 0.004 * H * f, (f, lf, up), (0.006 * H, 0.016 * H, 0.004 * H), 8, 4), solid(LIPS))
-    for side, sign in (("left_ear", 1.0), ("right_ear", -1.0)):
+    for side in ("left_ear", "right_ear"):
         add(*_ellipsoid(head[side], (f, lf, up), (0.014 * H, 0.006 * H, 0.02 * H), 8, 4), solid(SKIN_SHADE))
     add(*_capsule(p.centre + 0.80 * H * up, p.centre + 0.885 * H * up, 0.026 * H), solid(SKIN))
     # Torso: hips to shoulders in elliptical sections (half width, half depth; Winter).
