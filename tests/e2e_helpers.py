@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 from std_msgs.msg import Header
-from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
 from cmc_synthetic import ceiling_camera, loop_walk, observe
 from yowo_common.ros.bag import BagWriter
 from yowo_common.rosconv import matrix_to_pose, model_to_camera_info, ns_to_time
+from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
 
 def write_keypoint_bag(path, cams, tracks):

@@ -8,12 +8,12 @@ import time
 import numpy as np
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
-from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
 from yowo_common.camera import CameraModel
 from yowo_common.ros.bag import BagWriter, read_messages
 from yowo_common.ros.context import FLUSH_S
 from yowo_common.rosconv import encode_raw, message_fields, model_to_camera_info, ns_to_time
+from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
 N = 200
 

@@ -10,10 +10,10 @@ import time
 
 import numpy as np
 import yaml
+from conftest import GRAPH
 
 from cmc_synthetic import ceiling_camera, loop_walk, observe
 from e2e_helpers import write_keypoint_bag, yowo, yowo_background
-from conftest import GRAPH
 from yowo_common.ros.bag import list_topics
 
 

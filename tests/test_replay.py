@@ -7,10 +7,10 @@ import sys
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 from std_msgs.msg import Header
-from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
 from yowo_common.ros.bag import BagWriter
 from yowo_common.rosconv import encode_color_jpeg, ns_to_time
+from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
 
 def make_bag(path, n_kp=300, img_every=10):

@@ -9,8 +9,8 @@ import time
 from html.parser import HTMLParser
 
 import yaml
-
 from conftest import GRAPH
+
 from e2e_helpers import kill_when_playing, log_tails, yowo, yowo_background
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset

@@ -6,9 +6,10 @@ import time
 
 import rclpy
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from yowo_msgs.msg import ReplayStatus
+
 from yowo_common.ros.bag import message_class
 from yowo_common.ros.context import ros_context
+from yowo_msgs.msg import ReplayStatus
 
 
 def main():

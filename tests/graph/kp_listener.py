@@ -5,8 +5,9 @@ import time
 
 import rclpy
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from yowo_msgs.msg import AgentKeypoints
+
 from yowo_common.ros.context import ros_context
+from yowo_msgs.msg import AgentKeypoints
 
 
 def main():

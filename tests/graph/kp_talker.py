@@ -6,8 +6,9 @@ import time
 import rclpy
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Header
-from yowo_msgs.msg import AgentKeypoints, Keypoint2D
+
 from yowo_common.ros.context import ros_context
+from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
 
 def main():

@@ -9,8 +9,8 @@ import time
 import rclpy
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from yowo_common.ros.bag import list_topics, message_class, read_messages
 from yowo_common import topics
+from yowo_common.ros.bag import list_topics, message_class, read_messages
 from yowo_common.ros.context import ros_context
 from yowo_common.ros.stage import LATCHED
 from yowo_msgs.msg import StageStatus

@@ -5,11 +5,11 @@ import sys
 import time
 
 import rclpy
-from yowo_msgs.msg import ReplayStatus, StageStatus
 
 from yowo_common import topics
 from yowo_common.ros.context import ros_context
 from yowo_common.ros.stage import LATCHED
+from yowo_msgs.msg import ReplayStatus, StageStatus
 
 
 def main():

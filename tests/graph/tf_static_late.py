@@ -11,8 +11,8 @@ from std_msgs.msg import Header
 from tf2_msgs.msg import TFMessage
 
 from yowo_common.geometry import look_at
-from yowo_common.rosconv import matrix_to_transform
 from yowo_common.ros.context import ros_context
+from yowo_common.rosconv import matrix_to_transform
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 

@@ -151,7 +151,7 @@ def test_camera_info_yaml_loads_as_the_registered_camera(written):
 
 
 def test_colmap_model_reads_back_with_pycolmap(written):
-    import pycolmap    # in requirements.txt: a missing one is a failure, not a skip
+    import pycolmap  # in requirements.txt: a missing one is a failure, not a skip
     out, _, doc, _, ego, _ = written
     rec = pycolmap.Reconstruction(str(out / "export" / "colmap"))
     images = {im.name: im for im in rec.images.values()}

@@ -5,12 +5,12 @@ import subprocess
 
 import numpy as np
 from geometry_msgs.msg import Point
-from yowo_msgs.msg import Plane
 
 from yowo_bringup.report import _COLOURS, _ellipse_scale, floor_footprint, wall_segments, write_report
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import look_at
 from yowo_fusion.pipeline import AgentFit, RegisteredCmc
+from yowo_msgs.msg import Plane
 
 
 def camera(name, eye, target, status="ok", sigma_m=0.01):

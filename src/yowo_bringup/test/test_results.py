@@ -28,11 +28,11 @@ def test_ground_truth_agent_in_the_map_frame_projects_onto_the_detections(tmp_pa
     Cramer-Rao bound had mixed the two frames (agent points behind the cameras)."""
     from dataclasses import replace
 
-    from yowo_eval.ground_truth import read_ground_truth
     from yowo_common.geometry import transform_points
     from yowo_common.ros.bag import read_messages
     from yowo_common.rosconv import camera_info_to_model, points_to_array, stamp_to_ns
     from yowo_common.topics import GT_AGENT_KEYPOINTS
+    from yowo_eval.ground_truth import read_ground_truth
     from yowo_sim.capture import generate
     from yowo_sim.presets import get_preset
 

@@ -5,10 +5,21 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from yowo_common.ros.bag import BagTopic, list_topics, recording_damage, recording_span, unknown_type_reason
-
-from yowo_common.topics import (EGO_ACCEL, EGO_COLOR, EGO_DEPTH, EGO_GYRO, EGO_IMU,  # noqa: F401
-                                EGO_IMU_CALIBRATION, EGO_INFO, GT_PREFIX, cmc_image_topics, cmc_info_topic,
-                                cmc_keypoints_topic, parse_cmc_topic, unusable_cmc_topic)
+from yowo_common.topics import (  # noqa: F401
+    EGO_ACCEL,
+    EGO_COLOR,
+    EGO_DEPTH,
+    EGO_GYRO,
+    EGO_IMU,
+    EGO_IMU_CALIBRATION,
+    EGO_INFO,
+    GT_PREFIX,
+    cmc_image_topics,
+    cmc_info_topic,
+    cmc_keypoints_topic,
+    parse_cmc_topic,
+    unusable_cmc_topic,
+)
 
 from .layouts import InputMap, InputMapError, InputParams, map_inputs
 from .video import VideoError, VideoInput, probe_video, video_rules

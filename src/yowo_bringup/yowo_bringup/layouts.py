@@ -12,6 +12,7 @@ from yowo_common import topics
 
 from .imu_source import ImuNoiseDefaults
 
+
 # A driver's ego streams relative to its camera namespace: (colour, depth, camera info,
 # united IMU, gyro, accelerometer). Colour and depth also as image_transport's compressed
 # sub-topics. Names are the drivers' defaults.

@@ -34,11 +34,11 @@ def read_cmc_inputs(bag, source: str = "auto", params: CmcParams | None = None, 
     recording: each CMC's tracks (its validated frames as published messages, validated
     again on receipt) and, with `backgrounds`, its agent-free background (the detector's
     model, or the median of sampled images when the keypoints were recorded)."""
+    from std_msgs.msg import Header
+
     from yowo_cmc.background import BackgroundSampler
     from yowo_cmc.keypoint_input import ImageKeypointSource
     from yowo_cmc.pose_model import PoseOrDetectorSource
-    from std_msgs.msg import Header
-
     from yowo_common.rosconv import decode_color, encode_raw, stamp_to_ns
 
     params = params or CmcParams()

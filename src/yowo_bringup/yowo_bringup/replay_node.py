@@ -27,16 +27,24 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header
-from yowo_msgs.msg import ReplayStatus, StageStatus
 
 from yowo_common import topics
-from yowo_common.ros.bag import (BagError, BagTopic, RawMessage, list_topics, message_class, read_raw, recording_damage,
-                                 unknown_type_reason)
 from yowo_common.config import describe_changes, load
+from yowo_common.ros.bag import (
+    BagError,
+    BagTopic,
+    RawMessage,
+    list_topics,
+    message_class,
+    read_raw,
+    recording_damage,
+    unknown_type_reason,
+)
 from yowo_common.ros.context import ros_context
 from yowo_common.ros.stage import LATCHED, RunFilter
 from yowo_common.ros.timing import NodeTiming
 from yowo_common.rosconv import ns_to_time
+from yowo_msgs.msg import ReplayStatus, StageStatus
 
 from .replay import Pacer, ReplayParams, select_topics
 from .video import VideoError, VideoInput, probe_video, video_images

@@ -14,9 +14,16 @@ from yowo_cmc.group_sfm import CameraGroupResult
 from yowo_common import topics
 
 from .config import YowoConfig, node_config
+from .contract import (
+    EGO_COLOR,
+    EGO_DEPTH,
+    EGO_INFO,
+    cmc_image_topics,
+    cmc_info_topic,
+    cmc_keypoints_topic,
+    discover_inputs,
+)
 from .imu_source import resolve_imu
-from .contract import (EGO_COLOR, EGO_DEPTH, EGO_INFO, cmc_image_topics, cmc_info_topic, cmc_keypoints_topic,
-                       discover_inputs)
 from .results import clock_entry, intrinsics_entry, keypoint_noise_entry, pose_entry
 from .supervisor import NodeSpec
 
@@ -411,18 +418,24 @@ def write_run_results(plan: RunPlan, outputs: dict, status: dict, replay, second
 
 
 def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list:
-    from yowo_cmc.messages import groups_from_msg
-    from yowo_common.ros.bag import BagWriter
-    from yowo_common.rosconv import pointcloud2_to_xyz_rgb, points_to_array, pose_to_matrix, stamp_to_ns
     from std_msgs.msg import Header
 
-    from yowo_common.rosconv import decode_color, model_to_camera_info, ns_to_time
+    from yowo_cmc.messages import groups_from_msg
+    from yowo_common.ros.bag import BagWriter
+    from yowo_common.rosconv import (
+        decode_color,
+        model_to_camera_info,
+        ns_to_time,
+        pointcloud2_to_xyz_rgb,
+        points_to_array,
+        pose_to_matrix,
+        stamp_to_ns,
+    )
+    from yowo_common.trajectory import Trajectory, write_tum
     from yowo_fusion.messages import agent_fits_from_msg, ego_map_from_msg, registered_from_msg
 
-    from yowo_common.trajectory import Trajectory, write_tum
-
-    from .plugins import evaluator
     from .exports import write_exports
+    from .plugins import evaluator
     from .report import wall_segments, write_report
     from .results import write_cameras_yaml, write_layout_json, write_no_cameras_yaml, write_ply
 

@@ -10,13 +10,13 @@ from pathlib import Path
 import rclpy
 import yaml
 from rclpy.node import Node
-from yowo_msgs.msg import ReplayStatus, StageStatus
 
+from yowo_common import topics
 from yowo_common.ros.bag import message_class
 from yowo_common.ros.context import ros_context
-from yowo_common import topics
 from yowo_common.ros.stage import LATCHED, RunFilter
 from yowo_common.ros.timing import relative_to
+from yowo_msgs.msg import ReplayStatus, StageStatus
 
 from .config import CONFIG_PARAMETERS, params_document
 from .isolation import PRIVATE, GraphNetwork, graph_network

@@ -4,14 +4,14 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from cmc_synthetic import ceiling_camera, loop_walk, observe
 
+from cmc_synthetic import ceiling_camera, loop_walk, observe
 from yowo_cmc.clock import ClockParams, PairOffset, combine, estimate_clock_offsets
 from yowo_cmc.config import CmcParams
 from yowo_cmc.group_sfm import calibrate_groups
 from yowo_cmc.pipeline import calibrate_cmcs
-from yowo_common.geometry import inv_se3, rotation_angle_deg
 from yowo_cmc.tracks import interpolate
+from yowo_common.geometry import inv_se3, rotation_angle_deg
 
 D = [-0.1, 0.02, 0.0, 0.0, 0.0]
 CAMS = {"a": ceiling_camera(0.3, 0.3, (3.0, 2.5), D=D), "b": ceiling_camera(5.7, 0.4, (3.0, 2.5), z=3.3, D=D),

@@ -3,14 +3,20 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from yowo_eval.evaluation import relative_pose_errors
-from yowo_cmc.group_sfm import (SfmParams, agreement_px, calibrate_groups, geometric_gate_scales, overlap_score,
-                                 sample_on_grid, weak_cut_parts)
-from yowo_cmc.tracks import KeypointTrack, TrackParams
-from yowo_common.geometry import se3
-from yowo_common.camera import CameraModel
-
 from cmc_synthetic import ceiling_camera, loop_walk, observe
+from yowo_cmc.group_sfm import (
+    SfmParams,
+    agreement_px,
+    calibrate_groups,
+    geometric_gate_scales,
+    overlap_score,
+    sample_on_grid,
+    weak_cut_parts,
+)
+from yowo_cmc.tracks import KeypointTrack, TrackParams
+from yowo_common.camera import CameraModel
+from yowo_common.geometry import se3
+from yowo_eval.evaluation import relative_pose_errors
 
 EXACT = SfmParams(tracks=TrackParams(window_s=0.0, gate_px=1e9))
 

@@ -5,14 +5,13 @@ import cv2
 import numpy as np
 import pytest
 
+from cmc_synthetic import HEIGHT, ceiling_camera, loop_walk, observe
 from yowo_cmc.group_sfm import GroupingResult, SfmParams, calibrate_groups
 from yowo_cmc.intrinsics import EstimatedCamera, focal_from_fundamental, pnp_unknown_focal
 from yowo_cmc.messages import groups_from_msg, groups_to_msg
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3
 from yowo_eval.evaluation import relative_pose_errors
-
-from cmc_synthetic import HEIGHT, ceiling_camera, loop_walk, observe
 
 WALK = loop_walk((3.0, 2.5), (2.0, 1.5))
 HFOV = (20.0, 150.0)

@@ -1,11 +1,10 @@
 import numpy as np
 import pytest
-
-from yowo_cmc.group_sfm import calibrate_groups
-from yowo_cmc.tracks import KeypointTrack, TrackParams, interpolate, noise_px, noise_scale
+from test_group_sfm import check_relative, loop_walk, three_camera_rig
 
 from cmc_synthetic import observe
-from test_group_sfm import check_relative, loop_walk, three_camera_rig
+from yowo_cmc.group_sfm import calibrate_groups
+from yowo_cmc.tracks import KeypointTrack, TrackParams, interpolate, noise_px, noise_scale
 
 PERIOD = 100_000_000
 

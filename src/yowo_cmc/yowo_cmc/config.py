@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .params import ClockParams, SfmParams
 from .image_detector import DetectorParams
+from .params import ClockParams, SfmParams
 from .pose_model import PoseModelParams
 
 

@@ -6,17 +6,17 @@ nominal model); the group SfM estimates their focal length (and k1)."""
 from __future__ import annotations
 
 from sensor_msgs.msg import CameraInfo
-from yowo_msgs.msg import AgentKeypoints, CameraGroupArray
 
 from yowo_common import topics
 from yowo_common.ros.context import spin_node
 from yowo_common.ros.stage import LATCHED, StageNode
+from yowo_msgs.msg import AgentKeypoints, CameraGroupArray
 
 from .config import CmcParams
 from .intrinsics import EstimatedCamera
-from .pipeline import calibrate_cmcs
 from .keypoint_input import TrackAccumulator, frame_from_msg
 from .messages import groups_to_msg
+from .pipeline import calibrate_cmcs
 
 
 class GroupSfmNode(StageNode):

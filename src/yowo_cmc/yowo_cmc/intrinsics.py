@@ -10,7 +10,8 @@ from dataclasses import dataclass
 import cv2
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import K as CAL, L, X
+from gtsam.symbol_shorthand import K as CAL
+from gtsam.symbol_shorthand import L, X
 
 from yowo_common.bundle import FIXED_SIGMA, BundleProblem, BundleResult, optimize, problem_graph
 from yowo_common.camera import CameraModel

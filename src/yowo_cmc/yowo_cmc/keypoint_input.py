@@ -107,9 +107,9 @@ def frame_to_msg(frame: KeypointFrame, camera: str, frame_id: str):
     """KeypointFrame -> yowo_msgs/AgentKeypoints, as a tracker publishes it (the offline API
     passes frames through it too, so both compute on the same numbers)."""
     from std_msgs.msg import Header
-    from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
     from yowo_common.rosconv import ns_to_time
+    from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
     return AgentKeypoints(header=Header(stamp=ns_to_time(frame.stamp_ns), frame_id=frame_id), camera_name=camera,
                           keypoints=[Keypoint2D(id=int(i), x=float(u), y=float(v), confidence=float(c))

@@ -20,20 +20,25 @@ from __future__ import annotations
 
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Header
-from yowo_msgs.msg import AgentKeypoints
 
 from yowo_common import topics
+from yowo_common.camera import CameraModel
+from yowo_common.intrinsics_io import intrinsics_from_text
 from yowo_common.ros.context import spin_node
 from yowo_common.ros.stage import LATCHED, StageNode
-from yowo_common.intrinsics_io import intrinsics_from_text
-from yowo_common.camera import CameraModel
-from yowo_common.rosconv import (camera_info_to_model, decode_color, encode_raw, model_to_camera_info, ns_to_time,
-                                 stamp_to_ns)
+from yowo_common.rosconv import (
+    camera_info_to_model,
+    decode_color,
+    encode_raw,
+    model_to_camera_info,
+    ns_to_time,
+    stamp_to_ns,
+)
+from yowo_msgs.msg import AgentKeypoints
 
 from .background import BackgroundSampler
 from .config import CmcParams
-from .keypoint_input import (ImageKeypointSource, KeypointFrame, TrackAccumulator,
-                             frame_from_msg, frame_to_msg)
+from .keypoint_input import ImageKeypointSource, KeypointFrame, TrackAccumulator, frame_from_msg, frame_to_msg
 from .pose_model import PoseOrDetectorSource
 
 SOURCES = ("keypoints", "pose", "images")

@@ -3,11 +3,19 @@ from __future__ import annotations
 
 import numpy as np
 from std_msgs.msg import Header
-from yowo_msgs.msg import CameraGroup, CameraGroupArray
 
 from yowo_common.camera import CameraModel
-from yowo_common.rosconv import (array_to_points, camera_info_to_model, matrix_to_pose, model_to_camera_info,
-                                 ns_to_time, points_to_array, pose_to_matrix, stamp_to_ns)
+from yowo_common.rosconv import (
+    array_to_points,
+    camera_info_to_model,
+    matrix_to_pose,
+    model_to_camera_info,
+    ns_to_time,
+    points_to_array,
+    pose_to_matrix,
+    stamp_to_ns,
+)
+from yowo_msgs.msg import CameraGroup, CameraGroupArray
 
 from .group_sfm import CameraGroupResult, GroupingResult
 from .intrinsics import EstimatedCamera

@@ -5,11 +5,11 @@ import pytest
 from geometry_msgs.msg import PoseStamped, TransformStamped
 from std_msgs.msg import Header
 from tf2_msgs.msg import TFMessage
-from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
 from yowo_common.geometry import look_at
 from yowo_common.ros.bag import BagError, BagWriter, interface_share_dir, list_topics, read_messages, typestore
 from yowo_common.rosconv import matrix_to_pose, matrix_to_transform, ns_to_time, pose_to_matrix
+from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
 
 def compiled_hash(msgtype: str) -> str:

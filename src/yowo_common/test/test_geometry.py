@@ -2,8 +2,18 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from yowo_common.geometry import (Sim3, inv_se3, look_at, quat_xyzw_from_rotation, rotation_aligning,
-                                  rotation_angle_deg, rotation_from_quat_xyzw, se3, transform_points, umeyama)
+from yowo_common.geometry import (
+    Sim3,
+    inv_se3,
+    look_at,
+    quat_xyzw_from_rotation,
+    rotation_aligning,
+    rotation_angle_deg,
+    rotation_from_quat_xyzw,
+    se3,
+    transform_points,
+    umeyama,
+)
 
 
 def random_pose(rng):

@@ -5,10 +5,23 @@ from std_msgs.msg import Header
 
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import look_at
-from yowo_common.rosconv import (camera_info_to_model, pointcloud2_to_xyz_rgb, xyz_rgb_to_pointcloud2, decode_color, decode_depth, encode_color_jpeg,
-                                 encode_depth_png, encode_raw, matrix_to_pose, matrix_to_transform,
-                                 model_to_camera_info, ns_to_time, pose_to_matrix, stamp_to_ns,
-                                 transform_to_matrix)
+from yowo_common.rosconv import (
+    camera_info_to_model,
+    decode_color,
+    decode_depth,
+    encode_color_jpeg,
+    encode_depth_png,
+    encode_raw,
+    matrix_to_pose,
+    matrix_to_transform,
+    model_to_camera_info,
+    ns_to_time,
+    pointcloud2_to_xyz_rgb,
+    pose_to_matrix,
+    stamp_to_ns,
+    transform_to_matrix,
+    xyz_rgb_to_pointcloud2,
+)
 
 
 def test_time_roundtrip():

@@ -4,16 +4,14 @@ import numpy as np
 import pytest
 import rclpy
 
+from yowo_common.camera import CameraModel
 from yowo_ego.ego_mapper_node import EgoMapperNode
 from yowo_ego.imu import ImuBuffer
 from yowo_ego.recording import EgoRecording, find_ego_topics, read_ego_frames
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
-
-from yowo_common.camera import CameraModel
 from yowo_sim.render import Renderer
 from yowo_sim.scene import SceneSpec, build_scene
-
 
 
 @pytest.fixture(scope="session")

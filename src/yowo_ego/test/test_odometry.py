@@ -7,8 +7,19 @@ from scipy.spatial.transform import Rotation
 
 from yowo_common.geometry import look_at, rotation_angle_deg, se3
 from yowo_ego.frames import RgbdFrame, make_frame
-from yowo_ego.odometry import (LOST, MAP_RELOCALISED, Keyframe, KeyframeTracker, OdometryEdge, OdometryImages,
-                               OdometryParams, RgbdOdometry, TrackResult, downsample, orthonormalize)
+from yowo_ego.odometry import (
+    LOST,
+    MAP_RELOCALISED,
+    Keyframe,
+    KeyframeTracker,
+    OdometryEdge,
+    OdometryImages,
+    OdometryParams,
+    RgbdOdometry,
+    TrackResult,
+    downsample,
+    orthonormalize,
+)
 from yowo_ego.pipeline import frames_between_keyframes
 
 # Looking across the room at two walls, the floor and a box.

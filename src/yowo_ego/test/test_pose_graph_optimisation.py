@@ -6,11 +6,11 @@ where it is."""
 import numpy as np
 import open3d as o3d
 import pytest
+from scipy.spatial.transform import Rotation
 
 from yowo_common.geometry import inv_se3, rotation_angle_deg, se3
 from yowo_ego.odometry import Keyframe, OdometryEdge
 from yowo_ego.posegraph import LoopParams, optimize
-from scipy.spatial.transform import Rotation
 
 reg = o3d.pipelines.registration
 

@@ -15,12 +15,19 @@ from dataclasses import dataclass
 from nav_msgs.msg import Odometry, Path
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 from std_msgs.msg import Header, String
-from yowo_msgs.msg import EgoMap, SceneLayout
 
 from yowo_common import topics
 from yowo_common.ros.context import spin_node
 from yowo_common.ros.stage import LATCHED, StageNode
-from yowo_common.rosconv import camera_info_to_model, decode_color, decode_depth, matrix_to_pose, ns_to_time, stamp_to_ns
+from yowo_common.rosconv import (
+    camera_info_to_model,
+    decode_color,
+    decode_depth,
+    matrix_to_pose,
+    ns_to_time,
+    stamp_to_ns,
+)
+from yowo_msgs.msg import EgoMap, SceneLayout
 
 from .ego_messages import cloud_msg, ego_map_msg, layout_msg, path_msg
 from .frames import FrameError, StampPairer

@@ -5,10 +5,15 @@ import numpy as np
 from geometry_msgs.msg import Point32, Polygon, PoseStamped
 from nav_msgs.msg import Path
 from std_msgs.msg import Header
-from yowo_msgs.msg import EgoMap, Plane, SceneLayout
 
-from yowo_common.rosconv import (array_to_points, matrix_to_pose, model_to_camera_info, ns_to_time,
-                                 xyz_rgb_to_pointcloud2)
+from yowo_common.rosconv import (
+    array_to_points,
+    matrix_to_pose,
+    model_to_camera_info,
+    ns_to_time,
+    xyz_rgb_to_pointcloud2,
+)
+from yowo_msgs.msg import EgoMap, Plane, SceneLayout
 
 from .layout import Layout
 from .odometry import IMU_BRIDGED, INTERPOLATED, LOST, MAP_RELOCALISED, RECOVERED, TRACKED

@@ -32,14 +32,31 @@ from .features import FeatureExtractor, FeatureParams, KeyframeFeatures, backpro
 from .frames import MIN_TEXTURED_FRACTION, FrameError, RgbdFrame, Undistorter, make_frame, pinhole, textured_fraction
 from .imu import ImuBuffer, InertialParams, InertialTerms, keyframe_preintegration, up_from_accelerometer
 from .layout import KIND_WALL, Layout, LayoutParams, build_layout
-from .odometry import (IMU_BRIDGED, RECOVERED, SKIPPED, Keyframe, KeyframeTracker, OdometryEdge, OdometryImages,
-                       OdometryParams, TrackResult)
+from .odometry import (
+    IMU_BRIDGED,
+    RECOVERED,
+    SKIPPED,
+    Keyframe,
+    KeyframeTracker,
+    OdometryEdge,
+    OdometryImages,
+    OdometryParams,
+    TrackResult,
+)
 from .posegraph import LoopParams, MultiwayRegistration
 from .refine import BundleParams, BundleProblem, solve_bundle
-from .scene import (CloudParams, Rectification, find_floor, floor_attitudes, fuse_cloud, planar_patches, rectify,
-                    up_from_cameras, wall_attitudes)
+from .scene import (
+    CloudParams,
+    Rectification,
+    find_floor,
+    floor_attitudes,
+    fuse_cloud,
+    planar_patches,
+    rectify,
+    up_from_cameras,
+    wall_attitudes,
+)
 from .tracks import FilterParams, build_tracks, filter_matches
-
 
 MIN_TRACKS = 10        # fewer feature tracks than this: no bundle adjustment
 

@@ -23,8 +23,15 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import B, L, V, X
 
-from yowo_common.bundle import (FIXED_SIGMA, Observations, add_projection_factors, optimize, pose3,
-                                reprojection_residuals, robust_sigma)
+from yowo_common.bundle import (
+    FIXED_SIGMA,
+    Observations,
+    add_projection_factors,
+    optimize,
+    pose3,
+    reprojection_residuals,
+    robust_sigma,
+)
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import transform_points
 

@@ -4,10 +4,10 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
-from yowo_eval.bound import _camera_covariance
 from yowo_common.bundle import cal3, pose3
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import look_at
+from yowo_eval.bound import _camera_covariance
 
 
 def _bundle_graph(num_cameras: int = 3, num_points: int = 60):

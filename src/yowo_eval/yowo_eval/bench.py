@@ -15,13 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
+from yowo_bringup.config import YowoConfig, fusion_upstream
+from yowo_bringup.offline import read_cmc_tracks
 from yowo_cmc.group_sfm import calibrate_groups
 from yowo_cmc.pipeline import calibrate_cmcs
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
-
-from yowo_bringup.config import YowoConfig, fusion_upstream
-from yowo_bringup.offline import read_cmc_tracks
 
 from .bench_report import TRUE_CLOCKS
 from .bound import BOUND_VERSION, bound_case

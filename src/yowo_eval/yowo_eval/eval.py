@@ -11,10 +11,15 @@ import yaml
 from yowo_bringup.results import read_camera_poses, read_floor_polygons
 from yowo_common.trajectory import read_tum
 
-from .evaluation import (ErrorSummary, ate, layout_iou, registration_errors, relative_errors_of_baseline,
-                         relative_pose_errors)
+from .evaluation import (
+    ErrorSummary,
+    ate,
+    layout_iou,
+    registration_errors,
+    relative_errors_of_baseline,
+    relative_pose_errors,
+)
 from .ground_truth import GroundTruth, read_ground_truth
-
 
 RESULT_FILES = ("cameras.yaml", "ego_trajectory.tum", "layout.json")
 

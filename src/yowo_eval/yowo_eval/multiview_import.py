@@ -437,10 +437,9 @@ def _recording(bag: Path, cameras: list[ReferenceCamera]):
 
 def _write_keypoints(out, name: str, header, ids, uv, confidence) -> int:
     """One AgentKeypoints message (the joints with confidence > 0): how many it holds."""
-    from yowo_msgs.msg import AgentKeypoints, Keypoint2D
-
     from yowo_common import topics
     from yowo_common.rosconv import stamp_to_ns
+    from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
     kps = [Keypoint2D(id=int(i), x=float(u), y=float(v), confidence=float(c))
            for i, (u, v), c in zip(ids, uv, confidence) if c > 0]
@@ -566,8 +565,8 @@ def import_caliscope(xy_csv, bag, calibration=None, progress=None) -> ImportSumm
     frame CameraInfo and AgentKeypoints stamped by the frame's capture time."""
     from std_msgs.msg import Header
 
-    from yowo_common import topics
     from yowo_cmc.pose_model import ID_OFFSET
+    from yowo_common import topics
     from yowo_common.rosconv import model_to_camera_info, ns_to_time
 
     xy_csv = Path(xy_csv)

@@ -35,11 +35,29 @@ import networkx as nx
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
-from yowo_common.bundle import FIXED_SIGMA, Observations, add_projection_factors, optimize, pose3, \
-    reprojection_residuals, robust_sigma
-from yowo_cmc.group_sfm import MAX_IDS, CameraGroupResult, GridObservations, GroupingResult, IncrementalSfm, \
-    PairGeometry, SfmParams, group_cameras, pair_geometry, sample_on_grid, triangulate
+from yowo_cmc.group_sfm import (
+    MAX_IDS,
+    CameraGroupResult,
+    GridObservations,
+    GroupingResult,
+    IncrementalSfm,
+    PairGeometry,
+    SfmParams,
+    group_cameras,
+    pair_geometry,
+    sample_on_grid,
+    triangulate,
+)
 from yowo_cmc.tracks import CameraTracks
+from yowo_common.bundle import (
+    FIXED_SIGMA,
+    Observations,
+    add_projection_factors,
+    optimize,
+    pose3,
+    reprojection_residuals,
+    robust_sigma,
+)
 from yowo_common.geometry import inv_se3, rotation_angle_deg, se3, skew
 
 HEAD_TOP, GROUND = 0, 1

@@ -30,6 +30,7 @@ def test_straight_walk_registers_the_ceiling_camera_not_its_mirror_image():
 
 def test_of_two_planar_solutions_the_one_above_the_agent_wins():
     import cv2
+
     from yowo_fusion.isolated import IsolatedParams, _score
     camera = CameraModel.from_fov(640, 480, 80.0)
     T_world_cam = look_at(np.array([0.5, -1.0, 2.6]), np.array([0.0, 1.5, 0.8]))

@@ -3,11 +3,11 @@ does not say leaves the fusion to judge by landmarks."""
 import numpy as np
 from geometry_msgs.msg import Pose
 from sensor_msgs.msg import CameraInfo
-from yowo_msgs.msg import EgoMap
 
 from yowo_ego.ego_messages import TRACKING_CODES
 from yowo_ego.odometry import IMU_BRIDGED, INTERPOLATED, LOST, MAP_RELOCALISED, MEASURED, RECOVERED, TRACKED
 from yowo_fusion.messages import ego_map_from_msg
+from yowo_msgs.msg import EgoMap
 
 
 def _msg(tracking, fitness, n: int = 5) -> EgoMap:

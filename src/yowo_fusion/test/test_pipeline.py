@@ -7,14 +7,24 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from cmc_synthetic import HEIGHT, ceiling_camera, observe
-from yowo_eval.evaluation import registration_errors
 from yowo_cmc.group_sfm import calibrate_groups
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import se3
 from yowo_ego.layout import Layout
+from yowo_eval.evaluation import registration_errors
 from yowo_fusion.alignment import AlignParams, estimate_clock_offset
-from yowo_fusion.pipeline import (FAILED, GROUP_SFM, ISOLATED_PNP, OK, WEAK, CmcInput, EgoMapData, FusionParams, fuse,
-                                 weak_ego_frames)
+from yowo_fusion.pipeline import (
+    FAILED,
+    GROUP_SFM,
+    ISOLATED_PNP,
+    OK,
+    WEAK,
+    CmcInput,
+    EgoMapData,
+    FusionParams,
+    fuse,
+    weak_ego_frames,
+)
 
 OFFSET = np.array([0.0, -0.10, -0.08])
 ROOM_A = np.array([[0.0, 0.0], [6.0, 0.0], [6.0, 5.0], [0.0, 5.0]])

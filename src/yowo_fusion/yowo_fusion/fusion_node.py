@@ -11,7 +11,6 @@ from nav_msgs.msg import Path
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
-from yowo_msgs.msg import AgentKeypoints, CameraAgentFitArray, CameraGroupArray, EgoMap, RegisteredCameraArray, SceneLayout
 
 from yowo_cmc.keypoint_input import TrackAccumulator, frame_from_msg
 from yowo_cmc.messages import groups_from_msg
@@ -20,10 +19,17 @@ from yowo_common.ros.context import spin_node
 from yowo_common.ros.stage import LATCHED, StageNode
 from yowo_common.rosconv import decode_color
 from yowo_ego.ego_messages import path_msg, points_msg, scene_layout_msg
+from yowo_msgs.msg import (
+    AgentKeypoints,
+    CameraAgentFitArray,
+    CameraGroupArray,
+    EgoMap,
+    RegisteredCameraArray,
+    SceneLayout,
+)
 
 from .messages import agent_fits_to_msg, ego_map_from_msg, layout_markers, registered_to_msg, tf_static
 from .pipeline import UPSTREAM_HOMES, CmcInput, FusionParams, UpstreamParams, fuse
-
 
 
 class FusionNode(StageNode):

@@ -40,8 +40,14 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import A, C, D, H, L, M, O, Q, X
 
-from yowo_common.bundle import (FIXED_SIGMA, Observations, add_projection_factors, optimize, pose3,
-                                reprojection_residuals)
+from yowo_common.bundle import (
+    FIXED_SIGMA,
+    Observations,
+    add_projection_factors,
+    optimize,
+    pose3,
+    reprojection_residuals,
+)
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3
 

@@ -10,13 +10,28 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import ColorRGBA, Header
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
-from yowo_msgs.msg import CameraAgentFit, CameraAgentFitArray, EgoMap, RegisteredCamera, RegisteredCameraArray, \
-    SceneLayout
 
 from yowo_common.camera import CameraModel
-from yowo_common.rosconv import (camera_info_to_model, matrix_to_pose, matrix_to_transform, model_to_camera_info,
-                                 ns_to_time, pointcloud2_to_xyz_rgb, points_to_array, pose_to_matrix, stamp_to_ns)
+from yowo_common.rosconv import (
+    camera_info_to_model,
+    matrix_to_pose,
+    matrix_to_transform,
+    model_to_camera_info,
+    ns_to_time,
+    pointcloud2_to_xyz_rgb,
+    points_to_array,
+    pose_to_matrix,
+    stamp_to_ns,
+)
 from yowo_ego.layout import Layout, LayoutPlane
+from yowo_msgs.msg import (
+    CameraAgentFit,
+    CameraAgentFitArray,
+    EgoMap,
+    RegisteredCamera,
+    RegisteredCameraArray,
+    SceneLayout,
+)
 
 from .pipeline import FAILED, OK, WEAK, AgentFit, EgoMapData, RegisteredCmc
 

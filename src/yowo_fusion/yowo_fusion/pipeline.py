@@ -20,8 +20,17 @@ from yowo_ego.scene import CloudParams
 
 from .alignment import AlignParams, ClockFit, align_group, estimate_clock_offset, interpolate_positions
 from .isolated import AgentTrack, IsolatedParams, refine_pose, register_over_clock
-from .joint import (TOP, UNKNOWN_COVARIANCE, JointParams, JointProblem, JointResult, covariance_unavailable,
-                    ros_covariance, solve_joint, solver_failure)
+from .joint import (
+    TOP,
+    UNKNOWN_COVARIANCE,
+    JointParams,
+    JointProblem,
+    JointResult,
+    covariance_unavailable,
+    ros_covariance,
+    solve_joint,
+    solver_failure,
+)
 from .refined_map import move_cloud, rebuild_layout
 from .scene_matching import SceneMatchParams, match_scene
 

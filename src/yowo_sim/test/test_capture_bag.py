@@ -8,7 +8,14 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from yowo_common.ros.bag import list_topics, read_messages
-from yowo_common.rosconv import message_fields, camera_info_to_model, decode_color, decode_depth, points_to_array, pose_to_matrix
+from yowo_common.rosconv import (
+    camera_info_to_model,
+    decode_color,
+    decode_depth,
+    message_fields,
+    points_to_array,
+    pose_to_matrix,
+)
 from yowo_common.topics import GT_AGENT_KEYPOINTS
 from yowo_sim.capture import generate
 from yowo_sim.detector import DetectorSpec

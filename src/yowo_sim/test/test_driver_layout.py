@@ -9,8 +9,15 @@ from yowo_bringup.cli import build_parser
 from yowo_common import topics
 from yowo_common.geometry import inv_se3
 from yowo_common.ros.bag import BagWriter, list_topics, read_messages
-from yowo_common.rosconv import (decode_color, decode_depth, encode_raw, message_fields, ns_to_time, stamp_to_ns,
-                                 transform_to_matrix)
+from yowo_common.rosconv import (
+    decode_color,
+    decode_depth,
+    encode_raw,
+    message_fields,
+    ns_to_time,
+    stamp_to_ns,
+    transform_to_matrix,
+)
 from yowo_sim.capture import START_NS, generate
 from yowo_sim.driver_layout import LAYOUTS, write_driver_layout
 from yowo_sim.presets import get_preset

@@ -11,13 +11,21 @@ from pathlib import Path
 import numpy as np
 from geometry_msgs.msg import Point32, Polygon, PolygonStamped, Pose, PoseArray, PoseStamped
 from std_msgs.msg import Float64, Header
-from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
 from yowo_common import topics
 from yowo_common.camera import CameraModel
 from yowo_common.ros.bag import BagWriter
-from yowo_common.rosconv import (array_to_points, depth_to_mm, encode_color_jpeg, encode_depth_png, encode_raw,
-                                 matrix_to_pose, model_to_camera_info, ns_to_time)
+from yowo_common.rosconv import (
+    array_to_points,
+    depth_to_mm,
+    encode_color_jpeg,
+    encode_depth_png,
+    encode_raw,
+    matrix_to_pose,
+    model_to_camera_info,
+    ns_to_time,
+)
+from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
 from .body import agent_keypoints_3d, agent_mesh
 from .detector import detect

@@ -23,8 +23,15 @@ from tf2_msgs.msg import TFMessage
 from yowo_common import topics
 from yowo_common.geometry import inv_se3, se3
 from yowo_common.ros.bag import BagWriter, list_topics, read_messages, read_raw
-from yowo_common.rosconv import (decode_color, decode_depth, depth_to_mm, encode_raw, matrix_to_transform,
-                                 ns_to_time, transform_to_matrix)
+from yowo_common.rosconv import (
+    decode_color,
+    decode_depth,
+    depth_to_mm,
+    encode_raw,
+    matrix_to_transform,
+    ns_to_time,
+    transform_to_matrix,
+)
 
 # A body frame (x forward, y left, z up) -> its optical frame (x right, y down, z forward), REP 103.
 T_BODY_OPTICAL = se3(np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]), np.zeros(3))

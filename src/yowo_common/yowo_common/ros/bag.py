@@ -15,10 +15,18 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from rclpy.serialization import deserialize_message, serialize_message
 from mcap.stream_reader import StreamReader
-from rosbags.interfaces import (Connection, ConnectionExtRosbag2, Qos, QosDurability, QosHistory, QosLiveliness,
-                                QosReliability, QosTime)
+from rclpy.serialization import deserialize_message, serialize_message
+from rosbags.interfaces import (
+    Connection,
+    ConnectionExtRosbag2,
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
