@@ -65,7 +65,7 @@ class JointParams:
     # The same for an ego map tracked with the gyro (JointProblem.ego_imu): its rotation between anchors is what
     # the ego stage measures best, with gyro factors and walls-and-floor attitudes the JO does not carry. At 1 mrad
     # a step the 26-minute floor's ego map (0.0075 m ATE) came out of the JO at 0.0153 m; at 0.2 mrad at 0.0123 m,
-    # and its registration 0.0175 -> 0.0166 m avg, 0.100 -> 0.071 max (BENCHMARKS.md, session 32).
+    # and its registration 0.0175 -> 0.0166 m avg, 0.100 -> 0.071 max (docs/notes/floor.md).
     ego_between_sigma_imu: tuple[float, float] = (0.0002, 0.002)
     # (rad, m) an anchor step over a frame the ego map does not vouch for (JointProblem.ego_weak_frames):
     # a break joined by a guess, or tracking on next to no landmarks. Loose, not free: a true break
