@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from yowo_bringup.isolation import PRIVATE, graph_network
+from yowo_bringup.ros_domain import PRIVATE, graph_network
 
 GRAPH = Path(__file__).parent / "graph"
 

@@ -29,6 +29,7 @@ class Case:
     recording: str = "keypoints"          # which base recording the case derives from
     edit: Callable | None = None          # (topic, log_ns, msg) -> [(topic, log_ns, msg), ...]
     camera_status: dict = field(default_factory=dict)   # camera -> verdict in cameras.yaml
+    none_ok: bool = False                 # no camera may be `ok`
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -93,6 +94,18 @@ def _only_first(topic: str, n: int):
             return [(t, log_ns, msg)]
         seen[0] += 1
         return [(t, log_ns, msg)] if seen[0] <= n else []
+    return edit
+
+
+def _swap_top_and_ground(kp):
+    kp.id = {0: 1, 1: 0}.get(kp.id, kp.id)     # the head top's id and the ground point's exchanged
+
+
+def _on_every_camera(change):
+    def edit(t, log_ns, msg):
+        if t.startswith("/cmc/") and t.endswith("/agent_keypoints"):
+            change(msg)
+        return [(t, log_ns, msg)]
     return edit
 
 
@@ -232,6 +245,8 @@ CASES = [
          edit=_depth(_half_size_depth)),
     Case(name="ego_depth_millimetres_as_float", recording="ego", rc=(0, 1), says=EGO_DEPTH[0], args=_run,
          edit=_depth(_float_millimetres)),
+    Case(name="keypoint_ids_swapped", recording="ego", rc=(0, 1), says="rejected:", args=_run,
+         edit=_on_every_camera(_kp_each(_swap_top_and_ground)), none_ok=True),
     Case(name="ego_stamps_zero", recording="ego", rc=(1,), says=EGO_COLOR[0], args=_run,
          edit=lambda t, n, m: (_zero_stamp(m) if t.startswith("/ego/") and hasattr(m, "header") else None, [(t, n, m)])[1]),
 ]
@@ -297,9 +312,11 @@ def test_crafted_input(case, bases, tmp_path, ros_env):
     log = yaml.safe_load((inputs.out / "run_log.yaml").read_text())
     assert log["run_id"] == _console_run_id(r.stdout), (log["run_id"], r.stdout)
     assert all(p.stat().st_mtime_ns >= started for p in inputs.out.rglob("*") if p.is_file())
-    if r.returncode == 1:
-        assert log["failure"], log
-    if case.camera_status:
+    if r.returncode == 1:     # failed, or ran and registered no camera: each camera's reason is said
+        cameras = inputs.out / "cameras.yaml"
+        assert log["failure"] or all(c["reason"] for c in yaml.safe_load(cameras.read_text())["cameras"]), log
+    if case.camera_status or case.none_ok:
         doc = yaml.safe_load((inputs.out / "cameras.yaml").read_text())["cameras"]
         status = {c["name"]: c["status"] for c in doc}
         assert {n: status.get(n) for n in case.camera_status} == case.camera_status, doc
+        assert not (case.none_ok and "ok" in status.values()), doc

@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from e2e_helpers import yowo
-from yowo_bringup.isolation import PRIVATE, graph_network
+from yowo_bringup.ros_domain import PRIVATE, graph_network
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
 

@@ -67,11 +67,11 @@ def _execute(args, mode: str):
     import time
 
     args.started = time.monotonic()
-    from .isolation import PRIVATE, SHARED, graph_network
+    from .graph_runner import RunFailed, execute
     from .outdir import claimed_output
     from .progress import console_progress
+    from .ros_domain import PRIVATE, SHARED, graph_network
     from .run import plan_live, plan_run
-    from .run_node import RunFailed, execute
 
     config = config_from_args(args)
     if args.profile:
@@ -278,7 +278,7 @@ def cmd_config(args) -> int:
 
 def cmd_end_walk(args) -> int:
     """Live operation: tell the running stages that the walk is over."""
-    from .run_node import end_walk
+    from .graph_runner import end_walk
 
     end_walk(args.linger, args.run_id or "")
     print("end of walk announced on /yowo/replay/status" + (f" to run {args.run_id}" if args.run_id else ""))
@@ -343,7 +343,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    from .isolation import NoFreeDomain
+    from .ros_domain import NoFreeDomain
 
     args, unknown = build_parser().parse_known_args(argv)
     if unknown:

@@ -1,4 +1,4 @@
-"""The input data contract of shared/DESIGN.md §2: which topics a recording
+"""The input data contract of docs/design.md §3: which topics a recording
 must/may hold, and discovery of the ego camera and the CMCs from topic names."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Which recorded topic plays which input role: YOWO's own layout (shared/DESIGN.md §2), the
+"""Which recorded topic plays which input role: YOWO's own layout (docs/design.md §3), the
 common RGB-D drivers' layouts, image_transport camera namespaces, and the user's explicit
 mapping. The result names every role by YOWO's input name (`/ego/color/image_raw`,
 `/cmc/<name>/camera_info`, ...) and says which recorded topic fills it; the nodes are then

@@ -4,19 +4,19 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from yowo_cmc.config import CmcParams
 from yowo_cmc.keypoint_input import TrackAccumulator, frame_from_msg, frame_to_msg
-from yowo_cmc.tracks import CameraTracks
+from yowo_cmc.keypoint_tracks import CameraTracks
 from yowo_common.ros.bag import read_messages
 from yowo_common.rosconv import camera_info_to_model
 
 from .config import YowoConfig, fusion_upstream
 from .contract import discover_inputs
-from .run import cmc_info_topic, cmc_source
+from .layouts import InputParams
 
 log = logging.getLogger(__name__)
 
@@ -28,78 +28,69 @@ def read_cmc_tracks(bag, source: str = "auto", params: CmcParams | None = None) 
     return read_cmc_inputs(bag, source, params, backgrounds=False)[0]
 
 
-def read_cmc_inputs(bag, source: str = "auto", params: CmcParams | None = None, backgrounds: bool = True
-                    ) -> tuple[list[CameraTracks], dict]:
+def read_cmc_inputs(bag, source: str = "auto", params: CmcParams | None = None, backgrounds: bool = True,
+                    inputs: InputParams | None = None) -> tuple[list[CameraTracks], dict]:
     """What the keypoint trackers hand on, computed as they do in one pass over the
-    recording: each CMC's tracks (its validated frames as published messages, validated
-    again on receipt) and, with `backgrounds`, its agent-free background (the detector's
-    model, or the median of sampled images when the keypoints were recorded)."""
+    recording: the run's plan says each CMC's source, topics and intrinsics, and the same
+    yowo_cmc.keypoint_tracker runs on them. Returns each CMC's tracks (its validated frames
+    as published messages, validated again on receipt) and, with `backgrounds`, its
+    agent-free background. `inputs`: the configuration's inputs section (mapping, intrinsics
+    files); video files (inputs.videos) are the graph's only."""
     from std_msgs.msg import Header
 
-    from yowo_cmc.background import BackgroundSampler
-    from yowo_cmc.keypoint_input import ImageKeypointSource
-    from yowo_cmc.pose_model import PoseOrDetectorSource
+    from yowo_cmc.keypoint_tracker import KeypointTracker
     from yowo_common.rosconv import decode_color, encode_raw, stamp_to_ns
 
+    from .run import CMC, FULL, plan_run
+
     params = params or CmcParams()
-    inputs = discover_inputs(bag)
-    present, recorded = set(inputs.map.roles), inputs.map.recorded
-    acc, detectors, samplers, by_topic, unusable = {}, {}, {}, {}, set()
-    for n in inputs.cmc_names:
-        kind, keypoints, image = cmc_source(n, present, source)
-        if not kind:
-            continue
-        acc[n] = TrackAccumulator(n)
-        by_topic[recorded(cmc_info_topic(n))] = n
-        if kind in ("images", "pose"):
-            detectors[n] = (ImageKeypointSource(n, params.detector, params.max_pending_frames) if kind == "images"
-                            else PoseOrDetectorSource(n, params.pose, params.pose_min_frames, params.detector,
-                                                      params.max_pending_frames))
-            by_topic[recorded(image)] = n
-            if kind == "pose" and backgrounds:       # the pose model has no background model of its own
-                samplers[n] = BackgroundSampler(params.background_period_s)
-        else:
-            by_topic[recorded(keypoints)] = n
-            if image and backgrounds:
-                samplers[n] = BackgroundSampler(params.background_period_s)
-                by_topic[recorded(image)] = n
+    config = YowoConfig(inputs=replace(inputs or InputParams(), videos=(), video_list=""), cmc=params)
+    mode = FULL if backgrounds and discover_inputs(bag, config.inputs).has_ego else CMC
+    specs = [n.parameters for n in plan_run(bag, ".", mode=mode, config=config, source=source).nodes
+             if n.name.startswith("keypoint_tracker_")]
+    trackers, by_topic = {}, {}
+    for spec in specs:
+        n = spec["camera"]
+        trackers[n] = KeypointTracker(camera=n, source=spec["source"], params=params,
+                                      has_images=bool(spec["image_topic"]), camera_info=spec.get("camera_info", ""),
+                                      nominal=not spec.get("camera_info") and not spec["info_topic"])
+        for role in ("info_topic", "image_topic", "keypoints_topic"):
+            if spec[role] and (role != "keypoints_topic" or trackers[n].detector is None):
+                by_topic[spec[role]] = (n, role)
+    frames = {n: list(t.pending) for n, t in trackers.items()}
     for topic, _, msg in read_messages(bag, by_topic):
-        n = by_topic[topic]
-        a, detector = acc[n], detectors.get(n)
-        if topic.endswith("/camera_info"):
-            if a.camera is not None or n in unusable:
-                continue
-            try:
-                a.camera = camera_info_to_model(msg)
-            except ValueError as exc:      # the camera is left out, as the graph does
-                unusable.add(n)
-                log.warning("%s: %s; camera '%s' left out", topic, exc, n)
-                continue
-            frames = detector.set_camera(a.camera) if detector else []
-        elif topic.endswith("/agent_keypoints"):
-            frames = [frame_from_msg(msg)]
+        n, role = by_topic[topic]
+        t = trackers[n]
+        if role == "info_topic":
+            if t.wants_camera_info:
+                try:
+                    frames[n] += t.take_camera(camera_info_to_model(msg))
+                except ValueError as exc:      # the camera is left out, as the graph does
+                    t.problem = f"{topic}: {exc}"
+                    log.warning("%s; camera '%s' left out", t.problem, n)
+        elif role == "keypoints_topic":
+            kept = t.take_keypoints(frame_from_msg(msg))
+            frames[n] += [kept] if kept is not None else []
         else:
-            stamp, rgb = stamp_to_ns(msg.header.stamp), decode_color(msg)
-            frames = detector.push(stamp, rgb) if detector else []
-            if n in samplers and samplers[n].wants(stamp):
-                samplers[n].add(stamp, rgb)
-        for f in frames:
-            a.add(f)
-    for n, detector in detectors.items():
-        for f in detector.flush():
-            acc[n].add(f)
+            stamp, rgb = stamp_to_ns(msg.header.stamp), None
+            if t.nominal and t.camera is None:
+                rgb = decode_color(msg)
+                nominal = t.nominal_camera(rgb.shape[1], rgb.shape[0])
+                frames[n] += t.take_camera(nominal) if nominal is not None else []
+            if t.wants_image(stamp):
+                frames[n] += t.take_image(stamp, decode_color(msg) if rgb is None else rgb)
     tracks = []
-    for a in acc.values():
-        if a.camera is None or not a.frames:
+    for n, t in trackers.items():
+        frames[n] += t.flush()
+        if t.camera is None or not frames[n]:
             continue
-        received = TrackAccumulator(a.name, a.camera)
-        for f in a.frames:
-            received.add(frame_from_msg(frame_to_msg(f, a.name, "")))
+        received = TrackAccumulator(n, t.camera)
+        for f in frames[n]:
+            received.add(frame_from_msg(frame_to_msg(f, n, "")))
         tracks.append(received.tracks())
-    found = {n: s.image() for n, s in samplers.items() if s.count}
-    found.update({n: d.background for n, d in detectors.items() if backgrounds and d.background is not None})
+    found = {n: t.background() for n, t in trackers.items()} if backgrounds else {}
     # As published: an rgb8 image.
-    return tracks, {n: decode_color(encode_raw(img, "rgb8", Header())) for n, img in found.items()}
+    return tracks, {n: decode_color(encode_raw(img, "rgb8", Header())) for n, img in found.items() if img is not None}
 
 
 def ego_map_data(ego):
@@ -128,7 +119,7 @@ class OfflineResult:
 def process(bag, config: YowoConfig | None = None, source: str = "auto") -> OfflineResult:
     """The whole method on one recording (what `yowo run` computes, with the same tree):
     ego map, CMC groups, collaborative processing."""
-    from yowo_cmc.pipeline import calibrate_cmcs
+    from yowo_cmc.pipeline import calibrate_cmcs_apart
     from yowo_ego.recording import map_bag
     from yowo_fusion.pipeline import CmcInput, fuse
 
@@ -138,12 +129,14 @@ def process(bag, config: YowoConfig | None = None, source: str = "auto") -> Offl
     ego, _ = map_bag(bag, config.ego)
     seconds["ego"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    tracks, backgrounds = read_cmc_inputs(bag, source, config.cmc)
-    grouping = calibrate_cmcs(tracks, config.cmc)
+    tracks, backgrounds = read_cmc_inputs(bag, source, config.cmc, inputs=config.inputs)
+    # Cameras without intrinsics: the group SfM estimates them, the fusion takes its estimate.
+    estimated = frozenset(discover_inputs(bag, config.inputs).estimated_intrinsics)
+    grouping = calibrate_cmcs_apart(tracks, config.cmc, estimated)
     seconds["cmc"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     fusion = fuse(ego_map_data(ego), grouping.groups, grouping.ungrouped,
-                  {t.name: CmcInput(t, backgrounds.get(t.name)) for t in tracks}, config.fusion,
+                  {t.name: CmcInput(t, backgrounds.get(t.name), t.name not in estimated) for t in tracks}, config.fusion,
                   fusion_upstream(config))
     seconds["fusion"] = time.perf_counter() - t0
     return OfflineResult(ego, grouping, fusion, seconds, tracks, backgrounds)

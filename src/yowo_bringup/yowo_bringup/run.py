@@ -1,5 +1,5 @@
 """Plan a run from a recording (which nodes, with which parameters) and write the
-results directory. No rclpy here: run_node.py executes the plan."""
+results directory. No rclpy here: graph_runner.py executes the plan."""
 from __future__ import annotations
 
 import fnmatch
@@ -53,7 +53,7 @@ class RunPlan:
     final_stage: str
     outputs: dict[str, str] = field(default_factory=dict)   # latched topic -> type the runner collects
     warnings: list[str] = field(default_factory=list)
-    run_id: str = ""                       # in every status: nodes ignore other runs' (see isolation.py)
+    run_id: str = ""                       # in every status: nodes ignore other runs' (see ros_domain.py)
     local: list[str] = field(default_factory=lambda: ["*"])  # patterns of the nodes this host starts
     config: YowoConfig = field(default_factory=YowoConfig)
     replay_messages: int = 0               # what the replay will publish (0: live)
@@ -94,6 +94,14 @@ class RunPlan:
             raise ValueError(f"--nodes {' '.join(unknown)}: no such node in this run "
                              f"({', '.join(n.name for n in self.nodes)})")
         self.local = list(patterns)
+
+
+def launch_nodes(plan: RunPlan) -> list[dict]:
+    """launch_ros.actions.Node keyword arguments of every node of the plan (the launch
+    file's graph is the one `yowo run` starts: a process per node, its entry point named
+    after its module)."""
+    return [{"package": spec.module.split(".")[0], "executable": spec.module.split(".")[1], "name": spec.name,
+             "parameters": [dict(spec.parameters)], "output": "screen"} for spec in plan.nodes]
 
 
 def new_run_id() -> str:

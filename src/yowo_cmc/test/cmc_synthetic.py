@@ -1,7 +1,7 @@
 """Synthetic agent keypoint tracks seen by known CMCs (for the CMC tests)."""
 import numpy as np
 
-from yowo_cmc.tracks import CameraTracks, KeypointTrack
+from yowo_cmc.keypoint_tracks import CameraTracks, KeypointTrack
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import look_at
 

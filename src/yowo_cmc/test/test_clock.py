@@ -9,8 +9,8 @@ from cmc_synthetic import ceiling_camera, loop_walk, observe
 from yowo_cmc.clock import ClockParams, PairOffset, combine, estimate_clock_offsets
 from yowo_cmc.config import CmcParams
 from yowo_cmc.group_sfm import calibrate_groups
+from yowo_cmc.keypoint_tracks import interpolate
 from yowo_cmc.pipeline import calibrate_cmcs
-from yowo_cmc.tracks import interpolate
 from yowo_common.geometry import inv_se3, rotation_angle_deg
 
 D = [-0.1, 0.02, 0.0, 0.0, 0.0]

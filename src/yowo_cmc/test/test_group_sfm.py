@@ -13,10 +13,10 @@ from yowo_cmc.group_sfm import (
     sample_on_grid,
     weak_cut_parts,
 )
-from yowo_cmc.tracks import KeypointTrack, TrackParams
+from yowo_cmc.keypoint_tracks import KeypointTrack, TrackParams
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import se3
-from yowo_eval.evaluation import relative_pose_errors
+from yowo_eval.metrics import relative_pose_errors
 
 EXACT = SfmParams(tracks=TrackParams(window_s=0.0, gate_px=1e9))
 
@@ -189,7 +189,7 @@ def test_weak_detections_are_down_weighted_in_the_bundle_adjustment():
     confidence ratio, which must pull the poses back towards the truth."""
     from dataclasses import replace
 
-    from yowo_cmc.tracks import KeypointTrack, sigma_factors
+    from yowo_cmc.keypoint_tracks import KeypointTrack, sigma_factors
     cams = three_camera_rig()
     tracks = observe(cams, loop_walk((3.0, 2.5), (2.0, 1.5)), 40.0, sigma_px=1.0, seed=5)
     rng = np.random.default_rng(7)

@@ -11,7 +11,7 @@ from yowo_cmc.intrinsics import EstimatedCamera, focal_from_fundamental, pnp_unk
 from yowo_cmc.messages import groups_from_msg, groups_to_msg
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3
-from yowo_eval.evaluation import relative_pose_errors
+from yowo_eval.metrics import relative_pose_errors
 
 WALK = loop_walk((3.0, 2.5), (2.0, 1.5))
 HFOV = (20.0, 150.0)

@@ -4,7 +4,7 @@ from test_group_sfm import check_relative, loop_walk, three_camera_rig
 
 from cmc_synthetic import observe
 from yowo_cmc.group_sfm import calibrate_groups
-from yowo_cmc.tracks import KeypointTrack, TrackParams, interpolate, noise_px, noise_scale
+from yowo_cmc.keypoint_tracks import KeypointTrack, TrackParams, interpolate, noise_px, noise_scale
 
 PERIOD = 100_000_000
 

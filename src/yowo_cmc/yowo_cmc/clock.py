@@ -24,8 +24,8 @@ from scipy.spatial.transform import Rotation
 from yowo_common.bundle import robust_sigma
 
 from .group_sfm import RANSAC_SEED, CameraGroupResult, SfmParams, sampson_px, spread_subset
+from .keypoint_tracks import CameraTracks, _window, clean_track, noise_scale, track_splines, undistort_tracks
 from .params import ClockParams
-from .tracks import CameraTracks, _window, clean_track, noise_scale, track_splines, undistort_tracks
 
 
 @dataclass

@@ -26,3 +26,6 @@ class CmcParams:
     # A camera without CameraInfo or intrinsics file starts from this horizontal field of view
     # [deg] (a typical CCTV lens) at its first image's size; the group SfM estimates its intrinsics.
     nominal_hfov_deg: float = 90.0
+    # A group SfM that fails is tried again without each camera in turn (the one whose data
+    # makes it fail is left out with the error) when there are at most this many cameras.
+    isolate_failure_max_cameras: int = 12

@@ -18,8 +18,8 @@ from yowo_common.geometry import inv_se3, se3
 from yowo_common.pnp import sqpnp_ransac
 
 from .intrinsics import EstimatedCamera, centred, focal_from_fundamental, pnp_unknown_focal, solve_with_intrinsics
+from .keypoint_tracks import CameraTracks, noise_scale, resample, sigma_factors
 from .params import SfmParams, TrackParams
-from .tracks import CameraTracks, noise_scale, resample, sigma_factors
 
 MAX_IDS = 1000  # keypoint ids per grid time: key = grid index * MAX_IDS + id
 RANSAC_SEED = 0  # OpenCV's RANSAC draws from a global RNG: seed it so a bag always gives the same result

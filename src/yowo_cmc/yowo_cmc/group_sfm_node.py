@@ -16,7 +16,7 @@ from .config import CmcParams
 from .intrinsics import EstimatedCamera
 from .keypoint_input import TrackAccumulator, frame_from_msg
 from .messages import groups_to_msg
-from .pipeline import calibrate_cmcs
+from .pipeline import calibrate_cmcs_apart
 
 
 class GroupSfmNode(StageNode):
@@ -49,7 +49,7 @@ class GroupSfmNode(StageNode):
         usable = [a for a in self.acc.values() if a.camera is not None]
         unusable = {a.name: a.unusable_reason() for a in self.acc.values() if a.camera is None}
         tracks = [a.tracks() for a in usable]
-        result = calibrate_cmcs(tracks, self.cmc, self.estimate)
+        result = calibrate_cmcs_apart(tracks, self.cmc, self.estimate)
         result.ungrouped.update(unusable)
         self.pub.publish(groups_to_msg(result, self.last_stamp))
         lines = [f"{g.group_id}: {', '.join(g.names)} (initial pair {'/'.join(g.initial_pair)}, RMSE "

@@ -11,7 +11,7 @@ import numpy as np
 from yowo_common.camera import CameraModel
 
 from .image_detector import AgentDetection, AgentDetector, DetectorParams
-from .tracks import CameraTracks, KeypointTrack
+from .keypoint_tracks import CameraTracks, KeypointTrack
 
 
 @dataclass

@@ -12,7 +12,7 @@ Its final status says which source the camera used. It also publishes the camera
 agent-free background once (latched) when images arrive. Smoothing and undistortion
 happen in the group SfM, which sees whole tracks.
 
-Intrinsics, republished latched on /yowo/cmc/<name>/tracker_camera_info: the CameraInfo
+Intrinsics, republished latched on /yowo/cmc/<name>/camera_info: the CameraInfo
 on `info_topic`; or, with `camera_info` (camera_calibration_parsers YAML text, from an
 intrinsics file), those; or, with `info_topic:=""` (no CameraInfo at all), a nominal model
 (cmc.nominal_hfov_deg) at the first image's size, which the group SfM then estimates."""
@@ -23,7 +23,6 @@ from std_msgs.msg import Header
 
 from yowo_common import topics
 from yowo_common.camera import CameraModel
-from yowo_common.intrinsics_io import intrinsics_from_text
 from yowo_common.ros.context import spin_node
 from yowo_common.ros.stage import LATCHED, StageNode
 from yowo_common.rosconv import (
@@ -36,12 +35,9 @@ from yowo_common.rosconv import (
 )
 from yowo_msgs.msg import AgentKeypoints
 
-from .background import BackgroundSampler
 from .config import CmcParams
-from .keypoint_input import ImageKeypointSource, KeypointFrame, TrackAccumulator, frame_from_msg, frame_to_msg
-from .pose_model import PoseOrDetectorSource
-
-SOURCES = ("keypoints", "pose", "images")
+from .keypoint_input import KeypointFrame, frame_from_msg, frame_to_msg
+from .keypoint_tracker import KeypointTracker
 
 
 class KeypointTrackerNode(StageNode):
@@ -51,7 +47,7 @@ class KeypointTrackerNode(StageNode):
         if not camera:
             raise ValueError("keypoint_tracker_node needs the parameter camera:=<name>")
         self.camera = camera
-        self.source = self.declare_parameter("source", "keypoints").value
+        source = self.declare_parameter("source", "keypoints").value
         image_topic = self.declare_parameter("image_topic", "").value
         # Recorded or driver names of the camera's topics (the planner's input mapping).
         # "": the camera has no CameraInfo (a nominal model from its first image).
@@ -59,79 +55,62 @@ class KeypointTrackerNode(StageNode):
         # camera_calibration_parsers YAML text of an intrinsics file; used instead of info_topic.
         info_text = self.declare_parameter("camera_info", "").value
         keypoints_topic = self.declare_parameter("keypoints_topic", topics.cmc_keypoints_topic(camera)).value
-        if self.source not in SOURCES:
-            raise ValueError(f"camera '{camera}': unknown source '{self.source}' (choose from {', '.join(SOURCES)})")
-        if self.source in ("images", "pose") and not image_topic:
-            raise ValueError(f"camera '{camera}': source:={self.source} needs image_topic:=<topic>")
-        self.acc = TrackAccumulator(camera)
-        params = self.section(CmcParams, "cmc")
-        self.nominal_hfov_deg = params.nominal_hfov_deg
-        self.info_problem = ""
+        self.tracker = KeypointTracker(camera=camera, source=source, params=self.section(CmcParams, "cmc"),
+                                       has_images=bool(image_topic), camera_info=info_text,
+                                       nominal=not info_text and not self.info_topic)
         self.frame_id = f"{camera}_optical_frame"    # the images' frame, once one arrived
         self.pub = self.output(AgentKeypoints, topics.tracker_keypoints(camera))
         self.pub_background = self.output(Image, topics.tracker_background(camera), LATCHED)
         self.pub_info = self.output(CameraInfo, topics.tracker_camera_info(camera), LATCHED)
-        self.nominal = not info_text and not self.info_topic   # a nominal model from the first image
-        if self.nominal and not image_topic:
-            self.info_problem = (f"camera '{camera}': no CameraInfo (info_topic empty), no intrinsics file and no "
-                                 "images, so its image size is unknown: the camera is left out")
-            self.get_logger().error(self.info_problem)
-        elif self.info_topic and not info_text:
+        for problem in (self.tracker.problem, getattr(self.tracker.detector, "problem", "")):
+            if problem:
+                self.get_logger().error(problem)
+        if self.tracker.camera is not None:           # from the intrinsics file
+            self.publish_info(self.tracker.camera)
+            self.publish_frames(self.tracker.pending)
+        if self.tracker.wants_camera_info:
             self.stream_input(CameraInfo, self.info_topic, self.on_info)
-        self.detector = (ImageKeypointSource(camera, params.detector, params.max_pending_frames)
-                         if self.source == "images" else
-                         PoseOrDetectorSource(camera, params.pose, params.pose_min_frames, params.detector,
-                                              params.max_pending_frames) if self.source == "pose" else None)
-        if self.source == "pose" and self.detector.problem:
-            self.get_logger().error(self.detector.problem)
-        if self.detector is None:
+        if self.tracker.detector is None:
             self.stream_input(AgentKeypoints, keypoints_topic, self.on_keypoints)
         # With external keypoints, images (when recorded) only give the background for scene keypoints.
-        self.background = BackgroundSampler(params.background_period_s)
         if image_topic:
             msg_type = CompressedImage if image_topic.endswith("/compressed") else Image
             self.stream_input(msg_type, image_topic, self.on_image)
-        if info_text:
-            try:
-                self.set_camera(intrinsics_from_text(info_text, f"camera '{camera}': parameter camera_info"))
-            except ValueError as exc:
-                self.info_problem = str(exc)
-                self.get_logger().error(self.info_problem)
 
     def on_image(self, msg) -> None:
-        stamp = stamp_to_ns(msg.header.stamp)
-        rgb = None
-        if self.nominal and self.acc.camera is None:
+        stamp, rgb = stamp_to_ns(msg.header.stamp), None
+        if self.tracker.nominal and self.tracker.camera is None:
             rgb = decode_color(msg)
-            self.set_camera(CameraModel.from_fov(rgb.shape[1], rgb.shape[0], self.nominal_hfov_deg))
-        if self.detector is None and not self.background.wants(stamp):
+            nominal = self.tracker.nominal_camera(rgb.shape[1], rgb.shape[0])
+            if nominal is not None:
+                self.set_camera(nominal)
+        if not self.tracker.wants_image(stamp):
             return
-        rgb = decode_color(msg) if rgb is None else rgb
-        if self.detector is not None:
-            self.frame_id = msg.header.frame_id or self.frame_id
-            self.publish_frames(self.detector.push(stamp, rgb))
-        if self.background.wants(stamp) and (self.detector is None or self.source == "pose"):
-            self.background.add(stamp, rgb)      # the pose model needs no background; the scene keypoints do
+        self.frame_id = msg.header.frame_id or self.frame_id
+        self.publish_frames(self.tracker.take_image(stamp, decode_color(msg) if rgb is None else rgb))
 
     def on_info(self, msg: CameraInfo) -> None:
-        if self.acc.camera is None and not self.info_problem:
-            try:
-                self.set_camera(camera_info_to_model(msg), msg)
-            except ValueError as exc:
-                self.info_problem = f"{self.info_topic}: {exc}"
-                self.get_logger().error(self.info_problem)
-                self.pub_info.publish(msg)    # relayed: the stages downstream report the reason
+        if not self.tracker.wants_camera_info:
+            return
+        try:
+            self.set_camera(camera_info_to_model(msg), msg)
+        except ValueError as exc:
+            self.tracker.problem = f"{self.info_topic}: {exc}"
+            self.get_logger().error(self.tracker.problem)
+            self.pub_info.publish(msg)    # relayed: the stages downstream report the reason
 
     def set_camera(self, camera: CameraModel, msg: CameraInfo | None = None) -> None:
+        frames = self.tracker.take_camera(camera)
+        self.publish_info(camera, msg)
+        self.publish_frames(frames)
+
+    def publish_info(self, camera: CameraModel, msg: CameraInfo | None = None) -> None:
         """The camera's intrinsics, published latched (the received CameraInfo as it came)."""
-        self.acc.camera = camera
         self.pub_info.publish(msg if msg is not None else model_to_camera_info(
             camera, Header(frame_id=f"{self.camera}_optical_frame")))
-        if self.detector is not None:
-            self.publish_frames(self.detector.set_camera(camera))
 
     def on_keypoints(self, msg: AgentKeypoints) -> None:
-        kept = self.acc.add(frame_from_msg(msg))
+        kept = self.tracker.take_keypoints(frame_from_msg(msg))
         if kept is None:
             return
         out = AgentKeypoints(header=msg.header, camera_name=self.camera,
@@ -140,25 +119,17 @@ class KeypointTrackerNode(StageNode):
 
     def publish_frames(self, frames: list[KeypointFrame]) -> None:
         for f in frames:
-            kept = self.acc.add(f)
-            if kept is not None:
-                self.pub.publish(frame_to_msg(kept, self.camera, self.frame_id))
+            self.pub.publish(frame_to_msg(f, self.camera, self.frame_id))
 
     def finalize(self) -> str:
-        background, parts = self.background.image(), ["source: recorded keypoints", self.acc.summary()]
-        if self.detector is not None:
-            self.publish_frames(self.detector.flush())
-            background = self.detector.background if self.detector.background is not None else background
-            parts = [self.detector.summary() if self.source == "pose" else
-                     f"source: model-free detector; {self.detector.summary()}", self.acc.summary()]
-        if self.info_problem:
-            parts.append(self.info_problem)
-        if background is not None:
-            self.pub_background.publish(encode_raw(background, "rgb8", Header(
-                stamp=ns_to_time(self.acc.frames[-1].stamp_ns if self.acc.frames else 0),
-                frame_id=self.frame_id)))
-            parts.append("background published")
-        return "; ".join(p for p in parts if p)
+        self.publish_frames(self.tracker.flush())
+        summary, background = self.tracker.summary(), self.tracker.background()
+        if background is None:
+            return summary
+        frames = self.tracker.acc.frames
+        self.pub_background.publish(encode_raw(background, "rgb8", Header(
+            stamp=ns_to_time(frames[-1].stamp_ns if frames else 0), frame_id=self.frame_id)))
+        return f"{summary}; background published"
 
 
 def main(args=None):

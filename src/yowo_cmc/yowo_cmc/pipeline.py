@@ -7,10 +7,12 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import cv2
+
 from .clock import attach_to_groups, estimate_clock_offsets, refine_group_offsets
 from .config import CmcParams
 from .group_sfm import GroupingResult, calibrate_groups
-from .tracks import CameraTracks
+from .keypoint_tracks import CameraTracks
 
 
 def significant(offsets: dict[str, float], sigmas: dict[str, float], k: float) -> dict[str, float]:
@@ -33,6 +35,26 @@ def alone_in_time(tracks: list[CameraTracks], max_offset_s: float) -> dict[str, 
             out[name] = (f"saw the walker at no instant another camera did (its keypoint stamps "
                          f"{span[0] / 1e9:.3f}..{span[1] / 1e9:.3f} s)")
     return out
+
+
+def calibrate_cmcs_apart(tracks: list[CameraTracks], params: CmcParams = CmcParams(),
+                         estimate_intrinsics: frozenset[str] = frozenset()) -> GroupingResult:
+    """calibrate_cmcs; where it fails, without the one camera whose data makes it fail (tried
+    one at a time), which is left ungrouped with the error: one camera's fault stays its own."""
+    try:
+        return calibrate_cmcs(tracks, params, estimate_intrinsics)
+    except (ValueError, ArithmeticError, IndexError, cv2.error, RuntimeError) as exc:
+        if len(tracks) > params.isolate_failure_max_cameras:
+            raise
+        for culprit in tracks:
+            others = [t for t in tracks if t is not culprit]
+            try:
+                grouping = calibrate_cmcs(others, params, estimate_intrinsics)
+            except (ValueError, ArithmeticError, IndexError, cv2.error, RuntimeError):
+                continue
+            grouping.ungrouped[culprit.name] = f"the group SfM fails with this camera's data ({exc})"
+            return grouping
+        raise
 
 
 def calibrate_cmcs(tracks: list[CameraTracks], params: CmcParams = CmcParams(),

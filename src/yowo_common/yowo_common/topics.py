@@ -1,5 +1,5 @@
 """Topic and stage names of YOWO in one place: the recorded inputs and ground
-truth of shared/DESIGN.md §2, and YOWO's own outputs."""
+truth of docs/design.md §3, and YOWO's own outputs."""
 import re
 
 # --- inputs (recordings or live cameras) ---
@@ -123,8 +123,9 @@ def tracker_keypoints(camera: str) -> str:
 
 
 def tracker_camera_info(camera: str) -> str:
-    """The CMC's first valid CameraInfo, latched: only the tracker reads the replayed
-    /cmc/<name>/ topics, so a restarted tracker alone is sent them again."""
+    """The CMC's first valid CameraInfo (or the invalid one, relayed: the stages downstream
+    name its fault), latched: only the tracker reads the replayed /cmc/<name>/ topics, so a
+    restarted tracker alone is sent them again."""
     return f"/yowo/cmc/{camera}/camera_info"
 
 

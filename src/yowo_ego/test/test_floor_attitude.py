@@ -7,12 +7,12 @@ from scipy.spatial.transform import Rotation
 
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3, look_at, rotation_angle_deg, se3, transform_points
+from yowo_ego.feature_tracks import Tracks
 from yowo_ego.features import KeyframeFeatures
 from yowo_ego.frames import make_frame
 from yowo_ego.odometry import Keyframe, OdometryEdge, downsample, scaled_K
 from yowo_ego.refine import bundle_adjust
 from yowo_ego.scene import FloorAttitudes, WallAttitudes, floor_normal_in_view, wall_attitudes, wall_normals_in_view
-from yowo_ego.tracks import Tracks
 
 CAM = CameraModel.from_fov(640, 480, 70.0)
 UP = np.array([0.0, 0.0, 1.0])

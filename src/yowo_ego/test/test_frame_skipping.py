@@ -15,8 +15,8 @@ from yowo_ego.imu import ImuBuffer
 from yowo_ego.odometry import INTERPOLATED, SKIPPED, TRACKED
 from yowo_ego.pipeline import EgoMapper, EgoParams, map_recording
 from yowo_ego.recording import EgoRecording, find_ego_topics, read_ego_frames
-from yowo_eval.evaluation import associate, ate
 from yowo_eval.ground_truth import read_ground_truth
+from yowo_eval.metrics import associate, ate
 
 
 def _params(skip: bool) -> EgoParams:

@@ -19,8 +19,8 @@ from yowo_ego.imu import CoverageWait, ImuBuffer, ImuCalibration, ImuSamples
 from yowo_ego.odometry import INTERPOLATED, SKIPPED
 from yowo_ego.pipeline import EgoParams, map_recording
 from yowo_ego.recording import COLOR_TOPICS, DEPTH_TOPICS, INFO_TOPIC, map_bag
-from yowo_eval.evaluation import ate
 from yowo_eval.ground_truth import read_ground_truth
+from yowo_eval.metrics import ate
 from yowo_sim.capture import EGO_FRAME, build_capture
 from yowo_sim.imu import ImuParams, calibration_yaml, simulate_imu
 from yowo_sim.presets import get_preset

@@ -5,9 +5,9 @@ from scipy.spatial.transform import Rotation
 
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3, look_at, rotation_angle_deg, se3, transform_points
+from yowo_ego.feature_tracks import Tracks
 from yowo_ego.features import KeyframeFeatures
 from yowo_ego.refine import BundleParams, bundle_adjust, select_landmarks
-from yowo_ego.tracks import Tracks
 
 CAM = CameraModel.from_fov(640, 480, 70.0)
 

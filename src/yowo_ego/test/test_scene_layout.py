@@ -9,7 +9,7 @@ from yowo_ego.frames import make_frame
 from yowo_ego.layout import KIND_CEILING, KIND_WALL, build_layout
 from yowo_ego.odometry import Keyframe, downsample, scaled_K
 from yowo_ego.scene import CloudParams, find_floor, fuse_cloud, planar_patches, rectify, up_from_cameras
-from yowo_eval.evaluation import layout_iou
+from yowo_eval.metrics import layout_iou
 
 # The odometry frame of the reconstruction: tilted by 12 deg and shifted.
 T_ODOM_TRUE = se3(Rotation.from_euler("xyz", [12.0, -5.0, 30.0], degrees=True).as_matrix(), [0.3, -1.0, 0.5])

@@ -35,11 +35,11 @@ from yowo_common.bundle import (
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import transform_points
 
+from .feature_tracks import Tracks
 from .features import KeyframeFeatures, backproject
 from .imu import InertialTerms
 from .odometry import OdometryEdge
 from .scene import FloorAttitudeParams, FloorAttitudes, WallAttitudeParams, WallAttitudes
-from .tracks import Tracks
 
 
 @dataclass(frozen=True)

@@ -1,11 +1,11 @@
-"""`yowo eval` on a results directory (yowo_eval.eval.evaluate)."""
+"""`yowo eval` on a results directory (yowo_eval.results_eval.evaluate)."""
 import numpy as np
 import pytest
 import yaml
 
 from yowo_bringup.results import pose_entry
 from yowo_common.geometry import look_at
-from yowo_eval import eval as yowo_eval
+from yowo_eval import results_eval as yowo_eval
 from yowo_eval.ground_truth import GroundTruth
 
 

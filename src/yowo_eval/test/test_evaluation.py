@@ -4,7 +4,7 @@ from scipy.spatial.transform import Rotation
 
 from yowo_common.geometry import Sim3, look_at, se3
 from yowo_common.trajectory import Trajectory, read_tum, write_tum
-from yowo_eval.evaluation import (
+from yowo_eval.metrics import (
     ErrorSummary,
     PoseError,
     ate,
@@ -123,7 +123,7 @@ def test_layout_iou():
 
 def test_map_frame_from_first_pose():
     from yowo_common.geometry import look_at
-    from yowo_eval.evaluation import map_frame_from_first_pose
+    from yowo_eval.metrics import map_frame_from_first_pose
     first = look_at([3.0, 4.0, 1.6], [5.0, 4.0, 0.5])       # looking along +x, down
     T = map_frame_from_first_pose(first)
     moved = T @ first

@@ -8,9 +8,9 @@ from test_group_sfm import three_camera_rig
 
 from cmc_synthetic import HEIGHT, ceiling_camera, loop_walk, observe
 from yowo_cmc.group_sfm import SfmParams
-from yowo_cmc.tracks import TrackParams
+from yowo_cmc.keypoint_tracks import TrackParams
 from yowo_common.geometry import inv_se3
-from yowo_eval.evaluation import relative_pose_errors
+from yowo_eval.metrics import relative_pose_errors
 from yowo_eval.omecc_style import OmeccParams, calibrate_groups_omecc, consistent_poses
 
 EXACT = OmeccParams(sfm=SfmParams(tracks=TrackParams(window_s=0.0, gate_px=1e9)))

@@ -24,8 +24,8 @@ from yowo_sim.presets import get_preset
 
 from .bench_report import TRUE_CLOCKS
 from .bound import BOUND_VERSION, bound_case
-from .evaluation import ErrorSummary, relative_pose_errors
 from .ground_truth import read_ground_truth
+from .metrics import ErrorSummary, relative_pose_errors
 from .omecc_style import calibrate_groups_omecc
 
 # Only scenarios that need CMC images render them (scene keypoints in CMC views, the
@@ -223,8 +223,8 @@ def full_case(bag: Path, images: bool, config: YowoConfig = YowoConfig()) -> dic
     from yowo_common.trajectory import Trajectory
     from yowo_fusion.pipeline import ISOLATED_PNP, CmcInput, fuse
 
-    from .evaluation import ate, layout_iou, registration_errors
     from .hloc_style import build_database, localize, read_keyframe_images
+    from .metrics import ate, layout_iou, registration_errors
 
     gt = read_ground_truth(bag)
     r = process(bag, config)

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .evaluation import relative_pose_errors
 from .ground_truth import read_ground_truth
+from .metrics import relative_pose_errors
 
 # Bumped when the bound's computation changes: a resumed run recomputes the stored
 # cases' bounds (a property of the recording and YOWO's groups, seconds per case).

@@ -26,8 +26,8 @@ from yowo_common.trajectory import Trajectory
 from yowo_ego.pipeline import EgoMapResult, EgoParams
 from yowo_ego.recording import map_bag
 
-from .evaluation import associate, ate, layout_iou
 from .ground_truth import GroundTruth, read_ground_truth
+from .metrics import associate, ate, layout_iou
 
 
 def gravity_error_deg(T_est: np.ndarray, T_gt: np.ndarray) -> float:

@@ -9,7 +9,7 @@ import numpy as np
 from yowo_common.topics import GT_EGO_POSE, GT_FLOOR, GT_PREFIX, gt_cmc_clock_offset_topic, parse_gt_cmc_pose_topic
 from yowo_common.trajectory import Trajectory
 
-from .evaluation import map_frame_from_first_pose
+from .metrics import map_frame_from_first_pose
 
 
 @dataclass

@@ -259,14 +259,3 @@ def localize(db: KeyframeDatabase, name: str, background: np.ndarray, camera: Ca
     rvec, tvec = cv2.solvePnPRefineLM(obj[idx], img[idx], camera.K, None, rvec, tvec)
     T = inv_se3(se3(cv2.Rodrigues(rvec)[0], tvec.ravel()))
     return LocalizationResult(name, T, "", n, len(obj), retrieved)
-
-
-def localize_cmcs(ego, keyframe_images: dict[int, KeyframeImage], backgrounds: dict[str, np.ndarray],
-                  cameras: dict[str, CameraModel], priors: dict[str, np.ndarray] | None = None,
-                  params: HlocParams = HlocParams()) -> dict[str, LocalizationResult]:
-    """Every CMC with a background image, localised against the ego map (an EgoMapResult
-    and its keyframes' images, see ``read_keyframe_images``). ``priors``: CMC -> prior
-    T_world_cam (e.g. YOWO's registration); a CMC without one is localised without."""
-    db = build_database(ego.camera, ego.T_world_kf, keyframe_images, params)
-    priors = priors or {}
-    return {n: localize(db, n, bg, cameras[n], priors.get(n), params) for n, bg in sorted(backgrounds.items())}

@@ -48,7 +48,7 @@ from yowo_cmc.group_sfm import (
     sample_on_grid,
     triangulate,
 )
-from yowo_cmc.tracks import CameraTracks
+from yowo_cmc.keypoint_tracks import CameraTracks
 from yowo_common.bundle import (
     FIXED_SIGMA,
     Observations,

@@ -12,7 +12,7 @@ def __getattr__(name: str):
     command loads this module to add its verbs, and .eval pulls in the whole pipeline
     (Open3D: 1 s of the 1.5 s `yowo --version` took)."""
     if name in ("print_tables", "write_metrics"):
-        from . import eval as evaluation
+        from . import results_eval as evaluation
         return getattr(evaluation, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
@@ -20,8 +20,8 @@ def __getattr__(name: str):
 def evaluate_run(out_dir, bag) -> tuple[dict, dict] | None:
     """(metrics, ground-truth camera poses) of a results directory, or None when the
     recording has no ground truth for it."""
-    from .eval import evaluate
     from .ground_truth import read_ground_truth
+    from .results_eval import evaluate
 
     try:
         gt = read_ground_truth(bag)          # read once: a second reading of a recording costs ~1 s
@@ -34,7 +34,7 @@ def cmd_eval(args) -> int:
     """Metrics of a results directory against the recording's ground truth."""
     from rich.console import Console
 
-    from .eval import evaluate, print_tables, write_metrics
+    from .results_eval import evaluate, print_tables, write_metrics
 
     metrics = evaluate(args.results, args.bag)
     print_tables(metrics, Console())

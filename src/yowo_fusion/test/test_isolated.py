@@ -2,7 +2,7 @@
 point in one vertical plane, where PnP has a mirrored solution under the agent."""
 import numpy as np
 
-from yowo_cmc.tracks import CameraTracks, KeypointTrack
+from yowo_cmc.keypoint_tracks import CameraTracks, KeypointTrack
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import look_at
 from yowo_fusion.isolated import AgentTrack, register_by_agent

@@ -11,7 +11,7 @@ from yowo_cmc.group_sfm import calibrate_groups
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import se3
 from yowo_ego.layout import Layout
-from yowo_eval.evaluation import registration_errors
+from yowo_eval.metrics import registration_errors
 from yowo_fusion.alignment import AlignParams, estimate_clock_offset
 from yowo_fusion.pipeline import (
     FAILED,

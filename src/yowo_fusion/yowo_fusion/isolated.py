@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from yowo_cmc.tracks import CameraTracks, TrackParams, resample
+from yowo_cmc.keypoint_tracks import CameraTracks, TrackParams, resample
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3, se3
 from yowo_common.pnp import sqpnp_all, sqpnp_ransac

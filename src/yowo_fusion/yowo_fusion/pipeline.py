@@ -11,7 +11,7 @@ import numpy as np
 
 from yowo_cmc.group_sfm import CameraGroupResult
 from yowo_cmc.intrinsics import EstimatedCamera
-from yowo_cmc.tracks import CameraTracks, TrackParams, resample
+from yowo_cmc.keypoint_tracks import CameraTracks, TrackParams, resample
 from yowo_common.bundle import Observations, pose_covariance, reprojection_residuals
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import Sim3, inv_se3, transform_points

@@ -1,4 +1,4 @@
-"""The generated recording follows shared/DESIGN.md §2 and its ground truth is exact."""
+"""The generated recording follows docs/design.md §3 and its ground truth is exact."""
 from collections import defaultdict
 from dataclasses import replace
 from pathlib import Path

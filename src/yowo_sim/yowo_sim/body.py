@@ -16,7 +16,7 @@ import numpy as np
 
 from yowo_common.geometry import rotation_aligning
 
-# Agent keypoint ids (DESIGN.md §2): 0 and 1 are required, the rest optional.
+# Agent keypoint ids (docs/design.md §3): 0 and 1 are required, the rest optional.
 HEAD_TOP, GROUND, LEFT_FOOT, RIGHT_FOOT, PELVIS, NECK = 0, 1, 2, 3, 4, 5
 
 # Distinctive clothing so detectors and background subtraction find the agent.

@@ -1,6 +1,6 @@
 """Generate a synthetic YOWO recording: scene, CMCs, the agent's walk, rendered
 ego RGB-D and CMC images, simulated keypoints and ground truth, as an MCAP
-rosbag2 that follows shared/DESIGN.md §2."""
+rosbag2 that follows docs/design.md §3."""
 from __future__ import annotations
 
 import time

@@ -1,4 +1,4 @@
-"""A recording in YOWO's own layout (shared/DESIGN.md §2) rewritten as real camera
+"""A recording in YOWO's own layout (docs/design.md §3) rewritten as real camera
 drivers publish it: their default topic names, frame ids, depth encodings, IMU split
 and /tf_static tree, with the ceiling cameras under image_transport's names. The input
 mapping is tested on these recordings as it would meet a user's.

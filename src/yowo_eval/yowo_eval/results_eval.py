@@ -1,4 +1,4 @@
-"""`yowo eval`: the metric tables of shared/DESIGN.md §4 for a results directory
+"""`yowo eval`: the metric tables of docs/design.md §6 for a results directory
 against the ground truth recorded in a bag."""
 from __future__ import annotations
 
@@ -11,7 +11,8 @@ import yaml
 from yowo_bringup.results import read_camera_poses, read_floor_polygons
 from yowo_common.trajectory import read_tum
 
-from .evaluation import (
+from .ground_truth import GroundTruth, read_ground_truth
+from .metrics import (
     ErrorSummary,
     ate,
     layout_iou,
@@ -19,7 +20,6 @@ from .evaluation import (
     relative_errors_of_baseline,
     relative_pose_errors,
 )
-from .ground_truth import GroundTruth, read_ground_truth
 
 RESULT_FILES = ("cameras.yaml", "ego_trajectory.tum", "layout.json")
 

@@ -19,9 +19,9 @@ from yowo_common.ros.timing import relative_to
 from yowo_msgs.msg import ReplayStatus, StageStatus
 
 from .config import CONFIG_PARAMETERS, params_document
-from .isolation import PRIVATE, GraphNetwork, graph_network
 from .profiling import summary_markdown
 from .progress import DONE, FAILED, RUNNING, WAITING, ProgressLines, RunProgress
+from .ros_domain import PRIVATE, GraphNetwork, graph_network
 from .run import RunOutcome, RunPlan, write_run_results
 from .supervisor import Supervisor, library_threads_env, stats_path, write_params_file
 

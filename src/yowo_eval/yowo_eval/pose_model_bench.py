@@ -4,7 +4,7 @@ photos (default): joint error against the hand-marked joints of
 src/yowo_cmc/test/test_pose_model.py, and speed on 640x480 frames with one
 interpreter thread on one core.
 
-    taskset -c 0 .venv/bin/python docs/pose_model_bench.py [photos]
+    taskset -c 0 .venv/bin/python -m yowo_eval.pose_model_bench [photos]
 
 sim: the pose-model source (PoseKeypointSource, as the keypoint trackers run it) on a
 simulated recording, against the simulator's ground truth (evaluation only): per
@@ -13,7 +13,7 @@ pixel error against the true projection of the body joint, and the left/right sw
 rate (a pair is swapped when the crossed assignment is nearer the truth).
 
     .venv/bin/yowo simulate --preset small --seed 0 -o bags/small_s0
-    .venv/bin/python docs/pose_model_bench.py sim bags/small_s0 --preset small --seed 0
+    .venv/bin/python -m yowo_eval.pose_model_bench sim bags/small_s0 --preset small --seed 0
 
 multiview: the pose-model source on a real multi-camera recording with a reference
 calibration (yowo import-multiview ... --videos): each keypoint id seen by >= 3 cameras
@@ -21,7 +21,7 @@ in one frame is triangulated with the reference poses and intrinsics, and its
 reprojection residual per camera measures the keypoint noise without the group SfM
 (--recorded: the recording's own keypoints instead, e.g. OpenPose's).
 
-    .venv/bin/python docs/pose_model_bench.py multiview p2s_vid [--set refine_crop=false]
+    .venv/bin/python -m yowo_eval.pose_model_bench multiview p2s_vid [--set refine_crop=false]
 
 The true body joints come from rebuilding the recording's walk from its preset and seed
 (yowo_sim.capture.build_capture); the script checks them against the recording's
@@ -38,9 +38,9 @@ import time
 import cv2
 import numpy as np
 
-from yowo_cmc.pose_model import MOVENET_JOINTS, ID_OFFSET, PoseDetector, PoseKeypointSource, PoseModelParams
+from yowo_cmc.pose_model import ID_OFFSET, MOVENET_JOINTS, PoseDetector, PoseKeypointSource, PoseModelParams
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROOT = pathlib.Path(__file__).resolve().parents[3]   # the source checkout (the photos are marked in its tests)
 
 
 def photos():
@@ -151,7 +151,7 @@ def run_source(bag, params: PoseModelParams):
 
             def counting(rgb, detect=detect, name=name, **kw):   # records what the model found, unchanged
                 people = detect(rgb, **kw)
-                persons[name][stamp] = len(people)
+                persons[name][stamp] = len(people)   # noqa: B023 (the frame being detected: read when called)
                 return people
             sources[name].detector.detect = counting
         stamp = stamp_to_ns(msg.header.stamp)
@@ -248,10 +248,10 @@ def _changes(pairs) -> dict:
 
 
 def multiview(args):
+    from yowo_cmc.keypoint_input import frame_from_msg
     from yowo_common.ros.bag import read_messages
     from yowo_common.rosconv import camera_info_to_model, decode_color, pose_to_matrix, stamp_to_ns
     from yowo_common.topics import parse_cmc_topic, parse_gt_cmc_pose_topic
-    from yowo_cmc.keypoint_input import frame_from_msg
 
     changes = _changes(args.set)
     params = dataclasses.replace(PoseModelParams(), **changes)

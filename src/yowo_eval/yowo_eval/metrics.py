@@ -1,4 +1,4 @@
-"""Evaluation metrics of the paper's "Metrics" paragraph and shared/DESIGN.md §4
+"""Evaluation metrics of the paper's "Metrics" paragraph and docs/design.md §6
 (pure numpy + shapely; `yowo eval` and the benchmark call these)."""
 from __future__ import annotations
 

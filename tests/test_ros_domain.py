@@ -65,7 +65,7 @@ def test_status_of_another_run_is_counted_and_ignored(tmp_path, ros_env, start_s
 
 
 def test_no_free_domain_is_a_clear_error():
-    from yowo_bringup.isolation import NoFreeDomain, claim_private_domain
+    from yowo_bringup.ros_domain import NoFreeDomain, claim_private_domain
 
     domain, fd = claim_private_domain()
     try:
