@@ -28,6 +28,7 @@ from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3, se3, transform_points
 from yowo_common.memory import release_free_memory
 
+from .feature_tracks import FilterParams, build_tracks, filter_matches
 from .features import FeatureExtractor, FeatureParams, KeyframeFeatures, backproject
 from .frames import MIN_TEXTURED_FRACTION, FrameError, RgbdFrame, Undistorter, make_frame, pinhole, textured_fraction
 from .imu import ImuBuffer, InertialParams, InertialTerms, keyframe_preintegration, up_from_accelerometer
@@ -56,7 +57,6 @@ from .scene import (
     up_from_cameras,
     wall_attitudes,
 )
-from .tracks import FilterParams, build_tracks, filter_matches
 
 MIN_TRACKS = 10        # fewer feature tracks than this: no bundle adjustment
 
