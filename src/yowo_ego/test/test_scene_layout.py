@@ -67,3 +67,27 @@ def test_layout_of_the_room(reconstruction, room):
     for w in walls:
         nx, ny, nz = to_map[:3, :3].T @ w.coefficients[:3]
         assert min(abs(nx), abs(ny)) < np.sin(np.radians(2.0)) and abs(nz) < 1e-9 + np.sin(np.radians(0.5))
+
+
+def test_the_floor_is_the_plane_most_points_lie_on_not_the_largest_patch():
+    """The patch detector splits a floor into pieces; a slanted surface (a ramp, a sofa's
+    back) can be the largest single patch. The floor is the plane the most cloud points
+    below the cameras lie on."""
+    from yowo_ego.scene import PlanarPatch
+
+    rng = np.random.default_rng(0)
+    floor = np.column_stack([rng.uniform(0, 10, 4000), rng.uniform(0, 6, 4000), np.zeros(4000)])
+    tilt = Rotation.from_euler("x", 7.0, degrees=True).as_matrix()
+    slab_n = tilt @ [0.0, 0.0, 1.0]
+    slab = (tilt @ np.column_stack([rng.uniform(-1, 1, 800), rng.uniform(-1, 1, 800), np.zeros(800)]).T).T
+    slab += [5.0, 3.0, 0.4]
+    points = np.vstack([floor, slab])
+    normals = np.vstack([np.tile([0.0, 0.0, 1.0], (len(floor), 1)), np.tile(slab_n, (len(slab), 1))])
+    cams = np.column_stack([rng.uniform(1, 9, 50), rng.uniform(1, 5, 50), np.full(50, 1.6)])
+
+    def patch(n, c, count):
+        return PlanarPatch(np.asarray(n, float), np.asarray(c, float), float(-np.dot(n, c)), np.tile(c, (4, 1)), count)
+    patches = [patch(slab_n, [5.0, 3.0, 0.4], 800), patch([0.0, 0.0, 1.0], [2.0, 2.0, 0.0], 300)]
+    n, c, support = find_floor(patches, points, normals, cams, np.array([0.05, 0.0, 1.0]))
+    assert np.degrees(np.arccos(min(1.0, n[2]))) < 0.5 and abs(c @ n) < 0.01, (n, c)
+    assert support >= 3900

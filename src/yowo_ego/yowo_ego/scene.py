@@ -147,19 +147,24 @@ def find_floor(patches: list[PlanarPatch], points: np.ndarray, normals: np.ndarr
                up_guess: np.ndarray, params: CloudParams = CloudParams()) -> tuple[np.ndarray, np.ndarray, int]:
     """(floor normal pointing up, a point on the floor, supporting points).
 
-    The direction: the normal of the largest planar patch within
-    ``floor_max_tilt_deg`` of the up guess. The height: the most populated
-    level, below the cameras, of the cloud points facing that way (a height
-    histogram): the floor continues through every room, while the patch
+    The direction: the normal of the planar patch within ``floor_max_tilt_deg``
+    of the up guess whose plane the most cloud points below the cameras lie on
+    (facing its way): the floor continues through every room, while the patch
     detector splits it into pieces, so its largest single patch can be a table
-    top. Finally a plane fit to every upward-facing point near that level."""
+    top or a slanted surface. The height: the most populated level, below the
+    cameras, of the cloud points facing that way (a height histogram). Finally a
+    plane fit to every upward-facing point near that level."""
     up_guess = up_guess / np.linalg.norm(up_guess)
     cos_tilt = np.cos(np.radians(params.floor_max_tilt_deg))
-    horizontal = [(p.num_points, p.normal if p.normal @ up_guess > 0 else -p.normal) for p in patches]
-    horizontal = [(k, n) for k, n in horizontal if n @ up_guess >= cos_tilt]
+    horizontal = [(p.normal if p.normal @ up_guess > 0 else -p.normal, p.center) for p in patches]
+    horizontal = [(n, c) for n, c in horizontal if n @ up_guess >= cos_tilt]
     if not horizontal:
         raise ValueError("no horizontal planar patch in the point cloud: cannot find the floor")
-    n = max(horizontal, key=lambda t: t[0])[1]
+
+    def plane_support(n: np.ndarray, c: np.ndarray) -> int:
+        on = (normals @ n >= params.patch_normal_cos) & (np.abs((points - c) @ n) <= 2 * params.floor_refit_band_m)
+        return int(np.sum(on & (points @ n <= np.median(cameras @ n) - params.floor_below_camera_m)))
+    n = max(horizontal, key=lambda t: plane_support(*t))[0]
     facing = normals @ n >= params.patch_normal_cos
     h = points[facing] @ n
     below = h <= np.median(cameras @ n) - params.floor_below_camera_m
