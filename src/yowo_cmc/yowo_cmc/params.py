@@ -52,7 +52,7 @@ class SfmParams:
     # rests on a few numbers, and ids that happen to fit a wrong pose gain weight and pull it
     # further (caliscope's demo: 6.75 % per id, 1.67 % per class). Classes split at these ids:
     # 0 derived head top, 1 derived ground point, 2-99 body joints, 100-499 hands, >= 500 face
-    # (docs/pose_model.md and README "Real multi-camera recordings"). One re-estimate (2 rounds) keeps
+    # (docs/pose_model.md and docs/usage.md "Real multi-camera recordings"). One re-estimate (2 rounds) keeps
     # weights from the first, equally weighted round's residuals, which the noisy classes
     # inflate for all; stop early once no sigma moves by more than sigma_tolerance.
     sigma_class_bounds: tuple[int, ...] = (1, 2, 100, 500)

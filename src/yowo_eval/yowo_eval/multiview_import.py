@@ -73,7 +73,7 @@ BLAZEPOSE = "BLAZEPOSE"     # mediapipe's 33 landmarks: the pose model's own Bla
 
 
 def joint_ids(fmt: str) -> dict[str, int]:
-    """Keypoint id of every joint name of a format (the table in README's importer section)."""
+    """Keypoint id of every joint name of a format (the table in docs/usage.md's importer section)."""
     from yowo_cmc.pose_model import BLAZEPOSE_JOINTS, ID_OFFSET
 
     names = BLAZEPOSE_JOINTS if fmt == BLAZEPOSE else COCO_17 + EXTRA_JOINTS
