@@ -57,7 +57,7 @@ def read_cmc_inputs(bag, source: str = "auto", params: CmcParams | None = None, 
         for role in ("info_topic", "image_topic", "keypoints_topic"):
             if spec[role] and (role != "keypoints_topic" or trackers[n].detector is None):
                 by_topic[spec[role]] = (n, role)
-    frames = {n: list(t.pending) for n, t in trackers.items()}
+    frames: dict[str, list] = {n: [] for n in trackers}
     for topic, _, msg in read_messages(bag, by_topic):
         n, role = by_topic[topic]
         t = trackers[n]
@@ -72,13 +72,7 @@ def read_cmc_inputs(bag, source: str = "auto", params: CmcParams | None = None, 
             kept = t.take_keypoints(frame_from_msg(msg))
             frames[n] += [kept] if kept is not None else []
         else:
-            stamp, rgb = stamp_to_ns(msg.header.stamp), None
-            if t.nominal and t.camera is None:
-                rgb = decode_color(msg)
-                nominal = t.nominal_camera(rgb.shape[1], rgb.shape[0])
-                frames[n] += t.take_camera(nominal) if nominal is not None else []
-            if t.wants_image(stamp):
-                frames[n] += t.take_image(stamp, decode_color(msg) if rgb is None else rgb)
+            frames[n] += t.take_image(stamp_to_ns(msg.header.stamp), lambda m=msg: decode_color(m))[0]
     tracks = []
     for n, t in trackers.items():
         frames[n] += t.flush()

@@ -37,7 +37,7 @@ def test_recorded_keypoints_are_validated_and_sampled_images_give_the_background
         assert t.wants_image(stamp)
         shade = int(rng.integers(0, 255))
         shades.append(shade)
-        assert t.take_image(stamp, np.full((480, 640, 3), shade, np.uint8)) == []
+        assert t.take_image(stamp, lambda shade=shade: np.full((480, 640, 3), shade, np.uint8)) == ([], None)
         assert not t.wants_image(stamp + 1)
     assert t.background()[0, 0, 0] == int(np.median(shades))
 
@@ -53,13 +53,14 @@ def test_intrinsics_from_a_file_a_nominal_model_or_none():
     # No intrinsics at all: a nominal model at the first image's size, once.
     nominal = KeypointTracker(camera="c3", source="keypoints", params=params, has_images=True, nominal=True)
     assert not nominal.wants_camera_info
-    model = nominal.nominal_camera(800, 600)
+    image = np.zeros((600, 800, 3), np.uint8)
+    _, model = nominal.take_image(10**18, lambda: image)
     expected = CameraModel.from_fov(800, 600, params.nominal_hfov_deg)
     assert (model.width, model.height) == (800, 600) and np.allclose(model.K, expected.K)
-    nominal.take_camera(model)
-    assert nominal.nominal_camera(800, 600) is None
+    assert nominal.camera is model
+    assert nominal.take_image(10**18 + 10**9, lambda: image)[1] is None
     blind = KeypointTracker(camera="c4", source="keypoints", params=params, has_images=False, nominal=True)
-    assert "image size is unknown" in blind.problem and blind.nominal_camera(800, 600) is None
+    assert "image size is unknown" in blind.problem and blind.take_image(10**18, lambda: image)[1] is None
 
 
 def test_sources_that_need_images_say_so():

@@ -5,6 +5,8 @@ the agent-free background and the validated frames. The keypoint tracker node fe
 messages converted to numpy; the offline API feeds it a recording read directly."""
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from yowo_common.camera import CameraModel
@@ -40,13 +42,12 @@ class KeypointTracker:
                          PoseOrDetectorSource(camera, params.pose, params.pose_min_frames, params.detector,
                                               params.max_pending_frames) if source == "pose" else None)
         self.sampler = BackgroundSampler(params.background_period_s)
-        self.pending: list[KeypointFrame] = []  # frames made while the intrinsics were set in the constructor
         if self.nominal and not has_images:
             self.problem = (f"camera '{camera}': no CameraInfo, no intrinsics file and no images, so its image "
                             "size is unknown: the camera is left out")
         elif camera_info:
             try:
-                self.pending = self.take_camera(intrinsics_from_text(camera_info, f"camera '{camera}': intrinsics file"))
+                self.take_camera(intrinsics_from_text(camera_info, f"camera '{camera}': intrinsics file"))
             except ValueError as exc:
                 self.problem = str(exc)
 
@@ -63,22 +64,28 @@ class KeypointTracker:
         self.acc.camera = camera
         return self._keep(self.detector.set_camera(camera)) if self.detector is not None else []
 
-    def nominal_camera(self, width: int, height: int) -> CameraModel | None:
-        """The nominal model at the first image's size, when this camera needs one now."""
-        if self.nominal and self.camera is None and not self.problem:
-            return CameraModel.from_fov(width, height, self.nominal_hfov_deg)
-        return None
-
     def wants_image(self, stamp_ns: int) -> bool:
         """Whether an image needs decoding (the detectors take every one; with recorded
         keypoints only those sampled for the background)."""
         return self.detector is not None or self.sampler.wants(stamp_ns)
 
-    def take_image(self, stamp_ns: int, rgb: np.ndarray) -> list[KeypointFrame]:
-        frames = self._keep(self.detector.push(stamp_ns, rgb)) if self.detector is not None else []
+    def take_image(self, stamp_ns: int, image: Callable[[], np.ndarray]
+                   ) -> tuple[list[KeypointFrame], CameraModel | None]:
+        """An image (`image()` decodes it, only when it is needed): the frames it validated,
+        and the nominal model its size gave a camera without intrinsics (None: none now)."""
+        rgb, nominal, frames = None, None, []
+        if self.nominal and self.camera is None and not self.problem:
+            rgb = image()
+            nominal = CameraModel.from_fov(rgb.shape[1], rgb.shape[0], self.nominal_hfov_deg)
+            frames = self.take_camera(nominal)
+        if not self.wants_image(stamp_ns):
+            return frames, nominal
+        rgb = image() if rgb is None else rgb
+        if self.detector is not None:
+            frames += self._keep(self.detector.push(stamp_ns, rgb))
         if self.sampler.wants(stamp_ns) and (self.detector is None or self.source == "pose"):
             self.sampler.add(stamp_ns, rgb)    # the pose model needs no background; the scene keypoints do
-        return frames
+        return frames, nominal
 
     def take_keypoints(self, frame: KeypointFrame) -> KeypointFrame | None:
         """An external detector's frame, validated (None: rejected, counted)."""

@@ -67,7 +67,6 @@ class KeypointTrackerNode(StageNode):
                 self.get_logger().error(problem)
         if self.tracker.camera is not None:           # from the intrinsics file
             self.publish_info(self.tracker.camera)
-            self.publish_frames(self.tracker.pending)
         if self.tracker.wants_camera_info:
             self.stream_input(CameraInfo, self.info_topic, self.on_info)
         if self.tracker.detector is None:
@@ -78,16 +77,11 @@ class KeypointTrackerNode(StageNode):
             self.stream_input(msg_type, image_topic, self.on_image)
 
     def on_image(self, msg) -> None:
-        stamp, rgb = stamp_to_ns(msg.header.stamp), None
-        if self.tracker.nominal and self.tracker.camera is None:
-            rgb = decode_color(msg)
-            nominal = self.tracker.nominal_camera(rgb.shape[1], rgb.shape[0])
-            if nominal is not None:
-                self.set_camera(nominal)
-        if not self.tracker.wants_image(stamp):
-            return
         self.frame_id = msg.header.frame_id or self.frame_id
-        self.publish_frames(self.tracker.take_image(stamp, decode_color(msg) if rgb is None else rgb))
+        frames, nominal = self.tracker.take_image(stamp_to_ns(msg.header.stamp), lambda: decode_color(msg))
+        if nominal is not None:
+            self.publish_info(nominal)
+        self.publish_frames(frames)
 
     def on_info(self, msg: CameraInfo) -> None:
         if not self.tracker.wants_camera_info:
@@ -99,7 +93,7 @@ class KeypointTrackerNode(StageNode):
             self.get_logger().error(self.tracker.problem)
             self.pub_info.publish(msg)    # relayed: the stages downstream report the reason
 
-    def set_camera(self, camera: CameraModel, msg: CameraInfo | None = None) -> None:
+    def set_camera(self, camera: CameraModel, msg: CameraInfo) -> None:
         frames = self.tracker.take_camera(camera)
         self.publish_info(camera, msg)
         self.publish_frames(frames)
