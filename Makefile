@@ -2,7 +2,7 @@
 VENV ?= $(CURDIR)/.venv
 PY := $(VENV)/bin/python
 
-.PHONY: setup test demo clean duplicates
+.PHONY: setup test demo clean duplicates format
 setup:
 	bash scripts/setup.sh
 
@@ -11,6 +11,10 @@ test: setup
 
 demo: setup
 	$(VENV)/bin/yowo demo
+
+format: setup
+	$(VENV)/bin/ruff format src tests scripts
+	$(VENV)/bin/ruff check --fix src tests scripts
 
 clean:
 	rm -rf build $(VENV)

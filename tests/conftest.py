@@ -25,8 +25,13 @@ def start_script(ros_env):
     procs = []
 
     def start(name, *args):
-        p = subprocess.Popen([sys.executable, str(GRAPH / name), *map(str, args)], env=ros_env,
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        p = subprocess.Popen(
+            [sys.executable, str(GRAPH / name), *map(str, args)],
+            env=ros_env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         procs.append(p)
         return p
 
@@ -36,6 +41,6 @@ def start_script(ros_env):
             p.terminate()
             try:
                 p.wait(timeout=10)
-            except subprocess.TimeoutExpired:   # hung in the middleware, where no signal handler runs
+            except subprocess.TimeoutExpired:  # hung in the middleware, where no signal handler runs
                 p.kill()
                 p.wait(timeout=10)

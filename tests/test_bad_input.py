@@ -1,5 +1,6 @@
 """The bad-input catalogue: each case gives a clear message naming what is wrong and
 where, partial results where possible, and a non-zero exit only when nothing useful exists."""
+
 import json
 import subprocess
 import sys
@@ -17,13 +18,13 @@ def test_truncated_recording_is_played_up_to_its_last_readable_message(tmp_path,
     full = {t.name: t.count for t in list_topics(tmp_path / "rec")}
     (mcap,) = (tmp_path / "rec").glob("*.mcap")
     data = mcap.read_bytes()
-    mcap.write_bytes(data[: int(len(data) * 0.7)])       # the recorder died: no summary, no footer
-    (tmp_path / "rec" / "metadata.yaml").unlink()          # and it never wrote metadata.yaml
+    mcap.write_bytes(data[: int(len(data) * 0.7)])  # the recorder died: no summary, no footer
+    (tmp_path / "rec" / "metadata.yaml").unlink()  # and it never wrote metadata.yaml
     r = yowo("info", tmp_path / "rec", env=ros_env)
     assert r.returncode == 0 and "damaged" in r.stdout and "recovered" in r.stdout, r.stdout + r.stderr
     r = yowo("calibrate-cmc", tmp_path / "rec", "-o", tmp_path / "out", env=ros_env)
     assert r.returncode == 0, r.stderr
-    assert "recovered" in r.stderr and str(mcap) in r.stderr            # the console says what was recovered
+    assert "recovered" in r.stderr and str(mcap) in r.stderr  # the console says what was recovered
     log = yaml.safe_load((tmp_path / "out" / "run_log.yaml").read_text())
     played = log["replay_published"]
     # Most of the walk was there and is played, every message of it reaches its stage.
@@ -31,7 +32,9 @@ def test_truncated_recording_is_played_up_to_its_last_readable_message(tmp_path,
         assert 0.55 * full[topic] < n < full[topic], (topic, n, full[topic])
         assert log["received"][topic] == {f"keypoint_tracker_{topic.split('/')[2]}": n}
     assert "recovered" in log["replay_error"]
-    r = yowo("eval", tmp_path / "out", "--bag", tmp_path / "rec", "--metrics", tmp_path / "out" / "metrics.json", env=ros_env)
+    r = yowo(
+        "eval", tmp_path / "out", "--bag", tmp_path / "rec", "--metrics", tmp_path / "out" / "metrics.json", env=ros_env
+    )
     assert r.returncode == 0, r.stderr
     rel = json.loads((tmp_path / "out" / "metrics.json").read_text())["relative"]["summary"]
     assert rel["count"] == len(cams) and rel["pos_max"] < 0.05, rel
@@ -63,13 +66,31 @@ def test_killed_stages_are_restarted_and_every_camera_is_calibrated(tmp_path, ro
     the kill takes down together), c2 has the other."""
     cams, _ = three_camera_recording(tmp_path / "rec", duration_s=40.0)
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "yowo_bringup.cli", "calibrate-cmc", str(tmp_path / "rec"),
-                             "-o", str(out), "--rate", "1.0", "--set", f"supervisor.tracker_processes={tracker_processes}"],
-                            env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "yowo_bringup.cli",
+            "calibrate-cmc",
+            str(tmp_path / "rec"),
+            "-o",
+            str(out),
+            "--rate",
+            "1.0",
+            "--set",
+            f"supervisor.tracker_processes={tracker_processes}",
+        ],
+        env=ros_env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     # The tracker dies mid-replay (it must be sent what it missed), the group SfM later (its
     # inputs come again from the trackers' durable streams).
-    killers = [threading.Thread(target=kill_when_playing, args=(out, "keypoint_tracker_c1", 8.0)),
-               threading.Thread(target=kill_when_playing, args=(out, "group_sfm", 20.0))]
+    killers = [
+        threading.Thread(target=kill_when_playing, args=(out, "keypoint_tracker_c1", 8.0)),
+        threading.Thread(target=kill_when_playing, args=(out, "group_sfm", 20.0)),
+    ]
     for k in killers:
         k.start()
     console, err = proc.communicate(timeout=300)
@@ -85,8 +106,8 @@ def test_killed_stages_are_restarted_and_every_camera_is_calibrated(tmp_path, ro
     assert sorted(c["name"] for c in doc if c["status"] == "ok") == sorted(cams)
     log = yaml.safe_load((out / "run_log.yaml").read_text())
     assert log["restarts"] == {tracker: [-9], "group_sfm": [-9]}
-    assert len(log["graph"]["processes"]) == (2 if shared else 3) + 2        # + the group SfM and the replay
-    assert log["replay_resent"] > 0                  # what the tracker had been sent before it died
+    assert len(log["graph"]["processes"]) == (2 if shared else 3) + 2  # + the group SfM and the replay
+    assert log["replay_resent"] > 0  # what the tracker had been sent before it died
     for topic, n in log["replay_published"].items():  # the restarted tracker got every message
         assert log["received"][topic] == {f"keypoint_tracker_{topic.split('/')[2]}": n}, topic
     # ... in order: it kept every frame (none "not after the previous frame")
@@ -101,9 +122,23 @@ def test_killed_stages_are_restarted_and_every_camera_is_calibrated(tmp_path, ro
 def test_killed_replay_ends_the_run_with_its_name(tmp_path, ros_env):
     three_camera_recording(tmp_path / "rec", duration_s=60.0)
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "yowo_bringup.cli", "calibrate-cmc", str(tmp_path / "rec"),
-                             "-o", str(out), "--rate", "1.0"], env=ros_env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "yowo_bringup.cli",
+            "calibrate-cmc",
+            str(tmp_path / "rec"),
+            "-o",
+            str(out),
+            "--rate",
+            "1.0",
+        ],
+        env=ros_env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     killer = threading.Thread(target=kill_when_playing, args=(out, "replay", 3.0))
     killer.start()
     _, err = proc.communicate(timeout=180)

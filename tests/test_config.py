@@ -17,14 +17,15 @@ from yowo_sim.presets import get_preset
 def test_tree_from_yaml_and_dotted_overrides(tmp_path):
     f = tmp_path / "site.yaml"
     f.write_text("ego:\n  odometry:\n    scale: 1\ncmc:\n  sfm:\n    ransac_px: 3\n")
-    cfg = load_config(f, ["ego.odometry.iterations=[4, 2]", "fusion.ok_rmse_px=4",
-                          "fusion.joint.relative_error_tol=1e-10"])
+    cfg = load_config(
+        f, ["ego.odometry.iterations=[4, 2]", "fusion.ok_rmse_px=4", "fusion.joint.relative_error_tol=1e-10"]
+    )
     assert cfg.ego.odometry.scale == 1 and cfg.ego.odometry.iterations == (4, 2)
-    assert cfg.fusion.joint.relative_error_tol == 1e-10     # YAML 1.1 reads 1e-10 as a string
+    assert cfg.fusion.joint.relative_error_tol == 1e-10  # YAML 1.1 reads 1e-10 as a string
     assert cfg.cmc.sfm.ransac_px == 3.0 and isinstance(cfg.cmc.sfm.ransac_px, float)
     assert cfg.fusion.ok_rmse_px == 4.0
-    assert cfg.ego.odometry.depth_max_m == YowoConfig().ego.odometry.depth_max_m     # the rest: defaults
-    assert load(YowoConfig, dump(cfg)) == cfg                                        # what `yowo config` prints
+    assert cfg.ego.odometry.depth_max_m == YowoConfig().ego.odometry.depth_max_m  # the rest: defaults
+    assert load(YowoConfig, dump(cfg)) == cfg  # what `yowo config` prints
 
 
 def section_types(section) -> set[type]:
@@ -54,15 +55,18 @@ def test_each_setting_has_one_home_and_reaches_the_fusion_from_there():
     assert set(node_config(cfg, "group_sfm")) == {"config"}
 
 
-@pytest.mark.parametrize("item, message", [
-    ("ego.odometry.scal=1", "unknown key ego.odometry.scal (did you mean ego.odometry.scale?)"),
-    ("egg.odometry.scale=1", "unknown key egg"),
-    ("ego.odometry.scale=fast", "ego.odometry.scale: expected int, got 'fast'"),
-    ("ego.odometry.scale=1e3", "ego.odometry.scale: expected int, got '1e3'"),
-    ("fusion.ok_rmse_px=3 px", "fusion.ok_rmse_px: expected float, got '3 px'"),
-    ("ego.odometry=3", "ego.odometry: is a section of keys, got 3"),
-    ("ego.odometry.scale", "expected section.key=value"),
-])
+@pytest.mark.parametrize(
+    "item, message",
+    [
+        ("ego.odometry.scal=1", "unknown key ego.odometry.scal (did you mean ego.odometry.scale?)"),
+        ("egg.odometry.scale=1", "unknown key egg"),
+        ("ego.odometry.scale=fast", "ego.odometry.scale: expected int, got 'fast'"),
+        ("ego.odometry.scale=1e3", "ego.odometry.scale: expected int, got '1e3'"),
+        ("fusion.ok_rmse_px=3 px", "fusion.ok_rmse_px: expected float, got '3 px'"),
+        ("ego.odometry=3", "ego.odometry: is a section of keys, got 3"),
+        ("ego.odometry.scale", "expected section.key=value"),
+    ],
+)
 def test_bad_keys_and_values_are_named(item, message):
     with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)").replace("?", r"\?")):
         load_config(None, [item])
@@ -78,8 +82,19 @@ def test_bad_configuration_file_is_named(tmp_path, ros_env):
 def test_set_reaches_every_section_and_the_detector(tmp_path, ros_env):
     three_camera_recording(tmp_path / "rec", duration_s=20.0)
     out = tmp_path / "out"
-    r = yowo("calibrate-cmc", tmp_path / "rec", "-o", out, "--set", "cmc.sfm.min_matches=100000",
-             "--set", "replay.ack_window=4", "--set", "supervisor.max_restarts=0", env=ros_env)
+    r = yowo(
+        "calibrate-cmc",
+        tmp_path / "rec",
+        "-o",
+        out,
+        "--set",
+        "cmc.sfm.min_matches=100000",
+        "--set",
+        "replay.ack_window=4",
+        "--set",
+        "supervisor.max_restarts=0",
+        env=ros_env,
+    )
     # No camera pair has 100000 matches: nothing is calibrated, and the run says why.
     assert r.returncode == 1, r.stderr
     doc = yaml.safe_load((out / "cameras.yaml").read_text())["cameras"]
@@ -100,8 +115,15 @@ def test_offline_api_and_graph_agree_with_the_same_tree(tmp_path, ros_env):
     bag = tmp_path / "tiny_s5"
     generate(get_preset("tiny"), 5, bag)
     # One key of every section the recorded keypoints go through.
-    sets = ["ego.odometry.polish_iterations=2", "cmc.sfm.ransac_px=2.5", "cmc.background_period_s=0.5",
-            "fusion.ok_rmse_px=4", "replay.ack_window=8", "supervisor.max_restarts=1", "cmc.sfm.tracks.gate_px=6"]
+    sets = [
+        "ego.odometry.polish_iterations=2",
+        "cmc.sfm.ransac_px=2.5",
+        "cmc.background_period_s=0.5",
+        "fusion.ok_rmse_px=4",
+        "replay.ack_window=8",
+        "supervisor.max_restarts=1",
+        "cmc.sfm.tracks.gate_px=6",
+    ]
     out = tmp_path / "graph"
     r = yowo("run", bag, "-o", out, *[a for s in sets for a in ("--set", s)], env=ros_env, timeout=600)
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
@@ -109,7 +131,7 @@ def test_offline_api_and_graph_agree_with_the_same_tree(tmp_path, ros_env):
     assert "ego.odometry.polish_iterations=2" in logs["ego_mapper"]
     assert "cmc.background_period_s=0.5" in logs["keypoint_tracker_cam00"]
     assert "fusion.ok_rmse_px=4.0" in logs["fusion"]
-    assert "cmc.sfm.tracks.gate_px=6.0" in logs["fusion"]     # the group SfM's setting, read by the fusion too
+    assert "cmc.sfm.tracks.gate_px=6.0" in logs["fusion"]  # the group SfM's setting, read by the fusion too
     offline = process(bag, load_config(None, sets))
     write_cameras_yaml(tmp_path / "offline.yaml", offline.fusion.cameras, offline.grouping.groups)
     assert (tmp_path / "offline.yaml").read_text() == (out / "cameras.yaml").read_text()
@@ -119,7 +141,17 @@ def test_offline_api_and_graph_agree_with_the_same_tree(tmp_path, ros_env):
     assert (tmp_path / "default.yaml").read_text() != (out / "cameras.yaml").read_text()
     # The detector's section reaches the trackers: blobs larger than the largest allowed
     # are never the agent, so no camera sees it.
-    r = yowo("calibrate-cmc", bag, "-o", tmp_path / "blind", "--cmc-source", "images",
-             "--set", "cmc.detector.min_area=0.6", env=ros_env, timeout=300)
+    r = yowo(
+        "calibrate-cmc",
+        bag,
+        "-o",
+        tmp_path / "blind",
+        "--cmc-source",
+        "images",
+        "--set",
+        "cmc.detector.min_area=0.6",
+        env=ros_env,
+        timeout=300,
+    )
     stages = yaml.safe_load((tmp_path / "blind" / "run_log.yaml").read_text())["stages"]
     assert all("agent in 0" in stages[f"keypoint_tracker_cam0{i}"] for i in range(3)), stages

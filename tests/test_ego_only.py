@@ -1,6 +1,7 @@
 """An ego-only run is a supported mode: a recording without usable CMCs maps the scene
 through the real graph (replay + ego mapper) and says plainly that no camera was
 registered and why; `yowo eval` measures its trajectory without tripping over the cameras."""
+
 import json
 
 import pytest
@@ -37,17 +38,30 @@ def test_ego_only_run_through_the_graph(recordings, ros_env):
     r = yowo("run", bag, "-o", out, env=ros_env, timeout=300)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:] + log_tails(out, ["replay", "ego_mapper"])
     assert "ego-only run" in r.stdout and "no CMC topics" in r.stdout, r.stdout
-    for name in ("ego_trajectory.tum", "map.ply", "layout.json", "cameras.yaml", "run_log.yaml", "params.yaml",
-                 "report.html", "result.mcap", "metrics.json"):
+    for name in (
+        "ego_trajectory.tum",
+        "map.ply",
+        "layout.json",
+        "cameras.yaml",
+        "run_log.yaml",
+        "params.yaml",
+        "report.html",
+        "result.mcap",
+        "metrics.json",
+    ):
         assert (out / name).exists(), name
     cams = yaml.safe_load((out / "cameras.yaml").read_text())
     assert cams["registered"] == 0 and cams["cameras"] == [] and "no CMC topics" in cams["note"], cams
     log = yaml.safe_load((out / "run_log.yaml").read_text())
     assert log["mode"] == EGO and log["failure"] == "" and set(log["stages"]) == {"ego_mapper"}
     # The ego camera's topics and its IMU (the simulator records one), nothing of the CMCs.
-    assert set(log["replay_published"]) == {"/ego/color/image_raw/compressed", "/ego/color/camera_info",
-                                            "/ego/depth/image_raw/compressedDepth", "/ego/imu",
-                                            "/ego/imu/calibration"}
+    assert set(log["replay_published"]) == {
+        "/ego/color/image_raw/compressed",
+        "/ego/color/camera_info",
+        "/ego/depth/image_raw/compressedDepth",
+        "/ego/imu",
+        "/ego/imu/calibration",
+    }
     assert "No camera registered (ego-only run)" in (out / "report.html").read_text()
     # The trajectory against the simulator's ground truth: the full run on this walk reaches
     # ~7 mm; a broken ego graph is off by decimetres.
@@ -56,8 +70,7 @@ def test_ego_only_run_through_the_graph(recordings, ros_env):
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["ego"]["matched"] == 133 and metrics["ego"]["ate_rmse_m"] < 0.03, metrics["ego"]
     assert "layout" in metrics and "registration" not in metrics
-    assert metrics["cameras"] == {"registered": 0, "not_registered": ["cam00", "cam01", "cam02"],
-                                  "note": cams["note"]}
+    assert metrics["cameras"] == {"registered": 0, "not_registered": ["cam00", "cam01", "cam02"], "note": cams["note"]}
 
 
 def test_modes_by_usable_cmcs(recordings, tmp_path):

@@ -1,4 +1,5 @@
 """Smoke tests on the real middleware (Fast DDS, separate processes)."""
+
 import os
 import queue
 import signal
@@ -52,11 +53,18 @@ def test_bag_roundtrip_field_by_field(tmp_path):
             header = Header(stamp=ns_to_time(stamp), frame_id="ego_optical_frame")
             img = encode_raw(rng.integers(0, 255, (48, 64, 3), dtype=np.uint8), "rgb8", header)
             info = model_to_camera_info(cam, header)
-            kp = AgentKeypoints(header=header, camera_name="ceiling_a",
-                                keypoints=[Keypoint2D(id=k, x=float(rng.normal()), y=float(rng.normal()),
-                                                      confidence=0.25) for k in range(i)])
-            for topic, msg in (("/ego/color/image_raw", img), ("/ego/color/camera_info", info),
-                               ("/cmc/ceiling_a/agent_keypoints", kp)):
+            kp = AgentKeypoints(
+                header=header,
+                camera_name="ceiling_a",
+                keypoints=[
+                    Keypoint2D(id=k, x=float(rng.normal()), y=float(rng.normal()), confidence=0.25) for k in range(i)
+                ],
+            )
+            for topic, msg in (
+                ("/ego/color/image_raw", img),
+                ("/ego/color/camera_info", info),
+                ("/cmc/ceiling_a/agent_keypoints", kp),
+            ):
                 bag.write(topic, msg, stamp)
                 sent.append((topic, stamp, msg))
     got = list(read_messages(tmp_path / "rt"))
@@ -83,7 +91,7 @@ def test_a_stopped_node_first_delivers_what_it_published(tmp_path, start_script)
     pub = start_script("flush_on_stop.py", "pub", go)
     sub_lines, pub_lines = _lines(sub), _lines(pub)
     assert sub_lines.get(timeout=60) == "matched" and pub_lines.get(timeout=60) == "matched"
-    os.kill(sub.pid, signal.SIGSTOP)   # matched both ways, but cannot acknowledge anything now
+    os.kill(sub.pid, signal.SIGSTOP)  # matched both ways, but cannot acknowledge anything now
     try:
         go.touch()
         assert pub_lines.get(timeout=30) == "published"

@@ -1,5 +1,6 @@
 """CMCs recorded with images only: the keypoint trackers run the built-in detector
 (source:=images) inside the real graph, and the group SfM calibrates from its keypoints."""
+
 import json
 
 import yaml

@@ -1,4 +1,5 @@
-"""Lint as a test: ruff (pyflakes and pycodestyle's error rules) is clean on the tree."""
+"""Lint as a test: ruff (pycodestyle errors, pyflakes, import order, bugbear) is clean and its formatter applied."""
+
 import ast
 import subprocess
 import sys
@@ -8,8 +9,25 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_ruff_is_clean():
-    r = subprocess.run([sys.executable, "-m", "ruff", "check", "--output-format", "concise", "src", "tests"],
-                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [sys.executable, "-m", "ruff", "check", "--output-format", "concise", "src", "tests"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_ruff_format_is_applied():
+    """One layout for the whole tree (`ruff format src tests scripts` fixes it)."""
+    r = subprocess.run(
+        [sys.executable, "-m", "ruff", "format", "--check", "src", "tests", "scripts"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
 
 
@@ -30,22 +48,60 @@ def imported_modules(path: Path) -> set[str]:
 def test_runtime_packages_never_import_the_evaluation():
     """Benchmark, metrics and baselines live in yowo_eval; the runtime finds it only
     through entry points (yowo_bringup.plugins), so an install without it still runs."""
-    offenders = [f"{p.relative_to(ROOT)}: {m}" for pkg in RUNTIME for p in (ROOT / "src" / pkg / pkg).rglob("*.py")
-                 for m in imported_modules(p) if m.split(".")[0] in ("yowo_eval", "yowo_sim")]
+    offenders = [
+        f"{p.relative_to(ROOT)}: {m}"
+        for pkg in RUNTIME
+        for p in (ROOT / "src" / pkg / pkg).rglob("*.py")
+        for m in imported_modules(p)
+        if m.split(".")[0] in ("yowo_eval", "yowo_sim")
+    ]
     assert not offenders, offenders
 
 
 # The rosdep key of each third-party import (rosdistro rosdep/python.yaml and base.yaml;
 # gtsam is a package of the Jazzy distribution); None: no key exists, requirements.txt
 # installs it (said in the package.xml).
-ROSDEP = {"cv2": "python3-opencv", "numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-yaml",
-          "gtsam": "gtsam", "rosbags": "python3-rosbags-pip", "mcap": "mcap-ros2-support",
-          "shapely": "python3-shapely", "open3d": "python3-open3d-pip", "networkx": "python3-networkx",
-          "matplotlib": "python3-matplotlib", "rich": "python3-rich", "dacite": None, "lz4": None, "ai_edge_litert": None,
-          "zstandard": None, "av": "python3-av"}
-ROS_PACKAGES = {"rclpy", "builtin_interfaces", "geometry_msgs", "nav_msgs", "sensor_msgs", "std_msgs", "tf2_msgs",
-                "visualization_msgs", "rosgraph_msgs", "yowo_msgs", "yowo_common", "yowo_ego", "yowo_cmc",
-                "yowo_fusion", "yowo_bringup", "yowo_sim", "yowo_eval", "launch", "launch_ros", "ament_index_python"}
+ROSDEP = {
+    "cv2": "python3-opencv",
+    "numpy": "python3-numpy",
+    "scipy": "python3-scipy",
+    "yaml": "python3-yaml",
+    "gtsam": "gtsam",
+    "rosbags": "python3-rosbags-pip",
+    "mcap": "mcap-ros2-support",
+    "shapely": "python3-shapely",
+    "open3d": "python3-open3d-pip",
+    "networkx": "python3-networkx",
+    "matplotlib": "python3-matplotlib",
+    "rich": "python3-rich",
+    "dacite": None,
+    "lz4": None,
+    "ai_edge_litert": None,
+    "zstandard": None,
+    "av": "python3-av",
+}
+ROS_PACKAGES = {
+    "rclpy",
+    "builtin_interfaces",
+    "geometry_msgs",
+    "nav_msgs",
+    "sensor_msgs",
+    "std_msgs",
+    "tf2_msgs",
+    "visualization_msgs",
+    "rosgraph_msgs",
+    "yowo_msgs",
+    "yowo_common",
+    "yowo_ego",
+    "yowo_cmc",
+    "yowo_fusion",
+    "yowo_bringup",
+    "yowo_sim",
+    "yowo_eval",
+    "launch",
+    "launch_ros",
+    "ament_index_python",
+}
 PYTHON_PACKAGES = RUNTIME + ("yowo_sim", "yowo_eval")
 
 
@@ -62,7 +118,7 @@ def test_package_xml_declares_what_the_code_imports():
         unknown = sorted(m for m in imported if m not in ROSDEP and m not in ROS_PACKAGES)
         needed = {ROSDEP.get(m, m) for m in imported if m not in unknown} - {None}
         if any((ROOT / "src" / pkg / pkg).glob("*_node.py")):
-            needed.add("rclpy")     # its nodes run on rclpy (through yowo_common's StageNode)
+            needed.add("rclpy")  # its nodes run on rclpy (through yowo_common's StageNode)
         if unknown:
             problems.append(f"{pkg}: no rosdep key known for {unknown} (add it to ROSDEP)")
         if needed - declared:

@@ -1,5 +1,6 @@
 """Runs that share a machine never share data: concurrent runs get private DDS domains,
 and a status of another run on the same domain is counted and never used."""
+
 import json
 import os
 
@@ -20,10 +21,14 @@ def test_concurrent_runs_of_different_recordings_keep_their_own_cameras(tmp_path
     three_camera_recording(tmp_path / "site_a", seed=1, duration_s=30.0, layout=0)
     three_camera_recording(tmp_path / "site_b", seed=2, duration_s=30.0, layout=1)
     runs = {}
-    with yowo_background("calibrate-cmc", tmp_path / "site_a", "-o", tmp_path / "out_a", "--rate", "1",
-                         env=ros_env) as a, \
-         yowo_background("calibrate-cmc", tmp_path / "site_b", "-o", tmp_path / "out_b", "--rate", "1",
-                         env=ros_env) as b:
+    with (
+        yowo_background(
+            "calibrate-cmc", tmp_path / "site_a", "-o", tmp_path / "out_a", "--rate", "1", env=ros_env
+        ) as a,
+        yowo_background(
+            "calibrate-cmc", tmp_path / "site_b", "-o", tmp_path / "out_b", "--rate", "1", env=ros_env
+        ) as b,
+    ):
         for name, proc in (("a", a), ("b", b)):
             runs[name] = proc.communicate(timeout=300)
             assert proc.returncode == 0, runs[name][1]
@@ -74,6 +79,6 @@ def test_no_free_domain_is_a_clear_error():
             claim_private_domain(candidates=range(domain, domain + 1))
     finally:
         os.close(fd)
-    again, fd = claim_private_domain(candidates=range(domain, domain + 1))   # released: free again
+    again, fd = claim_private_domain(candidates=range(domain, domain + 1))  # released: free again
     os.close(fd)
     assert again == domain

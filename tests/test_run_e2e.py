@@ -1,6 +1,7 @@
 """The full product path on a generated recording: `yowo run` through the real
 multi-process graph (replay, ego mapper, one tracker per CMC, group SfM, fusion),
 then `yowo eval`, checked against the simulator's ground truth."""
+
 import base64
 import json
 import subprocess
@@ -22,8 +23,17 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
     out = tmp_path / "results"
     r = yowo("run", bag, "-o", out, env=ros_env, timeout=700)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
-    for name in ("cameras.yaml", "ego_trajectory.tum", "map.ply", "layout.json", "report.html", "metrics.json",
-                 "ego_trajectory_ego.tum", "map_ego.ply", "layout_ego.json"):
+    for name in (
+        "cameras.yaml",
+        "ego_trajectory.tum",
+        "map.ply",
+        "layout.json",
+        "report.html",
+        "metrics.json",
+        "ego_trajectory_ego.tum",
+        "map_ego.ply",
+        "layout_ego.json",
+    ):
         assert (out / name).exists(), name
     check_result_bag(out / "result.mcap")
     check_report(out / "report.html", ["cam00", "cam01", "cam02"])
@@ -38,14 +48,20 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
     # missed); this run lingers (on the test's domain: --linger shares the graph), and a
     # subscriber started after the results are written gets every camera on /tf_static.
     again = tmp_path / "again"
-    with yowo_background("run", bag, "-o", again, "--linger", "30", "--timeout", "600", "--rate", "0.5",
-                         env=ros_env) as run:
+    with yowo_background(
+        "run", bag, "-o", again, "--linger", "30", "--timeout", "600", "--rate", "0.5", env=ros_env
+    ) as run:
         kill_when_playing(again, "ego_mapper", 3.0)
         deadline = time.monotonic() + 600
         while not (again / "report.html").exists() and run.poll() is None and time.monotonic() < deadline:
             time.sleep(0.5)
-        late = subprocess.run([sys.executable, str(GRAPH / "tf_static_late.py"), "sub", "15"], env=ros_env,
-                              capture_output=True, text=True, timeout=60)
+        late = subprocess.run(
+            [sys.executable, str(GRAPH / "tf_static_late.py"), "sub", "15"],
+            env=ros_env,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
         stdout, stderr = run.communicate(timeout=120)
     assert run.returncode == 0, stdout[-3000:] + stderr[-3000:] + log_tails(again, ["replay", "ego_mapper"])
     for name in ("cameras.yaml", "ego_trajectory.tum", "layout.json", "map.ply", "ego_trajectory_ego.tum"):
@@ -93,9 +109,10 @@ def check_exports(out):
     images = {im.name: im for im in rec.images.values()}
     for name, c in cams.items():
         info = yaml.safe_load((out / "export" / "camera_info" / f"{name}.yaml").read_text())
-        np.testing.assert_allclose(info["camera_matrix"]["data"], np.ravel(c["K"]), atol=1e-6)   # cameras.yaml: 6 digits
-        np.testing.assert_allclose(images[f"cmc/{name}.png"].projection_center(), c["T_world_camera"]["position"],
-                                   atol=1e-6)
+        np.testing.assert_allclose(info["camera_matrix"]["data"], np.ravel(c["K"]), atol=1e-6)  # cameras.yaml: 6 digits
+        np.testing.assert_allclose(
+            images[f"cmc/{name}.png"].projection_center(), c["T_world_camera"]["position"], atol=1e-6
+        )
     tum = read_tum(out / "ego_trajectory.tum")
     evo_traj = file_interface.read_tum_trajectory_file(str(out / "ego_trajectory.tum"))
     np.testing.assert_allclose(evo_traj.positions_xyz, tum.positions, atol=1e-9)
@@ -106,12 +123,13 @@ def check_exports(out):
     for im in ego:
         np.testing.assert_allclose(im.projection_center(), at[int(im.name[4:-4])], atol=1e-6)
     rec.update_point_3d_errors()
-    assert rec.compute_mean_reprojection_error() < 3.0      # the ego map's landmarks at the refined poses
+    assert rec.compute_mean_reprojection_error() < 3.0  # the ego map's landmarks at the refined poses
 
 
 def check_report(path, cameras, panels=None):
     """report.html parses, embeds a real PNG top view, has a table row per camera and a
     panel (a real PNG) per grouped camera (`panels`, default every camera)."""
+
     class Report(HTMLParser):
         def __init__(self):
             super().__init__()
@@ -135,10 +153,12 @@ def check_report(path, cameras, panels=None):
     report = Report()
     report.feed(path.read_text())
     images = dict(report.images)
-    assert set(images) == {"top view"} | {f"{n} agent fit" for n in (cameras if panels is None else panels)}, images.keys()
+    assert set(images) == {"top view"} | {f"{n} agent fit" for n in (cameras if panels is None else panels)}, (
+        images.keys()
+    )
     for src in images.values():
         png = base64.b64decode(src.split("base64,", 1)[1])
-        assert png.startswith(b"\x89PNG") and len(png) > 20_000      # a drawn figure, not a blank one
+        assert png.startswith(b"\x89PNG") and len(png) > 20_000  # a drawn figure, not a blank one
     assert all(name in report.cells for name in cameras), report.cells
 
 
@@ -150,14 +170,24 @@ def check_result_bag(path):
     from yowo_common import topics
     from yowo_common.ros.bag import list_topics
 
-    wanted = {topics.TF_STATIC, topics.CMC_POSES, topics.LAYOUT_MARKERS, topics.EGO_MAP, topics.LAYOUT,
-              topics.MAP_POINTS, topics.EGO_PATH, topics.GROUPS, topics.REFINED_MAP_POINTS, topics.REFINED_LAYOUT,
-              topics.REFINED_EGO_PATH}
+    wanted = {
+        topics.TF_STATIC,
+        topics.CMC_POSES,
+        topics.LAYOUT_MARKERS,
+        topics.EGO_MAP,
+        topics.LAYOUT,
+        topics.MAP_POINTS,
+        topics.EGO_PATH,
+        topics.GROUPS,
+        topics.REFINED_MAP_POINTS,
+        topics.REFINED_LAYOUT,
+        topics.REFINED_EGO_PATH,
+    }
     assert path.is_file()
     found = list_topics(path)
-    assert {t.name for t in found if t.count == 1} >= wanted                      # rosbags
+    assert {t.name for t in found if t.count == 1} >= wanted  # rosbags
     assert all(t.latched for t in found if t.name in wanted), [t for t in found if not t.latched]
     with open(path, "rb") as f:
         reader = make_reader(f)
         seen = {channel.topic for _, channel, _ in reader.iter_messages()}
-    assert seen >= wanted                                                         # mcap
+    assert seen >= wanted  # mcap

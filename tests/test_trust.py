@@ -1,5 +1,6 @@
 """Trust at first contact: what a recording holds never selects code to run, results folders
 hold one run, the real reason of a failure is told, bad input and settings are refused up front."""
+
 import yaml
 from rclpy.serialization import serialize_message
 from rosbags.rosbag2 import Writer
@@ -29,9 +30,14 @@ def _with_foreign_types(src, dst):
                 conns[raw.topic] = writer.add_connection(raw.topic, raw.msgtype, typestore=store)
             writer.write(conns[raw.topic], raw.log_time_ns, raw.data)
         imu_def = store.generate_msgdef("sensor_msgs/msg/Imu")[0]
-        for topic, msgtype in (("/cmc/c1/imu", "redmod/msg/Imu"), ("/planted", "this_is_planted/msg/Imu"),
-                               ("/shadow", "rclpy/msg/Imu")):
-            conn = writer.add_connection(topic, msgtype, msgdef=imu_def, rihs01=store.hash_rihs01("sensor_msgs/msg/Imu"))
+        for topic, msgtype in (
+            ("/cmc/c1/imu", "redmod/msg/Imu"),
+            ("/planted", "this_is_planted/msg/Imu"),
+            ("/shadow", "rclpy/msg/Imu"),
+        ):
+            conn = writer.add_connection(
+                topic, msgtype, msgdef=imu_def, rihs01=store.hash_rihs01("sensor_msgs/msg/Imu")
+            )
             writer.write(conn, 1, serialize_message(Imu()))
     finally:
         writer.close()
@@ -45,7 +51,7 @@ def test_a_recordings_type_names_import_nothing(tmp_path, ros_env):
     _with_foreign_types(tmp_path / "good", work / "rec")
     r = yowo("info", "rec", env=ros_env, cwd=work)
     assert r.returncode == 0, r.stderr
-    said = " ".join(r.stdout.split())          # rich wraps at the terminal's width
+    said = " ".join(r.stdout.split())  # rich wraps at the terminal's width
     assert "/cmc/c1/imu: skipped, 'redmod/msg/Imu' is not from an interface package YOWO reads" in said, said
     r = yowo("calibrate-cmc", "rec", "-o", "out", env=ros_env, cwd=work)
     assert r.returncode == 0, r.stderr
@@ -96,9 +102,25 @@ def test_ctrl_c_stops_every_node_and_the_run_log_says_so(tmp_path, ros_env):
 
     three_camera_recording(tmp_path / "rec", duration_s=60.0)
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "yowo_bringup.cli", "calibrate-cmc", str(tmp_path / "rec"),
-                             "-o", str(out), "--rate", "1", "--timeout", "240"], env=ros_env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "yowo_bringup.cli",
+            "calibrate-cmc",
+            str(tmp_path / "rec"),
+            "-o",
+            str(out),
+            "--rate",
+            "1",
+            "--timeout",
+            "240",
+        ],
+        env=ros_env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         deadline = time.monotonic() + 120
         replay_log = out / "logs" / "replay.log"
@@ -138,8 +160,10 @@ def test_a_topic_of_the_wrong_type_is_named_at_start_and_options_get_their_verbs
         bag.write("/cmc/c1/camera_info", CompressedImage(format="jpeg"), log_ns + 1)
     r = yowo("info", tmp_path / "rec", env=ros_env)
     said = " ".join(r.stdout.split())
-    assert (f"{EGO_COLOR[0]}: type sensor_msgs/msg/CompressedImage, but as {EGO_COLOR[0]} it must be "
-            "sensor_msgs/msg/Image; not used") in said, said
+    assert (
+        f"{EGO_COLOR[0]}: type sensor_msgs/msg/CompressedImage, but as {EGO_COLOR[0]} it must be "
+        "sensor_msgs/msg/Image; not used"
+    ) in said, said
     r = yowo("run", tmp_path / "rec", "-o", tmp_path / "out", env=ros_env, timeout=120)
     assert r.returncode == 2 and "it must be sensor_msgs/msg/Image" in r.stderr, r.stderr
     r = yowo("calibrate-cmc", tmp_path / "rec", "-o", tmp_path / "out2", "--no-such-option", env=ros_env)

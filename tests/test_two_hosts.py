@@ -1,6 +1,7 @@
 """The graph split across two hosts: two network namespaces joined by a veth pair stand
 in for them (replay and trackers on one, ego mapper, group SfM and fusion on the other),
 talking over UDP only. The result equals the one-host run's, byte for byte."""
+
 import os
 import shutil
 import subprocess
@@ -32,15 +33,21 @@ def two_hosts():
     try:
         assert _ip("netns", "add", b).returncode == 0
         subnet = f"10.77.{os.getpid() % 250}"
-        for cmd in (["link", "add", f"{link}a", "type", "veth", "peer", "name", f"{link}b"],
-                    ["link", "set", f"{link}a", "netns", a], ["link", "set", f"{link}b", "netns", b],
-                    ["-n", a, "addr", "add", f"{subnet}.1/24", "dev", f"{link}a"],
-                    ["-n", b, "addr", "add", f"{subnet}.2/24", "dev", f"{link}b"]):
+        for cmd in (
+            ["link", "add", f"{link}a", "type", "veth", "peer", "name", f"{link}b"],
+            ["link", "set", f"{link}a", "netns", a],
+            ["link", "set", f"{link}b", "netns", b],
+            ["-n", a, "addr", "add", f"{subnet}.1/24", "dev", f"{link}a"],
+            ["-n", b, "addr", "add", f"{subnet}.2/24", "dev", f"{link}b"],
+        ):
             r = _ip(*cmd)
             assert r.returncode == 0, (cmd, r.stderr)
         for ns, dev in ((a, f"{link}a"), (b, f"{link}b")):
-            for cmd in (["-n", ns, "link", "set", "lo", "up"], ["-n", ns, "link", "set", dev, "up"],
-                        ["-n", ns, "route", "add", "224.0.0.0/4", "dev", dev]):  # DDS discovery multicast
+            for cmd in (
+                ["-n", ns, "link", "set", "lo", "up"],
+                ["-n", ns, "link", "set", dev, "up"],
+                ["-n", ns, "route", "add", "224.0.0.0/4", "dev", dev],
+            ):  # DDS discovery multicast
                 r = _ip(*cmd)
                 assert r.returncode == 0, (cmd, r.stderr)
         yield a, b, f"{link}a"
@@ -64,12 +71,45 @@ def test_graph_split_across_two_hosts_equals_one_host_run(tmp_path, ros_env, two
     common = ["--domain", str(network.domain_id), "--run-id", "split-test", "--timeout", "400"]
     cli = [sys.executable, "-m", "yowo_bringup.cli", "run", str(bag)]
     try:
-        a = subprocess.Popen(["ip", "netns", "exec", host_a, *cli, "-o", str(tmp_path / "host_a"), *common,
-                              "--nodes", "replay", "keypoint_tracker_*"], env=env, stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True)
-        b = subprocess.run(["ip", "netns", "exec", host_b, *cli, "-o", str(tmp_path / "host_b"), *common,
-                            "--nodes", "ego_mapper", "group_sfm", "fusion"], env=env, capture_output=True,
-                           text=True, timeout=500)
+        a = subprocess.Popen(
+            [
+                "ip",
+                "netns",
+                "exec",
+                host_a,
+                *cli,
+                "-o",
+                str(tmp_path / "host_a"),
+                *common,
+                "--nodes",
+                "replay",
+                "keypoint_tracker_*",
+            ],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        b = subprocess.run(
+            [
+                "ip",
+                "netns",
+                "exec",
+                host_b,
+                *cli,
+                "-o",
+                str(tmp_path / "host_b"),
+                *common,
+                "--nodes",
+                "ego_mapper",
+                "group_sfm",
+                "fusion",
+            ],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=500,
+        )
         a_out, a_err = a.communicate(timeout=120)
     finally:
         network.release()
@@ -77,8 +117,12 @@ def test_graph_split_across_two_hosts_equals_one_host_run(tmp_path, ros_env, two
     assert a.returncode == 0, a_out[-3000:] + a_err[-3000:]
     log_a = yaml.safe_load((tmp_path / "host_a" / "run_log.yaml").read_text())
     log_b = yaml.safe_load((tmp_path / "host_b" / "run_log.yaml").read_text())
-    assert sorted(log_a["graph"]["nodes_on_this_host"]) == ["keypoint_tracker_cam00", "keypoint_tracker_cam01",
-                                                            "keypoint_tracker_cam02", "replay"]
+    assert sorted(log_a["graph"]["nodes_on_this_host"]) == [
+        "keypoint_tracker_cam00",
+        "keypoint_tracker_cam01",
+        "keypoint_tracker_cam02",
+        "replay",
+    ]
     assert sorted(log_b["graph"]["nodes_on_this_host"]) == ["ego_mapper", "fusion", "group_sfm"]
     # The ego images crossed the link (they are most of the recording).
     stats = subprocess.run(["ip", "-n", host_a, "-s", "-j", "link", "show", link_a], capture_output=True, text=True)

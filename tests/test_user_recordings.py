@@ -1,6 +1,7 @@
 """A user's own recording as it comes: a RealSense driver's topic names with its split IMU and
 /tf_static extrinsics, ceiling cameras under their own image_transport namespaces, CCTV
 footage as video files; and the clear messages when such input cannot be used."""
+
 import json
 
 import numpy as np
@@ -56,9 +57,10 @@ def test_realsense_layout_runs_as_recorded_and_matches_the_own_layout(recordings
     from evo.core import metrics, sync
     from evo.tools import file_interface
 
-    ref, est = sync.associate_trajectories(file_interface.read_tum_trajectory_file(str(gt)),
-                                           file_interface.read_tum_trajectory_file(
-                                               str(tmp_path / "own" / "ego_trajectory.tum")))
+    ref, est = sync.associate_trajectories(
+        file_interface.read_tum_trajectory_file(str(gt)),
+        file_interface.read_tum_trajectory_file(str(tmp_path / "own" / "ego_trajectory.tum")),
+    )
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((ref, est))
     assert ape.get_statistic(metrics.StatisticsType.rmse) < 0.03
@@ -72,8 +74,16 @@ def test_realsense_layout_runs_as_recorded_and_matches_the_own_layout(recordings
 
 def test_cctv_videos_started_seconds_off_register_every_camera(recordings, tmp_path, ros_env):
     out = tmp_path / "out"
-    r = yowo("run", recordings / "with_videos", "--cmc-videos", recordings / "videos" / "videos.yaml", "-o", out,
-             env=ros_env, timeout=600)
+    r = yowo(
+        "run",
+        recordings / "with_videos",
+        "--cmc-videos",
+        recordings / "videos" / "videos.yaml",
+        "-o",
+        out,
+        env=ros_env,
+        timeout=600,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     cams = yaml.safe_load((out / "cameras.yaml").read_text())["cameras"]
     assert all(c["T_world_camera"] for c in cams) and len(cams) == 3, cams

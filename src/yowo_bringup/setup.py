@@ -13,8 +13,10 @@ setup(
     ],
     zip_safe=True,
     # Node executables (ros2 run yowo_bringup <node>) and command-line tools.
-    entry_points={"console_scripts": [
-        "yowo = yowo_bringup.cli:main",
-        "replay_node = yowo_bringup.replay_node:main",
-    ]},
+    entry_points={
+        "console_scripts": [
+            "yowo = yowo_bringup.cli:main",
+            "replay_node = yowo_bringup.replay_node:main",
+        ]
+    },
 )

@@ -10,8 +10,10 @@ setup(
     ],
     zip_safe=True,
     # Node executables (ros2 run yowo_cmc <node>) and command-line tools.
-    entry_points={"console_scripts": [
-        "keypoint_tracker_node = yowo_cmc.keypoint_tracker_node:main",
-        "group_sfm_node = yowo_cmc.group_sfm_node:main",
-    ]},
+    entry_points={
+        "console_scripts": [
+            "keypoint_tracker_node = yowo_cmc.keypoint_tracker_node:main",
+            "group_sfm_node = yowo_cmc.group_sfm_node:main",
+        ]
+    },
 )

@@ -10,7 +10,9 @@ setup(
     ],
     zip_safe=True,
     # Node executables (ros2 run yowo_ego <node>) and command-line tools.
-    entry_points={"console_scripts": [
-        "ego_mapper_node = yowo_ego.ego_mapper_node:main",
-    ]},
+    entry_points={
+        "console_scripts": [
+            "ego_mapper_node = yowo_ego.ego_mapper_node:main",
+        ]
+    },
 )

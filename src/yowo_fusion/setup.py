@@ -10,7 +10,9 @@ setup(
     ],
     zip_safe=True,
     # Node executables (ros2 run yowo_fusion <node>) and command-line tools.
-    entry_points={"console_scripts": [
-        "fusion_node = yowo_fusion.fusion_node:main",
-    ]},
+    entry_points={
+        "console_scripts": [
+            "fusion_node = yowo_fusion.fusion_node:main",
+        ]
+    },
 )

@@ -1,5 +1,6 @@
 """Counts messages on the given topics (`topic=pkg/msg/Type` args) with a slow callback,
 until the replay reports FINISHED and every played topic has all its messages; prints JSON."""
+
 import json
 import sys
 import time
@@ -22,6 +23,7 @@ def main():
         def cb(_msg):
             counts[topic] += 1
             time.sleep(delay_s)  # a stage slower than the recording
+
         return cb
 
     with ros_context():
@@ -29,11 +31,15 @@ def main():
         qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
         for topic, msgtype in specs.items():
             node.create_subscription(message_class(msgtype), topic, counter(topic), qos)
-        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        node.create_subscription(ReplayStatus, "/yowo/replay/status",
-                                 lambda m: finished.append(m) if m.state == ReplayStatus.STATE_FINISHED else None,
-                                 latched)
+        latched = QoSProfile(
+            depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
+        )
+        node.create_subscription(
+            ReplayStatus,
+            "/yowo/replay/status",
+            lambda m: finished.append(m) if m.state == ReplayStatus.STATE_FINISHED else None,
+            latched,
+        )
         deadline = time.monotonic() + 90.0
         while time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.05)

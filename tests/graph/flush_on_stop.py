@@ -1,6 +1,7 @@
 """`pub <go_file>`: a node run by `spin_node` prints "matched" once its reader matched, latches
 one message once `go_file` exists too, prints "published", and spins until stopped;
 `sub <seconds>`: prints "matched" once a publisher matched, then the message it receives."""
+
 import sys
 import time
 from pathlib import Path

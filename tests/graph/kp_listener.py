@@ -1,4 +1,5 @@
 """Receives AgentKeypoints until N arrived (or a timeout) and prints a checksum line per message."""
+
 import faulthandler
 import sys
 import time
@@ -13,7 +14,7 @@ from yowo_msgs.msg import AgentKeypoints
 def main():
     count = int(sys.argv[1])
     received = []
-    faulthandler.dump_traceback_later(55, exit=True)   # see kp_talker
+    faulthandler.dump_traceback_later(55, exit=True)  # see kp_talker
     with ros_context():
         node = rclpy.create_node("kp_listener")
         qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)

@@ -1,4 +1,5 @@
 """Publishes N AgentKeypoints (reliable, keep-all) once a subscriber is matched, then waits for acks."""
+
 import faulthandler
 import sys
 import time
@@ -27,8 +28,9 @@ def main():
         print("matched", file=sys.stderr, flush=True)
         for i in range(count):
             kps = [Keypoint2D(id=j, x=i + 0.25 * j, y=2.0 * i - j, confidence=0.5) for j in range(3)]
-            pub.publish(AgentKeypoints(header=Header(frame_id="cam0_optical_frame"), camera_name=f"cam{i}",
-                                       keypoints=kps))
+            pub.publish(
+                AgentKeypoints(header=Header(frame_id="cam0_optical_frame"), camera_name=f"cam{i}", keypoints=kps)
+            )
         if not pub.wait_for_all_acked(rclpy.duration.Duration(seconds=20)):
             sys.exit("kp_talker: messages not acknowledged within 20 s")
         print("acknowledged", file=sys.stderr, flush=True)

@@ -3,6 +3,7 @@ drivers would: reliable, no end-of-stream announcement) once every subscriber of
 CMC-only graph has matched, then waits until all of them are acknowledged, until every
 tracker reports (in its status) that it has taken them all in, and until the group SfM
 has taken in all the trackers published."""
+
 import sys
 import time
 
@@ -21,11 +22,16 @@ def main():
     with ros_context():
         node = rclpy.create_node("live_source")
         qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
-        pubs = {t.name: node.create_publisher(message_class(t.msgtype), t.name, qos)
-                for t in list_topics(bag) if t.name.startswith("/cmc/")}
+        pubs = {
+            t.name: node.create_publisher(message_class(t.msgtype), t.name, qos)
+            for t in list_topics(bag)
+            if t.name.startswith("/cmc/")
+        }
+
         # A camera's topics are read by its tracker alone.
         def unmatched():
             return [t for t, p in pubs.items() if p.get_subscription_count() < 1]
+
         deadline = time.monotonic() + 60.0
         while unmatched() and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.05)
@@ -43,16 +49,22 @@ def main():
 
         def on_status(msg):
             statuses[msg.stage] = msg
-            if msg.stage != topics.GROUP_SFM_STAGE:   # a tracker's outputs are the group SfM's inputs
+            if msg.stage != topics.GROUP_SFM_STAGE:  # a tracker's outputs are the group SfM's inputs
                 expected.update(zip(msg.topics, msg.published_counts))
+
         stages = sorted({f"keypoint_tracker_{topics.parse_cmc_topic(t)[0]}" for t in pubs}) + [topics.GROUP_SFM_STAGE]
         subs = [node.create_subscription(StageStatus, topics.status(s), on_status, LATCHED) for s in stages]
         deadline = time.monotonic() + 60.0
 
         def behind():
-            late = {f"{m.stage} {t}": f"{n}/{expected[t]}" for m in statuses.values()
-                    for t, n in zip(m.input_topics, m.received_counts) if t in expected and n < expected[t]}
+            late = {
+                f"{m.stage} {t}": f"{n}/{expected[t]}"
+                for m in statuses.values()
+                for t, n in zip(m.input_topics, m.received_counts)
+                if t in expected and n < expected[t]
+            }
             return {**{s: "no status yet" for s in stages if s not in statuses}, **late}
+
         while behind() and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.1)
         if behind():

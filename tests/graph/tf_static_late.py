@@ -1,5 +1,6 @@
 """`pub`: latch one TFMessage on /tf_static (reliable, transient-local) and stay up for a while;
 `sub`: join late, print the child frames received."""
+
 import sys
 import time
 
@@ -22,9 +23,14 @@ def main():
     with ros_context():
         node = rclpy.create_node(f"tf_static_{role}")
         if role == "pub":
-            tfs = [TransformStamped(header=Header(frame_id="map"), child_frame_id=f"cam{i}_optical_frame",
-                                    transform=matrix_to_transform(look_at([i, 0, 3], [i, 2, 0])))
-                   for i in range(3)]
+            tfs = [
+                TransformStamped(
+                    header=Header(frame_id="map"),
+                    child_frame_id=f"cam{i}_optical_frame",
+                    transform=matrix_to_transform(look_at([i, 0, 3], [i, 2, 0])),
+                )
+                for i in range(3)
+            ]
             node.create_publisher(TFMessage, "/tf_static", LATCHED).publish(TFMessage(transforms=tfs))
             print("published", flush=True)
             end = time.monotonic() + seconds

@@ -2,6 +2,7 @@
 tool's own reader (pycolmap, evo) or, where the tool has none on PyPI
 (camera_calibration_parsers, kalibr), parsed the way its parser does and projected
 through yowo's camera model: the numbers equal cameras.yaml's."""
+
 import argparse
 import ast
 
@@ -19,24 +20,27 @@ from yowo_common.geometry import inv_se3, transform_points
 from yowo_common.rosconv import camera_info_to_model
 from yowo_fusion.pipeline import EgoMapData, RegisteredCmc
 
-TARGET = np.array([2.0, 1.5, 1.0])   # a point every camera sees
+TARGET = np.array([2.0, 1.5, 1.0])  # a point every camera sees
 
 
 def _cameras() -> list[RegisteredCmc]:
-    specs = {"a_pinhole": (0.3, 0.3, None, "plumb_bob"), "b_radtan": (3.7, 0.3, [-0.12, 0.03, 1e-3, -5e-4, 0.0],
-                                                                      "plumb_bob"),
-             "c_fisheye": (3.7, 2.7, [0.05, -0.01, 0.002, -0.001], EQUIDISTANT),
-             "d_rational": (0.3, 2.7, [-0.2, 0.05, 0.0, 0.0, 0.01, 0.02, 0.0, 0.0], RATIONAL_POLYNOMIAL)}
+    specs = {
+        "a_pinhole": (0.3, 0.3, None, "plumb_bob"),
+        "b_radtan": (3.7, 0.3, [-0.12, 0.03, 1e-3, -5e-4, 0.0], "plumb_bob"),
+        "c_fisheye": (3.7, 2.7, [0.05, -0.01, 0.002, -0.001], EQUIDISTANT),
+        "d_rational": (0.3, 2.7, [-0.2, 0.05, 0.0, 0.0, 0.01, 0.02, 0.0, 0.0], RATIONAL_POLYNOMIAL),
+    }
     out = []
     for name, (x, y, D, model) in specs.items():
         cam, T = ceiling_camera(x, y, TARGET[:2], D=D)
         cam.distortion_model = model
-        cam.P = np.column_stack([cam.K * [[0.9], [0.9], [1]], np.zeros(3)])   # a rectified P that is not [K | 0]
+        cam.P = np.column_stack([cam.K * [[0.9], [0.9], [1]], np.zeros(3)])  # a rectified P that is not [K | 0]
         out.append(RegisteredCmc(name, "g0", "group_sfm", "ok", "", T, np.eye(6) * 1e-6, cam, 0.4, 200, 30))
     cam, _ = ceiling_camera(2.0, 2.0, TARGET[:2])
     out.append(RegisteredCmc("e_failed", "", "none", "failed", "seen in 0 frames", None, None, cam, float("nan"), 0, 0))
-    out.append(RegisteredCmc("f_no_info", "", "none", "failed", "no usable CameraInfo", None, None, None,
-                             float("nan"), 0, 0))
+    out.append(
+        RegisteredCmc("f_no_info", "", "none", "failed", "no usable CameraInfo", None, None, None, float("nan"), 0, 0)
+    )
     return out
 
 
@@ -44,11 +48,20 @@ def _group(cameras: list[RegisteredCmc]) -> CameraGroupResult:
     members = [c for c in cameras if c.group == "g0"]
     rng = np.random.default_rng(0)
     points = np.column_stack([rng.uniform(1.0, 3.0, 200), rng.uniform(0.8, 2.2, 200), rng.uniform(0.0, 1.8, 200)])
-    return CameraGroupResult("g0", members[0].name, [c.name for c in members],
-                             {c.name: c.T_world_cam for c in members}, np.arange(200, dtype=np.int64),
-                             np.zeros(200, int), points, {c.name: 0.4 for c in members},
-                             {c.name: 100 for c in members}, {0: 0.8, 1: 1.6, 5: 12.0}, (members[0].name, members[1].name),
-                             {c.name: c.camera for c in members})
+    return CameraGroupResult(
+        "g0",
+        members[0].name,
+        [c.name for c in members],
+        {c.name: c.T_world_cam for c in members},
+        np.arange(200, dtype=np.int64),
+        np.zeros(200, int),
+        points,
+        {c.name: 0.4 for c in members},
+        {c.name: 100 for c in members},
+        {0: 0.8, 1: 1.6, 5: 12.0},
+        (members[0].name, members[1].name),
+        {c.name: c.camera for c in members},
+    )
 
 
 def _ego() -> EgoMapData:
@@ -58,7 +71,7 @@ def _ego() -> EgoMapData:
     landmarks = np.column_stack([rng.uniform(0, 4, 30), np.full(30, 3.0), rng.uniform(0.2, 2.5, 30)])
     poses = []
     for x in (1.0, 1.5, 2.0):
-        _, T = ceiling_camera(x, 0.5, (x, 3.0), z=1.6)   # looking at the wall y = 3
+        _, T = ceiling_camera(x, 0.5, (x, 3.0), z=1.6)  # looking at the wall y = 3
         poses.append(T)
     obs_pose, obs_lm, obs_uv = [], [], []
     for f, T in enumerate(poses):
@@ -70,16 +83,28 @@ def _ego() -> EgoMapData:
     # The map's cloud: a point 1 mm from each landmark but the last, in a colour of its own.
     cloud = landmarks[:-1] + [0.001, 0.0, 0.0]
     colours = rng.uniform(0, 1, (len(cloud), 3))
-    return EgoMapData(cam, np.array([10**18, 10**18 + 10**8, 10**18 + 2 * 10**8]), np.array(poses), landmarks, "ORB",
-                      np.zeros((30, 32), np.uint8), np.array(obs_pose), np.array(obs_lm), np.vstack(obs_uv),
-                      cloud_points=cloud, cloud_colors=colours)
+    return EgoMapData(
+        cam,
+        np.array([10**18, 10**18 + 10**8, 10**18 + 2 * 10**8]),
+        np.array(poses),
+        landmarks,
+        "ORB",
+        np.zeros((30, 32), np.uint8),
+        np.array(obs_pose),
+        np.array(obs_lm),
+        np.vstack(obs_uv),
+        cloud_points=cloud,
+        cloud_colors=colours,
+    )
 
 
 def _images(cameras, ego) -> ExportImages:
     """A background per registered CMC; pixels for two of the three keyframes."""
     rng = np.random.default_rng(2)
-    return ExportImages(cmc={c.name: rng.integers(0, 255, (480, 640, 3), dtype=np.uint8) for c in cameras[:4]},
-                        ego={int(s): rng.integers(0, 255, (240, 320, 3), dtype=np.uint8) for s in ego.stamps_ns[:2]})
+    return ExportImages(
+        cmc={c.name: rng.integers(0, 255, (480, 640, 3), dtype=np.uint8) for c in cameras[:4]},
+        ego={int(s): rng.integers(0, 255, (240, 320, 3), dtype=np.uint8) for s in ego.stamps_ns[:2]},
+    )
 
 
 @pytest.fixture(scope="module")
@@ -95,8 +120,13 @@ def written(tmp_path_factory):
 
 
 def _model_from_cameras_yaml(entry: dict) -> CameraModel:
-    return CameraModel(entry["image_width"], entry["image_height"], entry["K"], entry["distortion_coefficients"],
-                       entry["distortion_model"])
+    return CameraModel(
+        entry["image_width"],
+        entry["image_height"],
+        entry["K"],
+        entry["distortion_coefficients"],
+        entry["distortion_model"],
+    )
 
 
 def _target_in(entry: dict) -> np.ndarray:
@@ -107,7 +137,9 @@ def test_cameras_yaml_intrinsics_clock_and_noise(written):
     _, _, doc, cameras, _, _ = written
     for c in cameras[:4]:
         e = doc[c.name]
-        assert (e["image_width"], e["image_height"]) == (640, 480) and e["distortion_model"] == c.camera.distortion_model
+        assert (e["image_width"], e["image_height"]) == (640, 480) and e[
+            "distortion_model"
+        ] == c.camera.distortion_model
         np.testing.assert_allclose(e["K"], c.camera.K, atol=1e-6)
         np.testing.assert_allclose(e["distortion_coefficients"], c.camera.D, atol=1e-9)
         assert e["clock_offset_s"] is None and "assumed synchronised" in e["clock"]
@@ -115,7 +147,7 @@ def test_cameras_yaml_intrinsics_clock_and_noise(written):
         assert noise["sigma_px_by_keypoint_id"] == {0: 0.8, 1: 1.6, 5: 12.0} and noise["median_px"] == 1.6
         assert noise["min_px"] == 0.8 and noise["max_px"] == 12.0 and "g0" in noise["estimated_by"]
     assert doc["e_failed"]["keypoint_noise"] is None and "not estimated" in doc["e_failed"]["keypoint_noise_note"]
-    assert doc["e_failed"]["image_width"] == 640                # its CameraInfo arrived; the pose did not
+    assert doc["e_failed"]["image_width"] == 640  # its CameraInfo arrived; the pose did not
     assert doc["f_no_info"]["K"] is None and doc["f_no_info"]["distortion_model"] is None
 
 
@@ -124,8 +156,11 @@ def read_calibration_yml(path) -> CameraInfo:
     it reads, the fixed matrix shapes it asserts, D sized rows x cols."""
     doc = yaml.safe_load(path.read_text())
     info = CameraInfo(width=int(doc["image_width"]), height=int(doc["image_height"]))
-    for key, field, shape in (("camera_matrix", "k", (3, 3)), ("rectification_matrix", "r", (3, 3)),
-                              ("projection_matrix", "p", (3, 4))):
+    for key, field, shape in (
+        ("camera_matrix", "k", (3, 3)),
+        ("rectification_matrix", "r", (3, 3)),
+        ("projection_matrix", "p", (3, 4)),
+    ):
         m = doc[key]
         assert (m["rows"], m["cols"]) == shape and len(m["data"]) == shape[0] * shape[1], (path, key)
         setattr(info, field, [float(v) for v in m["data"]])
@@ -142,7 +177,7 @@ def test_camera_info_yaml_loads_as_the_registered_camera(written):
     for c in cameras[:5]:
         info = read_calibration_yml(out / "export" / "camera_info" / f"{c.name}.yaml")
         model = camera_info_to_model(info)
-        np.testing.assert_allclose(np.reshape(info.p, (3, 4)), c.camera.P)   # CameraInfo's P as it came
+        np.testing.assert_allclose(np.reshape(info.p, (3, 4)), c.camera.P)  # CameraInfo's P as it came
         if c.T_world_cam is not None:
             expected, _ = _model_from_cameras_yaml(doc[c.name]).project(_target_in(doc[c.name]))
             np.testing.assert_allclose(model.project(_target_in(doc[c.name]))[0], expected, atol=1e-6)
@@ -152,6 +187,7 @@ def test_camera_info_yaml_loads_as_the_registered_camera(written):
 
 def test_colmap_model_reads_back_with_pycolmap(written):
     import pycolmap  # in requirements.txt: a missing one is a failure, not a skip
+
     out, _, doc, _, ego, _ = written
     rec = pycolmap.Reconstruction(str(out / "export" / "colmap"))
     images = {im.name: im for im in rec.images.values()}
@@ -166,8 +202,9 @@ def test_colmap_model_reads_back_with_pycolmap(written):
         # COLMAP's pixel centres are at +0.5
         np.testing.assert_allclose([cam.principal_point_x, cam.principal_point_y], K[:2, 2] + 0.5, atol=1e-6)
         P_cam = _target_in(e)
-        np.testing.assert_allclose(cam.img_from_cam(P_cam)[0] - 0.5,
-                                   _model_from_cameras_yaml(e).project(P_cam)[0][0], atol=1e-6)
+        np.testing.assert_allclose(
+            cam.img_from_cam(P_cam)[0] - 0.5, _model_from_cameras_yaml(e).project(P_cam)[0][0], atol=1e-6
+        )
     assert not any("e_failed" in n or "f_no_info" in n for n in images)
     keyframes = sorted((im for im in rec.images.values() if im.name.startswith("ego/")), key=lambda im: im.name)
     assert len(keyframes) == 3 and len(rec.points3D) == len(ego.landmarks)
@@ -216,11 +253,17 @@ def test_static_tf_yaml_and_launch_file(written):
     tf = yaml.safe_load((out / "export" / "static_tf.yaml").read_text())["transforms"]
     source = (out / "export" / "static_tf.launch.py").read_text()
     compile(source, "static_tf.launch.py", "exec")
-    (transforms,) = [ast.literal_eval(n.value) for n in ast.parse(source).body
-                     if isinstance(n, ast.Assign) and n.targets[0].id == "TRANSFORMS"]
+    (transforms,) = [
+        ast.literal_eval(n.value)
+        for n in ast.parse(source).body
+        if isinstance(n, ast.Assign) and n.targets[0].id == "TRANSFORMS"
+    ]
     registered = [n for n, e in doc.items() if "T_world_camera" in e]
-    assert [t["child_frame_id"] for t in tf] == [f"{n}_optical_frame" for n in registered] == \
-        [_static_tf_parser().parse_args(args).child_frame_id for _, args in transforms]
+    assert (
+        [t["child_frame_id"] for t in tf]
+        == [f"{n}_optical_frame" for n in registered]
+        == [_static_tf_parser().parse_args(args).child_frame_id for _, args in transforms]
+    )
     for entry, (_, args), name in zip(tf, transforms, registered):
         a = _static_tf_parser().parse_args(args)
         pose = doc[name]["T_world_camera"]
@@ -236,22 +279,33 @@ def test_kalibr_camchain(written):
     path = out / "export" / "camchain_g0.yaml"
     text = path.read_text()
     chain = yaml.safe_load(text)
-    assert list(chain) == ["cam0", "cam1", "cam2"]        # d_rational: kalibr has no model for it
+    assert list(chain) == ["cam0", "cam1", "cam2"]  # d_rational: kalibr has no model for it
     assert "skipped d_rational" in text and "d_rational" in (out / "export" / "README.md").read_text()
     names = ["a_pinhole", "b_radtan", "c_fisheye"]
-    required = {"camera_model", "intrinsics", "distortion_model", "distortion_coeffs", "resolution", "rostopic",
-                "cam_overlaps"}
+    required = {
+        "camera_model",
+        "intrinsics",
+        "distortion_model",
+        "distortion_coeffs",
+        "resolution",
+        "rostopic",
+        "cam_overlaps",
+    }
     for i, name in enumerate(names):
         cam, e = chain[f"cam{i}"], doc[name]
         assert required <= cam.keys() and ("T_cn_cnm1" in cam) == (i > 0)
         assert cam["camera_model"] == "pinhole" and cam["rostopic"] == f"/cmc/{name}/image_raw"
         assert len(cam["intrinsics"]) == 4 and cam["resolution"] == [640, 480]
-        assert sorted(cam["cam_overlaps"]) == [j for j in range(3) if j != i]   # all look at TARGET
+        assert sorted(cam["cam_overlaps"]) == [j for j in range(3) if j != i]  # all look at TARGET
         fu, fv, pu, pv = cam["intrinsics"]
         ros_model = {"radtan": "plumb_bob", "equidistant": EQUIDISTANT}[cam["distortion_model"]]
-        info = CameraInfo(width=cam["resolution"][0], height=cam["resolution"][1], k=[fu, 0, pu, 0, fv, pv, 0, 0, 1],
-                          d=cam["distortion_coeffs"] + ([0.0] if ros_model == "plumb_bob" else []),
-                          distortion_model=ros_model)
+        info = CameraInfo(
+            width=cam["resolution"][0],
+            height=cam["resolution"][1],
+            k=[fu, 0, pu, 0, fv, pv, 0, 0, 1],
+            d=cam["distortion_coeffs"] + ([0.0] if ros_model == "plumb_bob" else []),
+            distortion_model=ros_model,
+        )
         expected, _ = _model_from_cameras_yaml(e).project(_target_in(e))
         np.testing.assert_allclose(camera_info_to_model(info).project(_target_in(e))[0], expected, atol=1e-6)
         if i:

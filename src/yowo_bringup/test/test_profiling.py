@@ -27,7 +27,7 @@ def test_py_spy_records_a_process_from_its_start_and_summarises_it(tmp_path):
     script = tmp_path / "yowo_burn.py"
     script.write_text(BURN)
     proc = subprocess.Popen([sys.executable, str(script)])
-    profiler = NodeProfiler(proc.pid, tmp_path / "burner.txt", 100)   # attached while it starts
+    profiler = NodeProfiler(proc.pid, tmp_path / "burner.txt", 100)  # attached while it starts
     proc.wait(120)
     profiler.wait(30)
     assert profiler.error == ""
@@ -48,7 +48,8 @@ def test_collapsed_stacks_phases_and_project_functions(tmp_path):
         "<module> (yowo_x/n.py:1);_find_and_load (<frozen importlib._bootstrap>:1) 3\n"
         "<module> (yowo_x/n.py:1);spin (rclpy/__init__.py:9);Executor._wait (rclpy/executors.py:5) 2\n"
         "<module> (yowo_x/n.py:1);spin (rclpy/__init__.py:9);cb (yowo_x/n.py:20);heavy (yowo_x/alg.py:7) 4\n"
-        "<module> (yowo_x/n.py:1);spin (rclpy/__init__.py:9);cb (yowo_x/n.py:21);heavy (yowo_x/alg.py:8) 1\n")
+        "<module> (yowo_x/n.py:1);spin (rclpy/__init__.py:9);cb (yowo_x/n.py:21);heavy (yowo_x/alg.py:8) 1\n"
+    )
     top = top_functions(read_collapsed(tmp_path / "n.txt"))
     assert top["samples"] == 10
     assert dict(top["phases"]) == {"imports": 3, "rclpy (executor, wait sets)": 2, "callbacks and the rest": 5}
@@ -58,7 +59,7 @@ def test_collapsed_stacks_phases_and_project_functions(tmp_path):
 
 
 def test_a_process_py_spy_cannot_record_is_said(tmp_path):
-    sleeper = subprocess.Popen(["sleep", "30"])          # no Python interpreter in it
+    sleeper = subprocess.Popen(["sleep", "30"])  # no Python interpreter in it
     try:
         profiler = NodeProfiler(sleeper.pid, tmp_path / "sleeper.txt", 50, give_up_s=1.0)
         profiler.wait(20)

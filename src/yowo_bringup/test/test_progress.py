@@ -2,9 +2,14 @@ from yowo_bringup.progress import DONE, FAILED, RUNNING, WAITING, ProgressLines,
 
 
 def test_share_eta_and_states():
-    p = RunProgress(elapsed_s=30.0, played=250, total=1000, resent=40, playing_since_s=10.0,
-                    stages={"ego_mapper": RUNNING, "keypoint_tracker_a": DONE, "group_sfm": WAITING,
-                            "fusion": FAILED})
+    p = RunProgress(
+        elapsed_s=30.0,
+        played=250,
+        total=1000,
+        resent=40,
+        playing_since_s=10.0,
+        stages={"ego_mapper": RUNNING, "keypoint_tracker_a": DONE, "group_sfm": WAITING, "fusion": FAILED},
+    )
     assert p.share == 0.25
     # A quarter took 20 s of playing: three quarters take 60 s more.
     assert abs(p.eta_s - 60.0) < 1e-9
@@ -16,17 +21,21 @@ def test_share_eta_and_states():
 def test_the_eta_follows_the_slowest_stage_past_the_replay():
     stages = {"ego_mapper": RUNNING, "group_sfm": RUNNING}
     # The replay is over after 20 s of playing; the ego mapper has taken in half of it: 20 s more.
-    p = RunProgress(30.0, 1000, 1000, playing_since_s=10.0, stages=stages, consumed={"ego_mapper": 0.5, "group_sfm": 1.0})
+    p = RunProgress(
+        30.0, 1000, 1000, playing_since_s=10.0, stages=stages, consumed={"ego_mapper": 0.5, "group_sfm": 1.0}
+    )
     assert abs(p.eta_s - 20.0) < 1e-9 and "ETA 20 s" in p.line()
     # Halfway through the replay, a stage a quarter of the way through its share sets the pace.
     p = RunProgress(30.0, 500, 1000, playing_since_s=10.0, stages=stages, consumed={"ego_mapper": 0.25})
     assert abs(p.eta_s - 20.0 * (1 - 0.125) / 0.125) < 1e-9
-    assert RunProgress(30.0, 1000, 1000, playing_since_s=10.0, stages=stages, consumed={"ego_mapper": 1.0}).eta_s is None
+    assert (
+        RunProgress(30.0, 1000, 1000, playing_since_s=10.0, stages=stages, consumed={"ego_mapper": 1.0}).eta_s is None
+    )
 
 
 def test_no_eta_before_playing_or_when_live():
     assert RunProgress(5.0, 0, 1000).eta_s is None
-    assert RunProgress(5.0, 1000, 1000, playing_since_s=1.0).eta_s is None      # the replay is over
+    assert RunProgress(5.0, 1000, 1000, playing_since_s=1.0).eta_s is None  # the replay is over
     live = RunProgress(5.0, 0, 0, stages={"fusion": RUNNING})
     assert live.share is None and live.eta_s is None and "live" in live.line()
 
@@ -47,9 +56,17 @@ def test_the_live_bar_fits_80_columns_with_share_eta_and_stages():
     from yowo_bringup.progress import ProgressBar
 
     bar = ProgressBar("run 1234567890ab")
-    bar(RunProgress(elapsed_s=12.0, played=500, total=1000, playing_since_s=1.0, resent=3,
-                    stages={f"keypoint_tracker_cam{i:02d}": "running" for i in range(40)} | {"fusion": "done"},
-                    consumed={"keypoint_tracker_cam00": 0.5}))
+    bar(
+        RunProgress(
+            elapsed_s=12.0,
+            played=500,
+            total=1000,
+            playing_since_s=1.0,
+            resent=3,
+            stages={f"keypoint_tracker_cam{i:02d}": "running" for i in range(40)} | {"fusion": "done"},
+            consumed={"keypoint_tracker_cam00": 0.5},
+        )
+    )
     table = bar._bar.make_tasks_table(bar._bar.tasks)
     bar.close()
     console = Console(file=io.StringIO(), width=80)
@@ -64,14 +81,19 @@ def test_a_stage_that_receives_nothing_of_a_played_topic_is_named_once():
     from yowo_msgs.msg import ReplayStatus, StageStatus
 
     replay = ReplayStatus(topics=["/cmc/a/image_raw", "/ego/color/image_raw"], published_counts=[40, 0])
-    statuses = {"keypoint_tracker_a": StageStatus(state=StageStatus.STATE_RUNNING, input_topics=["/cmc/a/image_raw"],
-                                                  received_counts=[0]),
-                "ego_mapper": StageStatus(state=StageStatus.STATE_RUNNING, input_topics=["/ego/color/image_raw"],
-                                          received_counts=[0]),       # nothing played on it yet: not silent
-                "keypoint_tracker_b": StageStatus(state=StageStatus.STATE_RUNNING, input_topics=["/cmc/a/image_raw"],
-                                                  received_counts=[3])}
+    statuses = {
+        "keypoint_tracker_a": StageStatus(
+            state=StageStatus.STATE_RUNNING, input_topics=["/cmc/a/image_raw"], received_counts=[0]
+        ),
+        "ego_mapper": StageStatus(
+            state=StageStatus.STATE_RUNNING, input_topics=["/ego/color/image_raw"], received_counts=[0]
+        ),  # nothing played on it yet: not silent
+        "keypoint_tracker_b": StageStatus(
+            state=StageStatus.STATE_RUNNING, input_topics=["/cmc/a/image_raw"], received_counts=[3]
+        ),
+    }
     seen, told = {}, set()
     assert silent_inputs(replay, statuses, seen, told, now_s=10.0, after_s=60.0) == []
     (said,) = silent_inputs(replay, statuses, seen, told, now_s=71.0, after_s=60.0)
     assert "keypoint_tracker_a" in said and "none of the 40 messages" in said and "/cmc/a/image_raw" in said
-    assert silent_inputs(replay, statuses, seen, told, now_s=200.0, after_s=60.0) == []     # said once
+    assert silent_inputs(replay, statuses, seen, told, now_s=200.0, after_s=60.0) == []  # said once

@@ -1,5 +1,6 @@
 """The report's geometry (each camera's view of the floor, walls, ellipse scale) and the
 page as a browser shows it: headless Chromium renders report.html to a screenshot."""
+
 import shutil
 import subprocess
 
@@ -21,8 +22,19 @@ def camera(name, eye, target, status="ok", sigma_m=0.01):
 
 def test_a_camera_looking_straight_down_sees_a_rectangle_of_the_floor():
     # 90 deg horizontal field of view from 3 m: the floor from x - 3 to x + 3 (+-2.25 m across).
-    c = RegisteredCmc("down", "g0", "group_sfm", "ok", "", np.diag([1.0, -1.0, -1.0, 1.0]) @ np.eye(4), None,
-                      CameraModel.from_fov(640, 480, 90.0), 1.0, 1, 1)
+    c = RegisteredCmc(
+        "down",
+        "g0",
+        "group_sfm",
+        "ok",
+        "",
+        np.diag([1.0, -1.0, -1.0, 1.0]) @ np.eye(4),
+        None,
+        CameraModel.from_fov(640, 480, 90.0),
+        1.0,
+        1,
+        1,
+    )
     c.T_world_cam[:3, 3] = (1.0, 2.0, 3.0)
     foot = floor_footprint(c)
     assert np.allclose(foot[:, 2], 0.0)
@@ -31,15 +43,18 @@ def test_a_camera_looking_straight_down_sees_a_rectangle_of_the_floor():
 
 
 def test_a_corner_ray_above_the_horizon_stops_at_the_drawing_range():
-    c = camera("level", (0.0, 0.0, 2.5), (5.0, 0.0, 2.5))       # looking along x, horizontally
+    c = camera("level", (0.0, 0.0, 2.5), (5.0, 0.0, 2.5))  # looking along x, horizontally
     foot = floor_footprint(c, max_range_m=8.0)
     up = foot[:, 2] > 0
     assert up.sum() == 2 and np.allclose(np.linalg.norm(foot[up] - c.T_world_cam[:3, 3], axis=1), 8.0)
 
 
 def test_walls_are_the_extent_of_their_outline_and_the_ellipses_are_enlarged_to_be_seen():
-    wall = Plane(kind=Plane.KIND_WALL, coefficients=[0.0, 1.0, 0.0, -4.0],
-                 boundary=[Point(x=x, y=4.0, z=z) for x, z in ((0.5, 0), (3.0, 0), (3.0, 2.5), (1.0, 2.5))])
+    wall = Plane(
+        kind=Plane.KIND_WALL,
+        coefficients=[0.0, 1.0, 0.0, -4.0],
+        boundary=[Point(x=x, y=4.0, z=z) for x, z in ((0.5, 0), (3.0, 0), (3.0, 2.5), (1.0, 2.5))],
+    )
     floor = Plane(kind=Plane.KIND_FLOOR, coefficients=[0.0, 0.0, 1.0, 0.0], boundary=[Point(x=0.0, y=0.0)])
     (seg,) = wall_segments([wall, floor])
     assert np.allclose(sorted(seg[:, 0]), [0.5, 3.0]) and np.allclose(seg[:, 1], 4.0)
@@ -51,27 +66,49 @@ def test_walls_are_the_extent_of_their_outline_and_the_ellipses_are_enlarged_to_
 def test_report_renders_in_headless_chromium(tmp_path):
     assert shutil.which("chromium"), "chromium not found: `make setup` installs it (apt)"
     floor = np.array([[0.0, 0.0], [6.0, 0.0], [6.0, 4.0], [0.0, 4.0]])
-    cams = [camera("c1", (0.3, 0.3, 3.0), (3.0, 2.0, 0.0)), camera("c2", (5.7, 3.7, 3.0), (3.0, 2.0, 0.0), "weak"),
-            RegisteredCmc("c3", "", "none", "failed", "never saw the agent", None, None, None, float("nan"), 0, 0)]
+    cams = [
+        camera("c1", (0.3, 0.3, 3.0), (3.0, 2.0, 0.0)),
+        camera("c2", (5.7, 3.7, 3.0), (3.0, 2.0, 0.0), "weak"),
+        RegisteredCmc("c3", "", "none", "failed", "never saw the agent", None, None, None, float("nan"), 0, 0),
+    ]
     walls = [np.array([[0.0, 4.0], [6.0, 4.0]]), np.array([[6.0, 0.0], [6.0, 4.0]])]
     rng = np.random.default_rng(1)
     obs = rng.uniform([100, 100], [540, 380], (800, 2))
-    fits = [(AgentFit(n, rng.integers(0, 20, 800), obs, obs + rng.normal(0, 1.5, obs.shape)), (640, 480),
-             np.full((480, 640, 3), 200, np.uint8) if n == "c1" else None) for n in ("c1", "c2")]
+    fits = [
+        (
+            AgentFit(n, rng.integers(0, 20, 800), obs, obs + rng.normal(0, 1.5, obs.shape)),
+            (640, 480),
+            np.full((480, 640, 3), 200, np.uint8) if n == "c1" else None,
+        )
+        for n in ("c1", "c2")
+    ]
     ego = np.column_stack([np.linspace(1, 5, 50), 2 + np.sin(np.linspace(0, 3, 50))])
     write_report(tmp_path / "report.html", "synthetic", cams, ego, [floor], walls=walls, fits=fits)
     shot = tmp_path / "shot.png"
-    subprocess.run(["chromium", "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
-                    "--window-size=1250,2400", f"--screenshot={shot}", (tmp_path / "report.html").as_uri()],
-                   capture_output=True, timeout=120, check=True)
+    subprocess.run(
+        [
+            "chromium",
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--hide-scrollbars",
+            "--window-size=1250,2400",
+            f"--screenshot={shot}",
+            (tmp_path / "report.html").as_uri(),
+        ],
+        capture_output=True,
+        timeout=120,
+        check=True,
+    )
     import cv2
 
     img = cv2.imread(str(shot))[:, :, ::-1].astype(int)
     assert img.shape[:2] == (2400, 1250)
 
     def pixels(hex_colour, tol=12):
-        rgb = np.array([int(hex_colour[i:i + 2], 16) for i in (1, 3, 5)])
+        rgb = np.array([int(hex_colour[i : i + 2], 16) for i in (1, 3, 5)])
         return int((np.abs(img - rgb).max(axis=2) <= tol).sum())
+
     # What the browser shows: both registered cameras (verdict colours: markers, rays, ellipses,
     # the verdict cells), the walls' dark grey, the panels' red reprojections and blue observations.
     assert pixels(_COLOURS["ok"]) > 100 and pixels(_COLOURS["weak"]) > 100

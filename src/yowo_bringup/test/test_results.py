@@ -1,5 +1,6 @@
 """cameras.yaml: a covariance the fusion could not compute (NaN) is written as unknown,
 not as NaN sigmas; a real one gives its standard deviations."""
+
 import numpy as np
 import yaml
 
@@ -9,8 +10,19 @@ from yowo_fusion.pipeline import RegisteredCmc
 
 
 def _camera(name: str, covariance: np.ndarray) -> RegisteredCmc:
-    return RegisteredCmc(name, "g0", "group_sfm", "weak", "covariance unavailable", np.eye(4), covariance,
-                         CameraModel(640, 480, np.diag([500.0, 500.0, 1.0])), 0.5, 100, 10)
+    return RegisteredCmc(
+        name,
+        "g0",
+        "group_sfm",
+        "weak",
+        "covariance unavailable",
+        np.eye(4),
+        covariance,
+        CameraModel(640, 480, np.diag([500.0, 500.0, 1.0])),
+        0.5,
+        100,
+        10,
+    )
 
 
 def test_unknown_covariance_is_written_as_unknown(tmp_path):
@@ -19,7 +31,7 @@ def test_unknown_covariance_is_written_as_unknown(tmp_path):
     a, b = yaml.safe_load((tmp_path / "cameras.yaml").read_text())["cameras"]
     np.testing.assert_allclose(a["sigma"]["position_m"], [0.01, 0.02, 0.03])
     assert b["covariance"] is None and b["sigma"].startswith("unknown")
-    assert "T_world_camera" in b   # the pose itself is still reported
+    assert "T_world_camera" in b  # the pose itself is still reported
 
 
 def test_ground_truth_agent_in_the_map_frame_projects_onto_the_detections(tmp_path):
@@ -39,18 +51,24 @@ def test_ground_truth_agent_in_the_map_frame_projects_onto_the_detections(tmp_pa
     bag = tmp_path / "tiny"
     generate(replace(get_preset("tiny"), cmc_images=False), 0, bag)
     truth = read_ground_truth(bag)
-    assert not np.allclose(truth.T_map_sim, np.eye(4))   # else this test would show nothing
+    assert not np.allclose(truth.T_map_sim, np.eye(4))  # else this test would show nothing
     agent, info, detections = {}, {}, []
     for topic, _, msg in read_messages(bag):
         if topic == GT_AGENT_KEYPOINTS:
             agent[stamp_to_ns(msg.header.stamp)] = transform_points(
-                truth.T_map_sim, points_to_array([p.position for p in msg.poses]))
+                truth.T_map_sim, points_to_array([p.position for p in msg.poses])
+            )
         elif topic.startswith("/cmc/") and topic.endswith("/camera_info"):
             info.setdefault(topic.split("/")[2], camera_info_to_model(msg))
         elif topic.endswith("/agent_keypoints"):
             detections.append(msg)
-    errors = [np.linalg.norm(info[m.camera_name].project_world(truth.cameras[m.camera_name], P[k.id][None])[0][0]
-                             - [k.x, k.y])
-              for m in detections if (P := agent.get(stamp_to_ns(m.header.stamp))) is not None
-              for k in m.keypoints if k.id in (0, 1)]
-    assert len(errors) > 100 and np.median(errors) < 2.5     # head top 1 px, ground point 1.5 px noise
+    errors = [
+        np.linalg.norm(
+            info[m.camera_name].project_world(truth.cameras[m.camera_name], P[k.id][None])[0][0] - [k.x, k.y]
+        )
+        for m in detections
+        if (P := agent.get(stamp_to_ns(m.header.stamp))) is not None
+        for k in m.keypoints
+        if k.id in (0, 1)
+    ]
+    assert len(errors) > 100 and np.median(errors) < 2.5  # head top 1 px, ground point 1.5 px noise

@@ -3,6 +3,7 @@ so defaults live in exactly one place (the dataclass field); `yowo run --config 
 --set section.key=value`, the nodes (each gets its section as YAML in its `config`
 parameter), the offline API and the benchmark all take a YowoConfig, and every run
 records the resolved tree with the software versions in results/params.yaml."""
+
 from __future__ import annotations
 
 import platform
@@ -21,14 +22,13 @@ from yowo_fusion.pipeline import UPSTREAM_HOMES, FusionParams, UpstreamParams
 from .layouts import InputParams
 from .replay import ReplayParams
 
-__all__ = ["ConfigError", "YowoConfig", "SupervisorParams", "fusion_upstream", "load_config", "node_config",
-           "versions"]
+__all__ = ["ConfigError", "YowoConfig", "SupervisorParams", "fusion_upstream", "load_config", "node_config", "versions"]
 
 
 @dataclass(frozen=True)
 class SupervisorParams:
-    max_restarts: int = 2                 # per node; a node that dies more often ends the run
-    profile_rate_hz: int = 50             # py-spy samples per second of each node (yowo run --profile)
+    max_restarts: int = 2  # per node; a node that dies more often ends the run
+    profile_rate_hz: int = 50  # py-spy samples per second of each node (yowo run --profile)
     # Added to the niceness of the stages that read no recorded or live topic (group SfM, fusion).
     # 0 by default: on a machine busy with other jobs a lowered stage also discovers its peers
     # late (DDS runs in its threads), and its statuses count fewer strays of other runs.
@@ -55,8 +55,13 @@ class YowoConfig:
 
 
 # Which section each node reads (trackers are keypoint_tracker_<camera>).
-NODE_SECTIONS = {"replay": "replay", "ego_mapper": "ego", "keypoint_tracker": "cmc", "group_sfm": "cmc",
-                 "fusion": "fusion"}
+NODE_SECTIONS = {
+    "replay": "replay",
+    "ego_mapper": "ego",
+    "keypoint_tracker": "cmc",
+    "group_sfm": "cmc",
+    "fusion": "fusion",
+}
 
 
 def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> YowoConfig:
@@ -100,22 +105,42 @@ def node_config(config: YowoConfig, node: str) -> dict[str, str]:
     """A node's configuration parameters: its section's YAML in `config`, and the YAML of any
     other value of the tree it reads (NODE_EXTRAS)."""
     kind = "keypoint_tracker" if node.startswith("keypoint_tracker") else node
-    return {"config": dump(getattr(config, NODE_SECTIONS[kind])),
-            **{name: dump(_value(config, home)) for name, home in NODE_EXTRAS.get(kind, {}).items()}}
+    return {
+        "config": dump(getattr(config, NODE_SECTIONS[kind])),
+        **{name: dump(_value(config, home)) for name, home in NODE_EXTRAS.get(kind, {}).items()},
+    }
 
 
 def versions() -> dict[str, str]:
     """The software a run used, for params.yaml and the benchmark."""
     out = {"python": platform.python_version()}
-    for dist in ("yowo_bringup", "ros-jazzy-rclpy", "gtsam", "open3d-cpu", "opencv-python-headless", "numpy",
-                 "scipy", "rosbags", "mcap", "dacite"):
+    for dist in (
+        "yowo_bringup",
+        "ros-jazzy-rclpy",
+        "gtsam",
+        "open3d-cpu",
+        "opencv-python-headless",
+        "numpy",
+        "scipy",
+        "rosbags",
+        "mcap",
+        "dacite",
+    ):
         try:
             out[dist] = metadata.version(dist)
         except metadata.PackageNotFoundError:
             out[dist] = "not installed"
     try:
-        out["git"] = subprocess.run(["git", "describe", "--always", "--dirty"], cwd=Path(__file__).parent,
-                                    capture_output=True, text=True, timeout=5).stdout.strip() or "unknown"
+        out["git"] = (
+            subprocess.run(
+                ["git", "describe", "--always", "--dirty"],
+                cwd=Path(__file__).parent,
+                capture_output=True,
+                text=True,
+                timeout=5,
+            ).stdout.strip()
+            or "unknown"
+        )
     except (OSError, subprocess.TimeoutExpired):
         out["git"] = "unknown"
     return out

@@ -2,6 +2,7 @@
 camera_info YAML per camera (camera_calibration_parsers / camera_info_manager), a COLMAP
 text model of the CMCs and the ego keyframes, static transforms (YAML and a ROS 2 launch
 file of static_transform_publisher), and a kalibr camchain per CMC group."""
+
 from __future__ import annotations
 
 import shutil
@@ -29,10 +30,16 @@ def _matrix(rows: int, cols: int, values) -> dict:
 
 def camera_info_yaml(name: str, camera: CameraModel) -> dict:
     """One camera in the camera_calibration_parsers YAML layout (what camera_info_manager loads)."""
-    return {"image_width": int(camera.width), "image_height": int(camera.height), "camera_name": name,
-            "camera_matrix": _matrix(3, 3, camera.K), "distortion_model": camera.distortion_model,
-            "distortion_coefficients": _matrix(1, len(camera.D), camera.D),
-            "rectification_matrix": _matrix(3, 3, camera.R), "projection_matrix": _matrix(3, 4, camera.P)}
+    return {
+        "image_width": int(camera.width),
+        "image_height": int(camera.height),
+        "camera_name": name,
+        "camera_matrix": _matrix(3, 3, camera.K),
+        "distortion_model": camera.distortion_model,
+        "distortion_coefficients": _matrix(1, len(camera.D), camera.D),
+        "rectification_matrix": _matrix(3, 3, camera.R),
+        "projection_matrix": _matrix(3, 4, camera.P),
+    }
 
 
 def colmap_camera(camera: CameraModel) -> tuple[str, list[float]] | str:
@@ -47,7 +54,7 @@ def colmap_camera(camera: CameraModel) -> tuple[str, list[float]] | str:
         return "OPENCV_FISHEYE", [fx, fy, cx, cy, *np.pad(D, (0, 4))[:4]]
     if camera.distortion_model in (PLUMB_BOB, RATIONAL_POLYNOMIAL):
         full = np.pad(D, (0, 8))
-        if np.any(full[8:]):   # thin-prism / tilt terms of OpenCV's 12/14-coefficient model
+        if np.any(full[8:]):  # thin-prism / tilt terms of OpenCV's 12/14-coefficient model
             return f"its {len(D)} distortion coefficients include thin-prism/tilt terms COLMAP has no model for"
         if not np.any(full[4:8]):
             return "OPENCV", [fx, fy, cx, cy, *full[:4]]
@@ -64,8 +71,10 @@ def kalibr_camera(camera: CameraModel) -> tuple[str, list[float]] | str:
         return "equidistant", D[:4].tolist()
     if camera.distortion_model == PLUMB_BOB and not np.any(D[4:]):
         return "radtan", D[:4].tolist()
-    return (f"distortion model '{camera.distortion_model}' with coefficients {np.round(camera.D, 6).tolist()}: "
-            "kalibr's radtan has k1 k2 p1 p2 only")
+    return (
+        f"distortion model '{camera.distortion_model}' with coefficients {np.round(camera.D, 6).tolist()}: "
+        "kalibr's radtan has k1 k2 p1 p2 only"
+    )
 
 
 def _colmap_camera_line(camera_id: int, camera: CameraModel, model: tuple[str, list[float]]) -> str:
@@ -83,16 +92,17 @@ def _colmap_pose(T_world_cam: np.ndarray) -> str:
 class ExportImages:
     """The pixels of the images a COLMAP model names (RGB uint8 arrays)."""
 
-    cmc: dict[str, np.ndarray] = field(default_factory=dict)     # camera name -> its background
-    ego: dict[int, np.ndarray] = field(default_factory=dict)     # keyframe stamp [ns] -> its colour image
+    cmc: dict[str, np.ndarray] = field(default_factory=dict)  # camera name -> its background
+    ego: dict[int, np.ndarray] = field(default_factory=dict)  # keyframe stamp [ns] -> its colour image
 
 
 # A landmark takes the colour of the map's nearest cloud point within this distance [m].
 COLOUR_RADIUS_M = 0.05
 
 
-def write_colmap_model(folder: Path, cameras: list[RegisteredCmc], ego: EgoMapData | None,
-                       images: ExportImages = ExportImages()) -> list[str]:
+def write_colmap_model(
+    folder: Path, cameras: list[RegisteredCmc], ego: EgoMapData | None, images: ExportImages = ExportImages()
+) -> list[str]:
     """cameras.txt, images.txt, points3D.txt: one camera and one image per registered CMC
     (cmc/<name>.png, its background; no 2D points), the ego camera and its keyframes
     (ego/<stamp_ns>.png) with their landmark observations; points3D are the ego map's
@@ -119,13 +129,17 @@ def write_colmap_model(folder: Path, cameras: list[RegisteredCmc], ego: EgoMapDa
             cam_lines.append(_colmap_camera_line(ego_cid, ego.camera, model))
             point_lines = _ego_images_and_points(ego, ego_cid, len(image_lines) // 2 + 1, image_lines)
     header = "# written by yowo (export of a run); COLMAP text format\n"
-    (folder / "cameras.txt").write_text(header + "# CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
-                                        + "".join(line + "\n" for line in cam_lines))
-    (folder / "images.txt").write_text(header + "# IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n"
-                                       "# POINTS2D[] as (X, Y, POINT3D_ID)\n"
-                                       + "".join(line + "\n" for line in image_lines))
-    (folder / "points3D.txt").write_text(header + "# POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as "
-                                         "(IMAGE_ID, POINT2D_IDX)\n" + "".join(line + "\n" for line in point_lines))
+    (folder / "cameras.txt").write_text(
+        header + "# CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n" + "".join(line + "\n" for line in cam_lines)
+    )
+    (folder / "images.txt").write_text(
+        header + "# IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n"
+        "# POINTS2D[] as (X, Y, POINT3D_ID)\n" + "".join(line + "\n" for line in image_lines)
+    )
+    (folder / "points3D.txt").write_text(
+        header + "# POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as "
+        "(IMAGE_ID, POINT2D_IDX)\n" + "".join(line + "\n" for line in point_lines)
+    )
     return skipped + _write_images(folder, image_lines, images)
 
 
@@ -136,15 +150,21 @@ def _write_images(folder: Path, image_lines: list[str], images: ExportImages) ->
     missing = []
     for line in image_lines[::2]:
         name = line.rsplit(" ", 1)[1]
-        kind, stem = name[:-len(".png")].split("/")
+        kind, stem = name[: -len(".png")].split("/")
         rgb = images.cmc.get(stem) if kind == "cmc" else images.ego.get(int(stem))
         if rgb is None:
             missing.append(name)
             continue
         (folder / kind).mkdir(exist_ok=True)
         cv2.imwrite(str(folder / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-    return [f"{len(missing)} of the {len(image_lines) // 2} images named in images.txt have no pixels in this run "
-            f"(e.g. {missing[0]}: the recording holds no image of it)"] if missing else []
+    return (
+        [
+            f"{len(missing)} of the {len(image_lines) // 2} images named in images.txt have no pixels in this run "
+            f"(e.g. {missing[0]}: the recording holds no image of it)"
+        ]
+        if missing
+        else []
+    )
 
 
 def _landmark_colours(ego: EgoMapData) -> np.ndarray:
@@ -180,8 +200,10 @@ def _ego_images_and_points(ego: EgoMapData, camera_id: int, first_image_id: int,
     for j, (X, rgb) in enumerate(zip(ego.landmarks, _landmark_colours(ego))):
         track = tracks.get(j, [])
         err = float(np.sqrt(np.mean(sq_err[j]))) if track else -1.0
-        lines.append(f"{j + 1} {X[0]:.9g} {X[1]:.9g} {X[2]:.9g} {rgb[0]} {rgb[1]} {rgb[2]} {err:.6g} "
-                     + " ".join(f"{i} {k}" for i, k in track))
+        lines.append(
+            f"{j + 1} {X[0]:.9g} {X[1]:.9g} {X[2]:.9g} {rgb[0]} {rgb[1]} {rgb[2]} {err:.6g} "
+            + " ".join(f"{i} {k}" for i, k in track)
+        )
     return lines
 
 
@@ -191,7 +213,11 @@ def static_transform_args(c: RegisteredCmc) -> list[str]:
     qx, qy, qz, qw = quat_xyzw_from_rotation(c.T_world_cam[:3, :3])
     values = dict(zip(("x", "y", "z", "qx", "qy", "qz", "qw"), (x, y, z, qx, qy, qz, qw)))
     return [a for k, v in values.items() for a in (f"--{k}", f"{v:.12g}")] + [
-        "--frame-id", WORLD_FRAME, "--child-frame-id", optical_frame(c.name)]
+        "--frame-id",
+        WORLD_FRAME,
+        "--child-frame-id",
+        optical_frame(c.name),
+    ]
 
 
 LAUNCH_TEMPLATE = '''"""Static transforms map -> <camera>_optical_frame of the registered CMCs (written by yowo).
@@ -217,9 +243,15 @@ def write_static_tf(folder: Path, cameras: list[RegisteredCmc]) -> None:
     for c in placed:
         x, y, z = (round(float(v), 9) for v in c.T_world_cam[:3, 3])
         qx, qy, qz, qw = (round(float(v), 9) for v in quat_xyzw_from_rotation(c.T_world_cam[:3, :3]))
-        entries.append({"frame_id": WORLD_FRAME, "child_frame_id": optical_frame(c.name),
-                        "translation": {"x": x, "y": y, "z": z}, "rotation": {"x": qx, "y": qy, "z": qz, "w": qw},
-                        "command": "ros2 run tf2_ros static_transform_publisher " + " ".join(static_transform_args(c))})
+        entries.append(
+            {
+                "frame_id": WORLD_FRAME,
+                "child_frame_id": optical_frame(c.name),
+                "translation": {"x": x, "y": y, "z": z},
+                "rotation": {"x": qx, "y": qy, "z": qz, "w": qw},
+                "command": "ros2 run tf2_ros static_transform_publisher " + " ".join(static_transform_args(c)),
+            }
+        )
     (folder / "static_tf.yaml").write_text(yaml.safe_dump({"transforms": entries}, sort_keys=False))
     transforms = [(f"{c.name}_static_tf", static_transform_args(c)) for c in placed]
     (folder / "static_tf.launch.py").write_text(LAUNCH_TEMPLATE.format(transforms=_py_literal(transforms)))
@@ -249,10 +281,14 @@ def kalibr_camchain(group: CameraGroupResult, cameras: dict[str, RegisteredCmc])
             skipped.append(f"{n}: {model}")
             continue
         K = c.camera.K
-        entry = {"camera_model": "pinhole", "intrinsics": [float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
-                                                           float(K[1, 2])],
-                 "distortion_model": model[0], "distortion_coeffs": [float(v) for v in model[1]],
-                 "resolution": [int(c.camera.width), int(c.camera.height)], "rostopic": topics.cmc_image_topics(n)[0]}
+        entry = {
+            "camera_model": "pinhole",
+            "intrinsics": [float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])],
+            "distortion_model": model[0],
+            "distortion_coeffs": [float(v) for v in model[1]],
+            "resolution": [int(c.camera.width), int(c.camera.height)],
+            "rostopic": topics.cmc_image_topics(n)[0],
+        }
         if kept:
             T = inv_se3(c.T_world_cam) @ kept[-1].T_world_cam
             entry["T_cn_cnm1"] = np.round(T, 12).tolist()
@@ -273,10 +309,15 @@ def _overlap(group: CameraGroupResult, a: RegisteredCmc, b: RegisteredCmc) -> bo
     return int(np.sum(seen[0] & seen[1])) >= MIN_SHARED_TRACK_POINTS
 
 
-def write_exports(folder: Path, cameras: list[RegisteredCmc], groups: list[CameraGroupResult],
-                  ego: EgoMapData | None, images: ExportImages = ExportImages()) -> list[Path]:
+def write_exports(
+    folder: Path,
+    cameras: list[RegisteredCmc],
+    groups: list[CameraGroupResult],
+    ego: EgoMapData | None,
+    images: ExportImages = ExportImages(),
+) -> list[Path]:
     """Every export of a full run into folder; README.md lists them and what was left out."""
-    shutil.rmtree(folder, ignore_errors=True)   # a previous run's cameras would stay mixed in
+    shutil.rmtree(folder, ignore_errors=True)  # a previous run's cameras would stay mixed in
     folder.mkdir(parents=True)
     notes = []
     info_dir = folder / "camera_info"
@@ -286,8 +327,9 @@ def write_exports(folder: Path, cameras: list[RegisteredCmc], groups: list[Camer
             notes.append(f"camera_info/{c.name}.yaml: not written, no CameraInfo of {c.name} arrived")
             continue
         # flow-style matrices, as camera_calibration_parsers writes them
-        (info_dir / f"{c.name}.yaml").write_text(yaml.safe_dump(camera_info_yaml(c.name, c.camera), sort_keys=False,
-                                                                default_flow_style=None))
+        (info_dir / f"{c.name}.yaml").write_text(
+            yaml.safe_dump(camera_info_yaml(c.name, c.camera), sort_keys=False, default_flow_style=None)
+        )
     notes += [f"colmap: {s}" for s in write_colmap_model(folder / "colmap", cameras, ego, images)]
     write_static_tf(folder, cameras)
     by_name = {c.name: c for c in cameras}
@@ -297,13 +339,16 @@ def write_exports(folder: Path, cameras: list[RegisteredCmc], groups: list[Camer
         if chain:
             (folder / f"camchain_{g.group_id}.yaml").write_text(
                 f"# kalibr camchain of CMC group {g.group_id}"
-                + "".join(f"\n# skipped {s}" for s in skipped) + "\n"
-                + yaml.safe_dump(chain, sort_keys=False, default_flow_style=None))
+                + "".join(f"\n# skipped {s}" for s in skipped)
+                + "\n"
+                + yaml.safe_dump(chain, sort_keys=False, default_flow_style=None)
+            )
         else:
             notes.append(f"camchain_{g.group_id}.yaml: not written, kalibr can model none of its cameras")
     readme = folder / "README.md"
-    readme.write_text(EXPORT_README + ("\nLeft out:\n" + "".join(f"- {n}\n" for n in notes) if notes
-                                       else "\nNothing was left out.\n"))
+    readme.write_text(
+        EXPORT_README + ("\nLeft out:\n" + "".join(f"- {n}\n" for n in notes) if notes else "\nNothing was left out.\n")
+    )
     return sorted(p for p in folder.rglob("*") if p.is_file())
 
 

@@ -1,5 +1,6 @@
 """Execute a RunPlan: start every node as its own process, follow the stages'
 status topics, collect the latched outputs and hand them to the results writer."""
+
 from __future__ import annotations
 
 import contextlib
@@ -45,8 +46,9 @@ class RunFailed(RuntimeError):
 SILENT_INPUT_S = 60.0
 
 
-def silent_inputs(replay, statuses: dict, unreceived: dict, told: set, now_s: float,
-                  after_s: float = SILENT_INPUT_S) -> list[str]:
+def silent_inputs(
+    replay, statuses: dict, unreceived: dict, told: set, now_s: float, after_s: float = SILENT_INPUT_S
+) -> list[str]:
     """Once each (`told`): a running stage that has received none of a topic's messages
     `after_s` seconds after it first saw the replay had published some (`unreceived`:
     (stage, topic) -> then); such messages never reach it."""
@@ -63,8 +65,10 @@ def silent_inputs(replay, statuses: dict, unreceived: dict, told: set, now_s: fl
             since = unreceived.setdefault((stage, topic), now_s)
             if now_s - since > after_s and (stage, topic) not in told:
                 told.add((stage, topic))
-                said.append(f"stage '{stage}' has received none of the {played[topic]} messages the replay "
-                            f"published on {topic} in {now_s - since:.0f} s (see logs/{stage}.log)")
+                said.append(
+                    f"stage '{stage}' has received none of the {played[topic]} messages the replay "
+                    f"published on {topic} in {now_s - since:.0f} s (see logs/{stage}.log)"
+                )
     return said
 
 
@@ -82,11 +86,12 @@ class RunMonitor(Node):
         self._relay = None
         self._announced = None
         self._playing_since: float | None = None
-        self._unreceived: dict[tuple[str, str], float] = {}    # (stage, topic) -> when first seen unreceived
+        self._unreceived: dict[tuple[str, str], float] = {}  # (stage, topic) -> when first seen unreceived
         self._told: set[tuple[str, str]] = set()
         for topic, msgtype in outputs.items():
-            self.create_subscription(message_class(msgtype), topic,
-                                     lambda m, t=topic: self.outputs.__setitem__(t, m), LATCHED)
+            self.create_subscription(
+                message_class(msgtype), topic, lambda m, t=topic: self.outputs.__setitem__(t, m), LATCHED
+            )
 
     def _on_status(self, stage: str, msg: StageStatus) -> None:
         if self.runs.accept(msg):
@@ -96,7 +101,7 @@ class RunMonitor(Node):
         if self.runs.accept(msg):
             self.replay = msg
         if msg.run_id in ("", self.run_id) and msg.state == ReplayStatus.STATE_FINISHED:
-            self._announced = msg             # `yowo end-walk` (to this or to any live run)
+            self._announced = msg  # `yowo end-walk` (to this or to any live run)
 
     def relay_end_of_walk(self) -> None:
         """Live runs: take `yowo end-walk`'s announcement for this run and keep it latched
@@ -119,15 +124,29 @@ class RunMonitor(Node):
         published = dict(zip(self.replay.topics, self.replay.published_counts)) if self.replay else {}
         for s in stages:
             msg = self.status.get(s)
-            states[s] = (WAITING if msg is None else RUNNING if msg.state == StageStatus.STATE_RUNNING
-                         else FAILED if msg.state == StageStatus.STATE_FAILED else DONE)
+            states[s] = (
+                WAITING
+                if msg is None
+                else RUNNING
+                if msg.state == StageStatus.STATE_RUNNING
+                else FAILED
+                if msg.state == StageStatus.STATE_FAILED
+                else DONE
+            )
             if states[s] == RUNNING:
                 # Of the replayed messages meant for it, how many it has taken in.
                 mine = [(int(n), published[t]) for t, n in zip(msg.input_topics, msg.received_counts) if t in published]
                 if sum(p for _, p in mine):
                     consumed[s] = min(1.0, sum(n for n, _ in mine) / sum(p for _, p in mine))
-        return RunProgress(elapsed_s, played, total, self.replay.resent_messages if self.replay else 0,
-                           self._playing_since, states, consumed)
+        return RunProgress(
+            elapsed_s,
+            played,
+            total,
+            self.replay.resent_messages if self.replay else 0,
+            self._playing_since,
+            states,
+            consumed,
+        )
 
     def silent_inputs(self, now_s: float) -> list[str]:
         return silent_inputs(self.replay, self.status, self._unreceived, self._told, now_s)
@@ -138,8 +157,15 @@ class RunMonitor(Node):
         return {"yowo_run": self.runs.strays, **counts}
 
 
-def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphNetwork | None = None,
-            linger_s: float = 0.0, progress=None, profile_dir: Path | None = None) -> RunOutcome:
+def execute(
+    plan: RunPlan,
+    timeout_s: float = 3600.0,
+    log=print,
+    network: GraphNetwork | None = None,
+    linger_s: float = 0.0,
+    progress=None,
+    profile_dir: Path | None = None,
+) -> RunOutcome:
     """Run the graph (the plan's local nodes; the others run on other hosts) and write the
     results directory. Raises RunFailed with the reason (after writing whatever partial
     results exist). `network`: the run's DDS domain (a private one by default);
@@ -150,14 +176,24 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
     progress = progress or ProgressLines(log)
     network = network or graph_network(PRIVATE)
     (plan.out_dir / "logs").mkdir(parents=True, exist_ok=True)
-    params_file = plan.out_dir / "logs" / "ros_params.yaml"        # what the nodes are started with
+    params_file = plan.out_dir / "logs" / "ros_params.yaml"  # what the nodes are started with
     write_params_file(plan.nodes, params_file)
-    (plan.out_dir / "params.yaml").write_text(yaml.safe_dump(params_document(
-        plan.config, {n.name: {k: v for k, v in n.parameters.items() if k not in CONFIG_PARAMETERS} for n in plan.nodes}),
-        sort_keys=False))
-    sup = Supervisor(plan.out_dir / "logs", library_threads_env(network.env, plan.config.supervisor.library_threads),
-                     params_file, profile_dir,
-                     plan.config.supervisor.profile_rate_hz)
+    (plan.out_dir / "params.yaml").write_text(
+        yaml.safe_dump(
+            params_document(
+                plan.config,
+                {n.name: {k: v for k, v in n.parameters.items() if k not in CONFIG_PARAMETERS} for n in plan.nodes},
+            ),
+            sort_keys=False,
+        )
+    )
+    sup = Supervisor(
+        plan.out_dir / "logs",
+        library_threads_env(network.env, plan.config.supervisor.library_threads),
+        params_file,
+        profile_dir,
+        plan.config.supervisor.profile_rate_hz,
+    )
     stages = plan.stages
     t0, t0_wall = time.monotonic(), time.time()
     failure, outcome, notes = "", None, set()
@@ -169,20 +205,27 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
             os.environ.pop(k, None)
 
     def graph_log() -> dict:
-        return {"graph": {"run_id": plan.run_id, "ros_domain_id": network.domain_id, "private": network.private,
-                          "discovery_range": network.discovery,
-                          "nodes_on_this_host": [n for p in sup.procs for n in p.spec.nodes],
-                          "processes": {p.spec.name: p.spec.nodes for p in sup.procs},
-                          "stray_status_messages": monitor.strays()},
-                "restarts": {p.spec.name: p.exits for p in sup.procs if p.exits},
-                # Sampled once a second from /proc: the last second of a node is not counted.
-                "resources": {p.spec.name: p.resources() for p in sup.procs},
-                # The largest sum of every process's proportional set size (this one's included)
-                # at one sample: what the graph held of the machine's memory at its peak.
-                "peak_memory_mb": round(sup.peak_memory_mb, 1),
-                "peak_memory_by_process_mb": {k: round(v, 1) for k, v in sup.peak_memory_by_process.items()},
-                # Seconds since the run started; queue waits and handling per input topic.
-                "timing": node_timing(sup, t0_wall)}
+        return {
+            "graph": {
+                "run_id": plan.run_id,
+                "ros_domain_id": network.domain_id,
+                "private": network.private,
+                "discovery_range": network.discovery,
+                "nodes_on_this_host": [n for p in sup.procs for n in p.spec.nodes],
+                "processes": {p.spec.name: p.spec.nodes for p in sup.procs},
+                "stray_status_messages": monitor.strays(),
+            },
+            "restarts": {p.spec.name: p.exits for p in sup.procs if p.exits},
+            # Sampled once a second from /proc: the last second of a node is not counted.
+            "resources": {p.spec.name: p.resources() for p in sup.procs},
+            # The largest sum of every process's proportional set size (this one's included)
+            # at one sample: what the graph held of the machine's memory at its peak.
+            "peak_memory_mb": round(sup.peak_memory_mb, 1),
+            "peak_memory_by_process_mb": {k: round(v, 1) for k, v in sup.peak_memory_by_process.items()},
+            # Seconds since the run started; queue waits and handling per input topic.
+            "timing": node_timing(sup, t0_wall),
+        }
+
     try:
         # Ctrl-C (and SIGTERM) as KeyboardInterrupt, not rclpy's shutdown: the nodes are stopped
         # and the run log says the run was interrupted.
@@ -201,29 +244,39 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
                         break
                     if monitor.replay is not None and monitor.replay.error not in notes | {""}:
                         notes.add(monitor.replay.error)
-                        if monitor.replay.error not in plan.warnings:   # a damaged file is told at the start
+                        if monitor.replay.error not in plan.warnings:  # a damaged file is told at the start
                             log(f"warning: {monitor.replay.error}")
                     final = monitor.finished(plan.final_stage)
                     if final is not None and finished_at is None:
                         finished_at = time.monotonic()
-                    grace = GRACE_S["failed" if final is not None and final.state == StageStatus.STATE_FAILED
-                                    else "done"]
+                    grace = GRACE_S[
+                        "failed" if final is not None and final.state == StageStatus.STATE_FAILED else "done"
+                    ]
                     # The replay's final status too (the run log's counts): on a loaded machine it
                     # reached the stages but not yet this node when they had all finished.
-                    replayed = plan.bag is None or (monitor.replay is not None
-                                                    and monitor.replay.state == ReplayStatus.STATE_FINISHED)
-                    settled = final is not None and replayed and all(monitor.finished(s) for s in stages) and (
-                        final.state == StageStatus.STATE_FAILED or all(t in monitor.outputs for t in plan.outputs))
+                    replayed = plan.bag is None or (
+                        monitor.replay is not None and monitor.replay.state == ReplayStatus.STATE_FINISHED
+                    )
+                    settled = (
+                        final is not None
+                        and replayed
+                        and all(monitor.finished(s) for s in stages)
+                        and (final.state == StageStatus.STATE_FAILED or all(t in monitor.outputs for t in plan.outputs))
+                    )
                     if finished_at is not None and (settled or time.monotonic() - finished_at > grace):
                         if final.state == StageStatus.STATE_FAILED:
                             # The first cause too: a final stage fails for want of an upstream one's output.
-                            upstream = [f"stage '{s}' failed: {m.message}" for s, m in monitor.status.items()
-                                        if s != plan.final_stage and m.state == StageStatus.STATE_FAILED]
+                            upstream = [
+                                f"stage '{s}' failed: {m.message}"
+                                for s, m in monitor.status.items()
+                                if s != plan.final_stage and m.state == StageStatus.STATE_FAILED
+                            ]
                             failure = "; ".join([*upstream, f"stage '{plan.final_stage}' failed: {final.message}"])
                         break
                     if time.monotonic() - t0 > timeout_s:
-                        failure = (f"no result after {timeout_s:.0f} s; "
-                                   + ", ".join(f"{s}={'done' if monitor.finished(s) else 'running'}" for s in stages))
+                        failure = f"no result after {timeout_s:.0f} s; " + ", ".join(
+                            f"{s}={'done' if monitor.finished(s) else 'running'}" for s in stages
+                        )
                         break
                     progress(monitor.progress(stages, time.monotonic() - t0, plan.replay_messages))
                     for silent in monitor.silent_inputs(time.monotonic() - t0):
@@ -234,20 +287,33 @@ def execute(plan: RunPlan, timeout_s: float = 3600.0, log=print, network: GraphN
                         last_sample = time.monotonic()
                         last_memory = last_sample if memory else last_memory
                 if linger_s > 0 and not failure:
-                    outcome = write_run_results(plan, dict(monitor.outputs), dict(monitor.status), monitor.replay,
-                                                time.monotonic() - t0, failure, graph_log())
+                    outcome = write_run_results(
+                        plan,
+                        dict(monitor.outputs),
+                        dict(monitor.status),
+                        monitor.replay,
+                        time.monotonic() - t0,
+                        failure,
+                        graph_log(),
+                    )
                     log(f"results written to {plan.out_dir}; the graph stays up {linger_s:.0f} s (latched /tf_static)")
                     end = time.monotonic() + linger_s
                     while time.monotonic() < end and not sup.dead():
                         rclpy.spin_once(monitor, timeout_sec=0.1)
             finally:
                 sup.sample()
-                outputs, status, replay, graph = dict(monitor.outputs), dict(monitor.status), monitor.replay, graph_log()
+                outputs, status, replay, graph = (
+                    dict(monitor.outputs),
+                    dict(monitor.status),
+                    monitor.replay,
+                    graph_log(),
+                )
                 monitor.destroy_node()
                 sup.stop()
                 if profile_dir is not None:
                     (Path(profile_dir) / "summary.md").write_text(
-                        summary_markdown(profile_dir, plan.config.supervisor.profile_rate_hz))
+                        summary_markdown(profile_dir, plan.config.supervisor.profile_rate_hz)
+                    )
                     for profiler in sup.profilers:
                         if profiler.error:
                             log(f"warning: --profile: {profiler.error}")
@@ -287,8 +353,10 @@ def node_timing(sup: Supervisor, t0_wall: float) -> dict:
         for name in p.spec.nodes:
             path = stats_path(sup.log_dir, name, p.incarnation)
             if path.exists():
-                timing[name] = {"spawned_s": round(p.usage[-1].spawned - t0_wall, 2),
-                                **relative_to(yaml.safe_load(path.read_text()), t0_wall)}
+                timing[name] = {
+                    "spawned_s": round(p.usage[-1].spawned - t0_wall, 2),
+                    **relative_to(yaml.safe_load(path.read_text()), t0_wall),
+                }
     return timing
 
 
@@ -299,8 +367,11 @@ def _restart_dead(sup: Supervisor, max_restarts: int, log) -> str:
         hosting = f" (hosting {', '.join(p.spec.hosted)})" if p.spec.hosted else ""
         died = f"node '{p.spec.name}'{hosting} died (exit {p.popen.returncode})"
         if p.spec.name == "replay" or len(p.exits) >= max_restarts:
-            why = ("the replay cannot be restarted: nobody could re-send what the stages missed"
-                   if p.spec.name == "replay" else f"it was restarted {len(p.exits)} times already")
+            why = (
+                "the replay cannot be restarted: nobody could re-send what the stages missed"
+                if p.spec.name == "replay"
+                else f"it was restarted {len(p.exits)} times already"
+            )
             return f"{died}; {why}; last log lines:\n{p.log_tail()}"
         sup.restart(p)
         log(f"warning: {died}; restarted it ({len(p.exits)} of at most {max_restarts}); it is sent what it missed")

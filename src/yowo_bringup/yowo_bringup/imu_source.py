@@ -3,6 +3,7 @@
 extrinsics a driver publishes on /tf_static with noise from the Kalibr file or the
 documented defaults (InputParams). The result is the calibration text the ego mapper
 parses (yowo_ego.imu.ImuCalibration.from_yaml), and what the run log says about it."""
+
 from __future__ import annotations
 
 from collections import deque
@@ -12,8 +13,12 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-NOISE_KEYS = ("gyroscope_noise_density", "gyroscope_random_walk", "accelerometer_noise_density",
-              "accelerometer_random_walk")
+NOISE_KEYS = (
+    "gyroscope_noise_density",
+    "gyroscope_random_walk",
+    "accelerometer_noise_density",
+    "accelerometer_random_walk",
+)
 
 
 @dataclass(frozen=True)
@@ -21,10 +26,10 @@ class ImuNoiseDefaults:
     """Used where no Kalibr imu.yaml is given: densities of the Bosch BMI055 data sheet (the
     IMU of the RealSense D435i/D455), random walks mid-range of what users measure on it."""
 
-    gyroscope_noise_density: float = 2.44e-4     # rad/s/sqrt(Hz)
-    gyroscope_random_walk: float = 1.0e-5        # rad/s^2/sqrt(Hz)
+    gyroscope_noise_density: float = 2.44e-4  # rad/s/sqrt(Hz)
+    gyroscope_random_walk: float = 1.0e-5  # rad/s^2/sqrt(Hz)
     accelerometer_noise_density: float = 1.47e-3  # m/s^2/sqrt(Hz)
-    accelerometer_random_walk: float = 2.5e-4    # m/s^3/sqrt(Hz)
+    accelerometer_random_walk: float = 2.5e-4  # m/s^3/sqrt(Hz)
 
 
 @dataclass
@@ -32,16 +37,20 @@ class ImuSource:
     """The IMU calibration a run uses ('' text: none, `reason` says why) and how it was found."""
 
     calibration_yaml: str = ""
-    extrinsics: str = ""           # where T_cam_imu came from
-    noise: str = ""                # where the noise densities came from
-    reason: str = ""               # why the IMU is not used
+    extrinsics: str = ""  # where T_cam_imu came from
+    noise: str = ""  # where the noise densities came from
+    reason: str = ""  # why the IMU is not used
     T_cam_imu: np.ndarray | None = field(default=None, repr=False)
 
     def describe(self) -> dict:
         if not self.calibration_yaml:
             return {"used": False, "reason": self.reason}
-        return {"used": True, "extrinsics": self.extrinsics, "noise": self.noise,
-                "T_cam_imu": [[round(float(v), 9) for v in row] for row in self.T_cam_imu]}
+        return {
+            "used": True,
+            "extrinsics": self.extrinsics,
+            "noise": self.noise,
+            "T_cam_imu": [[round(float(v), 9) for v in row] for row in self.T_cam_imu],
+        }
 
 
 def _load(path: str, what: str) -> dict:
@@ -111,12 +120,28 @@ def static_transform(transforms, target: str, source: str) -> np.ndarray | None:
 
 def calibration_text(T_cam_imu: np.ndarray, noise: dict[str, float], rate_hz: float, shift_s: float) -> str:
     """The calibration as /ego/imu/calibration carries it (Kalibr's keys)."""
-    return yaml.safe_dump({**noise, "update_rate": float(rate_hz), "timeshift_cam_imu": float(shift_s),
-                           "T_cam_imu": [[float(v) for v in row] for row in T_cam_imu]}, sort_keys=False)
+    return yaml.safe_dump(
+        {
+            **noise,
+            "update_rate": float(rate_hz),
+            "timeshift_cam_imu": float(shift_s),
+            "T_cam_imu": [[float(v) for v in row] for row in T_cam_imu],
+        },
+        sort_keys=False,
+    )
 
 
-def resolve_imu(*, camchain: str, imu_yaml: str, defaults: ImuNoiseDefaults, rate_hz: float,
-                camera_frame: str, imu_frame: str, tf_edges, camera_topic: str = "") -> ImuSource:
+def resolve_imu(
+    *,
+    camchain: str,
+    imu_yaml: str,
+    defaults: ImuNoiseDefaults,
+    rate_hz: float,
+    camera_frame: str,
+    imu_frame: str,
+    tf_edges,
+    camera_topic: str = "",
+) -> ImuSource:
     """The IMU's calibration from the user's Kalibr files, else /tf_static. ValueError for a
     Kalibr file that cannot be read (named)."""
     if imu_yaml:
@@ -132,8 +157,10 @@ def resolve_imu(*, camchain: str, imu_yaml: str, defaults: ImuNoiseDefaults, rat
         T = static_transform(tf_edges, camera_frame, imu_frame) if camera_frame and imu_frame else None
         if T is None:
             frames = f"from '{camera_frame or '?'}' to '{imu_frame or '?'}'"
-            return ImuSource(reason=f"no extrinsics for the IMU: /tf_static has no path {frames}, the recording "
-                                    "no /ego/imu/calibration; pass Kalibr's camchain-imucam.yaml with "
-                                    "--set inputs.imu_camchain=FILE")
+            return ImuSource(
+                reason=f"no extrinsics for the IMU: /tf_static has no path {frames}, the recording "
+                "no /ego/imu/calibration; pass Kalibr's camchain-imucam.yaml with "
+                "--set inputs.imu_camchain=FILE"
+            )
         where = f"/tf_static ({camera_frame} -> {imu_frame})"
     return ImuSource(calibration_text(T, noise, rate_hz, shift), where, noise_from, T_cam_imu=T)

@@ -3,6 +3,7 @@ common RGB-D drivers' layouts, image_transport camera namespaces, and the user's
 mapping. The result names every role by YOWO's input name (`/ego/color/image_raw`,
 `/cmc/<name>/camera_info`, ...) and says which recorded topic fills it; the nodes are then
 given the recorded names as their topic parameters, so a live graph maps the same way."""
+
 from __future__ import annotations
 
 import re
@@ -30,15 +31,54 @@ class DriverLayout:
 
 
 DRIVER_LAYOUTS = (
-    DriverLayout("realsense2_camera", "color/image_raw", "aligned_depth_to_color/image_raw", "color/camera_info",
-                 imu="imu", gyro="gyro/sample", accel="accel/sample",
-                 streams=("color", "depth", "infra1", "infra2", "aligned_depth_to_color", "aligned_depth_to_infra1",
-                          "fisheye", "fisheye1", "fisheye2")),
-    DriverLayout("Azure Kinect / Orbbec Femto", "rgb/image_raw", "depth_to_rgb/image_raw", "rgb/camera_info",
-                 imu="imu", streams=("rgb", "depth", "ir", "depth_to_rgb", "rgb_to_depth")),
-    DriverLayout("ZED", "rgb/image_rect_color", "depth/depth_registered", "rgb/camera_info", imu="imu/data",
-                 streams=("rgb", "rgb_raw", "left", "left_raw", "right", "right_raw", "depth", "confidence",
-                          "disparity", "stereo", "stereo_raw")),
+    DriverLayout(
+        "realsense2_camera",
+        "color/image_raw",
+        "aligned_depth_to_color/image_raw",
+        "color/camera_info",
+        imu="imu",
+        gyro="gyro/sample",
+        accel="accel/sample",
+        streams=(
+            "color",
+            "depth",
+            "infra1",
+            "infra2",
+            "aligned_depth_to_color",
+            "aligned_depth_to_infra1",
+            "fisheye",
+            "fisheye1",
+            "fisheye2",
+        ),
+    ),
+    DriverLayout(
+        "Azure Kinect / Orbbec Femto",
+        "rgb/image_raw",
+        "depth_to_rgb/image_raw",
+        "rgb/camera_info",
+        imu="imu",
+        streams=("rgb", "depth", "ir", "depth_to_rgb", "rgb_to_depth"),
+    ),
+    DriverLayout(
+        "ZED",
+        "rgb/image_rect_color",
+        "depth/depth_registered",
+        "rgb/camera_info",
+        imu="imu/data",
+        streams=(
+            "rgb",
+            "rgb_raw",
+            "left",
+            "left_raw",
+            "right",
+            "right_raw",
+            "depth",
+            "confidence",
+            "disparity",
+            "stereo",
+            "stereo_raw",
+        ),
+    ),
 )
 _COMPRESSED = {"color": "/compressed", "depth": "/compressedDepth"}
 # Recorded namespaces that are never a ceiling camera of their own.
@@ -55,10 +95,10 @@ class InputParams:
     # YOWO input name:=recorded topic, ROS remapping order (e.g. /ego/color/image_raw:=/cam/rgb);
     # also `yowo run -r RULE`.
     remap: tuple[str, ...] = ()
-    ego_namespace: str = ""        # the ego camera's driver namespace where several devices are found
-    imu_camchain: str = ""         # Kalibr camchain-imucam.yaml: the ego IMU's T_cam_imu, timeshift_cam_imu
-    imu_noise: str = ""            # Kalibr imu.yaml: the ego IMU's noise densities and random walks
-    imu_noise_defaults: ImuNoiseDefaults = field(default_factory=ImuNoiseDefaults)   # without imu_noise
+    ego_namespace: str = ""  # the ego camera's driver namespace where several devices are found
+    imu_camchain: str = ""  # Kalibr camchain-imucam.yaml: the ego IMU's T_cam_imu, timeshift_cam_imu
+    imu_noise: str = ""  # Kalibr imu.yaml: the ego IMU's noise densities and random walks
+    imu_noise_defaults: ImuNoiseDefaults = field(default_factory=ImuNoiseDefaults)  # without imu_noise
     # NAME=FILE: a ceiling camera's intrinsics from a calibration file (camera_calibration_parsers
     # YAML, Kalibr camchain, COLMAP cameras.txt, OpenCV YAML/XML), over its CameraInfo if any;
     # also yowo run --intrinsics. A camera with neither has its intrinsics estimated.
@@ -66,7 +106,7 @@ class InputParams:
     # NAME=FILE[@START]: a ceiling camera's footage as a video file; START in seconds since the
     # epoch or ISO 8601, else the file's creation_time; also yowo run --cmc-video.
     videos: tuple[str, ...] = ()
-    video_list: str = ""           # a YAML list of {name, file, start} (start optional) beside `videos`
+    video_list: str = ""  # a YAML list of {name, file, start} (start optional) beside `videos`
     # How far a video's start may be off the recording's clock [s]: with videos, the ego-clock fit
     # (fusion.align.max_clock_offset_s) covers it. Videos of one NVR share its clock; videos from
     # recorders with clocks of their own also need cmc.clock.max_offset_s to cover their differences.
@@ -98,8 +138,19 @@ class InputMap:
 
 def is_input_name(topic: str) -> bool:
     """Whether `topic` is one of YOWO's own input names."""
-    return (topic in (*topics.EGO_COLOR, *topics.EGO_DEPTH, topics.EGO_INFO, topics.EGO_IMU, topics.EGO_GYRO,
-                      topics.EGO_ACCEL, topics.EGO_IMU_CALIBRATION) or topics.parse_cmc_topic(topic) is not None)
+    return (
+        topic
+        in (
+            *topics.EGO_COLOR,
+            *topics.EGO_DEPTH,
+            topics.EGO_INFO,
+            topics.EGO_IMU,
+            topics.EGO_GYRO,
+            topics.EGO_ACCEL,
+            topics.EGO_IMU_CALIBRATION,
+        )
+        or topics.parse_cmc_topic(topic) is not None
+    )
 
 
 def parse_remaps(remaps, recorded: set[str]) -> dict[str, str]:
@@ -117,10 +168,12 @@ def parse_remaps(remaps, recorded: set[str]) -> dict[str, str]:
         elif is_input_name(right) and not is_input_name(left):
             name, topic = right, left
         else:
-            raise InputMapError(f"remap '{rule}': exactly one side must be a YOWO input name (/ego/color/image_raw, "
-                                "/ego/depth/image_raw, /ego/color/camera_info, /ego/imu, /ego/gyro/sample, "
-                                "/ego/accel/sample, /cmc/<name>/image_raw[/compressed], /cmc/<name>/camera_info, "
-                                "/cmc/<name>/agent_keypoints)")
+            raise InputMapError(
+                f"remap '{rule}': exactly one side must be a YOWO input name (/ego/color/image_raw, "
+                "/ego/depth/image_raw, /ego/color/camera_info, /ego/imu, /ego/gyro/sample, "
+                "/ego/accel/sample, /cmc/<name>/image_raw[/compressed], /cmc/<name>/camera_info, "
+                "/cmc/<name>/agent_keypoints)"
+            )
         if topic not in recorded:
             raise InputMapError(f"remap '{rule}': the recording has no topic {topic} (see 'yowo info')")
         mapping[name] = topic
@@ -141,15 +194,24 @@ def _ego_candidates(recorded: set[str]) -> list[tuple[DriverLayout, str, dict[st
                 if not topic.endswith(tail):
                     continue
                 ns = topic[: -len(tail)] or "/"
-                depth = [t for t in (_under(ns, layout.depth), _under(ns, layout.depth) + _COMPRESSED["depth"])
-                         if t in recorded]
+                depth = [
+                    t
+                    for t in (_under(ns, layout.depth), _under(ns, layout.depth) + _COMPRESSED["depth"])
+                    if t in recorded
+                ]
                 info = _under(ns, layout.info)
                 if not depth or info not in recorded:
                     continue
-                roles = {topics.EGO_COLOR[1 if suffix else 0]: topic, topics.EGO_INFO: info,
-                         topics.EGO_DEPTH[0 if depth[0] == _under(ns, layout.depth) else 1]: depth[0]}
-                for name, rel in ((topics.EGO_IMU, layout.imu), (topics.EGO_GYRO, layout.gyro),
-                                  (topics.EGO_ACCEL, layout.accel)):
+                roles = {
+                    topics.EGO_COLOR[1 if suffix else 0]: topic,
+                    topics.EGO_INFO: info,
+                    topics.EGO_DEPTH[0 if depth[0] == _under(ns, layout.depth) else 1]: depth[0],
+                }
+                for name, rel in (
+                    (topics.EGO_IMU, layout.imu),
+                    (topics.EGO_GYRO, layout.gyro),
+                    (topics.EGO_ACCEL, layout.accel),
+                ):
                     if rel and _under(ns, rel) in recorded:
                         roles[name] = _under(ns, rel)
                 found.append((layout, ns, roles))
@@ -193,8 +255,10 @@ def map_inputs(recorded_topics, remaps=(), ego_namespace: str = "") -> InputMap:
         if ego_namespace:
             chosen = [c for c in candidates if c[1] == ego_namespace.rstrip("/") or c[1] == ego_namespace]
             if not chosen:
-                out.problems.append(f"inputs.ego_namespace={ego_namespace}: no ego camera under it (found: "
-                                    f"{', '.join(ns for _, ns, _ in candidates) or 'none'})")
+                out.problems.append(
+                    f"inputs.ego_namespace={ego_namespace}: no ego camera under it (found: "
+                    f"{', '.join(ns for _, ns, _ in candidates) or 'none'})"
+                )
         else:
             chosen = candidates
         if len(chosen) == 1:
@@ -203,9 +267,10 @@ def map_inputs(recorded_topics, remaps=(), ego_namespace: str = "") -> InputMap:
             claimed |= set(roles.values())
             out.notes.append(f"ego camera: {layout.driver} under {ns}")
         elif len(chosen) > 1:
-            out.problems.append("ego camera: several candidates; pick one with --set inputs.ego_namespace=NS: " +
-                                "; ".join(f"{layout.driver} under {ns} (--set inputs.ego_namespace={ns})"
-                                          for layout, ns, _ in chosen))
+            out.problems.append(
+                "ego camera: several candidates; pick one with --set inputs.ego_namespace=NS: "
+                + "; ".join(f"{layout.driver} under {ns} (--set inputs.ego_namespace={ns})" for layout, ns, _ in chosen)
+            )
         device_namespaces = [(layout, ns) for layout, ns, _ in candidates]
 
     taken = {topics.parse_cmc_topic(t)[0] for t in own if topics.parse_cmc_topic(t)}
@@ -219,9 +284,14 @@ def map_inputs(recorded_topics, remaps=(), ego_namespace: str = "") -> InputMap:
     for ns, image_topics in sorted(images.items()):
         name = _camera_name(ns, taken)
         taken.add(name)
-        roles = {topics.cmc_topic(name, t[len(ns) + 1:]): t for t in image_topics}
-        roles.update({topics.cmc_topic(name, rel): _under(ns, rel) for rel in _CMC_SIBLINGS
-                      if _under(ns, rel) in recorded - claimed})
+        roles = {topics.cmc_topic(name, t[len(ns) + 1 :]): t for t in image_topics}
+        roles.update(
+            {
+                topics.cmc_topic(name, rel): _under(ns, rel)
+                for rel in _CMC_SIBLINGS
+                if _under(ns, rel) in recorded - claimed
+            }
+        )
         out.roles.update(roles)
         info = "" if topics.cmc_info_topic(name) in roles else ", no camera_info"
         out.notes.append(f"CMC {name}: image namespace {ns}{info}")

@@ -1,5 +1,6 @@
 """The pipeline's algorithms called directly on a recording, without the node graph
 (for the benchmark and scripting). The graph runs the same functions inside nodes."""
+
 from __future__ import annotations
 
 import logging
@@ -28,8 +29,13 @@ def read_cmc_tracks(bag, source: str = "auto", params: CmcParams | None = None) 
     return read_cmc_inputs(bag, source, params, backgrounds=False)[0]
 
 
-def read_cmc_inputs(bag, source: str = "auto", params: CmcParams | None = None, backgrounds: bool = True,
-                    inputs: InputParams | None = None) -> tuple[list[CameraTracks], dict]:
+def read_cmc_inputs(
+    bag,
+    source: str = "auto",
+    params: CmcParams | None = None,
+    backgrounds: bool = True,
+    inputs: InputParams | None = None,
+) -> tuple[list[CameraTracks], dict]:
     """What the keypoint trackers hand on, computed as they do in one pass over the
     recording: the run's plan says each CMC's source, topics and intrinsics, and the same
     yowo_cmc.keypoint_tracker runs on them. Returns each CMC's tracks (its validated frames
@@ -46,14 +52,22 @@ def read_cmc_inputs(bag, source: str = "auto", params: CmcParams | None = None, 
     params = params or CmcParams()
     config = YowoConfig(inputs=replace(inputs or InputParams(), videos=(), video_list=""), cmc=params)
     mode = FULL if backgrounds and discover_inputs(bag, config.inputs).has_ego else CMC
-    specs = [n.parameters for n in plan_run(bag, ".", mode=mode, config=config, source=source).nodes
-             if n.name.startswith("keypoint_tracker_")]
+    specs = [
+        n.parameters
+        for n in plan_run(bag, ".", mode=mode, config=config, source=source).nodes
+        if n.name.startswith("keypoint_tracker_")
+    ]
     trackers, by_topic = {}, {}
     for spec in specs:
         n = spec["camera"]
-        trackers[n] = KeypointTracker(camera=n, source=spec["source"], params=params,
-                                      has_images=bool(spec["image_topic"]), camera_info=spec.get("camera_info", ""),
-                                      nominal=not spec.get("camera_info") and not spec["info_topic"])
+        trackers[n] = KeypointTracker(
+            camera=n,
+            source=spec["source"],
+            params=params,
+            has_images=bool(spec["image_topic"]),
+            camera_info=spec.get("camera_info", ""),
+            nominal=not spec.get("camera_info") and not spec["info_topic"],
+        )
         for role in ("info_topic", "image_topic", "keypoints_topic"):
             if spec[role] and (role != "keypoints_topic" or trackers[n].detector is None):
                 by_topic[spec[role]] = (n, role)
@@ -65,7 +79,7 @@ def read_cmc_inputs(bag, source: str = "auto", params: CmcParams | None = None, 
             if t.wants_camera_info:
                 try:
                     frames[n] += t.take_camera(camera_info_to_model(msg))
-                except ValueError as exc:      # the camera is left out, as the graph does
+                except ValueError as exc:  # the camera is left out, as the graph does
                     t.problem = f"{topic}: {exc}"
                     log.warning("%s; camera '%s' left out", t.problem, n)
         elif role == "keypoints_topic":
@@ -94,20 +108,34 @@ def ego_map_data(ego):
     from yowo_ego.odometry import MEASURED
     from yowo_fusion.pipeline import EgoMapData
 
-    return EgoMapData(ego.camera, ego.stamps_ns, ego.T_world_cam, ego.landmarks, "SIFT", ego.descriptors,
-                      ego.keyframe_frames[ego.obs_keyframe], ego.obs_landmark, ego.obs_uv, ego.cloud_points,
-                      ego.cloud_colors, ego.layout, np.isin(ego.tracking, MEASURED), ego.tracking_fitness, ego.imu,
-                      ego.attitude_held)
+    return EgoMapData(
+        ego.camera,
+        ego.stamps_ns,
+        ego.T_world_cam,
+        ego.landmarks,
+        "SIFT",
+        ego.descriptors,
+        ego.keyframe_frames[ego.obs_keyframe],
+        ego.obs_landmark,
+        ego.obs_uv,
+        ego.cloud_points,
+        ego.cloud_colors,
+        ego.layout,
+        np.isin(ego.tracking, MEASURED),
+        ego.tracking_fitness,
+        ego.imu,
+        ego.attitude_held,
+    )
 
 
 @dataclass
 class OfflineResult:
-    ego: object                     # yowo_ego EgoMapResult
-    grouping: object                # yowo_cmc GroupingResult
-    fusion: object                  # yowo_fusion FusionResult
+    ego: object  # yowo_ego EgoMapResult
+    grouping: object  # yowo_cmc GroupingResult
+    fusion: object  # yowo_fusion FusionResult
     seconds: dict[str, float]
-    tracks: list[CameraTracks]      # the CMC keypoint tracks it used
-    backgrounds: dict               # camera -> agent-free background (RGB), when images were recorded
+    tracks: list[CameraTracks]  # the CMC keypoint tracks it used
+    backgrounds: dict  # camera -> agent-free background (RGB), when images were recorded
 
 
 def process(bag, config: YowoConfig | None = None, source: str = "auto") -> OfflineResult:
@@ -129,8 +157,13 @@ def process(bag, config: YowoConfig | None = None, source: str = "auto") -> Offl
     grouping = calibrate_cmcs_apart(tracks, config.cmc, estimated)
     seconds["cmc"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    fusion = fuse(ego_map_data(ego), grouping.groups, grouping.ungrouped,
-                  {t.name: CmcInput(t, backgrounds.get(t.name), t.name not in estimated) for t in tracks}, config.fusion,
-                  fusion_upstream(config))
+    fusion = fuse(
+        ego_map_data(ego),
+        grouping.groups,
+        grouping.ungrouped,
+        {t.name: CmcInput(t, backgrounds.get(t.name), t.name not in estimated) for t in tracks},
+        config.fusion,
+        fusion_upstream(config),
+    )
     seconds["fusion"] = time.perf_counter() - t0
     return OfflineResult(ego, grouping, fusion, seconds, tracks, backgrounds)

@@ -1,6 +1,7 @@
 """A run's results folder: one run writes into it at a time (a lock), an earlier run's results
 are never taken for this one's (refused, or cleared first when the user says so), and each
 result file appears whole (written aside, then moved into place)."""
+
 from __future__ import annotations
 
 import fcntl
@@ -33,16 +34,19 @@ def claimed_output(out_dir, replace: bool = False):
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             holder = (out / LOCK).read_text().strip() or "another process"
-            raise OutputFolderError(f"{out}: another run ({holder}) is writing into it; wait for it or choose "
-                                    "another folder") from None
+            raise OutputFolderError(
+                f"{out}: another run ({holder}) is writing into it; wait for it or choose another folder"
+            ) from None
         entries = [p for p in out.iterdir() if p.name != LOCK]
         ours = [p for p in entries if p.name in RUN_MARKERS or p.name == STAGING]
         if entries and not ours:
-            raise OutputFolderError(f"{out}: holds files that are not a YOWO run's results; choose an empty or new "
-                                    "folder")
+            raise OutputFolderError(
+                f"{out}: holds files that are not a YOWO run's results; choose an empty or new folder"
+            )
         if entries and not replace:
-            raise OutputFolderError(f"{out}: holds an earlier run's results; pass --replace to remove them first, "
-                                    "or choose another folder")
+            raise OutputFolderError(
+                f"{out}: holds an earlier run's results; pass --replace to remove them first, or choose another folder"
+            )
         for p in entries:
             shutil.rmtree(p) if p.is_dir() and not p.is_symlink() else p.unlink()
         os.ftruncate(fd, 0)

@@ -1,6 +1,7 @@
 """Sampling profiles of the graph's node processes (`yowo run --profile DIR`): one py-spy
 recording per node process (collapsed stacks, flamegraph.pl / speedscope read them) and
 a summary of the functions each node spent its CPU time in. No rclpy here."""
+
 from __future__ import annotations
 
 import shutil
@@ -29,8 +30,19 @@ class NodeProfiler:
 
     def __init__(self, pid: int, path: Path, rate_hz: int, give_up_s: float = ATTACH_GIVE_UP_S):
         self.pid, self.path, self.rate_hz, self.give_up_s = pid, Path(path), rate_hz, give_up_s
-        self.cmd = [py_spy(), "record", "--pid", str(pid), "--format", "raw", "-o", str(self.path),
-                    "--rate", str(rate_hz), "--nonblocking"]     # never pauses the node: its timing stays
+        self.cmd = [
+            py_spy(),
+            "record",
+            "--pid",
+            str(pid),
+            "--format",
+            "raw",
+            "-o",
+            str(self.path),
+            "--rate",
+            str(rate_hz),
+            "--nonblocking",
+        ]  # never pauses the node: its timing stays
         self.error = ""
         self._proc: subprocess.Popen | None = None
         self._stopped = threading.Event()
@@ -45,7 +57,7 @@ class NodeProfiler:
                 self._proc = subprocess.Popen(self.cmd, stdout=out, stderr=subprocess.STDOUT)
             if self._proc.wait() == 0 or not Path(f"/proc/{self.pid}").exists():
                 return
-            if time.monotonic() > give_up:   # e.g. no permission to trace (kernel.yama.ptrace_scope)
+            if time.monotonic() > give_up:  # e.g. no permission to trace (kernel.yama.ptrace_scope)
                 said = log.read_text(errors="replace").strip().splitlines()
                 self.error = f"py-spy could not record pid {self.pid}: {said[0] if said else 'no message'}"
                 return
@@ -95,8 +107,12 @@ def top_functions(stacks: Counter, n: int = 10) -> dict:
         phases[_phase(functions)] += count
         for f in {f for f in functions if "(yowo_" in f and not f.startswith("<module>")}:
             total[f] += count
-    return {"samples": sum(stacks.values()), "phases": phases.most_common(), "own": own.most_common(n),
-            "cumulative": total.most_common(n)}
+    return {
+        "samples": sum(stacks.values()),
+        "phases": phases.most_common(),
+        "own": own.most_common(n),
+        "cumulative": total.most_common(n),
+    }
 
 
 def _share(rows: list[tuple[str, int]], samples: int) -> list[str]:
@@ -106,19 +122,30 @@ def _share(rows: list[tuple[str, int]], samples: int) -> list[str]:
 def summary_markdown(profile_dir: Path, rate_hz: int, n: int = 10) -> str:
     """Per node: its samples (s), the share of imports and of rclpy, and its top functions,
     own and cumulative (project functions)."""
-    lines = [f"# Profile of the graph's nodes (py-spy, {rate_hz} Hz)", "",
-             "Samples where the node was not idle: running, or ready to run and waiting for a core (on a "
-             "loaded machine more than its CPU seconds). Shares are of these samples.", ""]
+    lines = [
+        f"# Profile of the graph's nodes (py-spy, {rate_hz} Hz)",
+        "",
+        "Samples where the node was not idle: running, or ready to run and waiting for a core (on a "
+        "loaded machine more than its CPU seconds). Shares are of these samples.",
+        "",
+    ]
     for path in sorted(Path(profile_dir).glob("*.txt")):
         top = top_functions(read_collapsed(path), n)
         samples = top["samples"]
         if not samples:
             continue
-        lines += [f"## {path.stem}: {samples / rate_hz:.1f} s not idle", "",
-                  "; ".join(f"{phase} {100 * c / samples:.0f} %" for phase, c in top["phases"]), "",
-                  "| own | cumulative (yowo functions) |", "|---|---|"]
+        lines += [
+            f"## {path.stem}: {samples / rate_hz:.1f} s not idle",
+            "",
+            "; ".join(f"{phase} {100 * c / samples:.0f} %" for phase, c in top["phases"]),
+            "",
+            "| own | cumulative (yowo functions) |",
+            "|---|---|",
+        ]
         own, cumulative = _share(top["own"], samples), _share(top["cumulative"], samples)
-        lines += [f"| {own[i] if i < len(own) else ''} | {cumulative[i] if i < len(cumulative) else ''} |"
-                  for i in range(max(len(own), len(cumulative)))]
+        lines += [
+            f"| {own[i] if i < len(own) else ''} | {cumulative[i] if i < len(cumulative) else ''} |"
+            for i in range(max(len(own), len(cumulative)))
+        ]
         lines.append("")
     return "\n".join(lines)

@@ -1,4 +1,5 @@
 """Replay logic without ROS: which topics to play and when (pacing)."""
+
 from __future__ import annotations
 
 import time
@@ -10,13 +11,14 @@ from yowo_common.topics import GT_PREFIX
 @dataclass(frozen=True)
 class ReplayParams:
     """The `replay` section of the configuration tree."""
-    rate: float = 0.0                    # x real time; 0: as fast as the graph keeps up (lossless)
-    lossless: bool = True                # reliable KEEP_ALL + wait for acknowledgements every ack_window
-    ack_window: int = 16                 # messages per topic in flight at most
-    ack_timeout_s: float = 60.0          # a subscriber that acknowledges nothing this long is given up
-    wait_timeout_s: float = 30.0         # for the stages' subscriptions before playing
-    publish_clock: bool = True           # /clock at the recording's time
-    exclude_prefixes: tuple[str, ...] = (GT_PREFIX,)   # never played (ground truth)
+
+    rate: float = 0.0  # x real time; 0: as fast as the graph keeps up (lossless)
+    lossless: bool = True  # reliable KEEP_ALL + wait for acknowledgements every ack_window
+    ack_window: int = 16  # messages per topic in flight at most
+    ack_timeout_s: float = 60.0  # a subscriber that acknowledges nothing this long is given up
+    wait_timeout_s: float = 30.0  # for the stages' subscriptions before playing
+    publish_clock: bool = True  # /clock at the recording's time
+    exclude_prefixes: tuple[str, ...] = (GT_PREFIX,)  # never played (ground truth)
     # After every stage is done: late joiners still get the latched final status (under load
     # the run monitor matched it only after the 1 s this was: the run log lost its counts).
     linger_s: float = 5.0

@@ -13,6 +13,7 @@ its status), playing pauses, and once the replay has discovered the new process'
 subscriptions, it sends that stage's topics again from the start up to where playing
 is, then resumes. Only one stage reads each replayed topic (tracker or ego mapper),
 so nobody else sees the repetition."""
+
 from __future__ import annotations
 
 import heapq
@@ -75,9 +76,9 @@ class ReplayNode(Node):
         # lists their inputs, so each topic waits for exactly its subscribers.
         self.stages = [s for s in self.declare_parameter("stages", [""]).value or [] if s]
         self.run_id = self.declare_parameter("run_id", "").value
-        self.recovered = ""           # what was recovered of a damaged recording
+        self.recovered = ""  # what was recovered of a damaged recording
         self.state, self.error = ReplayStatus.STATE_PLAYING, ""
-        self.start_ns = self.end_ns = 0   # log times of the first and the latest played message
+        self.start_ns = self.end_ns = 0  # log times of the first and the latest played message
         self.include = [t for t in self.include if t]
         self.wait_for = [t for t in self.wait_for if t]
         self.status_pub = self.create_publisher(ReplayStatus, topics.REPLAY_STATUS, LATCHED)
@@ -87,11 +88,12 @@ class ReplayNode(Node):
         self.unacked: dict[str, int] = {}
         self.resent = 0
         self.stage_status: dict[str, StageStatus] = {}
-        self.caught_up: dict[str, int] = {s: 0 for s in self.stages}    # incarnation each stage was served
+        self.caught_up: dict[str, int] = {s: 0 for s in self.stages}  # incarnation each stage was served
         self.runs = RunFilter(self.run_id)
         for stage in self.stages:
-            self.create_subscription(StageStatus, topics.status(stage),
-                                     lambda m, st=stage: self._on_stage_status(st, m), LATCHED)
+            self.create_subscription(
+                StageStatus, topics.status(stage), lambda m, st=stage: self._on_stage_status(st, m), LATCHED
+            )
         self._last_spin = 0.0
 
     def _on_stage_status(self, stage: str, msg: StageStatus) -> None:
@@ -112,12 +114,22 @@ class ReplayNode(Node):
         return QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 
     def _status(self, catch_up: tuple[str, int] = ("", 0)) -> None:
-        self.status_pub.publish(ReplayStatus(
-            catch_up_stage=catch_up[0], catch_up_incarnation=catch_up[1],
-            header=Header(stamp=ns_to_time(self.end_ns)), state=self.state, bag=str(self.bag),
-            bag_start=ns_to_time(self.start_ns), bag_end=ns_to_time(self.end_ns),
-            topics=list(self.counts), published_counts=list(self.counts.values()), error=self.error,
-            run_id=self.run_id, resent_messages=self.resent))
+        self.status_pub.publish(
+            ReplayStatus(
+                catch_up_stage=catch_up[0],
+                catch_up_incarnation=catch_up[1],
+                header=Header(stamp=ns_to_time(self.end_ns)),
+                state=self.state,
+                bag=str(self.bag),
+                bag_start=ns_to_time(self.start_ns),
+                bag_end=ns_to_time(self.end_ns),
+                topics=list(self.counts),
+                published_counts=list(self.counts.values()),
+                error=self.error,
+                run_id=self.run_id,
+                resent_messages=self.resent,
+            )
+        )
 
     def _expected_subscribers(self, deadline: float) -> dict[str, int]:
         """topic -> number of stages that subscribe to it (from their latched status)."""
@@ -140,8 +152,9 @@ class ReplayNode(Node):
         t0 = time.monotonic()
         deadline = t0 + self.wait_timeout_s
         log = self.get_logger()
-        log.info(f"{stage} restarted (incarnation {self.stage_status[stage].incarnation}): waiting for its "
-                 "subscriptions")
+        log.info(
+            f"{stage} restarted (incarnation {self.stage_status[stage].incarnation}): waiting for its subscriptions"
+        )
         while time.monotonic() < deadline:
             status = self.stage_status[stage]
             wanted = [t for t in status.input_topics if t in self.pubs]
@@ -150,8 +163,10 @@ class ReplayNode(Node):
                 break
             rclpy.spin_once(self, timeout_sec=0.05)
         else:
-            log.warning(f"{stage} (restarted) has not matched the replay's topics after "
-                        f"{self.wait_timeout_s:.0f} s; sending anyway")
+            log.warning(
+                f"{stage} (restarted) has not matched the replay's topics after "
+                f"{self.wait_timeout_s:.0f} s; sending anyway"
+            )
         self.caught_up[stage] = status.incarnation
         # The stage takes replayed messages from this announcement on (acknowledged first,
         # so it is in the stage's queue before the first repeated message).
@@ -159,8 +174,9 @@ class ReplayNode(Node):
         if not self.status_pub.wait_for_all_acked(Duration(seconds=self.ack_timeout_s)):
             log.warning(f"{stage}: the catch-up announcement was not acknowledged")
         todo = {t: self.counts[t] for t in wanted if self.counts[t]}
-        log.info(f"{stage}: matched after {time.monotonic() - t0:.1f} s; sending it {sum(todo.values())} messages "
-                 "again")
+        log.info(
+            f"{stage}: matched after {time.monotonic() - t0:.1f} s; sending it {sum(todo.values())} messages again"
+        )
         sent = dict.fromkeys(todo, 0)
         last_status = time.monotonic()
         if todo:
@@ -172,13 +188,15 @@ class ReplayNode(Node):
                 self._publish(raw)
                 sent[raw.topic] += 1
                 self.resent += 1
-                if time.monotonic() - last_status > 1.0:    # progress (not an announcement)
+                if time.monotonic() - last_status > 1.0:  # progress (not an announcement)
                     self._status()
                     last_status = time.monotonic()
             for topic in [t for t, n in self.unacked.items() if n]:
                 self._wait_acked(topic)
-        log.info(f"{stage} restarted (incarnation {status.incarnation}): sent it {sum(sent.values())} messages "
-                 f"again on {', '.join(todo) or 'no topic'} in {time.monotonic() - t0:.1f} s")
+        log.info(
+            f"{stage} restarted (incarnation {status.incarnation}): sent it {sum(sent.values())} messages "
+            f"again on {', '.join(todo) or 'no topic'} in {time.monotonic() - t0:.1f} s"
+        )
 
     def _publish(self, raw) -> None:
         self.pubs[raw.topic].publish(raw.data)
@@ -192,30 +210,32 @@ class ReplayNode(Node):
         them: a message published before a subscription matched would be lost to it."""
         deadline = time.monotonic() + self.wait_timeout_s
         expected = self._expected_subscribers(deadline) if self.stages else {t: 1 for t in self.wait_for}
-        self.timing.mark("announced")        # every stage's status is here (start-up: imports, discovery)
+        self.timing.mark("announced")  # every stage's status is here (start-up: imports, discovery)
         missing = [t for t in expected if t in self.pubs]
         while missing and time.monotonic() < deadline:
             missing = [t for t in missing if self.pubs[t].get_subscription_count() < expected[t]]
             time.sleep(0.05)
         if missing:
-            self.get_logger().warning(f"after {self.wait_timeout_s:.0f} s, not every subscriber is matched on: "
-                                      + ", ".join(f"{t} ({self.pubs[t].get_subscription_count()}/{expected[t]})"
-                                                  for t in missing) + "; playing anyway")
+            self.get_logger().warning(
+                f"after {self.wait_timeout_s:.0f} s, not every subscriber is matched on: "
+                + ", ".join(f"{t} ({self.pubs[t].get_subscription_count()}/{expected[t]})" for t in missing)
+                + "; playing anyway"
+            )
 
     def _wait_acked(self, topic: str) -> None:
         pub = self.pubs[topic]
         t0 = time.monotonic()
         if pub.get_subscription_count() and not pub.wait_for_all_acked(Duration(seconds=self.ack_timeout_s)):
-            self.get_logger().error(f"{topic}: a subscriber did not acknowledge within "
-                                    f"{self.ack_timeout_s:.0f} s; continuing")
+            self.get_logger().error(
+                f"{topic}: a subscriber did not acknowledge within {self.ack_timeout_s:.0f} s; continuing"
+            )
         self.timing.add_seconds(f"ack_wait {topic}", time.monotonic() - t0)
         self.unacked[topic] = 0
 
     def run(self) -> int:
         try:
             self.videos = [probe_video(rule) for rule in self.video_rules]
-            topics = list_topics(self.bag) + [BagTopic(v.topic, "sensor_msgs/msg/Image", v.frames)
-                                              for v in self.videos]
+            topics = list_topics(self.bag) + [BagTopic(v.topic, "sensor_msgs/msg/Image", v.frames) for v in self.videos]
             self.recovered = recording_damage(self.bag)
         except (BagError, VideoError) as exc:
             self.get_logger().error(str(exc))
@@ -225,8 +245,9 @@ class ReplayNode(Node):
         for t in topics:
             if why := unknown_type_reason(t.msgtype):
                 self.get_logger().warning(f"{t.name}: skipped, {why}")
-        played = select_topics([t.name for t in topics if not unknown_type_reason(t.msgtype)],
-                               self.include, self.exclude)
+        played = select_topics(
+            [t.name for t in topics if not unknown_type_reason(t.msgtype)], self.include, self.exclude
+        )
         self.counts = {t: 0 for t in played}
         for t in topics:
             if t.name in played:
@@ -237,9 +258,11 @@ class ReplayNode(Node):
             self.get_logger().warning(self.recovered)
         pacer = Pacer(self.rate)
         last_status = time.monotonic()
-        self.get_logger().info(f"playing {len(played)} topics of {self.bag} at "
-                               f"{'max' if self.rate <= 0 else f'{self.rate:g}x'} speed"
-                               f"{' (lossless)' if self.lossless else ''}")
+        self.get_logger().info(
+            f"playing {len(played)} topics of {self.bag} at "
+            f"{'max' if self.rate <= 0 else f'{self.rate:g}x'} speed"
+            f"{' (lossless)' if self.lossless else ''}"
+        )
         try:
             for raw in played_messages(self.bag, played, self.videos):
                 self._spin_now_and_then()
@@ -269,8 +292,9 @@ class ReplayNode(Node):
             self.timing.write(self.stats_file)
         self._status()
         total = sum(self.counts.values())
-        self.get_logger().info(f"finished: {total} messages published"
-                               + "".join(f"\n  {t}: {n}" for t, n in self.counts.items()))
+        self.get_logger().info(
+            f"finished: {total} messages published" + "".join(f"\n  {t}: {n}" for t, n in self.counts.items())
+        )
         # Late joiners still get the latched status; a stage restarted from now on until
         # every stage is done is sent what it missed.
         end = time.monotonic() + self.linger_s
@@ -281,13 +305,15 @@ class ReplayNode(Node):
         return 0 if total else 2
 
     def _stages_done(self) -> bool:
-        return all(s in self.stage_status and self.stage_status[s].state != StageStatus.STATE_RUNNING
-                   for s in self.stages)
+        return all(
+            s in self.stage_status and self.stage_status[s].state != StageStatus.STATE_RUNNING for s in self.stages
+        )
 
 
 def played_messages(bag, wanted: list[str], videos: list[VideoInput]):
     """The recording's messages on `wanted` topics and the frames of the videos among them, as
     serialised messages in log-time order (a frame's log time is its stamp)."""
+
     def frames(video):
         for stamp_ns, msg in video_images(video):
             yield RawMessage(video.topic, "sensor_msgs/msg/Image", stamp_ns, serialize_message(msg), False)

@@ -4,6 +4,7 @@ verdict, a panel per grouped camera (as kalibr's report gives each target: the
 observed agent keypoints and the reprojected fused track over the camera's
 background, the residual histogram, where in the image the agent was seen), and the
 metrics when ground truth was available. One self-contained file (figures embedded)."""
+
 from __future__ import annotations
 
 import base64
@@ -24,7 +25,7 @@ from .results import pose_sigma  # noqa: E402
 # Verdict colours as CSS hex (matplotlib takes them too): tab:green, tab:orange, tab:red.
 _COLOURS = {"ok": "#2ca02c", "weak": "#ff7f0e", "failed": "#d62728"}
 _UNKNOWN = "#000000"
-FRUSTUM_RANGE_M = 8.0      # how far a corner ray that never meets the floor is drawn
+FRUSTUM_RANGE_M = 8.0  # how far a corner ray that never meets the floor is drawn
 
 
 def floor_footprint(c: RegisteredCmc, floor_z: float = 0.0, max_range_m: float = FRUSTUM_RANGE_M) -> np.ndarray:
@@ -44,7 +45,7 @@ def wall_segments(planes) -> list[np.ndarray]:
     outline along the wall."""
     out = []
     for pl in planes:
-        if pl.kind != 2 or not pl.boundary:       # Plane.KIND_WALL
+        if pl.kind != 2 or not pl.boundary:  # Plane.KIND_WALL
             continue
         xy = np.array([[q.x, q.y] for q in pl.boundary])
         n = np.array(pl.coefficients[:2], float)
@@ -66,20 +67,29 @@ def _ellipse_scale(cameras: list[RegisteredCmc]) -> float:
     return float(max(m * decade for m in (1, 2, 5) if m * decade <= wanted))
 
 
-def top_view_png(cameras: list[RegisteredCmc], ego_xy: np.ndarray | None, floors: list[np.ndarray],
-                 gt_cameras: dict[str, np.ndarray] | None = None, walls: list[np.ndarray] | None = None) -> bytes:
+def top_view_png(
+    cameras: list[RegisteredCmc],
+    ego_xy: np.ndarray | None,
+    floors: list[np.ndarray],
+    gt_cameras: dict[str, np.ndarray] | None = None,
+    walls: list[np.ndarray] | None = None,
+) -> bytes:
     from matplotlib.patches import Ellipse, Polygon
     from matplotlib.path import Path as MplPath
 
     fig, ax = plt.subplots(figsize=(10, 7))
     floor_patches = []
     for poly in floors:
-        floor_patches.append(ax.add_patch(Polygon(poly, closed=True, facecolor="0.92", edgecolor="0.6", lw=1,
-                                                  zorder=0)))
+        floor_patches.append(
+            ax.add_patch(Polygon(poly, closed=True, facecolor="0.92", edgecolor="0.6", lw=1, zorder=0))
+        )
     # The views are drawn on the floor only (a corner ray near the horizon meets the floor
     # plane far beyond the walls).
-    clip = (MplPath.make_compound_path(*[q.get_path().transformed(q.get_patch_transform()) for q in floor_patches])
-            if floor_patches else None)
+    clip = (
+        MplPath.make_compound_path(*[q.get_path().transformed(q.get_patch_transform()) for q in floor_patches])
+        if floor_patches
+        else None
+    )
     for i, seg in enumerate(walls or []):
         ax.plot(*seg.T, color="0.25", lw=3, solid_capstyle="butt", label="walls" if i == 0 else None)
     if ego_xy is not None and len(ego_xy):
@@ -93,8 +103,7 @@ def top_view_png(cameras: list[RegisteredCmc], ego_xy: np.ndarray | None, floors
         extent.append(C[None, :2])
         if c.camera is not None:
             foot = floor_footprint(c)
-            artists = [ax.add_patch(Polygon(foot[:, :2], closed=True, facecolor=col, alpha=0.1, edgecolor=col,
-                                            lw=0.8))]
+            artists = [ax.add_patch(Polygon(foot[:, :2], closed=True, facecolor=col, alpha=0.1, edgecolor=col, lw=0.8))]
             artists += [ax.plot([C[0], q[0]], [C[1], q[1]], color=col, lw=0.6, alpha=0.7)[0] for q in foot]
             if clip is not None:
                 for a in artists:
@@ -103,23 +112,34 @@ def top_view_png(cameras: list[RegisteredCmc], ego_xy: np.ndarray | None, floors
         sig = pose_sigma(c.covariance)
         if sig is not None:
             w, V = np.linalg.eigh(np.asarray(c.covariance)[:2, :2])
-            ax.add_patch(Ellipse(C[:2], *(2 * 3 * scale * np.sqrt(np.clip(w, 0, None))),
-                                 angle=np.degrees(np.arctan2(V[1, 0], V[0, 0])), fill=False, color=col, lw=1.2))
+            ax.add_patch(
+                Ellipse(
+                    C[:2],
+                    *(2 * 3 * scale * np.sqrt(np.clip(w, 0, None))),
+                    angle=np.degrees(np.arctan2(V[1, 0], V[0, 0])),
+                    fill=False,
+                    color=col,
+                    lw=1.2,
+                )
+            )
         ax.annotate(c.name, C[:2], fontsize=7, xytext=(4, 4), textcoords="offset points")
         if gt_cameras and c.name in gt_cameras:
             G = gt_cameras[c.name][:3, 3]
             ax.plot(G[0], G[1], "x", color="k", ms=6)
     if ego_xy is not None and len(ego_xy):
         extent.append(ego_xy)
-    pts = np.vstack(extent) if extent else np.zeros((1, 2))     # nothing to draw: an empty metre around 0
+    pts = np.vstack(extent) if extent else np.zeros((1, 2))  # nothing to draw: an empty metre around 0
     lo, hi = pts.min(axis=0) - 0.5, pts.max(axis=0) + 0.5
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.set_title("top view (map frame): triangles = registered CMCs with their view of the floor, "
-                 f"ellipses = 3-sigma position x {scale:g}" + (", x = ground truth" if gt_cameras else ""), fontsize=9)
+    ax.set_title(
+        "top view (map frame): triangles = registered CMCs with their view of the floor, "
+        f"ellipses = 3-sigma position x {scale:g}" + (", x = ground truth" if gt_cameras else ""),
+        fontsize=9,
+    )
     if ax.get_legend_handles_labels()[0]:
         ax.legend(loc="best", fontsize=8)
     buf = io.BytesIO()
@@ -130,9 +150,11 @@ def top_view_png(cameras: list[RegisteredCmc], ego_xy: np.ndarray | None, floors
 
 
 def _camera_table(cameras: list[RegisteredCmc]) -> str:
-    return ("<table><tr><th>name</th><th>group</th><th>method</th><th>verdict</th><th>position [m]</th>"
-            "<th>1-sigma pos / rot</th><th>RMSE [px]</th><th>agent obs</th><th>scene obs</th><th>reason</th></tr>"
-            f"{_camera_rows(cameras)}</table>")
+    return (
+        "<table><tr><th>name</th><th>group</th><th>method</th><th>verdict</th><th>position [m]</th>"
+        "<th>1-sigma pos / rot</th><th>RMSE [px]</th><th>agent obs</th><th>scene obs</th><th>reason</th></tr>"
+        f"{_camera_rows(cameras)}</table>"
+    )
 
 
 def _camera_rows(cameras: list[RegisteredCmc]) -> str:
@@ -141,17 +163,30 @@ def _camera_rows(cameras: list[RegisteredCmc]) -> str:
         if c.T_world_cam is not None:
             pos = ", ".join(f"{v:.3f}" for v in c.T_world_cam[:3, 3])
             sig = pose_sigma(c.covariance)
-            unc = "unknown" if sig is None else \
-                f"{np.linalg.norm(sig[:3]) * 100:.1f} cm / {np.degrees(np.linalg.norm(sig[3:])):.2f}&deg;"
+            unc = (
+                "unknown"
+                if sig is None
+                else f"{np.linalg.norm(sig[:3]) * 100:.1f} cm / {np.degrees(np.linalg.norm(sig[3:])):.2f}&deg;"
+            )
         else:
             pos = unc = "-"
-        cells = [c.name, c.group or "-", c.method, f'<b style="color:{_COLOURS.get(c.status, _UNKNOWN)}">{c.status}</b>',
-                 pos, unc, f"{c.rmse_px:.2f}", str(c.num_agent), str(c.num_scene), html.escape(c.reason)]
+        cells = [
+            c.name,
+            c.group or "-",
+            c.method,
+            f'<b style="color:{_COLOURS.get(c.status, _UNKNOWN)}">{c.status}</b>',
+            pos,
+            unc,
+            f"{c.rmse_px:.2f}",
+            str(c.num_agent),
+            str(c.num_scene),
+            html.escape(c.reason),
+        ]
         rows.append("<tr>" + "".join(f"<td>{x}</td>" for x in cells) + "</tr>")
     return "\n".join(rows)
 
 
-PANEL_POINTS = 3000           # observations drawn per panel (a random, seeded subset of more)
+PANEL_POINTS = 3000  # observations drawn per panel (a random, seeded subset of more)
 
 
 def agent_fit_png(fit: AgentFit, size: tuple[int, int], background: np.ndarray | None) -> bytes:
@@ -174,8 +209,9 @@ def agent_fit_png(fit: AgentFit, size: tuple[int, int], background: np.ndarray |
     ax.set_xlim(-0.5, w - 0.5)
     ax.set_ylim(h - 0.5, -0.5)
     ax.set_aspect("equal")
-    ax.set_title(f"{fit.name}: agent keypoints" + ("" if background is not None else " (no image recorded)"),
-                 fontsize=9)
+    ax.set_title(
+        f"{fit.name}: agent keypoints" + ("" if background is not None else " (no image recorded)"), fontsize=9
+    )
     ax.legend(loc="lower right", fontsize=7, markerscale=3)
     ax = axes[1]
     if ok.any():
@@ -186,8 +222,14 @@ def agent_fit_png(fit: AgentFit, size: tuple[int, int], background: np.ndarray |
     ax.set_ylabel("observations")
     ax.set_title(f"residuals ({int(ok.sum())} observations)", fontsize=9)
     ax = axes[2]
-    cov = ax.hist2d(fit.observed_uv[ok, 0], fit.observed_uv[ok, 1], bins=(16, max(2, round(16 * h / w))),
-                    range=((0, w), (0, h)), cmap="viridis", cmin=1)
+    cov = ax.hist2d(
+        fit.observed_uv[ok, 0],
+        fit.observed_uv[ok, 1],
+        bins=(16, max(2, round(16 * h / w))),
+        range=((0, w), (0, h)),
+        cmap="viridis",
+        cmin=1,
+    )
     ax.set_xlim(0, w)
     ax.set_ylim(h, 0)
     ax.set_aspect("equal")
@@ -204,21 +246,29 @@ def _panels_html(fits) -> str:
     parts = []
     for fit, size, background in fits:
         png = base64.b64encode(agent_fit_png(fit, size, background)).decode()
-        parts.append(f'<div class="panel" id="panel-{html.escape(fit.name)}"><h3>{html.escape(fit.name)}</h3>'
-                     f'<img src="data:image/png;base64,{png}" alt="{html.escape(fit.name)} agent fit"></div>')
+        parts.append(
+            f'<div class="panel" id="panel-{html.escape(fit.name)}"><h3>{html.escape(fit.name)}</h3>'
+            f'<img src="data:image/png;base64,{png}" alt="{html.escape(fit.name)} agent fit"></div>'
+        )
     return "\n".join(parts)
 
 
 def _metrics_html(metrics: dict) -> str:
     parts = []
-    for key, title in (("registration", "CMC registration (world frame, no alignment)"),
-                       ("relative", "CMC relative pose (KU-aligned per group)")):
+    for key, title in (
+        ("registration", "CMC registration (world frame, no alignment)"),
+        ("relative", "CMC relative pose (KU-aligned per group)"),
+    ):
         if key in metrics:
             s = metrics[key]["summary"]
-            parts.append(f"<h3>{title}</h3><table><tr><th></th><th>avg</th><th>min</th><th>max</th></tr>"
-                         f"<tr><td>eps_pos [m]</td>" + "".join(f"<td>{s[f'pos_{k}']:.4f}</td>" for k in ("avg", "min", "max"))
-                         + "</tr><tr><td>eps_rot [deg]</td>"
-                         + "".join(f"<td>{s[f'rot_{k}']:.3f}</td>" for k in ("avg", "min", "max")) + "</tr></table>")
+            parts.append(
+                f"<h3>{title}</h3><table><tr><th></th><th>avg</th><th>min</th><th>max</th></tr>"
+                f"<tr><td>eps_pos [m]</td>"
+                + "".join(f"<td>{s[f'pos_{k}']:.4f}</td>" for k in ("avg", "min", "max"))
+                + "</tr><tr><td>eps_rot [deg]</td>"
+                + "".join(f"<td>{s[f'rot_{k}']:.3f}</td>" for k in ("avg", "min", "max"))
+                + "</tr></table>"
+            )
     if "ego" in metrics:
         parts.append(f"<p>ego ATE RMSE: {metrics['ego']['ate_rmse_m']:.4f} m ({metrics['ego']['matched']} poses)</p>")
     if "layout" in metrics:
@@ -226,9 +276,19 @@ def _metrics_html(metrics: dict) -> str:
     return "\n".join(parts)
 
 
-def write_report(path: Path, title: str, cameras: list[RegisteredCmc], ego_xy, floors, metrics: dict | None = None,
-                 gt_cameras=None, notes: list[str] | None = None, walls: list[np.ndarray] | None = None,
-                 fits=(), no_cameras: str = "") -> None:
+def write_report(
+    path: Path,
+    title: str,
+    cameras: list[RegisteredCmc],
+    ego_xy,
+    floors,
+    metrics: dict | None = None,
+    gt_cameras=None,
+    notes: list[str] | None = None,
+    walls: list[np.ndarray] | None = None,
+    fits=(),
+    no_cameras: str = "",
+) -> None:
     """`fits`: (AgentFit, (width, height), background RGB or None) per grouped camera;
     `no_cameras`: why the run registered none (an ego-only run), shown instead of the table."""
     png = base64.b64encode(top_view_png(cameras, ego_xy, floors, gt_cameras, walls)).decode()

@@ -1,6 +1,7 @@
 """The results directory of a run: writers and readers of cameras.yaml,
 ego_trajectory.tum (yowo_common.trajectory), map.ply and layout.json (map_ego.ply and
 layout_ego.json: the ego stage's, before joint optimisation)."""
+
 from __future__ import annotations
 
 import json
@@ -17,8 +18,10 @@ from yowo_fusion.pipeline import RegisteredCmc
 
 
 def pose_entry(T: np.ndarray) -> dict:
-    return {"position": [round(float(v), 9) for v in T[:3, 3]],
-            "orientation_xyzw": [round(float(v), 9) for v in quat_xyzw_from_rotation(T[:3, :3])]}
+    return {
+        "position": [round(float(v), 9) for v in T[:3, 3]],
+        "orientation_xyzw": [round(float(v), 9) for v in quat_xyzw_from_rotation(T[:3, :3])],
+    }
 
 
 def pose_from_entry(entry: dict) -> np.ndarray:
@@ -43,18 +46,26 @@ def clock_entry(name: str, group: CameraGroupResult | None, camera: RegisteredCm
     the camera's group reference from the agent's motion (yowo_cmc.clock)."""
     entry = dict(CLOCK_ENTRY)
     if camera is not None and camera.clock_offset_s is not None:
-        entry = {"clock_offset_s": round(camera.clock_offset_s, 6), "clock_sigma_s": round(camera.clock_sigma_s, 6),
-                 "clock": f"this camera's clock minus the ego camera's, from {camera.clock_note}; applied"}
+        entry = {
+            "clock_offset_s": round(camera.clock_offset_s, 6),
+            "clock_sigma_s": round(camera.clock_sigma_s, 6),
+            "clock": f"this camera's clock minus the ego camera's, from {camera.clock_note}; applied",
+        }
     elif camera is not None and camera.clock_note:
         entry["clock"] = f"assumed synchronised with the ego camera: {camera.clock_note}"
     if group is not None and name in group.clock_offsets_s:
         entry["clock_offset_to_group_reference_s"] = {
-            "offset_s": round(group.clock_offsets_s[name], 6), "sigma_s": round(group.clock_sigmas_s[name], 6),
+            "offset_s": round(group.clock_offsets_s[name], 6),
+            "sigma_s": round(group.clock_sigmas_s[name], 6),
             "reference_camera": group.reference,
             "applied": group.clocks_applied,
             "note": "this camera's clock minus the reference camera's, from the agent's motion; "
-                    + ("the group was calibrated on stamps corrected by it" if group.clocks_applied
-                       else "reported, not applied to the stamps")}
+            + (
+                "the group was calibrated on stamps corrected by it"
+                if group.clocks_applied
+                else "reported, not applied to the stamps"
+            ),
+        }
     return entry
 
 
@@ -62,12 +73,21 @@ def intrinsics_entry(camera: CameraModel | None) -> dict:
     """The intrinsics a camera was registered with: its CameraInfo's (None: no CameraInfo
     arrived), or those its group SfM estimated (intrinsics.EstimatedCamera) with their sigmas."""
     if camera is None:
-        return {"image_width": None, "image_height": None, "K": None, "distortion_model": None,
-                "distortion_coefficients": None}
-    entry = {"image_width": int(camera.width), "image_height": int(camera.height),
-             "K": np.asarray(camera.K).round(6).tolist(), "distortion_model": camera.distortion_model,
-             "distortion_coefficients": [round(float(v), 9) for v in camera.D],
-             "intrinsics_estimated": isinstance(camera, EstimatedCamera)}
+        return {
+            "image_width": None,
+            "image_height": None,
+            "K": None,
+            "distortion_model": None,
+            "distortion_coefficients": None,
+        }
+    entry = {
+        "image_width": int(camera.width),
+        "image_height": int(camera.height),
+        "K": np.asarray(camera.K).round(6).tolist(),
+        "distortion_model": camera.distortion_model,
+        "distortion_coefficients": [round(float(v), 9) for v in camera.D],
+        "intrinsics_estimated": isinstance(camera, EstimatedCamera),
+    }
     if isinstance(camera, EstimatedCamera):
         entry["focal_sigma_px"] = round(camera.focal_sigma_px, 4)
         entry["k1_sigma"] = round(camera.k1_sigma, 6) if np.isfinite(camera.k1_sigma) else None
@@ -84,17 +104,24 @@ def group_intrinsics(camera: CameraModel | None, group: CameraGroupResult | None
 def keypoint_noise_entry(group: CameraGroupResult | None) -> dict:
     """The pixel noise the camera's group bundle adjustment estimated (one per keypoint class, listed per id)."""
     if group is None or not group.sigma_px_by_id:
-        why = ("the camera is in no group" if group is None else
-               f"group {group.group_id}'s bundle adjustment estimated none (cmc.sfm.class_sigma off, or too few "
-               "observations per keypoint class)")
+        why = (
+            "the camera is in no group"
+            if group is None
+            else f"group {group.group_id}'s bundle adjustment estimated none (cmc.sfm.class_sigma off, or too few "
+            "observations per keypoint class)"
+        )
         return {"keypoint_noise": None, "keypoint_noise_note": f"not estimated: {why}"}
     sigma = dict(sorted(group.sigma_px_by_id.items()))
     values = np.array(list(sigma.values()))
-    return {"keypoint_noise": {
-        "estimated_by": f"group {group.group_id} bundle adjustment, one sigma per keypoint class (shared by its cameras)",
-        "sigma_px_by_keypoint_id": {int(i): round(float(v), 4) for i, v in sigma.items()},
-        "median_px": round(float(np.median(values)), 4), "min_px": round(float(values.min()), 4),
-        "max_px": round(float(values.max()), 4)}}
+    return {
+        "keypoint_noise": {
+            "estimated_by": f"group {group.group_id} bundle adjustment, one sigma per keypoint class (shared by its cameras)",
+            "sigma_px_by_keypoint_id": {int(i): round(float(v), 4) for i, v in sigma.items()},
+            "median_px": round(float(np.median(values)), 4),
+            "min_px": round(float(values.min()), 4),
+            "max_px": round(float(values.max()), 4),
+        }
+    }
 
 
 def write_cameras_yaml(path: Path, cameras: list[RegisteredCmc], groups: list[CameraGroupResult] = ()) -> None:
@@ -109,13 +136,21 @@ def write_cameras_yaml(path: Path, cameras: list[RegisteredCmc], groups: list[Ca
             entry["T_world_camera"] = pose_entry(c.T_world_cam)
             sig = pose_sigma(c.covariance)
             entry["covariance"] = np.asarray(c.covariance).round(12).tolist() if sig is not None else None
-            entry["sigma"] = "unknown (see reason)" if sig is None else {
-                "position_m": sig[:3].round(5).tolist(), "rotation_deg": np.degrees(sig[3:]).round(4).tolist()}
-        entry.update({**intrinsics_entry(group_intrinsics(c.camera, group_by_id.get(c.group), c.name)),
-                      **clock_entry(c.name, group_by_id.get(c.group), c),
-                      **keypoint_noise_entry(group_by_id.get(c.group)),
-                      "reprojection_rmse_px": round(float(c.rmse_px), 4),
-                      "num_agent_observations": int(c.num_agent), "num_scene_observations": int(c.num_scene)})
+            entry["sigma"] = (
+                "unknown (see reason)"
+                if sig is None
+                else {"position_m": sig[:3].round(5).tolist(), "rotation_deg": np.degrees(sig[3:]).round(4).tolist()}
+            )
+        entry.update(
+            {
+                **intrinsics_entry(group_intrinsics(c.camera, group_by_id.get(c.group), c.name)),
+                **clock_entry(c.name, group_by_id.get(c.group), c),
+                **keypoint_noise_entry(group_by_id.get(c.group)),
+                "reprojection_rmse_px": round(float(c.rmse_px), 4),
+                "num_agent_observations": int(c.num_agent),
+                "num_scene_observations": int(c.num_scene),
+            }
+        )
         out.append(entry)
     path.write_text(yaml.safe_dump({"frame": "map", "cameras": out}, sort_keys=False))
 
@@ -123,16 +158,29 @@ def write_cameras_yaml(path: Path, cameras: list[RegisteredCmc], groups: list[Ca
 def write_no_cameras_yaml(path: Path, why: str, problems: list[str]) -> None:
     """cameras.yaml of a run that registered no camera (an ego-only run): says so, why, and
     what is wrong with each CMC of the recording, instead of leaving the file out."""
-    path.write_text(yaml.safe_dump({"frame": "map", "registered": 0, "note": f"no cameras registered: {why}",
-                                    "cmc_problems": list(problems), "cameras": []}, sort_keys=False))
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "frame": "map",
+                "registered": 0,
+                "note": f"no cameras registered: {why}",
+                "cmc_problems": list(problems),
+                "cameras": [],
+            },
+            sort_keys=False,
+        )
+    )
 
 
 def read_camera_poses(path: Path) -> dict[str, np.ndarray]:
     """The pose of every camera in a cameras.yaml: T_world_camera of a full run, or
     T_group_camera of a CMC-only calibration."""
     doc = yaml.safe_load(Path(path).read_text())
-    return {c["name"]: pose_from_entry(c.get("T_world_camera") or c["T_group_camera"])
-            for c in doc["cameras"] if "T_world_camera" in c or "T_group_camera" in c}
+    return {
+        c["name"]: pose_from_entry(c.get("T_world_camera") or c["T_group_camera"])
+        for c in doc["cameras"]
+        if "T_world_camera" in c or "T_group_camera" in c
+    }
 
 
 def write_ply(path: Path, xyz: np.ndarray, rgb: np.ndarray | None = None) -> None:
@@ -154,12 +202,21 @@ def write_ply(path: Path, xyz: np.ndarray, rgb: np.ndarray | None = None) -> Non
 def write_layout_json(path: Path, layout) -> None:
     """yowo_msgs/SceneLayout -> layout.json (planes and floor polygons in `map`)."""
     kinds = {0: "other", 1: "floor", 2: "wall", 3: "ceiling"}
-    doc = {"frame": "map", "floor_height": layout.floor_height,
-           "ceiling_height": None if not np.isfinite(layout.ceiling_height) else layout.ceiling_height,
-           "floor_polygons": [[[p.x, p.y] for p in poly.points] for poly in layout.floor_polygons],
-           "planes": [{"kind": kinds.get(p.kind, "other"), "coefficients": list(p.coefficients),
-                       "boundary": [[q.x, q.y, q.z] for q in p.boundary], "num_points": p.num_points}
-                      for p in layout.planes]}
+    doc = {
+        "frame": "map",
+        "floor_height": layout.floor_height,
+        "ceiling_height": None if not np.isfinite(layout.ceiling_height) else layout.ceiling_height,
+        "floor_polygons": [[[p.x, p.y] for p in poly.points] for poly in layout.floor_polygons],
+        "planes": [
+            {
+                "kind": kinds.get(p.kind, "other"),
+                "coefficients": list(p.coefficients),
+                "boundary": [[q.x, q.y, q.z] for q in p.boundary],
+                "num_points": p.num_points,
+            }
+            for p in layout.planes
+        ],
+    }
     Path(path).write_text(json.dumps(doc, indent=1))
 
 

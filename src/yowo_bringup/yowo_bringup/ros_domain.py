@@ -4,6 +4,7 @@ a ROS domain that no other YOWO run on this host holds (an exclusive lock on
 and where no DDS participant of anybody else listens (its discovery ports are free),
 with localhost-only discovery. Live runs and split multi-host runs share the user's
 domain. No rclpy here: the environment is set before the DDS starts."""
+
 from __future__ import annotations
 
 import fcntl
@@ -50,16 +51,19 @@ def domain_in_use(domain: int) -> bool:
 @dataclass
 class GraphNetwork:
     """The DDS settings of a run: the environment of its processes and what the user is told."""
+
     domain_id: int
     private: bool
-    discovery: str                        # ROS_AUTOMATIC_DISCOVERY_RANGE in effect
+    discovery: str  # ROS_AUTOMATIC_DISCOVERY_RANGE in effect
     env: dict = field(repr=False, default_factory=dict)
     _lock_fd: int | None = field(default=None, repr=False)
 
     def describe(self) -> str:
         if self.private:
-            return (f"private ROS domain {self.domain_id}, discovery {self.discovery.lower()} only "
-                    "(--domain shared to join your ROS graph)")
+            return (
+                f"private ROS domain {self.domain_id}, discovery {self.discovery.lower()} only "
+                "(--domain shared to join your ROS graph)"
+            )
         return f"ROS_DOMAIN_ID={self.domain_id}, discovery range {self.discovery.lower()}"
 
     def release(self) -> None:
@@ -68,8 +72,9 @@ class GraphNetwork:
             self._lock_fd = None
 
 
-def claim_private_domain(exclude: set[int] = frozenset(), candidates: range = range(1, MAX_DOMAIN_ID + 1),
-                         rng: random.Random | None = None) -> tuple[int, int]:
+def claim_private_domain(
+    exclude: set[int] = frozenset(), candidates: range = range(1, MAX_DOMAIN_ID + 1), rng: random.Random | None = None
+) -> tuple[int, int]:
     """(domain id, lock fd): a domain no YOWO run on this host holds and nobody's DDS
     listens on; the lock is held until the fd is closed or the process ends."""
     domains = [d for d in candidates if d not in exclude]
@@ -78,7 +83,7 @@ def claim_private_domain(exclude: set[int] = frozenset(), candidates: range = ra
         try:
             fd = os.open(_lock_path(domain), os.O_RDWR | os.O_CREAT, 0o666)
         except OSError:
-            continue                                    # another user's lock file
+            continue  # another user's lock file
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -88,8 +93,10 @@ def claim_private_domain(exclude: set[int] = frozenset(), candidates: range = ra
             os.close(fd)
             continue
         return domain, fd
-    raise NoFreeDomain(f"no free ROS domain on this host: all of {candidates.start}-{candidates.stop - 1} are "
-                       "held by other YOWO runs or used by other DDS participants")
+    raise NoFreeDomain(
+        f"no free ROS domain on this host: all of {candidates.start}-{candidates.stop - 1} are "
+        "held by other YOWO runs or used by other DDS participants"
+    )
 
 
 def graph_network(domain: str | int = PRIVATE, base_env: dict | None = None) -> GraphNetwork:

@@ -1,5 +1,6 @@
 """Plan a run from a recording (which nodes, with which parameters) and write the
 results directory. No rclpy here: graph_runner.py executes the plan."""
+
 from __future__ import annotations
 
 import fnmatch
@@ -44,22 +45,22 @@ MIN_GROUP_CMCS = 2
 
 @dataclass
 class RunPlan:
-    bag: Path | None                       # None: live operation on camera topics
+    bag: Path | None  # None: live operation on camera topics
     out_dir: Path
-    mode: str                              # "cmc": relative calibration only; "full": registered in the map;
-                                           # "ego": the map alone (a recording without usable CMCs)
+    mode: str  # "cmc": relative calibration only; "full": registered in the map;
+    # "ego": the map alone (a recording without usable CMCs)
     cameras: list[str]
     nodes: list[NodeSpec]
     final_stage: str
-    outputs: dict[str, str] = field(default_factory=dict)   # latched topic -> type the runner collects
+    outputs: dict[str, str] = field(default_factory=dict)  # latched topic -> type the runner collects
     warnings: list[str] = field(default_factory=list)
-    run_id: str = ""                       # in every status: nodes ignore other runs' (see ros_domain.py)
+    run_id: str = ""  # in every status: nodes ignore other runs' (see ros_domain.py)
     local: list[str] = field(default_factory=lambda: ["*"])  # patterns of the nodes this host starts
     config: YowoConfig = field(default_factory=YowoConfig)
-    replay_messages: int = 0               # what the replay will publish (0: live)
-    mode_reason: str = ""                  # why the run is in its mode when the user did not choose it
-    cmc_problems: list[str] = field(default_factory=list)   # why each CMC of the recording is not used
-    inputs: dict = field(default_factory=dict)             # which recorded topics fill which role, the IMU's source
+    replay_messages: int = 0  # what the replay will publish (0: live)
+    mode_reason: str = ""  # why the run is in its mode when the user did not choose it
+    cmc_problems: list[str] = field(default_factory=list)  # why each CMC of the recording is not used
+    inputs: dict = field(default_factory=dict)  # which recorded topics fill which role, the IMU's source
 
     @property
     def stages(self) -> list[str]:
@@ -79,8 +80,15 @@ class RunPlan:
         count = self.config.supervisor.tracker_processes
         if not count or len(trackers) <= count:
             return nodes
-        hosts = [NodeSpec(f"keypoint_trackers_{i}", trackers[0].module, niceness=trackers[0].niceness,
-                          hosted=[t.name for t in trackers[i::count]]) for i in range(count)]
+        hosts = [
+            NodeSpec(
+                f"keypoint_trackers_{i}",
+                trackers[0].module,
+                niceness=trackers[0].niceness,
+                hosted=[t.name for t in trackers[i::count]],
+            )
+            for i in range(count)
+        ]
         first = nodes.index(trackers[0])
         others = [n for n in nodes if n not in trackers]
         return others[:first] + hosts + others[first:]
@@ -91,8 +99,9 @@ class RunPlan:
             return
         unknown = [p for p in patterns if not any(fnmatch.fnmatchcase(n.name, p) for n in self.nodes)]
         if unknown:
-            raise ValueError(f"--nodes {' '.join(unknown)}: no such node in this run "
-                             f"({', '.join(n.name for n in self.nodes)})")
+            raise ValueError(
+                f"--nodes {' '.join(unknown)}: no such node in this run ({', '.join(n.name for n in self.nodes)})"
+            )
         self.local = list(patterns)
 
 
@@ -100,8 +109,16 @@ def launch_nodes(plan: RunPlan) -> list[dict]:
     """launch_ros.actions.Node keyword arguments of every node of the plan (the launch
     file's graph is the one `yowo run` starts: a process per node, its entry point named
     after its module)."""
-    return [{"package": spec.module.split(".")[0], "executable": spec.module.split(".")[1], "name": spec.name,
-             "parameters": [dict(spec.parameters)], "output": "screen"} for spec in plan.nodes]
+    return [
+        {
+            "package": spec.module.split(".")[0],
+            "executable": spec.module.split(".")[1],
+            "name": spec.name,
+            "parameters": [dict(spec.parameters)],
+            "output": "screen",
+        }
+        for spec in plan.nodes
+    ]
 
 
 def new_run_id() -> str:
@@ -126,12 +143,12 @@ def _stamp_run(nodes: list[NodeSpec], run_id: str, replayed: bool, config: YowoC
 @dataclass
 class RunOutcome:
     files: list[Path]
-    cameras: list                          # RegisteredCmc (full) or CameraGroupResult (cmc)
+    cameras: list  # RegisteredCmc (full) or CameraGroupResult (cmc)
     ungrouped: dict[str, str]
     published: dict[str, int]
     received: dict[str, dict[str, int]]
-    mode: str = FULL                       # the plan's (a full run without usable CMCs is an ego run)
-    failure: str = ""                      # why the run failed ('' when it did not)
+    mode: str = FULL  # the plan's (a full run without usable CMCs is an ego run)
+    failure: str = ""  # why the run failed ('' when it did not)
 
 
 def _first_present(candidates, present: set[str]) -> str:
@@ -155,8 +172,9 @@ def cmc_source(name: str, present: set[str], preference: str = "auto") -> tuple[
     return ("keypoints", keypoints, image) if keypoints else ("", "", "")
 
 
-def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, source: str = "auto",
-             run_id: str | None = None) -> RunPlan:
+def plan_run(
+    bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, source: str = "auto", run_id: str | None = None
+) -> RunPlan:
     """Nodes for a recording. `config`: the configuration tree (defaults when None);
     `source`: where CMC agent keypoints come from (auto, keypoints or images); `run_id`:
     the same on every host of a split run (a new one by default)."""
@@ -166,27 +184,34 @@ def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, s
     present = set(imap.roles)
     problems = list(inputs.problems)
     if not present:
-        raise ValueError(f"{bag}: the recording holds no messages YOWO reads"
-                         + (f" ({'; '.join(problems)})" if problems else ""))
+        raise ValueError(
+            f"{bag}: the recording holds no messages YOWO reads" + (f" ({'; '.join(problems)})" if problems else "")
+        )
     if mode == FULL and not inputs.has_ego:
-        raise ValueError(f"{bag}: no complete ego camera ({'; '.join(p for p in problems if 'ego' in p)}); "
-                         "use 'yowo calibrate-cmc' for the CMC-only relative calibration")
+        raise ValueError(
+            f"{bag}: no complete ego camera ({'; '.join(p for p in problems if 'ego' in p)}); "
+            "use 'yowo calibrate-cmc' for the CMC-only relative calibration"
+        )
     trackers, played, cameras = [], [], []
     for c in inputs.cmc_names:
         kind, keypoints, image = cmc_source(c, present, source)
         if not kind:
             wanted = {"keypoints": cmc_keypoints_topic(c), "images": " or ".join(cmc_image_topics(c))}
             wanted["pose"] = wanted["images"]
-            problems.append(f"CMC '{c}': no {wanted.get(source, wanted['keypoints'] + ' or images')}; "
-                            "the camera is skipped")
+            problems.append(
+                f"CMC '{c}': no {wanted.get(source, wanted['keypoints'] + ' or images')}; the camera is skipped"
+            )
             continue
         # External keypoints use images only for the background (scene keypoints: full runs) and the
         # image size of a camera whose intrinsics are estimated.
         image = image if kind in ("images", "pose") or mode == FULL or c in inputs.estimated_intrinsics else ""
         cameras.append(c)
         # info_topic "": no CameraInfo (intrinsics from `camera_info`, a file's, or estimated).
-        roles = {"image_topic": imap.recorded(image), "info_topic": imap.recorded(cmc_info_topic(c)),
-                 "keypoints_topic": imap.recorded(keypoints)}
+        roles = {
+            "image_topic": imap.recorded(image),
+            "info_topic": imap.recorded(cmc_info_topic(c)),
+            "keypoints_topic": imap.recorded(keypoints),
+        }
         played += [t for t in roles.values() if t]
         if c in inputs.intrinsics_files:
             roles["info_topic"], roles["camera_info"] = "", intrinsics_text(inputs.intrinsics_files[c], c)
@@ -194,13 +219,18 @@ def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, s
     cmc_problems = [p for p in problems if p.startswith("CMC ")]
     mode, reason = _mode_for(mode, cameras, inputs.cmc_names, cmc_problems)
     if mode == CMC and len(cameras) < MIN_GROUP_CMCS:
-        raise ValueError(f"{bag}: {len(cameras)} usable CMC(s) with agent keypoints or images; needs at least "
-                         f"{MIN_GROUP_CMCS}" + (f" ({'; '.join(cmc_problems)})" if cmc_problems else ""))
+        raise ValueError(
+            f"{bag}: {len(cameras)} usable CMC(s) with agent keypoints or images; needs at least "
+            f"{MIN_GROUP_CMCS}" + (f" ({'; '.join(cmc_problems)})" if cmc_problems else "")
+        )
     if mode == FULL and len(cameras) < MIN_GROUP_CMCS:
-        problems.append(f"only one usable CMC ({cameras[0]}): a single camera forms no group; it is registered "
-                        "as an isolated camera from the agent track the ego trajectory implies")
-    ego = tuple(imap.recorded(n) for n in (_first_present(EGO_COLOR, present), _first_present(EGO_DEPTH, present),
-                                            EGO_INFO))
+        problems.append(
+            f"only one usable CMC ({cameras[0]}): a single camera forms no group; it is registered "
+            "as an isolated camera from the agent track the ego trajectory implies"
+        )
+    ego = tuple(
+        imap.recorded(n) for n in (_first_present(EGO_COLOR, present), _first_present(EGO_DEPTH, present), EGO_INFO)
+    )
     summary = {"layout": list(imap.notes), "mapping": {n: t for n, t in sorted(imap.roles.items()) if n != t}}
     imu_params: dict[str, str] = {}
     if mode in (FULL, EGO):
@@ -210,19 +240,45 @@ def plan_run(bag, out_dir, mode: str = FULL, config: YowoConfig | None = None, s
     nodes, final, outputs = _stage_nodes(mode, trackers, ego, imu_params, estimated)
     if inputs.videos:
         config = _video_clock_search(config)
-        summary["videos"] = {v.camera: {"file": str(v.path), "start_s": round(v.start_ns / 1e9, 9),
-                                        "start_from": v.start_from} for v in inputs.videos}
+        summary["videos"] = {
+            v.camera: {"file": str(v.path), "start_s": round(v.start_ns / 1e9, 9), "start_from": v.start_from}
+            for v in inputs.videos
+        }
     # The replay waits for the stages that read its topics (the others match late: their
     # inputs are durable), not for the slowest process of the graph to start.
     readers = [n.name for n in nodes if n.module not in DOWNSTREAM]
-    nodes.append(NodeSpec("replay", STAGE_MODULES["replay"], {  # last: it waits for the stages' subscriptions
-        "bag": str(bag), "topics": played, "wait_for_topics": played, "stages": readers,
-        **({"videos": [v.rule for v in inputs.videos]} if inputs.videos else {})}))
+    nodes.append(
+        NodeSpec(
+            "replay",
+            STAGE_MODULES["replay"],
+            {  # last: it waits for the stages' subscriptions
+                "bag": str(bag),
+                "topics": played,
+                "wait_for_topics": played,
+                "stages": readers,
+                **({"videos": [v.rule for v in inputs.videos]} if inputs.videos else {}),
+            },
+        )
+    )
     run_id = run_id or new_run_id()
     _stamp_run(nodes, run_id, True, config)
     total = sum(t.count for t in inputs.topics if t.name in played)
-    return RunPlan(Path(bag), Path(out_dir), mode, cameras, nodes, final, outputs, problems, run_id, config=config,
-                   replay_messages=total, mode_reason=reason, cmc_problems=cmc_problems, inputs=summary)
+    return RunPlan(
+        Path(bag),
+        Path(out_dir),
+        mode,
+        cameras,
+        nodes,
+        final,
+        outputs,
+        problems,
+        run_id,
+        config=config,
+        replay_messages=total,
+        mode_reason=reason,
+        cmc_problems=cmc_problems,
+        inputs=summary,
+    )
 
 
 def intrinsics_text(path: str, camera: str) -> str:
@@ -259,12 +315,21 @@ def plan_ego_imu(bag, imap, config: YowoConfig, color_topic: str) -> tuple[dict[
     recorded_cal = imap.recorded(topics.EGO_IMU_CALIBRATION)
     cfg = config.inputs
     if recorded_cal and not cfg.imu_camchain and not cfg.imu_noise:
-        return ({**stream, "imu_calibration_topic": recorded_cal},
-                {"used": True, **where, "extrinsics": recorded_cal, "noise": recorded_cal})
+        return (
+            {**stream, "imu_calibration_topic": recorded_cal},
+            {"used": True, **where, "extrinsics": recorded_cal, "noise": recorded_cal},
+        )
     camera_frame, imu_frame, rate_hz, tf_edges = recorded_frames(bag, color_topic, united or gyro)
-    found = resolve_imu(camchain=cfg.imu_camchain, imu_yaml=cfg.imu_noise, defaults=cfg.imu_noise_defaults,
-                        rate_hz=rate_hz, camera_frame=camera_frame, imu_frame=imu_frame, tf_edges=tf_edges,
-                        camera_topic=color_topic)
+    found = resolve_imu(
+        camchain=cfg.imu_camchain,
+        imu_yaml=cfg.imu_noise,
+        defaults=cfg.imu_noise_defaults,
+        rate_hz=rate_hz,
+        camera_frame=camera_frame,
+        imu_frame=imu_frame,
+        tf_edges=tf_edges,
+        camera_topic=color_topic,
+    )
     if not found.calibration_yaml:
         return {}, {**where, **found.describe()}
     return {**stream, "imu_calibration": found.calibration_yaml}, {**where, **found.describe()}
@@ -280,8 +345,9 @@ def recorded_frames(bag, color_topic: str, imu_topic: str, samples: int = 200):
     for topic, log_ns, msg in read_messages(bag, [color_topic, imu_topic, topics.TF_STATIC]):
         first_ns = log_ns if first_ns is None else first_ns
         if topic == topics.TF_STATIC:
-            edges += [(tf.header.frame_id, tf.child_frame_id, transform_to_matrix(tf.transform))
-                      for tf in msg.transforms]
+            edges += [
+                (tf.header.frame_id, tf.child_frame_id, transform_to_matrix(tf.transform)) for tf in msg.transforms
+            ]
         elif topic == color_topic:
             camera_frame = camera_frame or msg.header.frame_id
         else:
@@ -306,18 +372,26 @@ def _mode_for(mode: str, cameras: list[str], found: list[str], cmc_problems: lis
     return EGO, "no usable CMC: " + "; ".join(cmc_problems or ["none of the recording's CMCs can be used"])
 
 
-def plan_live(cameras: list[str], out_dir, mode: str = FULL, source: str = "keypoints",
-              image_topic: str = "image_raw/compressed", ego_topics: tuple[str, str, str] = (
-                  EGO_COLOR[1], EGO_DEPTH[0], EGO_INFO), config: YowoConfig | None = None,
-              run_id: str | None = None) -> RunPlan:
+def plan_live(
+    cameras: list[str],
+    out_dir,
+    mode: str = FULL,
+    source: str = "keypoints",
+    image_topic: str = "image_raw/compressed",
+    ego_topics: tuple[str, str, str] = (EGO_COLOR[1], EGO_DEPTH[0], EGO_INFO),
+    config: YowoConfig | None = None,
+    run_id: str | None = None,
+) -> RunPlan:
     """Nodes for live operation on camera topics (no recording): the same graph without
     the replay; the stages finalise when `yowo end-walk` announces the end of the walk."""
     if len(cameras) < 2:
         raise ValueError(f"live run: {len(cameras)} CMC(s) given; needs at least 2")
     if source not in CMC_SOURCES[1:]:
         raise ValueError(f"live run: CMC keypoint source '{source}' ({', '.join(CMC_SOURCES[1:])})")
-    trackers = [(c, source, {"image_topic": topics.cmc_topic(c, image_topic) if source != "keypoints" or mode == FULL
-                             else ""}) for c in cameras]
+    trackers = [
+        (c, source, {"image_topic": topics.cmc_topic(c, image_topic) if source != "keypoints" or mode == FULL else ""})
+        for c in cameras
+    ]
     config = config or YowoConfig()
     nodes, final, outputs = _stage_nodes(mode, trackers, ego_topics)
     run_id = run_id or new_run_id()
@@ -326,25 +400,34 @@ def plan_live(cameras: list[str], out_dir, mode: str = FULL, source: str = "keyp
 
 
 # What the ego mapper publishes at the end of the walk (latched), collected by every run with a map.
-EGO_OUTPUTS = {topics.EGO_MAP: "yowo_msgs/msg/EgoMap", topics.EGO_PATH: "nav_msgs/msg/Path",
-               topics.LAYOUT: "yowo_msgs/msg/SceneLayout", topics.MAP_POINTS: "sensor_msgs/msg/PointCloud2"}
+EGO_OUTPUTS = {
+    topics.EGO_MAP: "yowo_msgs/msg/EgoMap",
+    topics.EGO_PATH: "nav_msgs/msg/Path",
+    topics.LAYOUT: "yowo_msgs/msg/SceneLayout",
+    topics.MAP_POINTS: "sensor_msgs/msg/PointCloud2",
+}
 
 
-def _stage_nodes(mode: str, trackers: list[tuple[str, str, dict[str, str]]], ego: tuple[str, str, str],
-                 imu: dict[str, str] | None = None, estimated: list[str] | None = None
-                 ) -> tuple[list[NodeSpec], str, dict[str, str]]:
+def _stage_nodes(
+    mode: str,
+    trackers: list[tuple[str, str, dict[str, str]]],
+    ego: tuple[str, str, str],
+    imu: dict[str, str] | None = None,
+    estimated: list[str] | None = None,
+) -> tuple[list[NodeSpec], str, dict[str, str]]:
     """The stage processes (trackers: (camera, source, its topic parameters)), the final stage
     and the latched outputs the runner collects. `imu`: the ego mapper's IMU parameters (none:
     no IMU); `estimated`: the cameras whose intrinsics the group SfM estimates (the fusion
     registers them only in a group)."""
     unknown = {"estimate_intrinsics": list(estimated)} if estimated else {}
     ego_params = {"color_topic": ego[0], "depth_topic": ego[1], "info_topic": ego[2], **(imu or {})}
-    if mode == EGO:             # the map alone: its stage publishes the map, path, cloud and layout
-        return ([NodeSpec("ego_mapper", STAGE_MODULES["ego_mapper"], ego_params)], "ego_mapper",
-                dict(EGO_OUTPUTS))
+    if mode == EGO:  # the map alone: its stage publishes the map, path, cloud and layout
+        return ([NodeSpec("ego_mapper", STAGE_MODULES["ego_mapper"], ego_params)], "ego_mapper", dict(EGO_OUTPUTS))
     cameras = [c for c, _, _ in trackers]
-    nodes = [NodeSpec(f"keypoint_tracker_{c}", STAGE_MODULES["keypoint_tracker"],
-                      {"camera": c, "source": kind, **roles}) for c, kind, roles in trackers]
+    nodes = [
+        NodeSpec(f"keypoint_tracker_{c}", STAGE_MODULES["keypoint_tracker"], {"camera": c, "source": kind, **roles})
+        for c, kind, roles in trackers
+    ]
     nodes.append(NodeSpec("group_sfm", STAGE_MODULES["group_sfm"], {"cameras": cameras, **unknown}))
     final = "group_sfm"
     outputs = {topics.GROUPS: "yowo_msgs/msg/CameraGroupArray"}
@@ -352,11 +435,18 @@ def _stage_nodes(mode: str, trackers: list[tuple[str, str, dict[str, str]]], ego
         nodes.append(NodeSpec("ego_mapper", STAGE_MODULES["ego_mapper"], ego_params))
         nodes.append(NodeSpec("fusion", STAGE_MODULES["fusion"], {"cameras": cameras, **unknown}))
         final = "fusion"
-        outputs.update({topics.CMC_POSES: "yowo_msgs/msg/RegisteredCameraArray", topics.TF_STATIC: "tf2_msgs/msg/TFMessage",
-                        topics.LAYOUT_MARKERS: "visualization_msgs/msg/MarkerArray", **EGO_OUTPUTS,
-                        topics.REFINED_LAYOUT: "yowo_msgs/msg/SceneLayout",
-                        topics.REFINED_MAP_POINTS: "sensor_msgs/msg/PointCloud2",
-                        topics.REFINED_EGO_PATH: "nav_msgs/msg/Path", topics.AGENT_FIT: "yowo_msgs/msg/CameraAgentFitArray"})
+        outputs.update(
+            {
+                topics.CMC_POSES: "yowo_msgs/msg/RegisteredCameraArray",
+                topics.TF_STATIC: "tf2_msgs/msg/TFMessage",
+                topics.LAYOUT_MARKERS: "visualization_msgs/msg/MarkerArray",
+                **EGO_OUTPUTS,
+                topics.REFINED_LAYOUT: "yowo_msgs/msg/SceneLayout",
+                topics.REFINED_MAP_POINTS: "sensor_msgs/msg/PointCloud2",
+                topics.REFINED_EGO_PATH: "nav_msgs/msg/Path",
+                topics.AGENT_FIT: "yowo_msgs/msg/CameraAgentFitArray",
+            }
+        )
     return nodes, final, outputs
 
 
@@ -367,19 +457,30 @@ def write_group_calibration(path: Path, groups: list[CameraGroupResult], ungroup
     cams = []
     for g in groups:
         for n in g.names:
-            cams.append({"name": n, "group": g.group_id, "method": "group_sfm", "status": "ok", "reason": "",
-                         "frame": f"{g.group_id} (reference camera {g.reference}, arbitrary scale)",
-                         "T_group_camera": pose_entry(g.T_local_cam[n]),
-                         **intrinsics_entry(g.cameras.get(n)), **clock_entry(n, g), **keypoint_noise_entry(g),
-                         "reprojection_rmse_px": round(float(g.rmse_px[n]), 4),
-                         "num_agent_observations": int(g.num_observations[n])})
+            cams.append(
+                {
+                    "name": n,
+                    "group": g.group_id,
+                    "method": "group_sfm",
+                    "status": "ok",
+                    "reason": "",
+                    "frame": f"{g.group_id} (reference camera {g.reference}, arbitrary scale)",
+                    "T_group_camera": pose_entry(g.T_local_cam[n]),
+                    **intrinsics_entry(g.cameras.get(n)),
+                    **clock_entry(n, g),
+                    **keypoint_noise_entry(g),
+                    "reprojection_rmse_px": round(float(g.rmse_px[n]), 4),
+                    "num_agent_observations": int(g.num_observations[n]),
+                }
+            )
     for n, why in ungrouped.items():
         cams.append({"name": n, "group": "", "method": "none", "status": "failed", "reason": why})
     path.write_text(yaml.safe_dump({"cameras": sorted(cams, key=lambda c: c["name"])}, sort_keys=False))
 
 
-def write_run_results(plan: RunPlan, outputs: dict, status: dict, replay, seconds: float, failure: str,
-                      graph: dict | None = None) -> RunOutcome:
+def write_run_results(
+    plan: RunPlan, outputs: dict, status: dict, replay, seconds: float, failure: str, graph: dict | None = None
+) -> RunOutcome:
     """Everything a run produced into plan.out_dir (partial results when a stage failed),
     written aside and moved into place; `graph`: the run's network, restarts and stray
     messages, for the run log. The run log is written whatever else fails, with the reason."""
@@ -400,7 +501,7 @@ def write_run_results(plan: RunPlan, outputs: dict, status: dict, replay, second
             files.append(out / "cameras.yaml")
         if plan.mode in (FULL, EGO):
             cameras = _write_full_results(staged, outputs, files)
-    except Exception as exc:      # a result that cannot be written must not hide the run's own outcome
+    except Exception as exc:  # a result that cannot be written must not hide the run's own outcome
         written = f"writing the results failed ({type(exc).__name__}: {exc}); details in logs/results.log"
         failure = f"{failure}; {written}" if failure else written
         (plan.out_dir / "logs").mkdir(parents=True, exist_ok=True)
@@ -410,15 +511,27 @@ def write_run_results(plan: RunPlan, outputs: dict, status: dict, replay, second
     for stage, msg in status.items():
         for t, n in zip(msg.input_topics, msg.received_counts):
             received.setdefault(t, {})[stage] = int(n)
-    (out / "run_log.yaml").write_text(yaml.safe_dump({
-        "bag": str(plan.bag or "live"), "run_id": plan.run_id, "mode": plan.mode,
-        **({"mode_reason": plan.mode_reason} if plan.mode_reason else {}),
-        "seconds": round(seconds, 2), "failure": failure, "inputs": plan.inputs,
-        "warnings": plan.warnings, "stages": {s: status[s].message if s in status else "no status received" for s in plan.stages},
-        "replay_published": published, "received": received,
-        "replay_resent": int(replay.resent_messages) if replay is not None else 0,
-        "replay_error": replay.error if replay is not None else "no replay status",
-        **(graph or {})}, sort_keys=False))
+    (out / "run_log.yaml").write_text(
+        yaml.safe_dump(
+            {
+                "bag": str(plan.bag or "live"),
+                "run_id": plan.run_id,
+                "mode": plan.mode,
+                **({"mode_reason": plan.mode_reason} if plan.mode_reason else {}),
+                "seconds": round(seconds, 2),
+                "failure": failure,
+                "inputs": plan.inputs,
+                "warnings": plan.warnings,
+                "stages": {s: status[s].message if s in status else "no status received" for s in plan.stages},
+                "replay_published": published,
+                "received": received,
+                "replay_resent": int(replay.resent_messages) if replay is not None else 0,
+                "replay_error": replay.error if replay is not None else "no replay status",
+                **(graph or {}),
+            },
+            sort_keys=False,
+        )
+    )
     files.append(out / "run_log.yaml")
     publish_staged(plan.out_dir)
     files = [plan.out_dir / f.relative_to(out) for f in files]
@@ -470,8 +583,10 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     for path, topic in final_and_ego(topics.REFINED_EGO_PATH, topics.EGO_PATH, "ego_trajectory", "tum"):
         if topic in outputs:
             poses = outputs[topic].poses
-            traj = Trajectory(np.array([stamp_to_ns(p.header.stamp) for p in poses], dtype=np.int64),
-                              np.array([pose_to_matrix(p.pose) for p in poses]).reshape(-1, 4, 4))
+            traj = Trajectory(
+                np.array([stamp_to_ns(p.header.stamp) for p in poses], dtype=np.int64),
+                np.array([pose_to_matrix(p.pose) for p in poses]).reshape(-1, 4, 4),
+            )
         elif path.stem == "ego_trajectory" and topics.EGO_MAP in outputs:
             ego = ego_map_from_msg(outputs[topics.EGO_MAP])
             traj = Trajectory(ego.stamps_ns, ego.T_world_ego)
@@ -494,8 +609,10 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     if plan.mode == EGO and final_layout is not None:
         # The fusion draws the floor for RViz/Foxglove in a full run; here nobody else does.
         from yowo_fusion.messages import layout_markers
+
         outputs = {**outputs, topics.LAYOUT_MARKERS: layout_markers([], floors, stamp_to_ns(final_layout.header.stamp))}
     import shutil
+
     result_bag, staging = out / "result.mcap", out / ".result_bag"
     for old in (result_bag, staging):
         if old.is_dir():
@@ -505,11 +622,13 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     stamp = max((stamp_to_ns(m.header.stamp) for m in outputs.values() if hasattr(m, "header")), default=0)
     with BagWriter(staging) as bag:
         for topic, msg in outputs.items():
-            bag.write(topic, msg, stamp, latched=True)       # every collected output is latched
+            bag.write(topic, msg, stamp, latched=True)  # every collected output is latched
         # Each registered camera's intrinsics in its optical frame: Foxglove / RViz draw its frustum.
         for c in cameras:
             if c.camera is not None and c.T_world_cam is not None:
-                info = model_to_camera_info(c.camera, Header(stamp=ns_to_time(stamp), frame_id=f"{c.name}_optical_frame"))
+                info = model_to_camera_info(
+                    c.camera, Header(stamp=ns_to_time(stamp), frame_id=f"{c.name}_optical_frame")
+                )
                 bag.write(topics.cmc_info_topic(c.name), info, stamp, latched=True)
     # One MCAP file (its channels carry the QoS, latched ones transient-local), not a folder.
     (written,) = staging.glob("*.mcap")
@@ -523,9 +642,19 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     metrics, gt_cams = evaluated or (None, None)
     walls = wall_segments(final_layout.planes) if final_layout else []
     fits = agent_fits_from_msg(outputs[topics.AGENT_FIT]) if topics.AGENT_FIT in outputs else []
-    write_report(out / "report.html", str(plan.bag or "live"), cameras, ego_xy, floors, metrics, gt_cams, plan.warnings,
-                 walls, [(f, size, decode_color(bg) if bg is not None else None) for f, size, bg in fits],
-                 no_cameras=f"No camera registered (ego-only run): {plan.mode_reason}" if plan.mode == EGO else "")
+    write_report(
+        out / "report.html",
+        str(plan.bag or "live"),
+        cameras,
+        ego_xy,
+        floors,
+        metrics,
+        gt_cams,
+        plan.warnings,
+        walls,
+        [(f, size, decode_color(bg) if bg is not None else None) for f, size, bg in fits],
+        no_cameras=f"No camera registered (ego-only run): {plan.mode_reason}" if plan.mode == EGO else "",
+    )
     files.append(out / "report.html")
     if metrics:
         ev.write_metrics(metrics, out / "metrics.json")

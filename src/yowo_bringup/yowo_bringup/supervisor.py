@@ -1,6 +1,7 @@
 """Start YOWO's nodes as separate processes, keep their logs, restart one that dies
 (its `incarnation` parameter counts the restarts, so the replay and the upstream stages
 send it what it missed), and stop them all cleanly (SIGINT, then SIGTERM, then SIGKILL)."""
+
 from __future__ import annotations
 
 import os
@@ -20,12 +21,12 @@ from .profiling import NodeProfiler, py_spy
 
 @dataclass
 class NodeSpec:
-    name: str                      # node (and stage) name; of a process hosting several: the process's
-    module: str                    # python module with main(), e.g. "yowo_cmc.group_sfm_node"
+    name: str  # node (and stage) name; of a process hosting several: the process's
+    module: str  # python module with main(), e.g. "yowo_cmc.group_sfm_node"
     parameters: dict = field(default_factory=dict)
-    niceness: int = 0              # added to the supervisor's own (a lower priority)
-    hosted: list[str] = field(default_factory=list)   # the nodes one process runs (their parameters
-                                                      # in the params file); empty: this node alone
+    niceness: int = 0  # added to the supervisor's own (a lower priority)
+    hosted: list[str] = field(default_factory=list)  # the nodes one process runs (their parameters
+    # in the params file); empty: this node alone
 
     @property
     def nodes(self) -> list[str]:
@@ -37,10 +38,10 @@ class Usage:
     """A node process's resources as /proc last showed them (sampled while it runs:
     a reaped process has none left to read)."""
 
-    cpu_s: float = 0.0            # user + system
-    peak_rss_mb: float = 0.0      # VmHWM
+    cpu_s: float = 0.0  # user + system
+    peak_rss_mb: float = 0.0  # VmHWM
     started: float = field(default_factory=time.monotonic)
-    spawned: float = field(default_factory=time.time)     # wall clock, as the nodes' timing files
+    spawned: float = field(default_factory=time.time)  # wall clock, as the nodes' timing files
     last_seen: float = 0.0
 
     @staticmethod
@@ -51,7 +52,7 @@ class Usage:
             status = Path(f"/proc/{pid}/status").read_text()
         except OSError:
             return None
-        fields = stat.rsplit(")", 1)[1].split()           # after "pid (comm)"
+        fields = stat.rsplit(")", 1)[1].split()  # after "pid (comm)"
         cpu = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
         return cpu, _proc_mb(status, "VmHWM:")
 
@@ -77,8 +78,8 @@ class NodeProcess:
     popen: subprocess.Popen
     log_path: Path
     incarnation: int = 0
-    exits: list[int] = field(default_factory=list)     # exit codes of earlier incarnations
-    usage: list[Usage] = field(default_factory=lambda: [Usage()])   # one per incarnation
+    exits: list[int] = field(default_factory=list)  # exit codes of earlier incarnations
+    usage: list[Usage] = field(default_factory=lambda: [Usage()])  # one per incarnation
 
     def sample(self) -> None:
         got = Usage.read(self.popen.pid) if self.popen.poll() is None else None
@@ -88,9 +89,11 @@ class NodeProcess:
 
     def resources(self) -> dict:
         """CPU seconds (summed over incarnations), wall seconds alive, peak RSS."""
-        return {"cpu_s": round(sum(u.cpu_s for u in self.usage), 2),
-                "wall_s": round(sum(max(u.last_seen - u.started, 0.0) for u in self.usage), 2),
-                "peak_rss_mb": round(max(u.peak_rss_mb for u in self.usage), 1)}
+        return {
+            "cpu_s": round(sum(u.cpu_s for u in self.usage), 2),
+            "wall_s": round(sum(max(u.last_seen - u.started, 0.0) for u in self.usage), 2),
+            "peak_rss_mb": round(max(u.peak_rss_mb for u in self.usage), 1),
+        }
 
     def log_tail(self, lines: int = 15) -> str:
         try:
@@ -136,8 +139,14 @@ def stats_path(log_dir: Path, name: str, incarnation: int) -> Path:
 class Supervisor:
     """`profile_dir`: record every node process with py-spy there (`profile_rate_hz`)."""
 
-    def __init__(self, log_dir: Path, env: dict | None = None, params_file: Path | None = None,
-                 profile_dir: Path | None = None, profile_rate_hz: int = 50):
+    def __init__(
+        self,
+        log_dir: Path,
+        env: dict | None = None,
+        params_file: Path | None = None,
+        profile_dir: Path | None = None,
+        profile_rate_hz: int = 50,
+    ):
         self.log_dir = Path(log_dir)
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.env = dict(os.environ if env is None else env)
@@ -147,11 +156,11 @@ class Supervisor:
         # at one sample. Peak RSS per process counts the shared libraries in every process
         # and peaks that came at different times, so their sum overstates a many-node graph.
         self.peak_memory_mb = 0.0
-        self.peak_memory_by_process: dict[str, float] = {}   # each process's PSS at that sample
+        self.peak_memory_by_process: dict[str, float] = {}  # each process's PSS at that sample
         self.profile_dir, self.profile_rate_hz = profile_dir, profile_rate_hz
         self.profilers: list[NodeProfiler] = []
         if profile_dir is not None:
-            py_spy()                    # says so before any node starts when it is not installed
+            py_spy()  # says so before any node starts when it is not installed
             Path(profile_dir).mkdir(parents=True, exist_ok=True)
 
     def _popen(self, spec: NodeSpec, incarnation: int, mode: str) -> subprocess.Popen:
@@ -166,20 +175,20 @@ class Supervisor:
         if incarnation:
             cmd += ["-p", f"incarnation:={incarnation}"]
         cmd += ["-p", f"stats_file:={stats_path(self.log_dir, '{node}' if spec.hosted else spec.name, incarnation)}"]
-        if spec.niceness:           # nice execs the node: the same process, every thread of it
+        if spec.niceness:  # nice execs the node: the same process, every thread of it
             cmd = ["nice", "-n", str(spec.niceness)] + cmd
         with open(self.log_dir / f"{spec.name}.log", mode) as log:
             if incarnation:
                 log.write(f"--- [yowo supervisor] restarted (incarnation {incarnation}) ---\n")
                 log.flush()
-            popen = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=self.env,
-                                     start_new_session=True)  # our own Ctrl-C handling stops them in order
-        for name in {spec.name, *spec.nodes}:     # for users and tests, also per hosted node
+            popen = subprocess.Popen(
+                cmd, stdout=log, stderr=subprocess.STDOUT, env=self.env, start_new_session=True
+            )  # our own Ctrl-C handling stops them in order
+        for name in {spec.name, *spec.nodes}:  # for users and tests, also per hosted node
             (self.log_dir / f"{name}.pid").write_text(f"{popen.pid}\n")
         if self.profile_dir is not None:
             stem = spec.name if not incarnation else f"{spec.name}.{incarnation}"
-            self.profilers.append(NodeProfiler(popen.pid, Path(self.profile_dir) / f"{stem}.txt",
-                                               self.profile_rate_hz))
+            self.profilers.append(NodeProfiler(popen.pid, Path(self.profile_dir) / f"{stem}.txt", self.profile_rate_hz))
         return popen
 
     def start(self, spec: NodeSpec) -> NodeProcess:
@@ -223,5 +232,5 @@ class Supervisor:
             alive = [p for p in alive if p.popen.poll() is None]
             if not alive:
                 break
-        for profiler in self.profilers:      # each writes its recording once its node has ended
+        for profiler in self.profilers:  # each writes its recording once its node has ended
             profiler.wait(timeout_s)

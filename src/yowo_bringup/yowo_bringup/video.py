@@ -2,6 +2,7 @@
 started, and its frames as the Image messages a recorded camera would have given. An NVR
 exports video with a wall-clock start time that can be seconds off; the clock-offset
 estimation finds the rest (the planner widens its search for video cameras)."""
+
 from __future__ import annotations
 
 import re
@@ -28,8 +29,8 @@ class VideoError(ValueError):
 class VideoInput:
     camera: str
     path: Path
-    start_ns: int              # the first frame's time on the recording's clock (as given or from metadata)
-    start_from: str            # where start_ns came from
+    start_ns: int  # the first frame's time on the recording's clock (as given or from metadata)
+    start_from: str  # where start_ns came from
     frames: int
     duration_s: float
     width: int
@@ -56,8 +57,10 @@ def parse_video_rule(rule: str) -> tuple[str, Path, str]:
     if not sep or not rest:
         raise VideoError(f"--cmc-video {rule} (inputs.videos): expected CAMERA=FILE[@START]")
     if not _NAME.match(name):
-        raise VideoError(f"video '{rule}': camera name '{name}' must be letters, digits and '_', starting with a "
-                         f"letter (e.g. {re.sub(r'[^A-Za-z0-9_]', '_', name).lstrip('0123456789_') or 'cam1'})")
+        raise VideoError(
+            f"video '{rule}': camera name '{name}' must be letters, digits and '_', starting with a "
+            f"letter (e.g. {re.sub(r'[^A-Za-z0-9_]', '_', name).lstrip('0123456789_') or 'cam1'})"
+        )
     file, _, start = rest.rpartition("@") if "@" in rest else (rest, "", "")
     return name, Path(file), start
 
@@ -71,11 +74,13 @@ def video_list(path: str) -> list[str]:
     except (OSError, yaml.YAMLError) as exc:
         raise VideoError(f"{path}: cannot read the video list: {exc}") from exc
     entries = doc.get("videos", doc) if isinstance(doc, dict) else doc
-    if not isinstance(entries, list) or not all(isinstance(e, dict) and "name" in e and "file" in e
-                                                for e in entries):
+    if not isinstance(entries, list) or not all(isinstance(e, dict) and "name" in e and "file" in e for e in entries):
         raise VideoError(f"{path}: expected a list of {{name, file, start}} entries (start optional)")
-    return [f"{e['name']}={(p.parent / str(e['file'])) if not Path(str(e['file'])).is_absolute() else e['file']}"
-            + (f"@{e['start']}" if e.get("start") not in (None, "") else "") for e in entries]
+    return [
+        f"{e['name']}={(p.parent / str(e['file'])) if not Path(str(e['file'])).is_absolute() else e['file']}"
+        + (f"@{e['start']}" if e.get("start") not in (None, "") else "")
+        for e in entries
+    ]
 
 
 def _epoch_ns(text: str, where: str) -> int:
@@ -109,8 +114,13 @@ def probe_video(rule: str) -> VideoInput:
             if first is None:
                 raise VideoError(f"{path}: no frame could be decoded")
             frames = stream.frames or 0
-            duration_s = (float(stream.duration * stream.time_base) if stream.duration
-                          else container.duration / 1e6 if container.duration else 0.0)
+            duration_s = (
+                float(stream.duration * stream.time_base)
+                if stream.duration
+                else container.duration / 1e6
+                if container.duration
+                else 0.0
+            )
             created = container.metadata.get("creation_time", "") or stream.metadata.get("creation_time", "")
             size = (first.width, first.height)
     except av.error.FFmpegError as exc:
@@ -120,8 +130,10 @@ def probe_video(rule: str) -> VideoInput:
     elif created:
         start_ns, start_from = _epoch_ns(created, f"{path} creation_time"), f"the file's creation_time {created}"
     else:
-        raise VideoError(f"{path}: no start time in its metadata; give it as {camera}={path}@START "
-                         "(seconds since the epoch or ISO 8601)")
+        raise VideoError(
+            f"{path}: no start time in its metadata; give it as {camera}={path}@START "
+            "(seconds since the epoch or ISO 8601)"
+        )
     if not frames and duration_s:
         frames = int(round(duration_s * float(stream.average_rate or 0)))
     return VideoInput(camera, path, start_ns, start_from, frames, duration_s, *size)
@@ -150,4 +162,3 @@ def video_images(video: VideoInput) -> Iterator[tuple[int, object]]:
                 decoded += 1
     except av.error.FFmpegError as exc:
         raise VideoError(f"{video.path}: decoding stopped after {decoded} frames ({exc})") from exc
-

@@ -1,4 +1,5 @@
 """Synthetic agent keypoint tracks seen by known CMCs (for the CMC tests)."""
+
 import numpy as np
 
 from yowo_cmc.keypoint_tracks import CameraTracks, KeypointTrack
@@ -18,12 +19,12 @@ def ceiling_camera(x, y, target, z=3.0, hfov=80.0, D=None):
 def loop_walk(center, radius, period_s=20.0):
     cx, cy = center
     rx, ry = radius
-    return lambda t: np.array([cx + rx * np.sin(2 * np.pi * t / period_s),
-                               cy + ry * np.sin(4 * np.pi * t / period_s + 0.3)])
+    return lambda t: np.array(
+        [cx + rx * np.sin(2 * np.pi * t / period_s), cy + ry * np.sin(4 * np.pi * t / period_s + 0.3)]
+    )
 
 
-def observe(cams, walk, duration_s, rate_hz=10.0, offsets_s=None, sigma_px=0.0, visible=None, seed=0,
-            start_ns=10**18):
+def observe(cams, walk, duration_s, rate_hz=10.0, offsets_s=None, sigma_px=0.0, visible=None, seed=0, start_ns=10**18):
     """CameraTracks of head top (0) and ground point (1) for each camera.
     `visible(name, xy)` says whether a camera can see the agent at xy (walls)."""
     rng = np.random.default_rng(seed)

@@ -1,5 +1,6 @@
 """CMC clock offsets from the agent's motion (yowo_cmc.clock): synthetic views with known
 offsets, and a simulated recording with unsynchronised clocks."""
+
 from dataclasses import replace
 
 import numpy as np
@@ -14,16 +15,27 @@ from yowo_cmc.pipeline import calibrate_cmcs
 from yowo_common.geometry import inv_se3, rotation_angle_deg
 
 D = [-0.1, 0.02, 0.0, 0.0, 0.0]
-CAMS = {"a": ceiling_camera(0.3, 0.3, (3.0, 2.5), D=D), "b": ceiling_camera(5.7, 0.4, (3.0, 2.5), z=3.3, D=D),
-        "c": ceiling_camera(3.0, 4.8, (3.0, 2.3), z=2.8, D=D), "d": ceiling_camera(5.5, 4.6, (3.0, 2.5), z=3.1, D=D)}
+CAMS = {
+    "a": ceiling_camera(0.3, 0.3, (3.0, 2.5), D=D),
+    "b": ceiling_camera(5.7, 0.4, (3.0, 2.5), z=3.3, D=D),
+    "c": ceiling_camera(3.0, 4.8, (3.0, 2.3), z=2.8, D=D),
+    "d": ceiling_camera(5.5, 4.6, (3.0, 2.5), z=3.1, D=D),
+}
 # Not multiples of the 0.1 s frame period; b-c and c-d are 1.35 s and 1.91 s apart.
 OFFSETS = {"a": 0.0, "b": 0.437, "c": -0.9132, "d": 1.0}
-PHASES = [0.0, 0.031, 0.067, 0.05]      # the cameras' frames are not simultaneous either
+PHASES = [0.0, 0.031, 0.067, 0.05]  # the cameras' frames are not simultaneous either
 
 
 def views(offsets, sigma_px=0.0, seed=0, cams=CAMS, walk=None, visible=None):
-    tracks = observe(cams, walk or loop_walk((3.0, 2.5), (2.0, 1.5)), 40.0, offsets_s=PHASES[:len(cams)],
-                     sigma_px=sigma_px, seed=seed, visible=visible)
+    tracks = observe(
+        cams,
+        walk or loop_walk((3.0, 2.5), (2.0, 1.5)),
+        40.0,
+        offsets_s=PHASES[: len(cams)],
+        sigma_px=sigma_px,
+        seed=seed,
+        visible=visible,
+    )
     # Each camera's clock runs its offset ahead: its stamps are later by as much.
     return [c.shifted(-offsets.get(c.name, 0.0)) for c in tracks]
 
@@ -107,11 +119,16 @@ def test_a_clock_no_pair_pins_is_not_refined():
 def test_camera_that_never_coobserves_has_no_estimate():
     cams = {**{k: CAMS[k] for k in "abc"}, "iso": ceiling_camera(20.3, 0.3, (22.5, 2.5))}
 
-    def walk(t):   # 25 s in the room of a, b, c; 5 s in a corridor nobody sees; then in iso's room
-        return loop_walk((3.0, 2.5), (2.0, 1.5))(t) if t < 25.0 else np.array([12.0, 2.5]) if t < 30.0 \
+    def walk(t):  # 25 s in the room of a, b, c; 5 s in a corridor nobody sees; then in iso's room
+        return (
+            loop_walk((3.0, 2.5), (2.0, 1.5))(t)
+            if t < 25.0
+            else np.array([12.0, 2.5])
+            if t < 30.0
             else np.array([22.5, 2.5])
+        )
 
-    def visible(name, xy):   # walls: each room's cameras see only their room
+    def visible(name, xy):  # walls: each room's cameras see only their room
         return xy[0] > 15.0 if name == "iso" else xy[0] < 10.0
 
     est = estimate_clock_offsets(views({"b": 0.25, "iso": 0.6}, walk=walk, cams=cams, visible=visible))
@@ -119,14 +136,16 @@ def test_camera_that_never_coobserves_has_no_estimate():
     assert iso.offset_s is None and iso.sigma_s is None and iso.reference is None
     assert "no pair" in iso.reason
     assert est.cameras["b"].reference == "a" and abs(est.cameras["b"].offset_s - 0.25) < 0.5e-3
-    assert not any("iso" in (p.a, p.b) for p in est.pairs)     # no search where nobody co-observes
+    assert not any("iso" in (p.a, p.b) for p in est.pairs)  # no search where nobody co-observes
 
 
 def test_inconsistent_pair_is_dropped():
     truth = {"a": 0.0, "b": 0.2, "c": -0.3, "d": 0.45}
     names = list(truth)
-    pairs = [PairOffset(x, y, truth[y] - truth[x], 0.002, 500, 1.0) for i, x in enumerate(names) for y in names[i + 1:]]
-    pairs[1].offset_s += 0.1           # a - c: a wrong minimum a frame away
+    pairs = [
+        PairOffset(x, y, truth[y] - truth[x], 0.002, 500, 1.0) for i, x in enumerate(names) for y in names[i + 1 :]
+    ]
+    pairs[1].offset_s += 0.1  # a - c: a wrong minimum a frame away
     out = combine(names, pairs, ClockParams())
     assert not pairs[1].used and "inconsistent" in pairs[1].reason
     assert all(p.used for k, p in enumerate(pairs) if k != 1)
@@ -197,15 +216,27 @@ def test_the_group_sfm_calibrates_on_corrected_stamps_as_if_synchronised():
 
 def rooms_one_after_the_other():
     """Three cameras in room A, two in room B, whose clocks run 1.3 s behind A's."""
-    cams = {"a1": ceiling_camera(0.3, 0.3, (2.5, 2.5)), "a2": ceiling_camera(4.7, 0.3, (2.5, 2.5), z=3.4),
-            "a3": ceiling_camera(2.5, 4.7, (2.5, 2.3)),
-            "b1": ceiling_camera(10.3, 0.3, (12.5, 2.5)), "b2": ceiling_camera(14.7, 4.7, (12.5, 2.5))}
+    cams = {
+        "a1": ceiling_camera(0.3, 0.3, (2.5, 2.5)),
+        "a2": ceiling_camera(4.7, 0.3, (2.5, 2.5), z=3.4),
+        "a3": ceiling_camera(2.5, 4.7, (2.5, 2.3)),
+        "b1": ceiling_camera(10.3, 0.3, (12.5, 2.5)),
+        "b2": ceiling_camera(14.7, 4.7, (12.5, 2.5)),
+    }
 
-    def walk(t):   # a different loop in each room (a copy of one loop would fit at some shift: a mirror world)
+    def walk(t):  # a different loop in each room (a copy of one loop would fit at some shift: a mirror world)
         return loop_walk((2.5, 2.5), (1.5, 1.2), 10.0)(t) if t < 20 else loop_walk((12.5, 2.5), (1.0, 1.6), 7.0)(t)
+
     room = {"a": lambda x: x < 5, "b": lambda x: x > 10}
-    tracks = observe(cams, walk, 40.0, sigma_px=0.7, visible=lambda n, xy: room[n[0]](xy[0]), seed=4,
-                     offsets_s=[0.0, 0.03, 0.05, 0.01, 0.07])
+    tracks = observe(
+        cams,
+        walk,
+        40.0,
+        sigma_px=0.7,
+        visible=lambda n, xy: room[n[0]](xy[0]),
+        seed=4,
+        offsets_s=[0.0, 0.03, 0.05, 0.01, 0.07],
+    )
     return [t.shifted(1.3 if t.name.startswith("b") else 0.0) for t in tracks]
 
 
@@ -217,8 +248,9 @@ def test_rooms_walked_one_after_the_other_stay_apart_when_their_clocks_differ():
     grouping = calibrate_cmcs(behind)
     assert sorted(sorted(g.names) for g in grouping.groups) == [["a1", "a2", "a3"], ["b1", "b2"]]
     est = estimate_clock_offsets(behind)
-    assert {c.reference for n, c in est.cameras.items() if n.startswith("a")} != \
-        {c.reference for n, c in est.cameras.items() if n.startswith("b")}
+    assert {c.reference for n, c in est.cameras.items() if n.startswith("a")} != {
+        c.reference for n, c in est.cameras.items() if n.startswith("b")
+    }
 
 
 def test_offsets_within_their_noise_of_zero_are_not_applied():
@@ -228,8 +260,9 @@ def test_offsets_within_their_noise_of_zero_are_not_applied():
     raw = views({}, sigma_px=1.0, seed=5)
     grouping = calibrate_cmcs(raw)
     (g,) = grouping.groups
-    assert all(g.clock_offsets_s[n] == 0.0 for n in CAMS) and all(0 < g.clock_sigmas_s[n] < 3e-3
-                                                                  for n in CAMS if n != g.reference)
+    assert all(g.clock_offsets_s[n] == 0.0 for n in CAMS) and all(
+        0 < g.clock_sigmas_s[n] < 3e-3 for n in CAMS if n != g.reference
+    )
     (synced,) = calibrate_groups(raw).groups
     assert all(np.array_equal(g.T_local_cam[n], synced.T_local_cam[n]) for n in CAMS)
     (applied,) = calibrate_cmcs(raw, replace(CmcParams(), clock=ClockParams(min_significance=0.0))).groups

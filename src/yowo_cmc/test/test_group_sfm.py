@@ -22,8 +22,11 @@ EXACT = SfmParams(tracks=TrackParams(window_s=0.0, gate_px=1e9))
 
 
 def three_camera_rig(D=None):
-    return {"a": ceiling_camera(0.3, 0.3, (3.0, 2.5), D=D), "b": ceiling_camera(5.7, 0.4, (3.0, 2.5), z=3.3, D=D),
-            "c": ceiling_camera(3.0, 4.8, (3.0, 2.3), z=2.8, D=D)}
+    return {
+        "a": ceiling_camera(0.3, 0.3, (3.0, 2.5), D=D),
+        "b": ceiling_camera(5.7, 0.4, (3.0, 2.5), z=3.3, D=D),
+        "c": ceiling_camera(3.0, 4.8, (3.0, 2.3), z=2.8, D=D),
+    }
 
 
 def check_relative(group, cams, pos_tol, rot_tol_deg):
@@ -47,18 +50,29 @@ def test_noise_free_three_camera_rig_is_exact():
 
 def test_noisy_distorted_unequal_rates():
     cams = three_camera_rig(D=[-0.2, 0.04, 0, 0, 0])
-    tracks = observe(cams, loop_walk((3.0, 2.5), (2.0, 1.5)), 40.0, rate_hz={"a": 10.0, "b": 15.0, "c": 7.5},
-                     offsets_s=[0.0, 0.031, 0.057], sigma_px=1.0, seed=3)
+    tracks = observe(
+        cams,
+        loop_walk((3.0, 2.5), (2.0, 1.5)),
+        40.0,
+        rate_hz={"a": 10.0, "b": 15.0, "c": 7.5},
+        offsets_s=[0.0, 0.031, 0.057],
+        sigma_px=1.0,
+        seed=3,
+    )
     (group,) = calibrate_groups(tracks).groups
     check_relative(group, cams, 0.03, 0.3)
     assert max(group.rmse_px.values()) < 2.0
 
 
 def test_two_rooms_split_and_isolated_camera_reported():
-    cams = {"a1": ceiling_camera(0.3, 0.3, (2.5, 2.5)), "a2": ceiling_camera(4.7, 0.3, (2.5, 2.5)),
-            "a3": ceiling_camera(2.5, 4.7, (2.5, 2.3)),
-            "b1": ceiling_camera(10.3, 0.3, (12.5, 2.5)), "b2": ceiling_camera(14.7, 4.7, (12.5, 2.5)),
-            "iso": ceiling_camera(20.3, 0.3, (22.5, 2.5))}
+    cams = {
+        "a1": ceiling_camera(0.3, 0.3, (2.5, 2.5)),
+        "a2": ceiling_camera(4.7, 0.3, (2.5, 2.5)),
+        "a3": ceiling_camera(2.5, 4.7, (2.5, 2.3)),
+        "b1": ceiling_camera(10.3, 0.3, (12.5, 2.5)),
+        "b2": ceiling_camera(14.7, 4.7, (12.5, 2.5)),
+        "iso": ceiling_camera(20.3, 0.3, (22.5, 2.5)),
+    }
     room_of = lambda x: "a" if x < 5 else ("b" if 10 <= x < 15 else ("i" if x >= 20 else "-"))  # noqa: E731
 
     def walk(t):  # 15 s in each room
@@ -84,18 +98,22 @@ def test_camera_that_never_sees_the_agent():
 def test_stationary_agent_does_not_drive_initial_pair():
     """A long stop seen only by a and b gives that pair the most inliers, but all at one
     spot; the overlap-based match score (eq. match) prefers the well-spread pair."""
-    cams = {"a": ceiling_camera(0.3, 0.3, (3.0, 2.5)), "b": ceiling_camera(1.0, 0.2, (1.2, 1.2), hfov=60),
-            "c": ceiling_camera(5.7, 4.7, (3.0, 2.5))}
+    cams = {
+        "a": ceiling_camera(0.3, 0.3, (3.0, 2.5)),
+        "b": ceiling_camera(1.0, 0.2, (1.2, 1.2), hfov=60),
+        "c": ceiling_camera(5.7, 4.7, (3.0, 2.5)),
+    }
     loop = loop_walk((3.0, 2.5), (2.0, 1.5))
 
     def walk(t):
         return np.array([1.2, 1.2]) if t < 60 else loop(t)
+
     vis = {"a": lambda xy: True, "b": lambda xy: True, "c": lambda xy: np.linalg.norm(xy - [1.2, 1.2]) > 0.5}
     tracks = observe(cams, walk, 80.0, sigma_px=0.5, visible=lambda n, xy: vis[n](xy), seed=2)
     result = calibrate_groups(tracks)
     pairs = {tuple(sorted((result.groups[0].initial_pair)))}
     inliers = {(tracks[p.a].name, tracks[p.b].name): p.num_inliers for p in result.pairs}
-    assert inliers[("a", "b")] > inliers[("a", "c")]          # the trap is real
+    assert inliers[("a", "b")] > inliers[("a", "c")]  # the trap is real
     assert pairs == {("a", "c")}
     check_relative(result.groups[0], cams, 0.03, 0.3)
 
@@ -113,9 +131,14 @@ def test_camera_seeing_through_a_doorway_does_not_merge_two_rooms():
     """b1 sees room a only through a 1 m doorway: many matches with a1-a3, all in one
     strip of its image. Such edges must not join the rooms (without the overlap gate the
     merged group cannot even register room a's cameras)."""
-    cams = {"a1": ceiling_camera(0.3, 0.3, (2.5, 2.5)), "a2": ceiling_camera(4.7, 0.3, (2.5, 2.5)),
-            "a3": ceiling_camera(2.5, 4.7, (2.5, 2.3)), "b1": ceiling_camera(9.7, 2.5, (6.5, 2.5)),
-            "b2": ceiling_camera(5.3, 4.7, (7.5, 2.5)), "b3": ceiling_camera(7.5, 0.3, (7.5, 2.5))}
+    cams = {
+        "a1": ceiling_camera(0.3, 0.3, (2.5, 2.5)),
+        "a2": ceiling_camera(4.7, 0.3, (2.5, 2.5)),
+        "a3": ceiling_camera(2.5, 4.7, (2.5, 2.3)),
+        "b1": ceiling_camera(9.7, 2.5, (6.5, 2.5)),
+        "b2": ceiling_camera(5.3, 4.7, (7.5, 2.5)),
+        "b3": ceiling_camera(7.5, 0.3, (7.5, 2.5)),
+    }
 
     def walk(t):  # 20 s in room a (x < 5, passing the doorway), then 20 s in room b
         return loop_walk((2.7, 2.5), (2.2, 1.5), 10.0)(t) if t < 20 else loop_walk((7.5, 2.5), (1.5, 1.5), 10.0)(t)
@@ -128,7 +151,7 @@ def test_camera_seeing_through_a_doorway_does_not_merge_two_rooms():
     tracks = observe(cams, walk, 40.0, sigma_px=0.5, visible=visible, seed=2)
     result = calibrate_groups(tracks)
     door = [p for p in result.pairs if p.b == 3 and p.a < 3]
-    assert all(p.num_inliers >= 50 and min(p.overlap) < 1.0 for p in door)   # strong in count, weak in cover
+    assert all(p.num_inliers >= 50 and min(p.overlap) < 1.0 for p in door)  # strong in count, weak in cover
     assert sorted(sorted(g.names) for g in result.groups) == [["a1", "a2", "a3"], ["b1", "b2", "b3"]]
     for g in result.groups:
         check_relative(g, cams, 0.03, 0.3)
@@ -141,11 +164,13 @@ def test_rooms_joined_by_a_weak_cut_are_split():
     (two edges of 60): two parts; joined as strongly as within a room: one. A camera that
     shares less with its room's others (300 against 1000) is not cut off, nor is a lone
     room ever split, and 0 switches the rule off."""
+
     def rooms(join: float, n_join: int = 2) -> nx.Graph:
         G = nx.Graph()
         for room in "ab":
-            G.add_weighted_edges_from([(f"{room}1", f"{room}2", 1000), (f"{room}1", f"{room}3", 1100),
-                                       (f"{room}2", f"{room}3", 900)])
+            G.add_weighted_edges_from(
+                [(f"{room}1", f"{room}2", 1000), (f"{room}1", f"{room}3", 1100), (f"{room}2", f"{room}3", 900)]
+            )
         G.add_weighted_edges_from([("a1", "b1", join), ("a3", "b2", join)][:n_join])
         return G
 
@@ -159,22 +184,30 @@ def test_rooms_joined_by_a_weak_cut_are_split():
     assert [len(p) for p in weak_cut_parts(G, 0.1)] == [4]
     # Three rooms in a row: both doorways cut.
     G = rooms(60)
-    G.add_weighted_edges_from([("c1", "c2", 1000), ("c1", "c3", 1000), ("c2", "c3", 1000), ("b3", "c1", 50),
-                               ("b2", "c3", 50)])
-    assert sorted(sorted(p) for p in weak_cut_parts(G, 0.1)) == [["a1", "a2", "a3"], ["b1", "b2", "b3"],
-                                                                 ["c1", "c2", "c3"]]
+    G.add_weighted_edges_from(
+        [("c1", "c2", 1000), ("c1", "c3", 1000), ("c2", "c3", 1000), ("b3", "c1", 50), ("b2", "c3", 50)]
+    )
+    assert sorted(sorted(p) for p in weak_cut_parts(G, 0.1)) == [
+        ["a1", "a2", "a3"],
+        ["b1", "b2", "b3"],
+        ["c1", "c2", "c3"],
+    ]
 
 
 def test_cameras_chained_by_single_edges_still_pair_up():
     """c1 and c3 see different halves of the room, c2 all of it: a chain c1 - c2 - c3 has
     no two paths between members; with pair_leftovers its strongest edge makes a
     two-camera group (the third camera is left for the isolated registration, with the reason)."""
-    cams = {"c1": ceiling_camera(0.3, 0.3, (2.5, 2.5)), "c2": ceiling_camera(4.7, 0.3, (2.5, 2.5)),
-            "c3": ceiling_camera(2.5, 4.7, (2.5, 2.3))}
+    cams = {
+        "c1": ceiling_camera(0.3, 0.3, (2.5, 2.5)),
+        "c2": ceiling_camera(4.7, 0.3, (2.5, 2.5)),
+        "c3": ceiling_camera(2.5, 4.7, (2.5, 2.3)),
+    }
     halves = {"c1": lambda xy: xy[0] < 2.3, "c2": lambda xy: True, "c3": lambda xy: xy[0] > 2.7}
-    tracks = observe(cams, loop_walk((2.5, 2.5), (1.5, 1.2), 10.0), 30.0, sigma_px=0.5,
-                     visible=lambda n, xy: halves[n](xy), seed=5)
-    assert calibrate_groups(tracks).groups == []          # the paper's rule (default)
+    tracks = observe(
+        cams, loop_walk((2.5, 2.5), (1.5, 1.2), 10.0), 30.0, sigma_px=0.5, visible=lambda n, xy: halves[n](xy), seed=5
+    )
+    assert calibrate_groups(tracks).groups == []  # the paper's rule (default)
     result = calibrate_groups(tracks, SfmParams(pair_leftovers=True))
     (group,) = result.groups
     assert "c2" in group.names and len(group.names) == 2
@@ -190,12 +223,13 @@ def test_weak_detections_are_down_weighted_in_the_bundle_adjustment():
     from dataclasses import replace
 
     from yowo_cmc.keypoint_tracks import KeypointTrack, sigma_factors
+
     cams = three_camera_rig()
     tracks = observe(cams, loop_walk((3.0, 2.5), (2.0, 1.5)), 40.0, sigma_px=1.0, seed=5)
     rng = np.random.default_rng(7)
     for i, cam in enumerate(tracks):
         g = cam.tracks[1]
-        weak = np.sin((g.stamps_ns - g.stamps_ns[0]) / 1e9 * 0.9 + 2 * i) > 0.1   # stretches, as when the head leaves
+        weak = np.sin((g.stamps_ns - g.stamps_ns[0]) / 1e9 * 0.9 + 2 * i) > 0.1  # stretches, as when the head leaves
         bias = rng.normal(0, 1, 2)
         uv = g.uv + np.outer(weak, 7.0 * bias / np.linalg.norm(bias))
         conf = np.where(weak, 0.27, g.confidence)
@@ -206,9 +240,11 @@ def test_weak_detections_are_down_weighted_in_the_bundle_adjustment():
 
     def rotation_error(params):
         (group,) = calibrate_groups(tracks, params).groups
-        errs, _ = relative_pose_errors(group.T_local_cam, {n: cams[n][1] for n in group.T_local_cam},
-                                       {"g": list(group.T_local_cam)})
+        errs, _ = relative_pose_errors(
+            group.T_local_cam, {n: cams[n][1] for n in group.T_local_cam}, {"g": list(group.T_local_cam)}
+        )
         return np.mean([e.eps_rot_deg for e in errs])
+
     weighted = rotation_error(SfmParams())
     unweighted = rotation_error(SfmParams(tracks=replace(TrackParams(), weak_confidence_ratio=0.0)))
     assert weighted < 0.6 * unweighted, (weighted, unweighted)
@@ -225,7 +261,7 @@ def test_each_keypoint_ids_sigma_is_re_estimated_until_it_settles():
     walk = loop_walk((3.0, 2.5), (2.0, 1.5))
     clean, noisy = observe(cams, walk, 30.0, sigma_px=0.3, seed=7), observe(cams, walk, 30.0, sigma_px=6.0, seed=8)
     for c, n in zip(clean, noisy):
-        c.tracks[1] = n.tracks[1]           # head top at 0.3 px, ground point at 6 px: ratio 20
+        c.tracks[1] = n.tracks[1]  # head top at 0.3 px, ground point at 6 px: ratio 20
     unsmoothed = TrackParams(window_s=0.0, gate_px=1e9)
     # The rounds alone, with the gates held (geometric_gates would reconstruct again at wider ones).
     (group,) = calibrate_groups(clean, SfmParams(tracks=unsmoothed, geometric_gates=False)).groups
@@ -293,10 +329,14 @@ def test_a_noisier_keypoint_class_gets_wider_gates_in_a_second_reconstruction():
 
 
 def test_gates_widen_only_for_classes_clearly_above_the_nominal_noise():
-    sigmas = {0: 1.0, 1: 1.52, 2: 1.79, 3: 1.8, 4: 4.5}     # nominal 1.5 px, min_gate_scale 1.2: from 1.8 px
+    sigmas = {0: 1.0, 1: 1.52, 2: 1.79, 3: 1.8, 4: 4.5}  # nominal 1.5 px, min_gate_scale 1.2: from 1.8 px
     assert geometric_gate_scales(sigmas, SfmParams()) == {3: pytest.approx(1.2), 4: pytest.approx(3.0)}
     assert geometric_gate_scales(sigmas, SfmParams(min_gate_scale=1.0)) == {
-        1: pytest.approx(1.52 / 1.5), 2: pytest.approx(1.79 / 1.5), 3: pytest.approx(1.2), 4: pytest.approx(3.0)}
+        1: pytest.approx(1.52 / 1.5),
+        2: pytest.approx(1.79 / 1.5),
+        3: pytest.approx(1.2),
+        4: pytest.approx(3.0),
+    }
     assert geometric_gate_scales({0: 1.0, 1: 1.6}, SfmParams()) == {}
 
 

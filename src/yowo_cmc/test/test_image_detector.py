@@ -1,5 +1,6 @@
 """Model-free agent keypoint detector on rendered ceiling-camera sequences with
 known ground truth (sensor noise and JPEG compression as in recordings)."""
+
 from dataclasses import dataclass
 
 import cv2
@@ -21,18 +22,18 @@ from yowo_sim.walk import WalkSpec, plan_walk
 
 RATE_HZ = 5.0
 STAND_S = 20.0
-EXTRA_ROLL_DEG = 8.0   # on top of place_cmc's mounting roll and its 35-65 degree tilt
+EXTRA_ROLL_DEG = 8.0  # on top of place_cmc's mounting roll and its 35-65 degree tilt
 
 
 @dataclass
 class Sequence:
     cmc: Cmc
-    frames: list            # RGB uint8, noisy and JPEG-compressed
-    stamps: np.ndarray      # ns
-    uv: np.ndarray          # (N, 2, 2) true head top and ground point, raw pixels
-    full: np.ndarray        # (N,) the whole agent is in the image
-    absent: np.ndarray      # (N,) no agent pixel at all
-    standing: np.ndarray    # (N,) inside the long stationary period
+    frames: list  # RGB uint8, noisy and JPEG-compressed
+    stamps: np.ndarray  # ns
+    uv: np.ndarray  # (N, 2, 2) true head top and ground point, raw pixels
+    full: np.ndarray  # (N,) the whole agent is in the image
+    absent: np.ndarray  # (N,) no agent pixel at all
+    standing: np.ndarray  # (N,) inside the long stationary period
     background: np.ndarray  # agent-free render, no noise
     height_m: float
 
@@ -51,8 +52,9 @@ def render_sequence(seed: int) -> Sequence:
     room = scene.rooms[0]
     cmc = place_cmc("cam", room, room.ceiling_height, CmcSpec(), rng)
     roll = Rotation.from_rotvec([0.0, 0.0, np.radians(EXTRA_ROLL_DEG)]).as_matrix()
-    cmc = Cmc(cmc.name, cmc.room, cmc.camera, se3(cmc.T_world_cam[:3, :3] @ roll, cmc.T_world_cam[:3, 3]),
-              cmc.target_xy)
+    cmc = Cmc(
+        cmc.name, cmc.room, cmc.camera, se3(cmc.T_world_cam[:3, :3] @ roll, cmc.T_world_cam[:3, 3]), cmc.target_xy
+    )
     free = scene.free_space_polygon()
     x0, y0, x1, y1 = room.bounds
     gx, gy = np.meshgrid(np.arange(x0, x1, 0.25), np.arange(y0, y1, 0.25))
@@ -64,6 +66,7 @@ def render_sequence(seed: int) -> Sequence:
         pts = np.array([kp[HEAD_TOP], kp[GROUND], kp[HEAD_TOP] + [0.3, 0.3, 0.0], kp[GROUND] - [0.3, 0.3, 0.0]])
         uv, in_front = cmc.camera.project_world(cmc.T_world_cam, pts)
         return in_front.all() and cmc.camera.in_image(uv, margin=30).all()
+
     seen = floor[[whole_agent_in_image(p) for p in floor]]
     unseen = floor[[not agent_in_view(cmc, agent_keypoints_3d(p, 0.0, 1.75, 0.0)) for p in floor]]
     targets = [seen[np.argmin(np.linalg.norm(seen - seen.mean(axis=0), axis=1))]]
@@ -72,7 +75,7 @@ def render_sequence(seed: int) -> Sequence:
     # Out of view (when the camera does not see the whole room) and back.
     away = [unseen[np.argmin(np.linalg.norm(unseen - targets[-1], axis=1))], targets[0]] if len(unseen) else []
     walk = plan_walk(free, targets[0], targets[1:] + away, WalkSpec(pause_s=0.5), rng)
-    t_stop = 0.4 * walk.duration_s   # the agent freezes mid-walk (mid-stride) for STAND_S
+    t_stop = 0.4 * walk.duration_s  # the agent freezes mid-walk (mid-stride) for STAND_S
 
     renderer = Renderer(scene)
     background = renderer.render(cmc.camera, cmc.T_world_cam)
@@ -96,8 +99,17 @@ def render_sequence(seed: int) -> Sequence:
         full.append(mask.any() and not (mask & border).any())
         absent.append(not mask.any())
         standing.append(t_stop < t < t_stop + STAND_S)
-    return Sequence(cmc, frames, np.round(times * 1e9).astype(np.int64), np.array(uv), np.array(full),
-                    np.array(absent), np.array(standing), background.rgb, walk.height_m)
+    return Sequence(
+        cmc,
+        frames,
+        np.round(times * 1e9).astype(np.int64),
+        np.array(uv),
+        np.array(full),
+        np.array(absent),
+        np.array(standing),
+        background.rgb,
+        walk.height_m,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -118,8 +130,13 @@ def keypoint(det, kid):
 
 
 def errors(seq, out, kid, frames):
-    return np.array([np.linalg.norm(keypoint(out[i], kid) - seq.uv[i, kid])
-                     for i in np.flatnonzero(frames) if keypoint(out[i], kid) is not None])
+    return np.array(
+        [
+            np.linalg.norm(keypoint(out[i], kid) - seq.uv[i, kid])
+            for i in np.flatnonzero(frames)
+            if keypoint(out[i], kid) is not None
+        ]
+    )
 
 
 def test_one_detection_per_frame_in_order(run):
@@ -184,7 +201,7 @@ def test_background_is_agent_free(run):
     seq, detector, _ = run
     diff = np.abs(detector.background.astype(float) - seq.background.astype(float)).max(axis=2)
     assert np.median(diff) < 3.0
-    assert np.mean(diff > 20) < 0.005   # JPEG at edges only; the agent alone covers 1-3 % of the image
+    assert np.mean(diff > 20) < 0.005  # JPEG at edges only; the agent alone covers 1-3 % of the image
 
 
 def test_stream_without_agent_gives_empty_detections(run):
@@ -222,7 +239,7 @@ def test_image_source_holds_frames_until_camera_info_and_drops_disorder(run):
             frames += source.set_camera(seq.cmc.camera)
         frames += source.push(int(stamp), rgb)
         if k == 10:
-            frames += source.push(int(stamp), rgb)       # duplicate stamp
+            frames += source.push(int(stamp), rgb)  # duplicate stamp
     frames += source.flush()
     assert [f.stamp_ns for f in frames] == seq.stamps.tolist()
     for f, d in zip(frames, out):

@@ -1,4 +1,5 @@
 """Intrinsics of cameras without CameraInfo, estimated from the agent (yowo_cmc.intrinsics)."""
+
 from dataclasses import replace
 
 import cv2
@@ -18,8 +19,11 @@ HFOV = (20.0, 150.0)
 
 
 def rig(D=None):
-    return {"a": ceiling_camera(0.3, 0.3, (3.0, 2.5), D=D), "b": ceiling_camera(5.7, 0.4, (3.0, 2.5), z=3.3, D=D),
-            "c": ceiling_camera(3.0, 4.8, (3.0, 2.3), z=2.8, hfov=65.0, D=D)}
+    return {
+        "a": ceiling_camera(0.3, 0.3, (3.0, 2.5), D=D),
+        "b": ceiling_camera(5.7, 0.4, (3.0, 2.5), z=3.3, D=D),
+        "c": ceiling_camera(3.0, 4.8, (3.0, 2.3), z=2.8, hfov=65.0, D=D),
+    }
 
 
 def walk_points(n=200, seed=0):
@@ -72,8 +76,10 @@ def test_pnp_with_unknown_focal_and_k1():
 
 def nominal(tracks, names):
     """The tracks of `names` as a camera without CameraInfo gives them: a 90 deg nominal model."""
-    return [replace(t, camera=CameraModel.from_fov(t.camera.width, t.camera.height, 90.0)) if t.name in names else t
-            for t in tracks]
+    return [
+        replace(t, camera=CameraModel.from_fov(t.camera.width, t.camera.height, 90.0)) if t.name in names else t
+        for t in tracks
+    ]
 
 
 def check_relative(group, cams, pos_tol, rot_tol_deg):

@@ -1,5 +1,6 @@
 """The ROS-free keypoint tracker the node and the offline API both run: intrinsics from
 CameraInfo, a file or a nominal model; validated frames; the background."""
+
 import numpy as np
 import pytest
 
@@ -14,8 +15,9 @@ PERIOD_NS = 10**8
 
 
 def _frame(k: int, x: float = 100.0) -> KeypointFrame:
-    return KeypointFrame(10**18 + k * PERIOD_NS, np.array([0, 1]), np.array([[x, 50.0], [x + 10, 60.0]]),
-                         np.array([0.9, 0.8]))
+    return KeypointFrame(
+        10**18 + k * PERIOD_NS, np.array([0, 1]), np.array([[x, 50.0], [x + 10, 60.0]]), np.array([0.9, 0.8])
+    )
 
 
 def test_recorded_keypoints_are_validated_and_sampled_images_give_the_background():
@@ -24,8 +26,8 @@ def test_recorded_keypoints_are_validated_and_sampled_images_give_the_background
     assert t.wants_camera_info and t.detector is None and t.camera is None
     assert t.take_camera(CAMERA) == [] and not t.wants_camera_info
     assert t.take_keypoints(_frame(0)) is not None
-    assert t.take_keypoints(_frame(0)) is None                     # a stamp not after the previous one
-    kept = t.take_keypoints(_frame(1, x=1e5))                     # both keypoints far outside the image
+    assert t.take_keypoints(_frame(0)) is None  # a stamp not after the previous one
+    kept = t.take_keypoints(_frame(1, x=1e5))  # both keypoints far outside the image
     assert kept is not None and len(kept.ids) == 0
     assert "1 stamp not after the previous frame" in t.summary() and "invalid coordinates" in t.summary()
     # Only images a background period apart are asked for; their median is the background.
@@ -44,8 +46,9 @@ def test_recorded_keypoints_are_validated_and_sampled_images_give_the_background
 
 def test_intrinsics_from_a_file_a_nominal_model_or_none():
     params = CmcParams()
-    t = KeypointTracker(camera="c2", source="keypoints", params=params, has_images=False,
-                        camera_info=camera_info_yaml(CAMERA, "c2"))
+    t = KeypointTracker(
+        camera="c2", source="keypoints", params=params, has_images=False, camera_info=camera_info_yaml(CAMERA, "c2")
+    )
     np.testing.assert_allclose(t.camera.K, CAMERA.K)
     assert not t.wants_camera_info
     bad = KeypointTracker(camera="c2", source="keypoints", params=params, has_images=False, camera_info="hello: [1")

@@ -3,6 +3,7 @@ synthetic joint sequences: a person's left/right joint pairs walking and standin
 ceiling cameras, projected by a real camera model, with the label swaps a pose model
 makes (every pair for a person seen from behind, single pairs at random). Whatever comes
 out must be right or absent."""
+
 import numpy as np
 import pytest
 
@@ -14,8 +15,16 @@ PAIRS = lr_pairs(MOVENET_JOINTS)
 K = len(MOVENET_JOINTS) + 2
 # Per pair (eyes, ears, shoulders, elbows, wrists, hips, knees, ankles): height [m],
 # half the lateral offset [m], fore-aft swing amplitude [m] (limbs swing against each other).
-BODY = [(1.62, 0.032, 0.0), (1.58, 0.075, 0.0), (1.40, 0.20, 0.0), (1.08, 0.21, 0.12), (0.83, 0.23, 0.2),
-        (0.92, 0.10, 0.0), (0.50, 0.10, 0.12), (0.07, 0.10, 0.25)]
+BODY = [
+    (1.62, 0.032, 0.0),
+    (1.58, 0.075, 0.0),
+    (1.40, 0.20, 0.0),
+    (1.08, 0.21, 0.12),
+    (0.83, 0.23, 0.2),
+    (0.92, 0.10, 0.0),
+    (0.50, 0.10, 0.12),
+    (0.07, 0.10, 0.25),
+]
 HZ = 10.0
 
 
@@ -24,7 +33,7 @@ def walk_3d(heading: float, n: int, speed: float = 1.0, stand: tuple[int, int] =
     the origin along `heading`, standing still (and turning by 90 deg) in frames stand[0]:stand[1]."""
     out = np.full((n, K, 3), np.nan)
     h = heading
-    xy = -0.5 * speed * (n - stand[1] + stand[0]) / HZ * np.array([np.cos(h), np.sin(h)])   # centred on the origin
+    xy = -0.5 * speed * (n - stand[1] + stand[0]) / HZ * np.array([np.cos(h), np.sin(h)])  # centred on the origin
     for i in range(n):
         standing = stand[0] <= i < stand[1]
         if standing:
@@ -44,8 +53,10 @@ def walk_3d(heading: float, n: int, speed: float = 1.0, stand: tuple[int, int] =
 CAMERAS = [  # ceiling cameras looking down at the walk from several sides and tilts
     (CameraModel.from_fov(640, 480, 80.0), look_at((-3.0, -2.0, 3.2), (0.0, 0.0, 0.6))),
     (CameraModel.from_fov(640, 480, 90.0), look_at((2.5, 2.5, 2.6), (0.0, 0.0, 0.8))),
-    (CameraModel(640, 480, [[380.0, 0, 319.5], [0, 380.0, 239.5], [0, 0, 1]], [-0.25, 0.06, 0, 0, 0]),
-     look_at((0.5, -2.2, 3.8), (0.0, 0.0, 0.3))),
+    (
+        CameraModel(640, 480, [[380.0, 0, 319.5], [0, 380.0, 239.5], [0, 0, 1]], [-0.25, 0.06, 0, 0, 0]),
+        look_at((0.5, -2.2, 3.8), (0.0, 0.0, 0.3)),
+    ),
 ]
 
 
@@ -78,7 +89,7 @@ def run(lr: LeftRight, frames, t0_ns=1_000_000_000, track=0):
     for s, (_, pose) in zip(stamps, frames):
         out += lr.push(s, track, pose)
     out += lr.flush()
-    assert [s for s, _ in out] == stamps       # every frame comes out, in order
+    assert [s for s, _ in out] == stamps  # every frame comes out, in order
     return [pose for _, pose in out]
 
 
@@ -130,7 +141,7 @@ def test_standing_from_the_start_and_coincident_sides_are_dropped():
         pose.uv[knee_r] = pose.uv[knee_l] + 1.0
     resolved = run(LeftRight(PAIRS, PoseModelParams()), frames)
     assert all(p.confidence[knee_l] == 0 and p.confidence[knee_r] == 0 for p in resolved)
-    assert sum(p.confidence[PAIRS[2][0]] > 0 for p in resolved) >= 25      # shoulders
+    assert sum(p.confidence[PAIRS[2][0]] > 0 for p in resolved) >= 25  # shoulders
 
 
 def test_a_pair_seen_on_one_side_only_is_dropped():
@@ -138,6 +149,6 @@ def test_a_pair_seen_on_one_side_only_is_dropped():
     frames = poses(camera, T, walk_3d(1.0, 30), set(), np.random.default_rng(5))
     wrist_l, wrist_r = PAIRS[4]
     for _, pose in frames:
-        pose.confidence[wrist_r] = 0.1           # below min_keypoint_score
+        pose.confidence[wrist_r] = 0.1  # below min_keypoint_score
     resolved = run(LeftRight(PAIRS, PoseModelParams()), frames)
     assert all(p.confidence[wrist_l] == 0 for p in resolved)

@@ -1,5 +1,6 @@
 """The pose model on real photographs that installed wheels ship, against joints
 marked by hand (by eye on zoomed crops with a pixel grid; docs/pose_model.md)."""
+
 from importlib import metadata
 from itertools import permutations
 
@@ -14,24 +15,49 @@ from yowo_cmc.pose_model import GROUND, HEAD_TOP, PersonPose, PoseDetector, Pose
 # of names is a pair whose left/right could not be told apart by eye.
 MARKS = {
     "bus": [  # ultralytics/assets/bus.jpg, 810 x 1080: pedestrians in front of a bus
-        {"who": "coat", "height": 496, "joints": {
-            "head_top": (135, 400), "nose": (140, 445), "right_eye": (128, 435), "left_eye": (147, 435),
-            "right_shoulder": (88, 500), "left_shoulder": (168, 500),
-            "right_ankle": (72, 858), "left_ankle": (192, 858), "ground": (132, 893)}},
-        {"who": "jacket", "height": 450, "joints": {
-            "head_top": (283, 409), "nose": (293, 454), "right_eye": (281, 444), "left_eye": (299, 444),
-            ("right_ankle", "left_ankle"): ((265, 825), (285, 797))}},
+        {
+            "who": "coat",
+            "height": 496,
+            "joints": {
+                "head_top": (135, 400),
+                "nose": (140, 445),
+                "right_eye": (128, 435),
+                "left_eye": (147, 435),
+                "right_shoulder": (88, 500),
+                "left_shoulder": (168, 500),
+                "right_ankle": (72, 858),
+                "left_ankle": (192, 858),
+                "ground": (132, 893),
+            },
+        },
+        {
+            "who": "jacket",
+            "height": 450,
+            "joints": {
+                "head_top": (283, 409),
+                "nose": (293, 454),
+                "right_eye": (281, 444),
+                "left_eye": (299, 444),
+                ("right_ankle", "left_ankle"): ((265, 825), (285, 797)),
+            },
+        },
     ],
     "astronaut": [  # skimage.data.astronaut(), 512 x 512, waist up
-        {"who": "collins", "height": 490, "joints": {
-            "nose": (226, 123), "right_eye": (205, 102), "left_eye": (247, 103)}},
+        {
+            "who": "collins",
+            "height": 490,
+            "joints": {"nose": (226, 123), "right_eye": (205, 102), "left_eye": (247, 103)},
+        },
     ],
     "camera": [  # skimage.data.camera(), 512 x 512 grey, profile facing right
-        {"who": "cameraman", "height": 440, "joints": {
-            "nose": (253, 167), "right_eye": (233, 148), "right_ear": (188, 140)}},
+        {
+            "who": "cameraman",
+            "height": 440,
+            "joints": {"nose": (253, 167), "right_eye": (233, 148), "right_ear": (188, 140)},
+        },
     ],
 }
-TOLERANCE = 0.05          # of the person's height: a broken letterbox, scale or flip is far beyond
+TOLERANCE = 0.05  # of the person's height: a broken letterbox, scale or flip is far beyond
 BLAZEPOSE_TOLERANCE = 0.08  # its measured worst joint is 6.3 % (docs/pose_model.md)
 
 
@@ -68,8 +94,9 @@ def joint_errors(det, pose, person) -> dict:
     for name, mark in person["joints"].items():
         if isinstance(name, tuple):
             got = [_uv(det, pose, n) for n in name]
-            out["/".join(name)] = min(max(np.hypot(*(g - np.array(m))) for g, m in zip(order, mark))
-                                      for order in permutations(got))
+            out["/".join(name)] = min(
+                max(np.hypot(*(g - np.array(m))) for g, m in zip(order, mark)) for order in permutations(got)
+            )
         else:
             out[name] = float(np.hypot(*(_uv(det, pose, name) - np.array(mark))))
     return out
@@ -138,16 +165,21 @@ def test_crop_maps_back_to_image_pixels(movenet):
     # the refined joints are the same up to that offset, to float precision (an off-by-one or
     # half-pixel slip in the crop's placement or the mapping back would show).
     rgb = photo("bus")
-    coat = PersonPose(1.0, np.array([40.0, 390.0, 230.0, 900.0]), movenet.ids,
-                      np.zeros((len(movenet.ids), 2)), np.zeros(len(movenet.ids)))
+    coat = PersonPose(
+        1.0,
+        np.array([40.0, 390.0, 230.0, 900.0]),
+        movenet.ids,
+        np.zeros((len(movenet.ids), 2)),
+        np.zeros(len(movenet.ids)),
+    )
     here = movenet.refine(rgb, coat)
     dx, dy = 37, 211
     canvas = np.zeros((rgb.shape[0] + 400, rgb.shape[1] + 100, 3), np.uint8)
-    canvas[dy:dy + rgb.shape[0], dx:dx + rgb.shape[1]] = rgb
+    canvas[dy : dy + rgb.shape[0], dx : dx + rgb.shape[1]] = rgb
     moved = PersonPose(1.0, coat.box + [dx, dy, dx, dy], coat.ids, coat.uv, coat.confidence)
     there = movenet.refine(canvas, moved)
     assert here.confidence[2:].min() > 0.0 and np.isfinite(here.uv[2:]).all()
-    np.testing.assert_allclose(there.uv, here.uv + [dx, dy], atol=1e-3)   # NaN (not derivable) in both
+    np.testing.assert_allclose(there.uv, here.uv + [dx, dy], atol=1e-3)  # NaN (not derivable) in both
     np.testing.assert_allclose(there.confidence, here.confidence, atol=1e-6)
     # and the refined person is the coat: its nose near the hand mark
     assert np.hypot(*(here.uv[2] - MARKS["bus"][0]["joints"]["nose"])) < 10
@@ -165,7 +197,7 @@ def test_bus_gives_both_walkers_sorted_by_score(movenet):
 def test_blank_image_gives_nobody(model, movenet, blazepose):
     det = movenet if model == "movenet" else blazepose
     assert det.detect(np.full((480, 640, 3), 128, np.uint8)) == []
-    assert det.detect(np.zeros((37, 53, 3), np.uint8)) == []   # odd sizes are letterboxed, no crash
+    assert det.detect(np.zeros((37, 53, 3), np.uint8)) == []  # odd sizes are letterboxed, no crash
 
 
 def test_derived_head_top_and_ground_are_plausible(movenet):

@@ -2,6 +2,7 @@
 simulator's agent is found in every camera, its head top and ground point land near
 their true projections, and a camera showing nobody falls back to the model-free
 detector."""
+
 import numpy as np
 import pytest
 
@@ -54,9 +55,12 @@ def keypoint_errors(bag, k: int) -> dict[str, np.ndarray]:
     assert tracks.keys() == truth.keys()
     for name, cam in tracks.items():
         assert any(i >= 2 for i in cam.tracks), f"{name}: no body joints"
-    return {name: np.array([np.linalg.norm(uv - truth[name][s][k]) for s, uv in zip(cam.tracks[k].stamps_ns,
-                                                                                   cam.tracks[k].uv)])
-            for name, cam in tracks.items()}
+    return {
+        name: np.array(
+            [np.linalg.norm(uv - truth[name][s][k]) for s, uv in zip(cam.tracks[k].stamps_ns, cam.tracks[k].uv)]
+        )
+        for name, cam in tracks.items()
+    }
 
 
 def test_the_agent_is_found_in_every_camera_near_its_true_ground_point(video_only):

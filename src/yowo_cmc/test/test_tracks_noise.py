@@ -54,7 +54,7 @@ def test_interpolation_between_samples_keeps_a_fast_swing_and_never_bridges_a_ga
     amplitude, where linear interpolation lost about a fifth; at its own stamps a track
     gives its samples; nothing across a gap or outside the track."""
     t = np.arange(60) * 0.1
-    keep = (t < 2.0) | (t > 2.35)                      # a 0.4 s gap
+    keep = (t < 2.0) | (t > 2.35)  # a 0.4 s gap
     stamps = (10**18 + t * 1e9).astype(np.int64)
     amplitude = 40.0
     uv = np.column_stack([amplitude * np.sin(2 * np.pi * 2.0 * t), np.cos(2 * np.pi * 2.0 * t)])

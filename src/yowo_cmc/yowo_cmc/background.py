@@ -1,6 +1,7 @@
 """The agent-free background of a static camera: the per-pixel temporal median of
 frames sampled evenly over the recording (a walking agent is in each pixel for a
 minority of them)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -22,7 +23,7 @@ class BackgroundSampler:
         self.count += 1
         self.frames.append(rgb)
         if len(self.frames) > self.max_frames:
-            self.frames = self.frames[::2]       # keep memory bounded, still spread over time
+            self.frames = self.frames[::2]  # keep memory bounded, still spread over time
             self.period_ns *= 2
 
     def image(self) -> np.ndarray | None:

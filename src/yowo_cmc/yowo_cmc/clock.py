@@ -10,6 +10,7 @@ the full one on the half-frame grid around the best few of those), then one leas
 and the shift together (sub-frame), its sigma from the fit's curvature. Globally: the
 pair offsets over the co-visibility graph by weighted least squares, one reference
 camera per connected component, inconsistent pair estimates dropped one by one."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
@@ -32,21 +33,21 @@ from .params import ClockParams
 class PairOffset:
     a: str
     b: str
-    offset_s: float | None              # clock of b - clock of a (b's stamp of an instant = a's + this)
+    offset_s: float | None  # clock of b - clock of a (b's stamp of an instant = a's + this)
     sigma_s: float | None
-    correspondences: int                # samples in the refinement (0: not refined)
-    rms_px: float | None                # Sampson error at the solution, robust (MAD) sigma
-    used: bool = False                  # in the global solution
-    reason: str = ""                    # why not usable / dropped ('' when used)
+    correspondences: int  # samples in the refinement (0: not refined)
+    rms_px: float | None  # Sampson error at the solution, robust (MAD) sigma
+    used: bool = False  # in the global solution
+    reason: str = ""  # why not usable / dropped ('' when used)
 
 
 @dataclass
 class CameraClock:
     name: str
-    offset_s: float | None              # this camera's clock - the reference camera's
+    offset_s: float | None  # this camera's clock - the reference camera's
     sigma_s: float | None
-    reference: str | None               # the camera of its component whose offset is fixed at 0
-    reason: str = ""                    # why there is no estimate
+    reference: str | None  # the camera of its component whose offset is fixed at 0
+    reason: str = ""  # why there is no estimate
 
 
 @dataclass
@@ -62,8 +63,12 @@ class _Tracks:
     def __init__(self, cam: CameraTracks, origin_ns: int, sfm: SfmParams):
         self.name, self.period_s = cam.name, cam.frame_period_ns / 1e9
         self.scale = noise_scale(cam, sfm.tracks)
-        cleaned = CameraTracks(cam.name, cam.camera, {i: clean_track(t, cam.frame_period_ns, sfm.tracks, self.scale)
-                                                      for i, t in cam.tracks.items()}, cam.frame_period_ns)
+        cleaned = CameraTracks(
+            cam.name,
+            cam.camera,
+            {i: clean_track(t, cam.frame_period_ns, sfm.tracks, self.scale) for i, t in cam.tracks.items()},
+            cam.frame_period_ns,
+        )
         ideal = undistort_tracks(cleaned)
         self.camera = ideal.camera
         max_gap = int(sfm.tracks.gap_factor * cam.frame_period_ns)
@@ -108,8 +113,9 @@ class _Pair:
         self.ids = sorted(set(a.samples) & set(b.splines))
         self.ta = np.concatenate([a.samples[i][0] for i in self.ids]) if self.ids else np.zeros(0)
         self.uva = np.concatenate([a.samples[i][1] for i in self.ids]) if self.ids else np.zeros((0, 2))
-        self.id_of = np.concatenate([np.full(len(a.samples[i][0]), i) for i in self.ids]) if self.ids \
-            else np.zeros(0, int)
+        self.id_of = (
+            np.concatenate([np.full(len(a.samples[i][0]), i) for i in self.ids]) if self.ids else np.zeros(0, int)
+        )
 
     def b_at(self, delta: float, within: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         uv, ok, seg = np.full((len(self.ta), 2), np.nan), np.zeros(len(self.ta), bool), np.full(len(self.ta), -1)
@@ -119,8 +125,9 @@ class _Pair:
         return uv, ok, seg
 
 
-def _coarse_cost(pair: _Pair, delta: float, params: ClockParams, sfm: SfmParams, thr_px: float
-                 ) -> tuple[float, np.ndarray | None]:
+def _coarse_cost(
+    pair: _Pair, delta: float, params: ClockParams, sfm: SfmParams, thr_px: float
+) -> tuple[float, np.ndarray | None]:
     """(truncated squared Sampson error / threshold^2, essential matrix) at one shift,
     averaged over all of camera a's samples: one without a counterpart in b at this shift
     costs as much as an outlier. (A mean over the co-visible samples alone favours shifts
@@ -137,17 +144,24 @@ def _coarse_cost(pair: _Pair, delta: float, params: ClockParams, sfm: SfmParams,
     focal = 0.25 * (Ka[0, 0] + Ka[1, 1] + Kb[0, 0] + Kb[1, 1])
     cv2.setRNGSeed(RANSAC_SEED)
     try:
-        E, _ = cv2.findEssentialMat(_normalised(pa[sub], Ka), _normalised(pb[sub], Kb), np.eye(3),
-                                    cv2.USAC_DEFAULT, 0.999, thr_px / focal, params.coarse_iterations)
+        E, _ = cv2.findEssentialMat(
+            _normalised(pa[sub], Ka),
+            _normalised(pb[sub], Kb),
+            np.eye(3),
+            cv2.USAC_DEFAULT,
+            0.999,
+            thr_px / focal,
+            params.coarse_iterations,
+        )
     except cv2.error:  # degenerate configurations make USAC assert
         return np.inf, None
     if E is None or E.shape[0] < 3:
         return np.inf, None
     best = (np.inf, None)
-    for k in range(E.shape[0] // 3):     # the 5-point solver may return several
-        e = sampson_px(_fundamental(E[3 * k:3 * k + 3], Ka, Kb), pa, pb)
-        cost = (float(np.sum(np.minimum(e, thr_px) ** 2)) + (len(ok) - len(e)) * thr_px ** 2) / (len(ok) * thr_px ** 2)
-        best = min(best, (cost, E[3 * k:3 * k + 3]), key=lambda c: c[0])
+    for k in range(E.shape[0] // 3):  # the 5-point solver may return several
+        e = sampson_px(_fundamental(E[3 * k : 3 * k + 3], Ka, Kb), pa, pb)
+        cost = (float(np.sum(np.minimum(e, thr_px) ** 2)) + (len(ok) - len(e)) * thr_px**2) / (len(ok) * thr_px**2)
+        best = min(best, (cost, E[3 * k : 3 * k + 3]), key=lambda c: c[0])
     return best
 
 
@@ -156,8 +170,9 @@ def _search_every(params: ClockParams) -> int:
     return max(1, round(params.search_step_frames / params.coarse_step_frames))
 
 
-def _cheap_curve(pair: _Pair, grid: np.ndarray, params: ClockParams, sfm: SfmParams, thr_px: float
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def _cheap_curve(
+    pair: _Pair, grid: np.ndarray, params: ClockParams, sfm: SfmParams, thr_px: float
+) -> tuple[np.ndarray, np.ndarray]:
     """(indices into the grid, cost there): the cheap fit every search step."""
     every = _search_every(params)
     cheap = replace(params, coarse_iterations=params.search_iterations, coarse_points=params.search_points)
@@ -198,8 +213,9 @@ def _signed_sampson(F: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> np.ndarray
     return np.sum(xb * Fa, axis=1) / np.sqrt(Fa[:, 0] ** 2 + Fa[:, 1] ** 2 + Ftb[:, 0] ** 2 + Ftb[:, 1] ** 2 + 1e-300)
 
 
-def _refine(pair: _Pair, delta0: float, E0: np.ndarray, step: float, params: ClockParams, thr_px: float,
-            huber_px: float) -> tuple[float, float, int, float] | str:
+def _refine(
+    pair: _Pair, delta0: float, E0: np.ndarray, step: float, params: ClockParams, thr_px: float, huber_px: float
+) -> tuple[float, float, int, float] | str:
     """Relative pose and shift by one robust least-squares fit from the coarse minimum:
     (offset, sigma, correspondences, rms px), or why it failed."""
     # Correspondences that stay inside one segment of b over the whole search interval,
@@ -211,8 +227,11 @@ def _refine(pair: _Pair, delta0: float, E0: np.ndarray, step: float, params: Clo
         return f"{int(ok.sum())} inlier correspondences around the best shift (needs {params.min_correspondences})"
     ta, pa, ids = pair.ta[ok], pair.uva[ok], pair.id_of[ok]
     seg = seg[ok]
-    groups = [(np.flatnonzero((ids == i) & (seg == k)), pair.b.splines[i][k][2]) for i in pair.ids
-              for k in np.unique(seg[ids == i])]
+    groups = [
+        (np.flatnonzero((ids == i) & (seg == k)), pair.b.splines[i][k][2])
+        for i in pair.ids
+        for k in np.unique(seg[ids == i])
+    ]
 
     def b_points(delta: float) -> np.ndarray:
         pb = np.empty((len(ta), 2))
@@ -220,7 +239,7 @@ def _refine(pair: _Pair, delta0: float, E0: np.ndarray, step: float, params: Clo
             pb[idx] = spline(ta[idx] + delta)
         return pb
 
-    R0, _, t0 = cv2.decomposeEssentialMat(E0)   # any of the four: all give the same E up to sign
+    R0, _, t0 = cv2.decomposeEssentialMat(E0)  # any of the four: all give the same E up to sign
     t0 = t0.ravel() / np.linalg.norm(t0)
     e1 = np.cross(t0, [1.0, 0, 0] if abs(t0[0]) < 0.9 else [0, 1.0, 0])
     e1 /= np.linalg.norm(e1)
@@ -235,8 +254,15 @@ def _refine(pair: _Pair, delta0: float, E0: np.ndarray, step: float, params: Clo
 
     lo = np.r_[np.full(5, -np.inf), delta0 - step]
     hi = np.r_[np.full(5, np.inf), delta0 + step]
-    fit = least_squares(residuals, np.r_[np.zeros(5), delta0], bounds=(lo, hi), loss="huber", f_scale=huber_px,
-                        x_scale="jac", method="trf")
+    fit = least_squares(
+        residuals,
+        np.r_[np.zeros(5), delta0],
+        bounds=(lo, hi),
+        loss="huber",
+        f_scale=huber_px,
+        x_scale="jac",
+        method="trf",
+    )
     delta = float(fit.x[5])
     if min(delta - lo[5], hi[5] - delta) < 1e-3 * step:
         return f"the refined shift {delta:+.3f} s ran to the edge of its interval (no clear minimum)"
@@ -265,17 +291,38 @@ def estimate_pair(a: _Tracks, b: _Tracks, params: ClockParams, sfm: SfmParams) -
         costs[k] = _coarse_cost(pair, grid[k], params, sfm, thr)
     best = int(np.argmin([c for c, _ in costs]))
     if not np.isfinite(costs[best][0]):
-        return PairOffset(a.name, b.name, None, None, 0, None,
-                          reason=f"fewer than {params.min_correspondences} co-visible samples at every shift")
-    dip = prominence(cheap)     # the cheap curve: evenly spaced, whatever the search evaluates in full
+        return PairOffset(
+            a.name,
+            b.name,
+            None,
+            None,
+            0,
+            None,
+            reason=f"fewer than {params.min_correspondences} co-visible samples at every shift",
+        )
+    dip = prominence(cheap)  # the cheap curve: evenly spaced, whatever the search evaluates in full
     if not dip >= params.min_prominence:
-        return PairOffset(a.name, b.name, None, None, 0, None,
-                          reason=f"no clear minimum over the shifts (the best, {grid[best]:+.3f} s, is {dip:.1f} noise "
-                                 f"levels below the median cost; needs {params.min_prominence:g})")
+        return PairOffset(
+            a.name,
+            b.name,
+            None,
+            None,
+            0,
+            None,
+            reason=f"no clear minimum over the shifts (the best, {grid[best]:+.3f} s, is {dip:.1f} noise "
+            f"levels below the median cost; needs {params.min_prominence:g})",
+        )
     if best in (0, len(grid) - 1):
-        return PairOffset(a.name, b.name, None, None, 0, None,
-                          reason=f"the best shift is at the edge of the search range (+-{params.max_offset_s:g} s): "
-                                 "the offset may lie beyond it")
+        return PairOffset(
+            a.name,
+            b.name,
+            None,
+            None,
+            0,
+            None,
+            reason=f"the best shift is at the edge of the search range (+-{params.max_offset_s:g} s): "
+            "the offset may lie beyond it",
+        )
     refined = _refine(pair, float(grid[best]), costs[best][1], step, params, thr, params.huber_px * scale)
     if isinstance(refined, str):
         return PairOffset(a.name, b.name, None, None, 0, None, reason=refined)
@@ -311,8 +358,9 @@ def _drop_lone_bridges(usable: list[PairOffset]) -> None:
         sizes = len(nx.node_connected_component(H, a)), len(nx.node_connected_component(H, b))
         if min(sizes) >= 2:
             p = next(p for p in usable if {p.a, p.b} == {a, b})
-            p.reason = (f"the only pair joining {sizes[0]} cameras to {sizes[1]} others "
-                        "(needs two paths, as in the group SfM)")
+            p.reason = (
+                f"the only pair joining {sizes[0]} cameras to {sizes[1]} others (needs two paths, as in the group SfM)"
+            )
             usable.remove(p)
 
 
@@ -351,7 +399,7 @@ def combine(names: list[str], pairs: list[PairOffset], params: ClockParams) -> d
             dof = len(edges) - len(col)
             # Pair sigmas are approximate: scale them by the observed scatter when it is larger.
             inflate = max(1.0, float(np.sqrt(res @ res / dof))) if dof > 0 else 1.0
-            cov = np.linalg.inv((A * w[:, None]).T @ (A * w[:, None])) * inflate ** 2
+            cov = np.linalg.inv((A * w[:, None]).T @ (A * w[:, None])) * inflate**2
             solution[ref] = (0.0, 0.0, ref)
             for c, k in col.items():
                 solution[c] = (float(x[k]), float(np.sqrt(cov[k, k])), ref)
@@ -375,17 +423,21 @@ def combine(names: list[str], pairs: list[PairOffset], params: ClockParams) -> d
             continue
         mine = [p for p in pairs if n in (p.a, p.b)]
         if not mine:
-            reason = (f"sees the agent at no time another camera does (within +-{params.max_offset_s:g} s): "
-                      "no pair to compare with")
+            reason = (
+                f"sees the agent at no time another camera does (within +-{params.max_offset_s:g} s): "
+                "no pair to compare with"
+            )
         else:
-            reason = "no usable camera pair: " + "; ".join(f"with '{p.b if p.a == n else p.a}': {p.reason}"
-                                                         for p in mine)
+            reason = "no usable camera pair: " + "; ".join(
+                f"with '{p.b if p.a == n else p.a}': {p.reason}" for p in mine
+            )
         out[n] = CameraClock(n, None, None, None, reason)
     return out
 
 
-def estimate_clock_offsets(tracks: list[CameraTracks], params: ClockParams = ClockParams(),
-                           sfm: SfmParams = SfmParams()) -> ClockEstimate:
+def estimate_clock_offsets(
+    tracks: list[CameraTracks], params: ClockParams = ClockParams(), sfm: SfmParams = SfmParams()
+) -> ClockEstimate:
     """Each camera's clock offset from the reference camera of its co-visibility
     component (raw-pixel tracks on each camera's own clock; `sfm` gives the track
     cleaning and the spatial spread of the RANSAC subsets, as the group SfM uses them)."""
@@ -410,12 +462,22 @@ def attach_to_groups(groups, estimate: ClockEstimate) -> None:
                 g.clock_sigmas_s[n] = float(np.hypot(c.sigma_s or 0.0, ref.sigma_s or 0.0)) if n != g.reference else 0.0
 
 
-def triangulate_weighted(P: np.ndarray, cam_i: np.ndarray, pt_i: np.ndarray, uv: np.ndarray, weight: np.ndarray,
-                         n_points: int, iterations: int = 2) -> np.ndarray:
+def triangulate_weighted(
+    P: np.ndarray,
+    cam_i: np.ndarray,
+    pt_i: np.ndarray,
+    uv: np.ndarray,
+    weight: np.ndarray,
+    n_points: int,
+    iterations: int = 2,
+) -> np.ndarray:
     """Every point from its observations at once: linear (DLT) then Gauss-Newton steps on
     the weighted reprojection error. P: (C, 3, 4) projection matrices."""
     Pc = P[cam_i]
-    rows = np.concatenate([uv[:, :1] * Pc[:, 2] - Pc[:, 0], uv[:, 1:] * Pc[:, 2] - Pc[:, 1]]) * np.r_[weight, weight][:, None]
+    rows = (
+        np.concatenate([uv[:, :1] * Pc[:, 2] - Pc[:, 0], uv[:, 1:] * Pc[:, 2] - Pc[:, 1]])
+        * np.r_[weight, weight][:, None]
+    )
     rows /= np.linalg.norm(rows, axis=1, keepdims=True)
     M = np.zeros((n_points, 4, 4))
     np.add.at(M, np.r_[pt_i, pt_i], rows[:, :, None] * rows[:, None, :])
@@ -432,8 +494,9 @@ def triangulate_weighted(P: np.ndarray, cam_i: np.ndarray, pt_i: np.ndarray, uv:
     return X
 
 
-def refine_group_offsets(group: CameraGroupResult, tracks: dict[str, CameraTracks], params: ClockParams,
-                         sfm: SfmParams) -> dict[str, tuple[float, float]]:
+def refine_group_offsets(
+    group: CameraGroupResult, tracks: dict[str, CameraTracks], params: ClockParams, sfm: SfmParams
+) -> dict[str, tuple[float, float]]:
     """Corrections to the members' clocks, each against the group's reference camera: one
     robust least-squares fit of every member's pose and correction, the agent points
     triangulated anew at every step (variable projection), each member's observation of
@@ -476,18 +539,19 @@ def refine_group_offsets(group: CameraGroupResult, tracks: dict[str, CameraTrack
     free = [k for k in range(len(members)) if k != ref]
     if len(pts) < sfm.min_pnp or any(np.sum(cam_i == k) < params.refine_min_observations for k in free):
         return {}
-    weight = 1.0 / np.array([group.sigma_px_by_id.get(int(i), sfm.initial_sigma_px)
-                             for i in group.point_ids[pts]])[pt_i]
+    weight = (
+        1.0 / np.array([group.sigma_px_by_id.get(int(i), sfm.initial_sigma_px) for i in group.point_ids[pts]])[pt_i]
+    )
     K = np.array([c.camera.K for c in cams])
-    T0 = [np.linalg.inv(group.T_local_cam[n]) for n in members]     # T_cam_local
+    T0 = [np.linalg.inv(group.T_local_cam[n]) for n in members]  # T_cam_local
     second = members.index(group.initial_pair[1]) if group.initial_pair[1] in members else free[0]
     baseline = float(np.linalg.norm(group.T_local_cam[members[second]][:3, 3] - group.T_local_cam[members[ref]][:3, 3]))
 
     def unpack(x):
         T, d = [t.copy() for t in T0], np.zeros(len(members))
         for j, k in enumerate(free):
-            T[k][:3, :3] = Rotation.from_rotvec(x[7 * j:7 * j + 3]).as_matrix() @ T0[k][:3, :3]
-            T[k][:3, 3] = T0[k][:3, 3] + x[7 * j + 3:7 * j + 6]
+            T[k][:3, :3] = Rotation.from_rotvec(x[7 * j : 7 * j + 3]).as_matrix() @ T0[k][:3, :3]
+            T[k][:3, 3] = T0[k][:3, 3] + x[7 * j + 3 : 7 * j + 6]
             d[k] = x[7 * j + 6]
         return T, d
 
@@ -495,7 +559,7 @@ def refine_group_offsets(group: CameraGroupResult, tracks: dict[str, CameraTrack
         T, d = unpack(x)
         P = np.einsum("cij,cjk->cik", K, np.array(T)[:, :3, :])
         dc = d[cam_i][:, None]
-        target = uv0 + dc * uv1 + 0.5 * dc ** 2 * uv2
+        target = uv0 + dc * uv1 + 0.5 * dc**2 * uv2
         X = triangulate_weighted(P, cam_i, pt_i, target, weight, len(pts))
         h = np.einsum("nij,nj->ni", P[cam_i][:, :, :3], X[pt_i]) + P[cam_i][:, :, 3]
         r = (h[:, :2] / h[:, 2:] - target) * weight[:, None]
@@ -523,6 +587,6 @@ def refine_group_offsets(group: CameraGroupResult, tracks: dict[str, CameraTrack
     for j, k in enumerate(free):
         delta = float(fit.x[7 * j + 6])
         if min(delta + w, w - delta) < 1e-3 * w:
-            continue        # ran to the edge of its range: no clear minimum, keep the pairs' estimate
+            continue  # ran to the edge of its range: no clear minimum, keep the pairs' estimate
         out[members[k]] = (delta, max(float(np.sqrt(max(cov[7 * j + 6, 7 * j + 6], 0.0))), params.min_sigma_s))
     return out

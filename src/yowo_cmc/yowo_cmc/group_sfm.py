@@ -4,6 +4,7 @@ fundamental matrices (eq. inliers), scene graph and grouping, overlap scores
 (eqs. grid, overlap), initial pair by match score (eq. match), E = K^T F K with
 the cheirality check, triangulation, next camera by overlap + PnP RANSAC, and
 group bundle adjustment (eq. cmc_bd) with per-keypoint-id noise re-estimation."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
@@ -30,12 +31,12 @@ class GridObservations:
     """Every camera's keypoints sampled on one time grid: a 3D agent point is a
     (grid time, keypoint id) pair, so views at unequal rates correspond."""
 
-    grid_ns: np.ndarray                    # (G,) stamps of the grid
-    cameras: list[CameraModel]             # ideal pinhole (undistorted) intrinsics
+    grid_ns: np.ndarray  # (G,) stamps of the grid
+    cameras: list[CameraModel]  # ideal pinhole (undistorted) intrinsics
     names: list[str]
     per_camera: list[dict[int, np.ndarray]]  # camera -> {key: uv (2,)}
-    noise_scale: list[float]               # camera -> factor on its pixel thresholds (tracks.noise_scale)
-    sigma_factor: list[dict[int, float]]   # camera -> {key: factor on its BA sigma} for weak detections only
+    noise_scale: list[float]  # camera -> factor on its pixel thresholds (tracks.noise_scale)
+    sigma_factor: list[dict[int, float]]  # camera -> {key: factor on its BA sigma} for weak detections only
 
     def keys(self, c: int) -> np.ndarray:
         return np.fromiter(self.per_camera[c].keys(), dtype=np.int64)
@@ -48,10 +49,10 @@ class GridObservations:
 class PairGeometry:
     a: int
     b: int
-    F: np.ndarray | None                   # x_b^T F x_a = 0 (ideal pixels)
-    keys: np.ndarray                       # co-visible keys
-    inliers: np.ndarray                    # bool mask over keys
-    overlap: tuple[float, float] = (0.0, 0.0)   # eq. overlap of the inliers in image a, image b
+    F: np.ndarray | None  # x_b^T F x_a = 0 (ideal pixels)
+    keys: np.ndarray  # co-visible keys
+    inliers: np.ndarray  # bool mask over keys
+    overlap: tuple[float, float] = (0.0, 0.0)  # eq. overlap of the inliers in image a, image b
 
     @property
     def num_inliers(self) -> int:
@@ -64,9 +65,9 @@ class CameraGroupResult:
     reference: str
     names: list[str]
     T_local_cam: dict[str, np.ndarray]
-    point_stamps_ns: np.ndarray            # (P,)
-    point_ids: np.ndarray                  # (P,)
-    points: np.ndarray                     # (P, 3) local, pseudo-scale
+    point_stamps_ns: np.ndarray  # (P,)
+    point_ids: np.ndarray  # (P,)
+    points: np.ndarray  # (P, 3) local, pseudo-scale
     rmse_px: dict[str, float]
     num_observations: dict[str, int]
     sigma_px_by_id: dict[int, float]
@@ -85,7 +86,7 @@ class CameraGroupResult:
 @dataclass
 class GroupingResult:
     groups: list[CameraGroupResult]
-    ungrouped: dict[str, str]              # camera -> reason
+    ungrouped: dict[str, str]  # camera -> reason
     pairs: list[PairGeometry]
 
 
@@ -94,8 +95,14 @@ def sample_on_grid(cams: list[CameraTracks], params: TrackParams) -> GridObserva
     period = min(c.frame_period_ns for c in cams)
     all_stamps = np.concatenate([t.stamps_ns for c in cams for t in c.tracks.values()] or [np.zeros(0, np.int64)])
     if len(all_stamps) == 0:
-        return GridObservations(np.zeros(0, np.int64), [], [c.name for c in cams], [{} for _ in cams],
-                                [1.0 for _ in cams], [{} for _ in cams])
+        return GridObservations(
+            np.zeros(0, np.int64),
+            [],
+            [c.name for c in cams],
+            [{} for _ in cams],
+            [1.0 for _ in cams],
+            [{} for _ in cams],
+        )
     t0 = all_stamps.min() - all_stamps.min() % period
     grid = np.arange(t0, all_stamps.max() + period, period, dtype=np.int64)
     per_camera, models, factors = [], [], []
@@ -156,8 +163,14 @@ def pair_geometry(obs: GridObservations, a: int, b: int, params: SfmParams) -> P
     if F is None or F.shape != (3, 3):
         return PairGeometry(a, b, None, keys, np.zeros(len(keys), bool))
     inliers = sampson_px(F, pa, pb) <= ransac_px
-    return PairGeometry(a, b, F, keys, inliers, (overlap_score(pa[inliers], obs.cameras[a], params),
-                                                 overlap_score(pb[inliers], obs.cameras[b], params)))
+    return PairGeometry(
+        a,
+        b,
+        F,
+        keys,
+        inliers,
+        (overlap_score(pa[inliers], obs.cameras[a], params), overlap_score(pb[inliers], obs.cameras[b], params)),
+    )
 
 
 def overlap_score(uv: np.ndarray, camera: CameraModel, params: SfmParams) -> float:
@@ -188,13 +201,14 @@ def weak_cut_parts(G: nx.Graph, max_conductance: float) -> list[set]:
     Each cut is the best sweep of the normalised Laplacian's second eigenvector (spectral
     partitioning: exact enumeration grows as 2^n with a floor's cameras)."""
     nodes = list(G.nodes)
-    if len(nodes) < 4 or max_conductance <= 0:    # each side needs two cameras
+    if len(nodes) < 4 or max_conductance <= 0:  # each side needs two cameras
         return [set(nodes)]
     W = nx.to_numpy_array(G, nodelist=nodes, weight="weight")
     d = W.sum(axis=1)
-    if not d.all():         # cameras left without an edge on their side of an earlier cut
+    if not d.all():  # cameras left without an edge on their side of an earlier cut
         return [{n} for n, x in zip(nodes, d) if not x] + weak_cut_parts(
-            G.subgraph(n for n, x in zip(nodes, d) if x), max_conductance)
+            G.subgraph(n for n, x in zip(nodes, d) if x), max_conductance
+        )
     _, V = np.linalg.eigh(np.eye(len(nodes)) - W / np.sqrt(np.outer(d, d)))
     order = np.argsort(V[:, 1] / np.sqrt(d), kind="stable")
     side = np.zeros(len(nodes), bool)
@@ -207,12 +221,16 @@ def weak_cut_parts(G: nx.Graph, max_conductance: float) -> list[set]:
             best, best_at = conductance, side.copy()
     if best_at is None:
         return [set(nodes)]
-    return [part for s in (best_at, ~best_at)
-            for part in weak_cut_parts(G.subgraph(n for n, k in zip(nodes, s) if k), max_conductance)]
+    return [
+        part
+        for s in (best_at, ~best_at)
+        for part in weak_cut_parts(G.subgraph(n for n, k in zip(nodes, s) if k), max_conductance)
+    ]
 
 
-def group_cameras(obs: GridObservations, pairs: list[PairGeometry], params: SfmParams
-                  ) -> tuple[list[list[int]], dict[int, str]]:
+def group_cameras(
+    obs: GridObservations, pairs: list[PairGeometry], params: SfmParams
+) -> tuple[list[list[int]], dict[int, str]]:
     """Scene-graph clustering: edges with >= min_matches inliers covering both images;
     members of a group of three or more must be joined by two edge-disjoint paths, and a
     group is split where it hangs together by a weak cut (weak_cut_parts)."""
@@ -230,8 +248,14 @@ def group_cameras(obs: GridObservations, pairs: list[PairGeometry], params: SfmP
     # along their strongest edges: a pair needs no second path.
     grouped = {c for g in groups for c in g}
     rest = G.subgraph(set(G.nodes) - grouped)
-    groups += sorted(sorted(pair) for pair in (nx.max_weight_matching(rest) if params.pair_leftovers
-                                                else (c for c in nx.connected_components(rest) if len(c) == 2)))
+    groups += sorted(
+        sorted(pair)
+        for pair in (
+            nx.max_weight_matching(rest)
+            if params.pair_leftovers
+            else (c for c in nx.connected_components(rest) if len(c) == 2)
+        )
+    )
     grouped = {c for g in groups for c in g}
     reasons = {}
     for c in range(len(obs.names)):
@@ -240,16 +264,22 @@ def group_cameras(obs: GridObservations, pairs: list[PairGeometry], params: SfmP
         frames = len({k // MAX_IDS for k in obs.per_camera[c]})
         best = max((p for p in pairs if c in (p.a, p.b)), key=lambda p: p.num_inliers, default=None)
         if best is None or best.num_inliers == 0:
-            reasons[c] = (f"seen in {frames} frames; shares no view of the agent with another camera "
-                          f"(needs {params.min_matches} matches)")
+            reasons[c] = (
+                f"seen in {frames} frames; shares no view of the agent with another camera "
+                f"(needs {params.min_matches} matches)"
+            )
         elif best.num_inliers < params.min_matches:
             other = obs.names[best.b if best.a == c else best.a]
-            reasons[c] = (f"seen in {frames} frames; only {best.num_inliers} inlier matches with '{other}' "
-                          f"(needs {params.min_matches})")
+            reasons[c] = (
+                f"seen in {frames} frames; only {best.num_inliers} inlier matches with '{other}' "
+                f"(needs {params.min_matches})"
+            )
         elif not any(strong_edge(p, params) for p in pairs if c in (p.a, p.b)):
             other = obs.names[best.b if best.a == c else best.a]
-            reasons[c] = (f"its {best.num_inliers} matches with '{other}' cover too little of the images "
-                          f"(overlap {min(best.overlap):.1f}, needs {params.min_edge_overlap:.1f})")
+            reasons[c] = (
+                f"its {best.num_inliers} matches with '{other}' cover too little of the images "
+                f"(overlap {min(best.overlap):.1f}, needs {params.min_edge_overlap:.1f})"
+            )
         else:
             reasons[c] = "joined to a group by a single camera pair (needs two paths to its members)"
     return groups, reasons
@@ -266,8 +296,9 @@ def triangulate(cameras: list[CameraModel], poses: list[np.ndarray], uvs: list[n
     return X[:3] / X[3] if abs(X[3]) > 1e-12 else np.full(3, np.nan)
 
 
-def view_residuals_px(X: np.ndarray, cameras: list[CameraModel], poses: list[np.ndarray],
-                      uvs: list[np.ndarray]) -> list[float]:
+def view_residuals_px(
+    X: np.ndarray, cameras: list[CameraModel], poses: list[np.ndarray], uvs: list[np.ndarray]
+) -> list[float]:
     """The reprojection residual (px) of the point X in each of its views."""
     return [float(np.linalg.norm(cam.project_world(T, X[None])[0][0] - uv)) for cam, T, uv in zip(cameras, poses, uvs)]
 
@@ -305,15 +336,21 @@ def _translation_given_rotation(R_cam_world: np.ndarray, X: np.ndarray, xn: np.n
 class IncrementalSfm:
     """Incremental reconstruction of one group in its local frame (reference camera = identity)."""
 
-    def __init__(self, obs: GridObservations, members: list[int], params: SfmParams,
-                 id_gate_scale: dict[int, float] | None = None, unknown: frozenset[int] = frozenset()):
+    def __init__(
+        self,
+        obs: GridObservations,
+        members: list[int],
+        params: SfmParams,
+        id_gate_scale: dict[int, float] | None = None,
+        unknown: frozenset[int] = frozenset(),
+    ):
         # Its own lists of intrinsics and observations: those of a camera of unknown intrinsics
         # (`unknown`) change with each estimate (pinhole K, pixels undistorted by its k1).
         self.obs = replace(obs, cameras=list(obs.cameras), per_camera=list(obs.per_camera))
         self.raw = obs.per_camera
         self.members, self.params = members, params
         self.unknown = unknown & set(members)
-        self.estimated: dict[int, CameraModel] = {}   # unknown camera -> its current estimate (with k1)
+        self.estimated: dict[int, CameraModel] = {}  # unknown camera -> its current estimate (with k1)
         # keypoint id -> factor on the triangulation gates (at least the camera's noise scale)
         self.id_gate_scale = id_gate_scale or {}
         self.poses: dict[int, np.ndarray] = {}
@@ -334,8 +371,9 @@ class IncrementalSfm:
         if a in self.unknown and b not in self.unknown:
             a, b, F = b, a, F.T
         size = {c: (self.obs.cameras[c].width, self.obs.cameras[c].height) for c in (a, b)}
-        fa, fb = focal_from_fundamental(F, None if a in self.unknown else self.obs.cameras[a].K, size[a], size[b],
-                                        self.params.hfov_range_deg)
+        fa, fb = focal_from_fundamental(
+            F, None if a in self.unknown else self.obs.cameras[a].K, size[a], size[b], self.params.hfov_range_deg
+        )
         for c, f in ((a, fa), (b, fb)):
             if c in self.unknown:
                 self._set_intrinsics(c, centred(*size[c], f))
@@ -345,8 +383,7 @@ class IncrementalSfm:
         self.estimated[c] = model
         self.obs.cameras[c], self.obs.per_camera[c] = ideal_view(model, self.raw[c])
 
-    def _relative_candidates(self, a: int, b: int, keys: np.ndarray, F: np.ndarray | None = None
-                             ) -> list[np.ndarray]:
+    def _relative_candidates(self, a: int, b: int, keys: np.ndarray, F: np.ndarray | None = None) -> list[np.ndarray]:
         """Candidate poses T_a_b (unit baseline) from the 2D-2D matches `keys`."""
         pa = np.array([self.obs.per_camera[a][k] for k in keys])
         pb = np.array([self.obs.per_camera[b][k] for k in keys])
@@ -357,8 +394,9 @@ class IncrementalSfm:
         # horizontal planes (head and floor), where the 7-DoF F is nearly degenerate and its E
         # can be far off; the calibrated 5-point solver on the F inliers is well conditioned.
         cv2.setRNGSeed(RANSAC_SEED)
-        thresh = (self.params.ransac_px * max(self.obs.noise_scale[a], self.obs.noise_scale[b])
-                  / np.sqrt(Ka[0, 0] * Kb[0, 0]))
+        thresh = (
+            self.params.ransac_px * max(self.obs.noise_scale[a], self.obs.noise_scale[b]) / np.sqrt(Ka[0, 0] * Kb[0, 0])
+        )
         sub = spread_subset(pa, self.obs.cameras[a], self.params)
         E = None
         if len(sub) >= 5:
@@ -368,7 +406,7 @@ class IncrementalSfm:
         candidates = []
         if E is not None and E.shape == (3, 3):
             _, R, t, _ = cv2.recoverPose(E, na, nb, np.eye(3))  # SVD + cheirality check
-            candidates.append(inv_se3(se3(R, t.ravel())))     # T_a_b: R_ab = R^T, X_b = -R^T t
+            candidates.append(inv_se3(se3(R, t.ravel())))  # T_a_b: R_ab = R^T, X_b = -R^T t
         # Our addition to the paper's geometric verification: each keypoint id of a walking
         # agent stays near one horizontal plane (head top, floor point), so its matches also
         # fit a homography. At high noise the 5-point E of the two nearly planar layers can
@@ -382,8 +420,9 @@ class IncrementalSfm:
             H, _ = cv2.findHomography(na[ids == i], nb[ids == i], cv2.USAC_MAGSAC, thresh)
             if H is not None:
                 _, Rs, ts, _ = cv2.decomposeHomographyMat(H, np.eye(3))
-                candidates += [inv_se3(se3(R, t.ravel() / np.linalg.norm(t)))
-                               for R, t in zip(Rs, ts) if np.linalg.norm(t) > 1e-9]
+                candidates += [
+                    inv_se3(se3(R, t.ravel() / np.linalg.norm(t))) for R, t in zip(Rs, ts) if np.linalg.norm(t) > 1e-9
+                ]
         return candidates
 
     def _verify(self, c: int, T: np.ndarray) -> tuple[int, float]:
@@ -401,8 +440,9 @@ class IncrementalSfm:
             cams = [self.obs.cameras[v] for v in views]
             uvs = [self.obs.per_camera[v][keys[i]] for v in views]
             X = triangulate(cams, [poses[v] for v in views], uvs)
-            if np.isfinite(X).all() and self._acceptable(X, cams, [poses[v] for v in views], uvs,
-                                                         self._gate_scales(keys[i], views)):
+            if np.isfinite(X).all() and self._acceptable(
+                X, cams, [poses[v] for v in views], uvs, self._gate_scales(keys[i], views)
+            ):
                 count += 1
                 errs += view_residuals_px(X, cams, [poses[v] for v in views], uvs)
         return count, -float(np.mean(errs)) if errs else 0.0
@@ -438,7 +478,7 @@ class IncrementalSfm:
             if not front[0] or np.linalg.norm(proj[0] - uv) > gate_px * scale:
                 return False
             rays.append((X - T[:3, 3]) / np.linalg.norm(X - T[:3, 3]))
-        cos = max(abs(float(r1 @ r2)) for i, r1 in enumerate(rays) for r2 in rays[i + 1:])
+        cos = max(abs(float(r1 @ r2)) for i, r1 in enumerate(rays) for r2 in rays[i + 1 :])
         return np.degrees(np.arccos(min(cos, 1.0))) >= self.params.min_angle_deg
 
     def next_camera(self) -> int | None:
@@ -462,18 +502,28 @@ class IncrementalSfm:
         gate = self.params.pnp_px * self.obs.noise_scale[c]
         if c in self.unknown:
             cam = self.obs.cameras[c]
-            found = pnp_unknown_focal(obj, np.array([self.raw[c][k] for k in keys]), (cam.width, cam.height),
-                                      self.params.hfov_range_deg, self.params.focal_steps, gate, self.params.min_pnp,
-                                      self.params.estimate_k1, RANSAC_SEED)
+            found = pnp_unknown_focal(
+                obj,
+                np.array([self.raw[c][k] for k in keys]),
+                (cam.width, cam.height),
+                self.params.hfov_range_deg,
+                self.params.focal_steps,
+                gate,
+                self.params.min_pnp,
+                self.params.estimate_k1,
+                RANSAC_SEED,
+            )
             if found is None:
-                self.failed[c] = (f"PnP with unknown focal length found no focal with {self.params.min_pnp} "
-                                  "consistent agent points")
+                self.failed[c] = (
+                    f"PnP with unknown focal length found no focal with {self.params.min_pnp} consistent agent points"
+                )
                 return False
             model, rvec, tvec, idx = found
             self._set_intrinsics(c, model)
         else:
-            rvec, tvec, idx = sqpnp_ransac(obj, np.array([self.obs.per_camera[c][k] for k in keys]),
-                                           self.obs.cameras[c].K, gate, seed=RANSAC_SEED)
+            rvec, tvec, idx = sqpnp_ransac(
+                obj, np.array([self.obs.per_camera[c][k] for k in keys]), self.obs.cameras[c].K, gate, seed=RANSAC_SEED
+            )
         img = np.array([self.obs.per_camera[c][k] for k in keys])
         if len(idx) < self.params.min_pnp:
             self.failed[c] = f"PnP found {len(idx)} consistent agent points (needs {self.params.min_pnp})"
@@ -515,21 +565,32 @@ class IncrementalSfm:
                     pt_i.append(kidx[k])
                     uv.append(p)
                     raw.append(self.raw[c][k])
-                    sig.append(sigma_by_id.get(k % MAX_IDS, self.params.initial_sigma_px * self.obs.noise_scale[c])
-                               * self.obs.sigma_factor[c].get(k, 1.0))
-        obs = Observations(np.array(cam_i, dtype=int), np.array(pt_i, dtype=int), np.array(uv).reshape(-1, 2),
-                           np.array(sig, dtype=float))
+                    sig.append(
+                        sigma_by_id.get(k % MAX_IDS, self.params.initial_sigma_px * self.obs.noise_scale[c])
+                        * self.obs.sigma_factor[c].get(k, 1.0)
+                    )
+        obs = Observations(
+            np.array(cam_i, dtype=int),
+            np.array(pt_i, dtype=int),
+            np.array(uv).reshape(-1, 2),
+            np.array(sig, dtype=float),
+        )
         baseline = np.linalg.norm(self.poses[second][:3, 3])
-        problem = BundleProblem([self.obs.cameras[c] for c in cams], [self.poses[c] for c in cams],
-                                np.array([self.points[int(k)] for k in keys]), obs,
-                                fixed_cameras={index[reference]},
-                                # The scale gauge only (a prior on a centre would also pin the
-                                # baseline's direction to its noisy initial estimate).
-                                baseline_prior=(index[reference], index[second], baseline, 1e-4 * baseline))
+        problem = BundleProblem(
+            [self.obs.cameras[c] for c in cams],
+            [self.poses[c] for c in cams],
+            np.array([self.points[int(k)] for k in keys]),
+            obs,
+            fixed_cameras={index[reference]},
+            # The scale gauge only (a prior on a centre would also pin the
+            # baseline's direction to its noisy initial estimate).
+            baseline_prior=(index[reference], index[second], baseline, 1e-4 * baseline),
+        )
         unknown = {index[c]: self.estimated.get(c, self.obs.cameras[c]) for c in cams if c in self.unknown}
         if unknown:
-            res, estimated = solve_with_intrinsics(problem, unknown, np.array(raw).reshape(-1, 2),
-                                                   self.params.estimate_k1)
+            res, estimated = solve_with_intrinsics(
+                problem, unknown, np.array(raw).reshape(-1, 2), self.params.estimate_k1
+            )
             for c in cams:
                 if index[c] in estimated:
                     self._set_intrinsics(c, estimated[index[c]])
@@ -547,8 +608,11 @@ def residual_sigmas(ba: dict, class_bounds: tuple[int, ...]) -> dict[int, float]
     keypoint class (ids split at class_bounds; classes with 10 or more residuals)."""
     kp_ids = ba["keys"][ba["obs"].point] % MAX_IDS
     classes = np.searchsorted(np.asarray(class_bounds, dtype=np.int64), kp_ids, side="right")
-    sigma = {int(k): max(robust_sigma(ba["residuals"][classes == k]), 0.05)
-             for k in np.unique(classes) if np.sum(classes == k) >= 10}
+    sigma = {
+        int(k): max(robust_sigma(ba["residuals"][classes == k]), 0.05)
+        for k in np.unique(classes)
+        if np.sum(classes == k) >= 10
+    }
     return {int(i): sigma[int(k)] for i, k in zip(*np.unique(np.stack([kp_ids, classes]), axis=1)) if int(k) in sigma}
 
 
@@ -560,9 +624,14 @@ def geometric_gate_scales(sigma_by_id: dict[int, float], params: SfmParams) -> d
     return {i: s / nominal for i, s in sigma_by_id.items() if s >= params.min_gate_scale * nominal}
 
 
-def reconstruct_group(obs: GridObservations, members: list[int], pairs: list[PairGeometry], group_id: str,
-                      params: SfmParams, unknown: frozenset[int] = frozenset()
-                      ) -> tuple[CameraGroupResult | None, dict[int, str]]:
+def reconstruct_group(
+    obs: GridObservations,
+    members: list[int],
+    pairs: list[PairGeometry],
+    group_id: str,
+    params: SfmParams,
+    unknown: frozenset[int] = frozenset(),
+) -> tuple[CameraGroupResult | None, dict[int, str]]:
     """One group's reconstruction; `unknown`: the cameras whose intrinsics it estimates."""
     inside = [p for p in pairs if p.a in members and p.b in members and p.F is not None and strong_edge(p, params)]
     if not inside:
@@ -606,15 +675,23 @@ def agreement_px(obs: GridObservations, keys: np.ndarray, result: CameraGroupRes
     return float(np.median(residuals)) if residuals else float("inf")
 
 
-def _reconstruct(obs: GridObservations, members: list[int], inside: list[PairGeometry], group_id: str,
-                 params: SfmParams, id_gate_scale: dict[int, float], unknown: frozenset[int] = frozenset()
-                 ) -> tuple[CameraGroupResult | None, dict[int, str], np.ndarray]:
+def _reconstruct(
+    obs: GridObservations,
+    members: list[int],
+    inside: list[PairGeometry],
+    group_id: str,
+    params: SfmParams,
+    id_gate_scale: dict[int, float],
+    unknown: frozenset[int] = frozenset(),
+) -> tuple[CameraGroupResult | None, dict[int, str], np.ndarray]:
     """One incremental reconstruction and its robust rounds: the group, the reasons of the
     cameras left out, and the keys of the agent points in its final bundle adjustment."""
     # A pair of known intrinsics first: its relative pose needs no focal estimate.
-    ranked = sorted(inside, key=lambda p: (-len({p.a, p.b} & unknown),
-                                           match_score(p) if params.overlap_ordering else p.num_inliers),
-                    reverse=True)
+    ranked = sorted(
+        inside,
+        key=lambda p: (-len({p.a, p.b} & unknown), match_score(p) if params.overlap_ordering else p.num_inliers),
+        reverse=True,
+    )
     for init in ranked:
         sfm = IncrementalSfm(obs, members, params, id_gate_scale, unknown)
         sfm.initialise(init)
@@ -628,8 +705,11 @@ def _reconstruct(obs: GridObservations, members: list[int], inside: list[PairGeo
         if c not in sfm.poses and c not in sfm.failed:
             sfm.failed[c] = f"sees fewer than {params.min_pnp} of the group's triangulated agent points"
     if len(sfm.points) < params.min_pnp:
-        return None, {c: f"the initial pair triangulated only {len(sfm.points)} agent points" for c in members}, \
-            np.zeros(0, np.int64)
+        return (
+            None,
+            {c: f"the initial pair triangulated only {len(sfm.points)} agent points" for c in members},
+            np.zeros(0, np.int64),
+        )
     # Robust BA rounds; after each, every keypoint class's sigma from its residuals (variance
     # component estimation).
     sigma_by_id: dict[int, float] = {}
@@ -650,16 +730,29 @@ def _reconstruct(obs: GridObservations, members: list[int], inside: list[PairGeo
         rmse[obs.names[c]] = float(np.sqrt(np.mean(np.sum(r**2, axis=1)))) if len(r) else float("nan")
         counts[obs.names[c]] = int(len(r))
     stamps, ids = obs.stamp_and_id(ba["keys"])
-    result = CameraGroupResult(group_id, obs.names[init.a], names, {obs.names[c]: sfm.poses[c] for c in ba["cams"]},
-                               stamps, ids, np.array([sfm.points[int(k)] for k in ba["keys"]]), rmse, counts,
-                               sigma_by_id, (obs.names[init.a], obs.names[init.b]),
-                               {obs.names[c]: m for c, m in sfm.estimated.items() if c in sfm.poses})
+    result = CameraGroupResult(
+        group_id,
+        obs.names[init.a],
+        names,
+        {obs.names[c]: sfm.poses[c] for c in ba["cams"]},
+        stamps,
+        ids,
+        np.array([sfm.points[int(k)] for k in ba["keys"]]),
+        rmse,
+        counts,
+        sigma_by_id,
+        (obs.names[init.a], obs.names[init.b]),
+        {obs.names[c]: m for c, m in sfm.estimated.items() if c in sfm.poses},
+    )
     return result, sfm.failed, ba["keys"]
 
 
-def calibrate_groups(cams: list[CameraTracks], params: SfmParams = SfmParams(),
-                     clock_components: dict[str, str] | None = None, estimate: frozenset[str] = frozenset()
-                     ) -> GroupingResult:
+def calibrate_groups(
+    cams: list[CameraTracks],
+    params: SfmParams = SfmParams(),
+    clock_components: dict[str, str] | None = None,
+    estimate: frozenset[str] = frozenset(),
+) -> GroupingResult:
     """All CMCs -> groups with relative poses + local agent tracks, and the rest with reasons.
     `clock_components`: camera -> the reference of its clock (yowo_cmc.clock); two cameras
     on different clocks whose offset is unknown are not matched (their stamps do not
@@ -674,9 +767,14 @@ def calibrate_groups(cams: list[CameraTracks], params: SfmParams = SfmParams(),
     def related(a: int, b: int) -> bool:
         ca, cb = clocks.get(obs.names[a]), clocks.get(obs.names[b])
         return ca is None or cb is None or ca == cb
-    pairs = [pair_geometry(obs, a, b, params) if related(a, b) else PairGeometry(a, b, None, np.zeros(0, np.int64),
-                                                                                 np.zeros(0, bool))
-             for a in range(len(cams)) for b in range(a + 1, len(cams))]
+
+    pairs = [
+        pair_geometry(obs, a, b, params)
+        if related(a, b)
+        else PairGeometry(a, b, None, np.zeros(0, np.int64), np.zeros(0, bool))
+        for a in range(len(cams))
+        for b in range(a + 1, len(cams))
+    ]
     groups, reasons = group_cameras(obs, pairs, params)
     results = []
     for members in groups:
@@ -684,9 +782,13 @@ def calibrate_groups(cams: list[CameraTracks], params: SfmParams = SfmParams(),
         if unknown == frozenset(members):
             # No member's focal length is known: nothing fixes the group's (measured: 40-60 % off with
             # sigmas of a third of the focal length on a camera pair), so none is calibrated.
-            reasons.update({c: "no camera of its group has known intrinsics (CameraInfo or --intrinsics), so "
-                               "their focal lengths are not determined; give one of them an intrinsics file"
-                            for c in members})
+            reasons.update(
+                {
+                    c: "no camera of its group has known intrinsics (CameraInfo or --intrinsics), so "
+                    "their focal lengths are not determined; give one of them an intrinsics file"
+                    for c in members
+                }
+            )
             continue
         result, failed = reconstruct_group(obs, members, pairs, f"g{len(results)}", params, unknown)
         reasons.update(failed)
@@ -694,6 +796,7 @@ def calibrate_groups(cams: list[CameraTracks], params: SfmParams = SfmParams(),
             result.cameras = {c.name: result.cameras.get(c.name, c.camera) for c in cams if c.name in result.names}
             results.append(result)
         elif result is not None:
-            reasons.update({obs.names.index(n): "its group fell apart (too few registered cameras)"
-                            for n in result.names})
+            reasons.update(
+                {obs.names.index(n): "its group fell apart (too few registered cameras)" for n in result.names}
+            )
     return GroupingResult(results, {obs.names[c]: r for c, r in sorted(reasons.items())}, pairs)

@@ -3,6 +3,7 @@ and when the streams are complete computes the CMC groups and their relative
 calibration; publishes yowo_msgs/CameraGroupArray on /yowo/cmc/groups (latched).
 Parameter `estimate_intrinsics`: the cameras without intrinsics (their tracker published a
 nominal model); the group SfM estimates their focal length (and k1)."""
+
 from __future__ import annotations
 
 from sensor_msgs.msg import CameraInfo
@@ -35,10 +36,18 @@ class GroupSfmNode(StageNode):
         self.last_stamp = 0
         self.pub = self.output(CameraGroupArray, topics.GROUPS, LATCHED)
         for cam in cameras:
-            self.stream_input(CameraInfo, topics.tracker_camera_info(cam), self.acc[cam].take_camera_info,
-                              upstream=topics.tracker_stage(cam))
-            self.stream_input(AgentKeypoints, topics.tracker_keypoints(cam), lambda m, c=cam: self.on_keypoints(c, m),
-                              upstream=topics.tracker_stage(cam))
+            self.stream_input(
+                CameraInfo,
+                topics.tracker_camera_info(cam),
+                self.acc[cam].take_camera_info,
+                upstream=topics.tracker_stage(cam),
+            )
+            self.stream_input(
+                AgentKeypoints,
+                topics.tracker_keypoints(cam),
+                lambda m, c=cam: self.on_keypoints(c, m),
+                upstream=topics.tracker_stage(cam),
+            )
 
     def on_keypoints(self, camera: str, msg: AgentKeypoints) -> None:
         frame = frame_from_msg(msg)
@@ -52,9 +61,14 @@ class GroupSfmNode(StageNode):
         result = calibrate_cmcs_apart(tracks, self.cmc, self.estimate)
         result.ungrouped.update(unusable)
         self.pub.publish(groups_to_msg(result, self.last_stamp))
-        lines = [f"{g.group_id}: {', '.join(g.names)} (initial pair {'/'.join(g.initial_pair)}, RMSE "
-                 + ", ".join(f"{n} {g.rmse_px[n]:.2f}px" for n in g.names) + widened_gates(g)
-                 + estimated_intrinsics(g) + ")" for g in result.groups]
+        lines = [
+            f"{g.group_id}: {', '.join(g.names)} (initial pair {'/'.join(g.initial_pair)}, RMSE "
+            + ", ".join(f"{n} {g.rmse_px[n]:.2f}px" for n in g.names)
+            + widened_gates(g)
+            + estimated_intrinsics(g)
+            + ")"
+            for g in result.groups
+        ]
         lines += [f"{name}: {why}" for name, why in result.ungrouped.items()]
         return "; ".join(lines)
 
@@ -63,8 +77,10 @@ def widened_gates(group) -> str:
     if not group.gate_scales:
         return ""
     scales = group.gate_scales.values()
-    return (f"; reconstructed again with the gates of {len(scales)} noisier keypoint ids widened "
-            f"x{min(scales):.1f}-{max(scales):.1f}")
+    return (
+        f"; reconstructed again with the gates of {len(scales)} noisier keypoint ids widened "
+        f"x{min(scales):.1f}-{max(scales):.1f}"
+    )
 
 
 def estimated_intrinsics(group) -> str:

@@ -57,6 +57,7 @@ until the estimates of d and rho have settled (held as outlines, ~3 kB per frame
 with the agent); both keep being refined, from at most `max_geometry_frames`
 distinct silhouettes (~8 kB each).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -67,44 +68,44 @@ import numpy as np
 from yowo_common.camera import CameraModel
 
 HEAD_TOP, GROUND = 0, 1
-AXIS_SIGMA_DEG = 2.5         # scatter of a silhouette's principal plane around the vertical
-SCENE_MIN_SIGMA_DEG = 0.2    # long edges are not perfectly straight
+AXIS_SIGMA_DEG = 2.5  # scatter of a silhouette's principal plane around the vertical
+SCENE_MIN_SIGMA_DEG = 0.2  # long edges are not perfectly straight
 SCENE_CANDIDATE_LINES = 100  # the most precise lines propose vanishing points
-SCENE_CANDIDATES = 200       # the best supported of them are checked for a Manhattan horizon
-MANHATTAN_BIN_DEG = 0.5      # horizontal vanishing directions are binned this finely
-LEVEL_TOLERANCE = 0.05      # |d_z| of a camera looking level
-MIN_AXIS_SPREAD_DEG = 5.0    # agent axes alike within this fix only a band of verticals
+SCENE_CANDIDATES = 200  # the best supported of them are checked for a Manhattan horizon
+MANHATTAN_BIN_DEG = 0.5  # horizontal vanishing directions are binned this finely
+LEVEL_TOLERANCE = 0.05  # |d_z| of a camera looking level
+MIN_AXIS_SPREAD_DEG = 5.0  # agent axes alike within this fix only a band of verticals
 
 
 @dataclass(frozen=True)
 class DetectorParams:
-    warmup_s: float = 20.0           # the background starts as the per-pixel median over this long
-    warmup_samples: int = 40         # frames (evenly spaced) in that median
-    hold_jpeg_quality: int = 95      # frames waiting for the background are held JPEG-encoded
-    diff_low: float = 10.0           # colour difference (grey levels, max over channels) of agent pixels
-    diff_high: float = 30.0          # a blob needs pixels this different (hysteresis seeds)
-    min_area: float = 4e-4           # blob area gates, fraction of the image
+    warmup_s: float = 20.0  # the background starts as the per-pixel median over this long
+    warmup_samples: int = 40  # frames (evenly spaced) in that median
+    hold_jpeg_quality: int = 95  # frames waiting for the background are held JPEG-encoded
+    diff_low: float = 10.0  # colour difference (grey levels, max over channels) of agent pixels
+    diff_high: float = 30.0  # a blob needs pixels this different (hysteresis seeds)
+    min_area: float = 4e-4  # blob area gates, fraction of the image
     max_area: float = 0.5
-    background_rate: float = 0.02    # running-average weight per frame away from the agent
-    flaw_rate: float = 0.3           # weight inside blobs that are background flaws (fast healing)
-    flaw_edge_ratio: float = 1.5     # a blob whose outline edge is weaker than this times both the
+    background_rate: float = 0.02  # running-average weight per frame away from the agent
+    flaw_rate: float = 0.3  # weight inside blobs that are background flaws (fast healing)
+    flaw_edge_ratio: float = 1.5  # a blob whose outline edge is weaker than this times both the
     #                                  background's edge there and the frame's texture around is a flaw
     shadow_ratio: tuple[float, float] = (0.6, 0.95)  # brightness ratio to the background of shadow pixels
-    shadow_chroma: float = 8.0       # colour deviation (grey levels) allowed in shadow pixels
-    track_jump: float = 0.5          # largest move of the blob centre per frame, in blob heights
-    track_gap_s: float = 1.0         # a track unseen longer than this starts anew
-    geometry_frames: int = 40        # distinct silhouettes before the first estimate of d and rho
-    min_geometry_frames: int = 8     # at the end of the stream, fewer: no keypoints
+    shadow_chroma: float = 8.0  # colour deviation (grey levels) allowed in shadow pixels
+    track_jump: float = 0.5  # largest move of the blob centre per frame, in blob heights
+    track_gap_s: float = 1.0  # a track unseen longer than this starts anew
+    geometry_frames: int = 40  # distinct silhouettes before the first estimate of d and rho
+    min_geometry_frames: int = 8  # at the end of the stream, fewer: no keypoints
     max_geometry_frames: int = 400
-    distinct_px: float = 4.0         # a silhouette is new for the geometry when its centre moved this far
-    settle_deg: float = 0.2          # frames are emitted once two successive estimates of d agree this well
-    settle_rho: float = 0.003        # ... and of rho
-    scene_cone_deg: float = 8.0      # scene edges may move the agent's vertical this far (by its misfit)
-    top_band_px: float = 3.0         # outline points this close to the top set the head's sideways position
-    head_radius: float = 0.05        # head radius / agent height (anthropometric; 0 disables the correction)
-    max_height_misfit: float = 0.1   # silhouettes whose head and lowest point imply a height ratio this far
+    distinct_px: float = 4.0  # a silhouette is new for the geometry when its centre moved this far
+    settle_deg: float = 0.2  # frames are emitted once two successive estimates of d agree this well
+    settle_rho: float = 0.003  # ... and of rho
+    scene_cone_deg: float = 8.0  # scene edges may move the agent's vertical this far (by its misfit)
+    top_band_px: float = 3.0  # outline points this close to the top set the head's sideways position
+    head_radius: float = 0.05  # head radius / agent height (anthropometric; 0 disables the correction)
+    max_height_misfit: float = 0.1  # silhouettes whose head and lowest point imply a height ratio this far
     #                                  from rho are partly hidden: no keypoints (the gait alone scatters 0.035)
-    foot_reach: float = 0.11         # mean horizontal distance, / agent height, from the point under the head
+    foot_reach: float = 0.11  # mean horizontal distance, / agent height, from the point under the head
     #                                  to the sole point nearest to the camera (shoe length and stride;
     #                                  measured on simulated walks of the anthropometric body model)
 
@@ -114,33 +115,34 @@ class AgentDetection:
     """Keypoints of one frame (empty arrays when the agent is not seen)."""
 
     stamp_ns: int
-    ids: np.ndarray          # (K,) int: 0 head top, 1 ground point
-    uv: np.ndarray           # (K, 2) raw pixels
-    confidence: np.ndarray   # (K,) in [0, 1]
+    ids: np.ndarray  # (K,) int: 0 head top, 1 ground point
+    uv: np.ndarray  # (K, 2) raw pixels
+    confidence: np.ndarray  # (K,) in [0, 1]
 
 
 @dataclass
 class _Silhouette:
-    pixels: np.ndarray       # (N, 2) int16 outline pixels (x, y)
-    contrast: np.ndarray     # (N,) uint8 colour difference at them
-    confidence: float        # of the blob being the agent
+    pixels: np.ndarray  # (N, 2) int16 outline pixels (x, y)
+    contrast: np.ndarray  # (N,) uint8 colour difference at them
+    confidence: float  # of the blob being the agent
 
 
 def _empty(stamp_ns: int) -> AgentDetection:
     return AgentDetection(stamp_ns, np.zeros(0, int), np.zeros((0, 2)), np.zeros(0))
 
 
-def _robust_null(normals: np.ndarray, sigma_deg: np.ndarray, init: np.ndarray | None = None,
-                 iterations: int = 10) -> np.ndarray:
+def _robust_null(
+    normals: np.ndarray, sigma_deg: np.ndarray, init: np.ndarray | None = None, iterations: int = 10
+) -> np.ndarray:
     """Unit vector most orthogonal to the planes with these normals: iteratively
     reweighted least squares on the angle between the vector and each plane, with
     inverse-variance weights and Tukey's loss (planes beyond 3 sigma drop out)."""
     v = init
-    w = sigma_deg ** -2.0
+    w = sigma_deg**-2.0
     for _ in range(iterations):
         if v is not None:
             r = np.degrees(np.arcsin(np.clip(np.abs(normals @ v), 0.0, 1.0))) / sigma_deg
-            w = sigma_deg ** -2.0 * np.clip(1.0 - (r / 3.0) ** 2, 0.0, None) ** 2
+            w = sigma_deg**-2.0 * np.clip(1.0 - (r / 3.0) ** 2, 0.0, None) ** 2
         v = np.linalg.eigh((normals * w[:, None]).T @ normals)[1][:, 0]
     return v
 
@@ -159,8 +161,9 @@ def _scene_line_normals(camera: CameraModel, background: np.ndarray, min_length_
     return n / np.linalg.norm(n, axis=1, keepdims=True), np.maximum(np.degrees(1.0 / length), SCENE_MIN_SIGMA_DEG)
 
 
-def _scene_vertical(normals: np.ndarray, sigma_deg: np.ndarray, offset_deg, cone_deg: float, at: np.ndarray,
-                    min_lines: int = 4) -> np.ndarray | None:
+def _scene_vertical(
+    normals: np.ndarray, sigma_deg: np.ndarray, offset_deg, cone_deg: float, at: np.ndarray, min_lines: int = 4
+) -> np.ndarray | None:
     """The vertical vanishing direction that best explains the scene's straight
     edges (normals: their planes through the camera centre; sigma_deg: their
     precision) as a room's: vertical edges pass through it, and the others (most
@@ -183,7 +186,7 @@ def _scene_vertical(normals: np.ndarray, sigma_deg: np.ndarray, offset_deg, cone
     cand, prior = cand[keep], np.exp(-2.0 * (offset[keep] / cone_deg) ** 2)
     if len(cand) == 0:
         return None
-    weight = 1.0 / sigma_deg   # the line's length
+    weight = 1.0 / sigma_deg  # the line's length
     vertical = np.degrees(np.arcsin(np.clip(np.abs(cand @ normals.T), 0.0, 1.0))) < 3.0 * sigma_deg  # (cand, lines)
     # The best candidate per 0.5 degree cell (a strong cluster yields many near-copies), best cells first.
     order = np.argsort(-(vertical @ weight) * prior)
@@ -195,7 +198,7 @@ def _scene_vertical(normals: np.ndarray, sigma_deg: np.ndarray, offset_deg, cone
     e1 = np.cross(cand, np.where(np.abs(cand[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
     e2 = np.cross(cand, e1)
-    v = np.cross(normals[None, :, :], cand[:, None, :])                          # (cand, lines, 3)
+    v = np.cross(normals[None, :, :], cand[:, None, :])  # (cand, lines, 3)
     azimuth = np.degrees(np.arctan2(np.einsum("clk,ck->cl", v, e2), np.einsum("clk,ck->cl", v, e1))) % 90.0
     bins = int(90.0 / MANHATTAN_BIN_DEG)
     index = np.arange(len(cand))[:, None] * bins + np.floor(azimuth / MANHATTAN_BIN_DEG).astype(int) % bins
@@ -209,7 +212,7 @@ def _scene_vertical(normals: np.ndarray, sigma_deg: np.ndarray, offset_deg, cone
 def _spread_deg(normals: np.ndarray, d: np.ndarray) -> float:
     """RMS angle between the agent's axis planes around d (their normals' spread
     orthogonal to d): small when the agent was only seen in one place."""
-    m = np.linalg.eigh(normals.T @ normals)[1][:, 2]   # the mean normal
+    m = np.linalg.eigh(normals.T @ normals)[1][:, 2]  # the mean normal
     side = np.cross(d, m)
     side /= np.linalg.norm(side)
     return float(np.degrees(np.sqrt(np.mean(np.arcsin(np.clip(normals @ side, -1.0, 1.0)) ** 2))))
@@ -240,7 +243,7 @@ def _top(b: np.ndarray, d: np.ndarray, rho: float, p: DetectorParams, f: float):
     u /= np.linalg.norm(u)
     r = max(_head_radius_angle(t_max, rho, p.head_radius), p.top_band_px / f)
     side = np.arctan2(b @ np.cross(d, u), b @ u)
-    side = side[(theta > t_max - r) & (np.abs(side) < 1.5 * r)]   # the head, not the shoulders
+    side = side[(theta > t_max - r) & (np.abs(side) < 1.5 * r)]  # the head, not the shoulders
     middle = 0.5 * (side.min() + side.max())
     u = np.cos(middle) * u + np.sin(middle) * np.cross(d, u)
     t = t_max - _head_bias(t_max, rho, p.head_radius)
@@ -265,7 +268,7 @@ def _rho_from_feet(cos_top: float, theta_low: float, foot_reach: float) -> float
     """Height ratio from the head top (its cosine to the nadir) and the lowest sole
     point, which lies foot_reach * rho closer to the camera than the ground point:
     (1 - rho) tan(theta_top) = tan(theta_low) + foot_reach * rho."""
-    tan_top = np.sqrt(max(1.0 - cos_top ** 2, 0.0)) / max(cos_top, 1e-9)
+    tan_top = np.sqrt(max(1.0 - cos_top**2, 0.0)) / max(cos_top, 1e-9)
     return float((tan_top - np.tan(theta_low)) / (tan_top + foot_reach))
 
 
@@ -274,7 +277,7 @@ class _Geometry:
 
     def __init__(self, params: DetectorParams, camera: CameraModel, focal_px: float):
         self.p, self.camera, self.f = params, camera, focal_px
-        self.silhouettes: list[np.ndarray] = []   # float32 outline bearings of distinct, uncut silhouettes
+        self.silhouettes: list[np.ndarray] = []  # float32 outline bearings of distinct, uncut silhouettes
         self._last_centre: np.ndarray | None = None
         self.d: np.ndarray | None = None
         self.rho: float | None = None
@@ -286,8 +289,10 @@ class _Geometry:
         would otherwise dominate the fit)."""
         centre = bearings.mean(axis=0)
         centre /= np.linalg.norm(centre)
-        if self._last_centre is not None and np.radians(_angle_deg(centre, self._last_centre)) * self.f \
-                < self.p.distinct_px:
+        if (
+            self._last_centre is not None
+            and np.radians(_angle_deg(centre, self._last_centre)) * self.f < self.p.distinct_px
+        ):
             return
         self._last_centre = centre
         self.silhouettes.append(bearings.astype(np.float32))
@@ -307,8 +312,12 @@ class _Geometry:
             return
         d, rho = self.d, self.rho
         self._estimated_at = n
-        if self._estimate(background) and d is not None \
-                and _angle_deg(d, self.d) < self.p.settle_deg and abs(rho - self.rho) < self.p.settle_rho:
+        if (
+            self._estimate(background)
+            and d is not None
+            and _angle_deg(d, self.d) < self.p.settle_deg
+            and abs(rho - self.rho) < self.p.settle_rho
+        ):
             self.settled = True
 
     def _estimate(self, background: np.ndarray) -> bool:
@@ -325,6 +334,7 @@ class _Geometry:
 
         def offset(c):  # small along the directions the agent's planes leave open
             return np.maximum(agent_misfit(c) - agent_misfit(d_agent), 0.0)
+
         scene_d = _scene_vertical(scene_n, scene_sigma, offset, self.p.scene_cone_deg, at)
         if scene_d is not None:
             d = _robust_null(np.vstack([normals, scene_n]), np.concatenate([sigma, scene_sigma]), init=scene_d)
@@ -337,9 +347,11 @@ class _Geometry:
             return False  # a camera looking up: not a ceiling camera, or a wrong vertical
         if np.median(np.degrees(np.arcsin(np.clip(np.abs(normals @ d), 0.0, 1.0)))) > 2.0 * AXIS_SIGMA_DEG:
             return False  # the silhouettes are not upright people (or the background is spoilt)
+
         def rho_from(b, rho):
             top, _, theta = _top(b, d, rho, self.p, self.f)
             return _rho_from_feet(top @ d, theta.min(), self.p.foot_reach)
+
         rho = self.rho if self.rho is not None else 0.6
         for _ in range(2):  # the head-top correction depends on rho
             rho = float(np.median([rho_from(b, rho) for b in sils]))
@@ -360,12 +372,12 @@ class AgentDetector:
         self.f = float(0.5 * (camera.K[0, 0] + camera.K[1, 1]))
         self.shape = (camera.height, camera.width)
         self.geometry = _Geometry(params, camera, self.f)
-        self._held: list[tuple[int, np.ndarray]] = []   # (stamp, JPEG) until the background exists
-        self._samples: list[int] = []                    # indices into _held for the median
-        self._model: np.ndarray | None = None            # float32 RGB background
+        self._held: list[tuple[int, np.ndarray]] = []  # (stamp, JPEG) until the background exists
+        self._samples: list[int] = []  # indices into _held for the median
+        self._model: np.ndarray | None = None  # float32 RGB background
         self._model_u8: np.ndarray | None = None
         self._waiting: list[tuple[int, _Silhouette | None]] = []
-        self._track: dict | None = None                  # the agent's last blob
+        self._track: dict | None = None  # the agent's last blob
         self.frames = 0
         self.frames_with_agent = 0
 
@@ -403,8 +415,7 @@ class AgentDetector:
 
     def push(self, stamp_ns: int, rgb: np.ndarray) -> list[AgentDetection]:
         if rgb.shape != (*self.shape, 3):
-            raise ValueError(f"image has shape {rgb.shape}, the camera model wants {self.shape[1]}x{self.shape[0]} "
-                             "RGB")
+            raise ValueError(f"image has shape {rgb.shape}, the camera model wants {self.shape[1]}x{self.shape[0]} RGB")
         self.frames += 1
         if self._model is None:
             self._hold(stamp_ns, rgb)
@@ -429,14 +440,16 @@ class AgentDetector:
         g = self.geometry
         text = f"{self.frames} frames, agent silhouette in {self.frames_with_agent}"
         if g.d is None:
-            return text + (f"; vertical not estimated ({g.count} distinct uncut silhouettes, needs "
-                           f"{self.p.min_geometry_frames})")
+            return text + (
+                f"; vertical not estimated ({g.count} distinct uncut silhouettes, needs {self.p.min_geometry_frames})"
+            )
         return text + f"; vertical from {g.count} silhouettes, agent / camera height {g.rho:.3f}"
 
     # --- stream handling ----------------------------------------------------------
     def _hold(self, stamp_ns: int, rgb: np.ndarray) -> None:
-        _, jpeg = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR),
-                               [cv2.IMWRITE_JPEG_QUALITY, self.p.hold_jpeg_quality])
+        _, jpeg = cv2.imencode(
+            ".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, self.p.hold_jpeg_quality]
+        )
         spacing = self.p.warmup_s * 1e9 / self.p.warmup_samples
         if not self._samples or stamp_ns - self._held[self._samples[-1]][0] >= spacing:
             self._samples.append(len(self._held))
@@ -445,9 +458,11 @@ class AgentDetector:
     def _start_background(self) -> list[AgentDetection]:
         def decode(jpeg):
             return cv2.cvtColor(cv2.imdecode(jpeg, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+
         # Samples along the last axis: the median's partition runs over contiguous memory (the same values).
-        self._model = np.median(np.stack([decode(self._held[i][1]) for i in self._samples], axis=-1), axis=-1) \
-            .astype(np.float32)
+        self._model = np.median(np.stack([decode(self._held[i][1]) for i in self._samples], axis=-1), axis=-1).astype(
+            np.float32
+        )
         self._model_u8 = np.round(self._model).astype(np.uint8)
         held, self._held, self._samples = self._held, [], []
         # A dry run heals the median where the agent stood for most of the warm-up:
@@ -484,15 +499,21 @@ class AgentDetector:
         diff = cv2.max(cv2.max(channels[0], channels[1]), channels[2])
         cand = diff > p.diff_low
         cand[cand] = ~self._shadow(rgb, cand)
-        mask = cv2.morphologyEx(cand.astype(np.uint8), cv2.MORPH_OPEN,   # lone noisy pixels
-                                cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3)))
+        mask = cv2.morphologyEx(
+            cand.astype(np.uint8),
+            cv2.MORPH_OPEN,  # lone noisy pixels
+            cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3)),
+        )
         mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5)))
         n, labels, stats, centres = cv2.connectedComponentsWithStats(mask, connectivity=8)
         seeds = np.bincount(labels[diff > p.diff_high], minlength=n)
         area = stats[:, cv2.CC_STAT_AREA]
         image_area = self.shape[0] * self.shape[1]
-        blobs = [k for k in range(1, n)
-                 if p.min_area * image_area <= area[k] <= p.max_area * image_area and seeds[k] >= 0.02 * area[k]]
+        blobs = [
+            k
+            for k in range(1, n)
+            if p.min_area * image_area <= area[k] <= p.max_area * image_area and seeds[k] >= 0.02 * area[k]
+        ]
         flaws = [k for k in blobs if self._is_flaw(rgb, labels, stats[k], k)]
         agent = self._associate([k for k in blobs if k not in flaws], stats, centres, stamp_ns)
         protect = np.zeros(self.shape, np.uint8)
@@ -501,9 +522,16 @@ class AgentDetector:
             # Fragments near the agent (a camouflaged neck or belt splits the blob) belong to it.
             x, y, w, h = stats[agent, :4]
             pad = int(0.15 * h) + 2
-            near = [k for k in range(1, n) if seeds[k] > 0 and k not in flaws
-                    and stats[k, 0] < x + w + pad and stats[k, 0] + stats[k, 2] > x - pad
-                    and stats[k, 1] < y + h + pad and stats[k, 1] + stats[k, 3] > y - pad]
+            near = [
+                k
+                for k in range(1, n)
+                if seeds[k] > 0
+                and k not in flaws
+                and stats[k, 0] < x + w + pad
+                and stats[k, 0] + stats[k, 2] > x - pad
+                and stats[k, 1] < y + h + pad
+                and stats[k, 1] + stats[k, 3] > y - pad
+            ]
             body = np.isin(labels, near).astype(np.uint8)
             contours, _ = cv2.findContours(body, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
             pixels = np.vstack([c.reshape(-1, 2) for c in contours]).astype(np.int16)
@@ -536,17 +564,20 @@ class AgentDetector:
         roi = (slice(max(y - 6, 0), y + h + 6), slice(max(x - 6, 0), x + w + 6))
         blob = (labels[roi] == k).astype(np.uint8)
         outline = blob - cv2.erode(blob, np.ones((3, 3), np.uint8))
-        around = (cv2.dilate(blob, np.ones((9, 9), np.uint8)) - cv2.erode(blob, np.ones((9, 9), np.uint8))
-                  - cv2.dilate(outline, np.ones((3, 3), np.uint8))) > 0
+        around = (
+            cv2.dilate(blob, np.ones((9, 9), np.uint8))
+            - cv2.erode(blob, np.ones((9, 9), np.uint8))
+            - cv2.dilate(outline, np.ones((3, 3), np.uint8))
+        ) > 0
         outline = outline.astype(bool)
 
         def gradient(img):
             g = cv2.cvtColor(np.ascontiguousarray(img[roi]), cv2.COLOR_RGB2GRAY).astype(np.float32)
             return cv2.magnitude(cv2.Sobel(g, cv2.CV_32F, 1, 0), cv2.Sobel(g, cv2.CV_32F, 0, 1))
+
         frame = gradient(rgb)
         edge = frame[outline].mean()
-        return bool(edge < self.p.flaw_edge_ratio * min(gradient(self._model_u8)[outline].mean(),
-                                                         frame[around].mean()))
+        return bool(edge < self.p.flaw_edge_ratio * min(gradient(self._model_u8)[outline].mean(), frame[around].mean()))
 
     def _associate(self, blobs: list[int], stats: np.ndarray, centres: np.ndarray, stamp_ns: int) -> int | None:
         """The agent's blob: nearest to the live track within the jump gate, else the
@@ -561,8 +592,13 @@ class AgentDetector:
                 k, frames = blobs[int(np.argmin(dist))], t["frames"] + 1
         if frames == 1:
             k = max(blobs, key=lambda j: stats[j, cv2.CC_STAT_AREA])
-        self._track = dict(centre=centres[k], height=float(stats[k, cv2.CC_STAT_HEIGHT]), stamp=stamp_ns,
-                           frames=frames, confidence=min(1.0, 0.5 + 0.1 * frames))
+        self._track = dict(
+            centre=centres[k],
+            height=float(stats[k, cv2.CC_STAT_HEIGHT]),
+            stamp=stamp_ns,
+            frames=frames,
+            confidence=min(1.0, 0.5 + 0.1 * frames),
+        )
         return k
 
     # --- keypoints -------------------------------------------------------------------

@@ -3,6 +3,7 @@ length (square pixels, principal point at the image centre, no skew) and optiona
 radial distortion k1. The initial focal comes from a pair's two-view geometry or from a
 PnP over a range of focal lengths; the group bundle adjustment refines it with a
 calibration variable per such camera (GTSAM's GeneralSFMFactor2Cal3Bundler)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -23,7 +24,7 @@ class EstimatedCamera(CameraModel):
     """Intrinsics estimated by the group SfM (not from CameraInfo), with their sigmas."""
 
     focal_sigma_px: float = float("nan")
-    k1_sigma: float = float("nan")      # nan: k1 was not estimated (held at 0)
+    k1_sigma: float = float("nan")  # nan: k1 was not estimated (held at 0)
 
 
 def centred(width: int, height: int, f: float, k1: float = 0.0) -> CameraModel:
@@ -45,14 +46,22 @@ def essential_cost(F: np.ndarray, Ka: np.ndarray, Kb: np.ndarray) -> float:
     return float((s[0] - s[1]) / max(s[1], 1e-300))
 
 
-def focal_from_fundamental(F: np.ndarray, Ka: np.ndarray | None, size_a: tuple[int, int], size_b: tuple[int, int],
-                           hfov_deg: tuple[float, float], steps: int = 200) -> tuple[float, float]:
+def focal_from_fundamental(
+    F: np.ndarray,
+    Ka: np.ndarray | None,
+    size_a: tuple[int, int],
+    size_b: tuple[int, int],
+    hfov_deg: tuple[float, float],
+    steps: int = 200,
+) -> tuple[float, float]:
     """Focal lengths (f_a, f_b) of the pair x_b^T F x_a = 0 from its fundamental matrix:
     camera b's (principal point at the centre) by a 1-D search over the field of view,
     with a's intrinsics Ka; both unknown (Ka None): one focal shared by both, a's in the
     units of its own image width."""
+
     def K(size, f):
         return centred(size[0], size[1], f).K
+
     fb = focal_range(size_b[0], hfov_deg, steps)
     if Ka is None:
         cost = [essential_cost(F, K(size_a, f * size_a[0] / size_b[0]), K(size_b, f)) for f in fb]
@@ -62,9 +71,17 @@ def focal_from_fundamental(F: np.ndarray, Ka: np.ndarray | None, size_a: tuple[i
     return (f * size_a[0] / size_b[0] if Ka is None else float(Ka[0, 0])), f
 
 
-def pnp_unknown_focal(points: np.ndarray, uv: np.ndarray, size: tuple[int, int], hfov_deg: tuple[float, float],
-                      steps: int, reprojection_px: float, min_inliers: int, estimate_k1: bool, seed: int = 0
-                      ) -> tuple[CameraModel, np.ndarray, np.ndarray, np.ndarray] | None:
+def pnp_unknown_focal(
+    points: np.ndarray,
+    uv: np.ndarray,
+    size: tuple[int, int],
+    hfov_deg: tuple[float, float],
+    steps: int,
+    reprojection_px: float,
+    min_inliers: int,
+    estimate_k1: bool,
+    seed: int = 0,
+) -> tuple[CameraModel, np.ndarray, np.ndarray, np.ndarray] | None:
     """(intrinsics, rvec, tvec, inlier indices) of a camera with unknown focal (and k1) from
     2D-3D matches: SQPnP RANSAC at each focal of the range, the one with most inliers
     refined with the pose by OpenCV's calibration (principal point and aspect fixed), the
@@ -78,15 +95,22 @@ def pnp_unknown_focal(points: np.ndarray, uv: np.ndarray, size: tuple[int, int],
         return None
     f, rvec, tvec, idx = best
     cam = centred(*size, f)
-    flags = (cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_PRINCIPAL_POINT | cv2.CALIB_FIX_ASPECT_RATIO
-             | cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3
-             | (0 if estimate_k1 else cv2.CALIB_FIX_K1))
+    flags = (
+        cv2.CALIB_USE_INTRINSIC_GUESS
+        | cv2.CALIB_FIX_PRINCIPAL_POINT
+        | cv2.CALIB_FIX_ASPECT_RATIO
+        | cv2.CALIB_ZERO_TANGENT_DIST
+        | cv2.CALIB_FIX_K2
+        | cv2.CALIB_FIX_K3
+        | (0 if estimate_k1 else cv2.CALIB_FIX_K1)
+    )
     obj = np.ascontiguousarray(points, np.float32)
     img = np.ascontiguousarray(uv, np.float32)
     # The inliers at the grid's focal miss the image's distorted rim: refit, re-select, twice.
     for _ in range(3):
-        _, K, D, rvecs, tvecs = cv2.calibrateCamera([obj[idx]], [img[idx]], size, cam.K.copy(), cam.D.copy(),
-                                                    flags=flags)
+        _, K, D, rvecs, tvecs = cv2.calibrateCamera(
+            [obj[idx]], [img[idx]], size, cam.K.copy(), cam.D.copy(), flags=flags
+        )
         cam = centred(*size, float(K[0, 0]), float(D.ravel()[0]))
         rvec, tvec = rvecs[0], tvecs[0]
         proj = cv2.projectPoints(obj.astype(float), rvec, tvec, cam.K, cam.D)[0].reshape(-1, 2)
@@ -97,9 +121,13 @@ def pnp_unknown_focal(points: np.ndarray, uv: np.ndarray, size: tuple[int, int],
     return cam, rvec, tvec, idx
 
 
-def solve_with_intrinsics(problem: BundleProblem, unknown: dict[int, CameraModel], raw_uv: np.ndarray,
-                          estimate_k1: bool, max_iterations: int = 100
-                          ) -> tuple[BundleResult, dict[int, EstimatedCamera]]:
+def solve_with_intrinsics(
+    problem: BundleProblem,
+    unknown: dict[int, CameraModel],
+    raw_uv: np.ndarray,
+    estimate_k1: bool,
+    max_iterations: int = 100,
+) -> tuple[BundleResult, dict[int, EstimatedCamera]]:
     """yowo_common.bundle.solve with a calibration variable (focal, k1) per camera in
     `unknown` (its current estimate): the observations of those cameras are raw pixels
     (`raw_uv`, parallel to problem.obs). k2 is held at 0, and k1 too unless estimate_k1."""
@@ -110,8 +138,15 @@ def solve_with_intrinsics(problem: BundleProblem, unknown: dict[int, CameraModel
     for i, cam in unknown.items():
         cal = gtsam.Cal3Bundler(cam.K[0, 0], cam.D[0] if estimate_k1 else 0.0, 0.0, cam.K[0, 2], cam.K[1, 2])
         values.insert(CAL(i), cal)
-        graph.add(gtsam.PriorFactorCal3Bundler(CAL(i), cal, gtsam.noiseModel.Diagonal.Sigmas(
-            np.array([free * cam.K[0, 0], free if estimate_k1 else FIXED_SIGMA, FIXED_SIGMA]))))
+        graph.add(
+            gtsam.PriorFactorCal3Bundler(
+                CAL(i),
+                cal,
+                gtsam.noiseModel.Diagonal.Sigmas(
+                    np.array([free * cam.K[0, 0], free if estimate_k1 else FIXED_SIGMA, FIXED_SIGMA])
+                ),
+            )
+        )
     cals = [gtsam.Cal3_S2(c.K[0, 0], c.K[1, 1], c.K[0, 1], c.K[0, 2], c.K[1, 2]) for c in problem.cameras]
     huber = gtsam.noiseModel.mEstimator.Huber.Create(problem.huber_k)
     models: dict[float, gtsam.noiseModel.Base] = {}
@@ -119,7 +154,9 @@ def solve_with_intrinsics(problem: BundleProblem, unknown: dict[int, CameraModel
     for c, j, uv, raw, s in zip(obs.camera, obs.point, obs.uv, raw_uv, obs.sigma_px):
         model = models.get(float(s))
         if model is None:
-            model = models[float(s)] = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(2, float(s)))
+            model = models[float(s)] = gtsam.noiseModel.Robust.Create(
+                huber, gtsam.noiseModel.Isotropic.Sigma(2, float(s))
+            )
         c, j = int(c), int(j)
         if c in unknown:
             graph.add(gtsam.GeneralSFMFactor2Cal3Bundler(gtsam.Point2(*raw), model, X(c), L(j), CAL(c)))
@@ -136,9 +173,14 @@ def solve_with_intrinsics(problem: BundleProblem, unknown: dict[int, CameraModel
         cal = result.atCal3Bundler(CAL(i))
         cov = marginals.marginalCovariance(CAL(i))
         base = centred(cam.width, cam.height, cal.fx(), cal.k1() if estimate_k1 else 0.0)
-        estimated[i] = EstimatedCamera(base.width, base.height, base.K, base.D,
-                                       focal_sigma_px=float(np.sqrt(cov[0, 0])),
-                                       k1_sigma=float(np.sqrt(cov[1, 1])) if estimate_k1 else float("nan"))
+        estimated[i] = EstimatedCamera(
+            base.width,
+            base.height,
+            base.K,
+            base.D,
+            focal_sigma_px=float(np.sqrt(cov[0, 0])),
+            k1_sigma=float(np.sqrt(cov[1, 1])) if estimate_k1 else float("nan"),
+        )
     cameras = [estimated.get(i, c) for i, c in enumerate(problem.cameras)]
     residuals = np.full((len(obs), 2), np.nan)
     for c in np.unique(obs.camera):

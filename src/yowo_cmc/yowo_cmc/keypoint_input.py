@@ -1,6 +1,7 @@
 """The two sources of a CMC's agent keypoints -- an external detector's messages
 (any human-pose or robot detector publishing yowo_msgs/AgentKeypoints) or the
 built-in image detector -- their validation and accumulation into tracks."""
+
 from __future__ import annotations
 
 from collections import Counter
@@ -33,7 +34,7 @@ class TrackAccumulator:
     frames: list[KeypointFrame] = field(default_factory=list)
     rejected: Counter = field(default_factory=Counter)
     received: int = 0
-    camera_problem: str = ""          # why the CameraInfo received is unusable
+    camera_problem: str = ""  # why the CameraInfo received is unusable
     _last_stamp: int = -1
 
     def take_camera_info(self, msg) -> None:
@@ -77,10 +78,14 @@ class TrackAccumulator:
         for f in self.frames:
             for i, uv, c in zip(f.ids, f.uv, f.confidence):
                 per_id.setdefault(int(i), []).append((f.stamp_ns, uv, c))
-        tracks = {i: KeypointTrack(np.array([s for s, _, _ in rows], dtype=np.int64),
-                                   np.array([uv for _, uv, _ in rows]).reshape(-1, 2),
-                                   np.array([c for _, _, c in rows], dtype=float))
-                  for i, rows in per_id.items()}
+        tracks = {
+            i: KeypointTrack(
+                np.array([s for s, _, _ in rows], dtype=np.int64),
+                np.array([uv for _, uv, _ in rows]).reshape(-1, 2),
+                np.array([c for _, _, c in rows], dtype=float),
+            )
+            for i, rows in per_id.items()
+        }
         if frame_period_ns is None:
             stamps = np.array([f.stamp_ns for f in self.frames], dtype=np.int64)
             frame_period_ns = int(np.median(np.diff(stamps))) if len(stamps) > 1 else 100_000_000
@@ -97,10 +102,12 @@ class TrackAccumulator:
 def frame_from_msg(msg) -> KeypointFrame:
     """yowo_msgs/AgentKeypoints -> KeypointFrame."""
     kps = msg.keypoints
-    return KeypointFrame(int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec),
-                         np.array([k.id for k in kps], dtype=int),
-                         np.array([[k.x, k.y] for k in kps], dtype=float).reshape(-1, 2),
-                         np.array([k.confidence for k in kps], dtype=float))
+    return KeypointFrame(
+        int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec),
+        np.array([k.id for k in kps], dtype=int),
+        np.array([[k.x, k.y] for k in kps], dtype=float).reshape(-1, 2),
+        np.array([k.confidence for k in kps], dtype=float),
+    )
 
 
 def frame_to_msg(frame: KeypointFrame, camera: str, frame_id: str):
@@ -111,9 +118,14 @@ def frame_to_msg(frame: KeypointFrame, camera: str, frame_id: str):
     from yowo_common.rosconv import ns_to_time
     from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
-    return AgentKeypoints(header=Header(stamp=ns_to_time(frame.stamp_ns), frame_id=frame_id), camera_name=camera,
-                          keypoints=[Keypoint2D(id=int(i), x=float(u), y=float(v), confidence=float(c))
-                                     for i, (u, v), c in zip(frame.ids, frame.uv, frame.confidence)])
+    return AgentKeypoints(
+        header=Header(stamp=ns_to_time(frame.stamp_ns), frame_id=frame_id),
+        camera_name=camera,
+        keypoints=[
+            Keypoint2D(id=int(i), x=float(u), y=float(v), confidence=float(c))
+            for i, (u, v), c in zip(frame.ids, frame.uv, frame.confidence)
+        ],
+    )
 
 
 class ImageKeypointSource:
@@ -173,7 +185,7 @@ class ImageKeypointSource:
     def _detect(self, stamp_ns: int, rgb: np.ndarray) -> list[KeypointFrame]:
         try:
             return [_frame(d) for d in self.detector.push(stamp_ns, rgb)]
-        except ValueError as exc:     # e.g. an image whose size disagrees with the CameraInfo
+        except ValueError as exc:  # e.g. an image whose size disagrees with the CameraInfo
             self.rejected[str(exc)] += 1
             return []
 

@@ -3,6 +3,7 @@ detector's, the human-pose model or the model-free image detector on its images)
 intrinsics (CameraInfo, an intrinsics file, or a nominal model the group SfM estimates),
 the agent-free background and the validated frames. The keypoint tracker node feeds it
 messages converted to numpy; the offline API feeds it a recording read directly."""
+
 from __future__ import annotations
 
 from typing import Callable
@@ -27,24 +28,39 @@ class KeypointTracker:
     size; `has_images`: its images are played (needed by the image sources and `nominal`).
     Every method that takes input returns the frames it validated, in stamp order."""
 
-    def __init__(self, *, camera: str, source: str, params: CmcParams, has_images: bool, camera_info: str = "",
-                 nominal: bool = False):
+    def __init__(
+        self,
+        *,
+        camera: str,
+        source: str,
+        params: CmcParams,
+        has_images: bool,
+        camera_info: str = "",
+        nominal: bool = False,
+    ):
         if source not in SOURCES:
             raise ValueError(f"camera '{camera}': unknown source '{source}' (choose from {', '.join(SOURCES)})")
         if source in ("images", "pose") and not has_images:
             raise ValueError(f"camera '{camera}': source {source} needs the camera's images")
         self.name, self.source, self.nominal_hfov_deg = camera, source, params.nominal_hfov_deg
         self.acc = TrackAccumulator(camera)
-        self.problem = ""                      # why the camera has no usable intrinsics
+        self.problem = ""  # why the camera has no usable intrinsics
         self.nominal = nominal and not camera_info
-        self.detector = (ImageKeypointSource(camera, params.detector, params.max_pending_frames)
-                         if source == "images" else
-                         PoseOrDetectorSource(camera, params.pose, params.pose_min_frames, params.detector,
-                                              params.max_pending_frames) if source == "pose" else None)
+        self.detector = (
+            ImageKeypointSource(camera, params.detector, params.max_pending_frames)
+            if source == "images"
+            else PoseOrDetectorSource(
+                camera, params.pose, params.pose_min_frames, params.detector, params.max_pending_frames
+            )
+            if source == "pose"
+            else None
+        )
         self.sampler = BackgroundSampler(params.background_period_s)
         if self.nominal and not has_images:
-            self.problem = (f"camera '{camera}': no CameraInfo, no intrinsics file and no images, so its image "
-                            "size is unknown: the camera is left out")
+            self.problem = (
+                f"camera '{camera}': no CameraInfo, no intrinsics file and no images, so its image "
+                "size is unknown: the camera is left out"
+            )
         elif camera_info:
             try:
                 self.take_camera(intrinsics_from_text(camera_info, f"camera '{camera}': intrinsics file"))
@@ -69,8 +85,9 @@ class KeypointTracker:
         keypoints only those sampled for the background)."""
         return self.detector is not None or self.sampler.wants(stamp_ns)
 
-    def take_image(self, stamp_ns: int, image: Callable[[], np.ndarray]
-                   ) -> tuple[list[KeypointFrame], CameraModel | None]:
+    def take_image(
+        self, stamp_ns: int, image: Callable[[], np.ndarray]
+    ) -> tuple[list[KeypointFrame], CameraModel | None]:
         """An image (`image()` decodes it, only when it is needed): the frames it validated,
         and the nominal model its size gave a camera without intrinsics (None: none now)."""
         rgb, nominal, frames = None, None, []
@@ -84,7 +101,7 @@ class KeypointTracker:
         if self.detector is not None:
             frames += self._keep(self.detector.push(stamp_ns, rgb))
         if self.sampler.wants(stamp_ns) and (self.detector is None or self.source == "pose"):
-            self.sampler.add(stamp_ns, rgb)    # the pose model needs no background; the scene keypoints do
+            self.sampler.add(stamp_ns, rgb)  # the pose model needs no background; the scene keypoints do
         return frames, nominal
 
     def take_keypoints(self, frame: KeypointFrame) -> KeypointFrame | None:
@@ -104,8 +121,12 @@ class KeypointTracker:
     def summary(self) -> str:
         parts = ["source: recorded keypoints", self.acc.summary()]
         if self.detector is not None:
-            parts = [self.detector.summary() if self.source == "pose" else
-                     f"source: model-free detector; {self.detector.summary()}", self.acc.summary()]
+            parts = [
+                self.detector.summary()
+                if self.source == "pose"
+                else f"source: model-free detector; {self.detector.summary()}",
+                self.acc.summary(),
+            ]
         return "; ".join(p for p in [*parts, self.problem] if p)
 
     def _keep(self, frames: list[KeypointFrame]) -> list[KeypointFrame]:

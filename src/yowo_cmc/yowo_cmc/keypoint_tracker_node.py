@@ -16,6 +16,7 @@ Intrinsics, republished latched on /yowo/cmc/<name>/camera_info: the CameraInfo
 on `info_topic`; or, with `camera_info` (camera_calibration_parsers YAML text, from an
 intrinsics file), those; or, with `info_topic:=""` (no CameraInfo at all), a nominal model
 (cmc.nominal_hfov_deg) at the first image's size, which the group SfM then estimates."""
+
 from __future__ import annotations
 
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
@@ -55,17 +56,22 @@ class KeypointTrackerNode(StageNode):
         # camera_calibration_parsers YAML text of an intrinsics file; used instead of info_topic.
         info_text = self.declare_parameter("camera_info", "").value
         keypoints_topic = self.declare_parameter("keypoints_topic", topics.cmc_keypoints_topic(camera)).value
-        self.tracker = KeypointTracker(camera=camera, source=source, params=self.section(CmcParams, "cmc"),
-                                       has_images=bool(image_topic), camera_info=info_text,
-                                       nominal=not info_text and not self.info_topic)
-        self.frame_id = f"{camera}_optical_frame"    # the images' frame, once one arrived
+        self.tracker = KeypointTracker(
+            camera=camera,
+            source=source,
+            params=self.section(CmcParams, "cmc"),
+            has_images=bool(image_topic),
+            camera_info=info_text,
+            nominal=not info_text and not self.info_topic,
+        )
+        self.frame_id = f"{camera}_optical_frame"  # the images' frame, once one arrived
         self.pub = self.output(AgentKeypoints, topics.tracker_keypoints(camera))
         self.pub_background = self.output(Image, topics.tracker_background(camera), LATCHED)
         self.pub_info = self.output(CameraInfo, topics.tracker_camera_info(camera), LATCHED)
         for problem in (self.tracker.problem, getattr(self.tracker.detector, "problem", "")):
             if problem:
                 self.get_logger().error(problem)
-        if self.tracker.camera is not None:           # from the intrinsics file
+        if self.tracker.camera is not None:  # from the intrinsics file
             self.publish_info(self.tracker.camera)
         if self.tracker.wants_camera_info:
             self.stream_input(CameraInfo, self.info_topic, self.on_info)
@@ -91,7 +97,7 @@ class KeypointTrackerNode(StageNode):
         except ValueError as exc:
             self.tracker.problem = f"{self.info_topic}: {exc}"
             self.get_logger().error(self.tracker.problem)
-            self.pub_info.publish(msg)    # relayed: the stages downstream report the reason
+            self.pub_info.publish(msg)  # relayed: the stages downstream report the reason
 
     def set_camera(self, camera: CameraModel, msg: CameraInfo) -> None:
         frames = self.tracker.take_camera(camera)
@@ -100,15 +106,19 @@ class KeypointTrackerNode(StageNode):
 
     def publish_info(self, camera: CameraModel, msg: CameraInfo | None = None) -> None:
         """The camera's intrinsics, published latched (the received CameraInfo as it came)."""
-        self.pub_info.publish(msg if msg is not None else model_to_camera_info(
-            camera, Header(frame_id=f"{self.camera}_optical_frame")))
+        self.pub_info.publish(
+            msg if msg is not None else model_to_camera_info(camera, Header(frame_id=f"{self.camera}_optical_frame"))
+        )
 
     def on_keypoints(self, msg: AgentKeypoints) -> None:
         kept = self.tracker.take_keypoints(frame_from_msg(msg))
         if kept is None:
             return
-        out = AgentKeypoints(header=msg.header, camera_name=self.camera,
-                             keypoints=[k for k in msg.keypoints if k.id in set(kept.ids.tolist())])
+        out = AgentKeypoints(
+            header=msg.header,
+            camera_name=self.camera,
+            keypoints=[k for k in msg.keypoints if k.id in set(kept.ids.tolist())],
+        )
         self.pub.publish(out)
 
     def publish_frames(self, frames: list[KeypointFrame]) -> None:
@@ -121,8 +131,13 @@ class KeypointTrackerNode(StageNode):
         if background is None:
             return summary
         frames = self.tracker.acc.frames
-        self.pub_background.publish(encode_raw(background, "rgb8", Header(
-            stamp=ns_to_time(frames[-1].stamp_ns if frames else 0), frame_id=self.frame_id)))
+        self.pub_background.publish(
+            encode_raw(
+                background,
+                "rgb8",
+                Header(stamp=ns_to_time(frames[-1].stamp_ns if frames else 0), frame_id=self.frame_id),
+            )
+        )
         return f"{summary}; background published"
 
 

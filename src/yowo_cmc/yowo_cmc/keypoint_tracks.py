@@ -1,5 +1,6 @@
 """Per-CMC agent keypoint tracks: smoothing (Savitzky-Golay), outlier gating,
 undistortion, and interpolation to other cameras' stamps."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -19,9 +20,9 @@ from .params import TrackParams
 class KeypointTrack:
     """One keypoint id seen by one camera over time (sorted by stamp)."""
 
-    stamps_ns: np.ndarray     # (N,) int64
-    uv: np.ndarray            # (N, 2) px
-    confidence: np.ndarray    # (N,)
+    stamps_ns: np.ndarray  # (N,) int64
+    uv: np.ndarray  # (N, 2) px
+    confidence: np.ndarray  # (N,)
 
     def __len__(self) -> int:
         return len(self.stamps_ns)
@@ -37,7 +38,7 @@ class CameraTracks:
     name: str
     camera: CameraModel
     tracks: dict[int, KeypointTrack] = field(default_factory=dict)
-    frame_period_ns: int = 100_000_000      # nominal frame spacing (for gap detection / tolerances)
+    frame_period_ns: int = 100_000_000  # nominal frame spacing (for gap detection / tolerances)
 
     @property
     def num_observations(self) -> int:
@@ -53,8 +54,12 @@ class CameraTracks:
     def shifted(self, offset_s: float) -> "CameraTracks":
         """These tracks on a clock `offset_s` behind this camera's own (stamps - offset)."""
         d = round(offset_s * 1e9)
-        return CameraTracks(self.name, self.camera, {i: KeypointTrack(t.stamps_ns - d, t.uv, t.confidence)
-                                                     for i, t in self.tracks.items()}, self.frame_period_ns)
+        return CameraTracks(
+            self.name,
+            self.camera,
+            {i: KeypointTrack(t.stamps_ns - d, t.uv, t.confidence) for i, t in self.tracks.items()},
+            self.frame_period_ns,
+        )
 
 
 def segments(stamps_ns: np.ndarray, max_gap_ns: int) -> list[slice]:
@@ -68,6 +73,7 @@ def segments(stamps_ns: np.ndarray, max_gap_ns: int) -> list[slice]:
 
 def _savgol(uv: np.ndarray, window: int, polyorder: int) -> np.ndarray:
     from scipy.signal import savgol_filter
+
     n = len(uv)
     w = min(window, n if n % 2 else n - 1)
     if w <= polyorder:
@@ -94,12 +100,19 @@ def noise_px(track: KeypointTrack, period_ns: int, params: TrackParams) -> float
     max_gap = int(params.gap_factor * period_ns)
     if window <= params.polyorder + 1 or len(track) < params.min_noise_samples:  # an exact fit: no residual
         return float("nan")
-    r0 = np.concatenate([track.uv[seg] - _savgol(_running_median(track.uv[seg], 5), window, params.polyorder)
-                         for seg in segments(track.stamps_ns, max_gap)])
+    r0 = np.concatenate(
+        [
+            track.uv[seg] - _savgol(_running_median(track.uv[seg], 5), window, params.polyorder)
+            for seg in segments(track.stamps_ns, max_gap)
+        ]
+    )
     track = track.subset(np.linalg.norm(r0, axis=1) <= 4.0 * robust_sigma(r0))
     half = window // 2
-    res = [(track.uv[seg] - savgol_filter(track.uv[seg], window, params.polyorder, axis=0))[half:-half]
-           for seg in segments(track.stamps_ns, max_gap) if seg.stop - seg.start > window]
+    res = [
+        (track.uv[seg] - savgol_filter(track.uv[seg], window, params.polyorder, axis=0))[half:-half]
+        for seg in segments(track.stamps_ns, max_gap)
+        if seg.stop - seg.start > window
+    ]
     r = np.concatenate(res) if res else np.zeros((0, 2))
     if len(r) < params.min_noise_samples:
         return float("nan")
@@ -145,9 +158,12 @@ def _running_median(uv: np.ndarray, k: int) -> np.ndarray:
 
 def undistort_tracks(cam: CameraTracks) -> CameraTracks:
     """Tracks in ideal pinhole pixels (same K, no distortion)."""
-    return CameraTracks(cam.name, CameraModel(cam.camera.width, cam.camera.height, cam.camera.K),
-                        {i: KeypointTrack(t.stamps_ns, cam.camera.undistort_pixels(t.uv), t.confidence)
-                         for i, t in cam.tracks.items()}, cam.frame_period_ns)
+    return CameraTracks(
+        cam.name,
+        CameraModel(cam.camera.width, cam.camera.height, cam.camera.K),
+        {i: KeypointTrack(t.stamps_ns, cam.camera.undistort_pixels(t.uv), t.confidence) for i, t in cam.tracks.items()},
+        cam.frame_period_ns,
+    )
 
 
 def track_splines(track: KeypointTrack, max_gap_ns: int, origin_ns: int) -> list[tuple[float, float, object]]:
@@ -157,8 +173,11 @@ def track_splines(track: KeypointTrack, max_gap_ns: int, origin_ns: int) -> list
     from scipy.interpolate import make_interp_spline
 
     ts = (track.stamps_ns - origin_ns) / 1e9
-    return [(ts[s][0], ts[s][-1], make_interp_spline(ts[s], track.uv[s], k=min(3, s.stop - s.start - 1)))
-            for s in segments(track.stamps_ns, max_gap_ns) if s.stop - s.start >= 2]
+    return [
+        (ts[s][0], ts[s][-1], make_interp_spline(ts[s], track.uv[s], k=min(3, s.stop - s.start - 1)))
+        for s in segments(track.stamps_ns, max_gap_ns)
+        if s.stop - s.start >= 2
+    ]
 
 
 def interpolate(track: KeypointTrack, stamps_ns: np.ndarray, max_gap_ns: int) -> tuple[np.ndarray, np.ndarray]:
@@ -192,22 +211,27 @@ def sigma_factors(track: KeypointTrack, stamps_ns: np.ndarray, params: TrackPara
         return np.ones(len(stamps_ns))
     after = np.minimum(np.searchsorted(track.stamps_ns, stamps_ns), len(track) - 1)
     before = np.maximum(after - 1, 0)
-    nearest = np.where(np.abs(track.stamps_ns[before] - stamps_ns) < np.abs(track.stamps_ns[after] - stamps_ns),
-                       before, after)
+    nearest = np.where(
+        np.abs(track.stamps_ns[before] - stamps_ns) < np.abs(track.stamps_ns[after] - stamps_ns), before, after
+    )
     conf = track.confidence[nearest]
     full = float(np.percentile(track.confidence, 90))
     return np.where(conf < params.weak_confidence_ratio * full, full / np.maximum(conf, 1e-3), 1.0)
 
 
-def resample(cam: CameraTracks, stamps_ns: np.ndarray, params: TrackParams, scale: float | None = None
-             ) -> tuple[CameraModel, dict[int, tuple[np.ndarray, np.ndarray]]]:
+def resample(
+    cam: CameraTracks, stamps_ns: np.ndarray, params: TrackParams, scale: float | None = None
+) -> tuple[CameraModel, dict[int, tuple[np.ndarray, np.ndarray]]]:
     """Clean and undistort every keypoint track of a camera and interpolate it at the
     given stamps: (ideal pinhole model, {id: (uv (K, 2), valid (K,))}). `scale`: the
     camera's noise_scale when the caller has it already."""
     scale = noise_scale(cam, params) if scale is None else scale
-    cleaned = CameraTracks(cam.name, cam.camera,
-                           {i: clean_track(t, cam.frame_period_ns, params, scale) for i, t in cam.tracks.items()},
-                           cam.frame_period_ns)
+    cleaned = CameraTracks(
+        cam.name,
+        cam.camera,
+        {i: clean_track(t, cam.frame_period_ns, params, scale) for i, t in cam.tracks.items()},
+        cam.frame_period_ns,
+    )
     ideal = undistort_tracks(cleaned)
     max_gap = int(params.gap_factor * cam.frame_period_ns)
     return ideal.camera, {i: interpolate(t, stamps_ns, max_gap) for i, t in ideal.tracks.items()}

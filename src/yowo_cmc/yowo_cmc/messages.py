@@ -1,4 +1,5 @@
 """CameraGroupArray <-> CMC group results (message classes only, no rclpy)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -27,28 +28,42 @@ def _estimated(camera: CameraModel, focal_sigma_px: float, k1_sigma: float) -> C
     """The camera as the group SfM estimated it, when its focal has a sigma (NaN: from CameraInfo)."""
     if not np.isfinite(focal_sigma_px):
         return camera
-    return EstimatedCamera(camera.width, camera.height, camera.K, camera.D, camera.distortion_model,
-                           focal_sigma_px=focal_sigma_px, k1_sigma=k1_sigma)
+    return EstimatedCamera(
+        camera.width,
+        camera.height,
+        camera.K,
+        camera.D,
+        camera.distortion_model,
+        focal_sigma_px=focal_sigma_px,
+        k1_sigma=k1_sigma,
+    )
 
 
 def groups_to_msg(result: GroupingResult, stamp_ns: int) -> CameraGroupArray:
     msg = CameraGroupArray(header=Header(stamp=ns_to_time(stamp_ns), frame_id=""))
     for g in result.groups:
-        msg.groups.append(CameraGroup(
-            group_id=g.group_id, reference_camera=g.reference, initial_pair_camera=g.initial_pair[1],
-            camera_names=list(g.names),
-            poses_local_camera=[matrix_to_pose(g.T_local_cam[n]) for n in g.names],
-            reprojection_rmse_px=[float(g.rmse_px[n]) for n in g.names],
-            num_observations=[int(g.num_observations[n]) for n in g.names],
-            camera_infos=[model_to_camera_info(g.cameras[n]) for n in g.names if n in g.cameras],
-            focal_sigmas_px=[float(getattr(g.cameras.get(n), "focal_sigma_px", NAN)) for n in g.names],
-            k1_sigmas=[float(getattr(g.cameras.get(n), "k1_sigma", NAN)) for n in g.names],
-            clock_offsets_s=[float(g.clock_offsets_s.get(n, np.nan)) for n in g.names],
-            clock_sigmas_s=[float(g.clock_sigmas_s.get(n, np.nan)) for n in g.names], clocks_applied=g.clocks_applied,
-            sigma_keypoint_ids=[int(i) for i in g.sigma_px_by_id], sigma_px=[float(s) for s in g.sigma_px_by_id.values()],
-            track_stamps=[ns_to_time(int(s)) for s in g.point_stamps_ns],
-            track_keypoint_ids=[int(i) for i in g.point_ids],
-            track_points=array_to_points(g.points)))
+        msg.groups.append(
+            CameraGroup(
+                group_id=g.group_id,
+                reference_camera=g.reference,
+                initial_pair_camera=g.initial_pair[1],
+                camera_names=list(g.names),
+                poses_local_camera=[matrix_to_pose(g.T_local_cam[n]) for n in g.names],
+                reprojection_rmse_px=[float(g.rmse_px[n]) for n in g.names],
+                num_observations=[int(g.num_observations[n]) for n in g.names],
+                camera_infos=[model_to_camera_info(g.cameras[n]) for n in g.names if n in g.cameras],
+                focal_sigmas_px=[float(getattr(g.cameras.get(n), "focal_sigma_px", NAN)) for n in g.names],
+                k1_sigmas=[float(getattr(g.cameras.get(n), "k1_sigma", NAN)) for n in g.names],
+                clock_offsets_s=[float(g.clock_offsets_s.get(n, np.nan)) for n in g.names],
+                clock_sigmas_s=[float(g.clock_sigmas_s.get(n, np.nan)) for n in g.names],
+                clocks_applied=g.clocks_applied,
+                sigma_keypoint_ids=[int(i) for i in g.sigma_px_by_id],
+                sigma_px=[float(s) for s in g.sigma_px_by_id.values()],
+                track_stamps=[ns_to_time(int(s)) for s in g.point_stamps_ns],
+                track_keypoint_ids=[int(i) for i in g.point_ids],
+                track_points=array_to_points(g.points),
+            )
+        )
     msg.ungrouped_cameras = list(result.ungrouped)
     msg.ungrouped_reasons = list(result.ungrouped.values())
     return msg
@@ -58,21 +73,33 @@ def groups_from_msg(msg: CameraGroupArray) -> tuple[list[CameraGroupResult], dic
     groups = []
     for g in msg.groups:
         names = list(g.camera_names)
-        groups.append(CameraGroupResult(
-            g.group_id, g.reference_camera, names,
-            {n: pose_to_matrix(p) for n, p in zip(names, g.poses_local_camera)},
-            np.array([stamp_to_ns(s) for s in g.track_stamps], dtype=np.int64),
-            np.array(g.track_keypoint_ids, dtype=int), points_to_array(g.track_points),
-            dict(zip(names, g.reprojection_rmse_px)), dict(zip(names, g.num_observations)),
-            {int(i): float(s) for i, s in zip(g.sigma_keypoint_ids, g.sigma_px)},
-            (g.reference_camera, g.initial_pair_camera),
-            # a group without them (an older message) has no intrinsics to give
-            {n: _estimated(camera_info_to_model(i), s, k)
-             for n, i, s, k in zip(names, g.camera_infos, _or_nan(g.focal_sigmas_px, names), _or_nan(g.k1_sigmas, names))}
-            if len(g.camera_infos) == len(names) else {},
-            {n: float(o) for n, o in zip(names, g.clock_offsets_s) if np.isfinite(o)},
-            {n: float(s) for n, s, o in zip(names, g.clock_sigmas_s, g.clock_offsets_s) if np.isfinite(o)},
-            g.clocks_applied))
+        groups.append(
+            CameraGroupResult(
+                g.group_id,
+                g.reference_camera,
+                names,
+                {n: pose_to_matrix(p) for n, p in zip(names, g.poses_local_camera)},
+                np.array([stamp_to_ns(s) for s in g.track_stamps], dtype=np.int64),
+                np.array(g.track_keypoint_ids, dtype=int),
+                points_to_array(g.track_points),
+                dict(zip(names, g.reprojection_rmse_px)),
+                dict(zip(names, g.num_observations)),
+                {int(i): float(s) for i, s in zip(g.sigma_keypoint_ids, g.sigma_px)},
+                (g.reference_camera, g.initial_pair_camera),
+                # a group without them (an older message) has no intrinsics to give
+                {
+                    n: _estimated(camera_info_to_model(i), s, k)
+                    for n, i, s, k in zip(
+                        names, g.camera_infos, _or_nan(g.focal_sigmas_px, names), _or_nan(g.k1_sigmas, names)
+                    )
+                }
+                if len(g.camera_infos) == len(names)
+                else {},
+                {n: float(o) for n, o in zip(names, g.clock_offsets_s) if np.isfinite(o)},
+                {n: float(s) for n, s, o in zip(names, g.clock_sigmas_s, g.clock_offsets_s) if np.isfinite(o)},
+                g.clocks_applied,
+            )
+        )
     return groups, dict(zip(msg.ungrouped_cameras, msg.ungrouped_reasons))
 
 

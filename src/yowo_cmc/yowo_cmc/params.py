@@ -1,6 +1,7 @@
 """The parameters of the CMC tracks, clock offsets and the group SfM, apart from the algorithms: the
 configuration tree (config.py) imports these, and a keypoint tracker needs the tree but
 none of the SfM's libraries (scipy.signal, gtsam, networkx), which are slow to import."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -8,10 +9,10 @@ from dataclasses import dataclass, field
 
 @dataclass(frozen=True)
 class TrackParams:
-    window_s: float = 0.7           # Savitzky-Golay window
+    window_s: float = 0.7  # Savitzky-Golay window
     polyorder: int = 2
-    gap_factor: float = 2.5         # a gap longer than this many frame periods splits a segment
-    gate_px: float = 8.0            # residual to the smoothed track above which a sample is dropped
+    gap_factor: float = 2.5  # a gap longer than this many frame periods splits a segment
+    gate_px: float = 8.0  # residual to the smoothed track above which a sample is dropped
     min_confidence: float = 0.1
     # Our addition (the paper's CMC BA has no detection confidence): a sample rated below
     # this fraction of its track's full confidence (90th percentile; not the median, as
@@ -23,25 +24,25 @@ class TrackParams:
     # keypoint id has ~1 px noise (estimated 0.9-1.9 px by noise_px). A camera whose best id
     # is noisier than this has them scaled by the ratio (noise_scale); never below 1.
     nominal_noise_px: float = 1.5
-    min_noise_samples: int = 20     # residuals needed for a track's noise estimate
+    min_noise_samples: int = 20  # residuals needed for a track's noise estimate
 
 
 @dataclass(frozen=True)
 class SfmParams:
-    min_matches: int = 8                 # per edge of the scene graph (paper: eight)
-    ransac_px: float = 2.0               # MAGSAC threshold on the epipolar error
-    grid_cols: int = 16                  # N_GW
-    grid_rows: int = 12                  # N_GH
-    per_cell: int = 6                    # correspondences per grid cell fed to RANSAC
+    min_matches: int = 8  # per edge of the scene graph (paper: eight)
+    ransac_px: float = 2.0  # MAGSAC threshold on the epipolar error
+    grid_cols: int = 16  # N_GW
+    grid_rows: int = 12  # N_GH
+    per_cell: int = 6  # correspondences per grid cell fed to RANSAC
     min_pnp: int = 8
     pnp_px: float = 4.0
-    max_reproj_px: float = 6.0           # triangulated points beyond this are not kept
-    min_angle_deg: float = 1.0           # triangulation angle below which points are unreliable
+    max_reproj_px: float = 6.0  # triangulated points beyond this are not kept
+    min_angle_deg: float = 1.0  # triangulation angle below which points are unreliable
     initial_sigma_px: float = 1.5
     tracks: TrackParams = field(default_factory=TrackParams)
     # Switches for the ECCMP-style baseline: the pair with most inliers first, then the
     # camera with most 2D-3D matches, one sigma for every keypoint id.
-    min_init_fraction: float = 0.5      # of the initial pair's inliers that must triangulate
+    min_init_fraction: float = 0.5  # of the initial pair's inliers that must triangulate
     overlap_ordering: bool = True
     class_sigma: bool = True
     # Variance component estimation: robust BA rounds, each weighting a keypoint class by the
@@ -109,9 +110,9 @@ class ClockParams:
     # Search range of a pair's offset |clock b - clock a|: twice the largest |offset| of one
     # camera (+-1 s each: pairs up to 2 s apart), with a margin.
     max_offset_s: float = 2.5
-    coarse_step_frames: float = 0.5     # coarse grid step, in frame periods of the faster camera
-    min_correspondences: int = 40       # co-visible samples (all keypoint ids) a pair needs at a shift
-    coarse_points: int = 150            # correspondences (spatially spread) per essential-matrix fit
+    coarse_step_frames: float = 0.5  # coarse grid step, in frame periods of the faster camera
+    min_correspondences: int = 40  # co-visible samples (all keypoint ids) a pair needs at a shift
+    coarse_points: int = 150  # correspondences (spatially spread) per essential-matrix fit
     # RANSAC iterations per fit: at a wrong shift most correspondences are outliers and
     # the fit would run to OpenCV's 1000; near the right one it stops far sooner.
     coarse_iterations: int = 300
@@ -125,7 +126,7 @@ class ClockParams:
     # 601 full fits per pair before, 301 cheap + <= 25 full now (23 -> 7.7 s CPU).
     # 0: the full cost at every shift.
     search_candidates: int = 5
-    search_step_frames: float = 1.0     # in frame periods of the faster camera (a multiple of coarse_step_frames)
+    search_step_frames: float = 1.0  # in frame periods of the faster camera (a multiple of coarse_step_frames)
     search_iterations: int = 50
     search_points: int = 60
     # A pair's best shift counts only if it stands this many noise levels below the median
@@ -134,18 +135,18 @@ class ClockParams:
     # cost the group 5.4 -> 18 % of the mean baseline; Pose2Sim's demo 18.7-41; the
     # simulator's walks 9.7-17.5.
     min_prominence: float = 6.0
-    truncate_px: float = 3.0            # coarse cost: Sampson error truncated here (x the pair's noise scale)
-    huber_px: float = 1.0               # refinement: Huber loss scale (x the pair's noise scale)
+    truncate_px: float = 3.0  # coarse cost: Sampson error truncated here (x the pair's noise scale)
+    huber_px: float = 1.0  # refinement: Huber loss scale (x the pair's noise scale)
     # A pair's sigma from the curvature assumes independent residuals, with their spread;
     # the tracks are Savitzky-Golay smoothed, which shrinks the residuals by sqrt(c0) (the
     # filter's centre weight) but not the slow noise a shift is fitted to: the sigma is
     # scaled by 1 / sqrt(c0).
     correlated_sigma: bool = True
-    max_pair_sigma_s: float = 0.02      # pair estimates less certain are not used (agent barely moving)
-    min_sigma_s: float = 1e-5           # floor on a pair's sigma: noise-free pairs would get unbounded weight
-    max_residual_sigma: float = 5.0     # a pair this many sigma off the global solution is dropped ...
-    min_residual_s: float = 0.005       # ... if it is also this far off (sigmas can be optimistic)
-    apply: bool = True                  # the group SfM runs on stamps corrected by the estimated offsets
+    max_pair_sigma_s: float = 0.02  # pair estimates less certain are not used (agent barely moving)
+    min_sigma_s: float = 1e-5  # floor on a pair's sigma: noise-free pairs would get unbounded weight
+    max_residual_sigma: float = 5.0  # a pair this many sigma off the global solution is dropped ...
+    min_residual_s: float = 0.005  # ... if it is also this far off (sigmas can be optimistic)
+    apply: bool = True  # the group SfM runs on stamps corrected by the estimated offsets
     # ... those farther than this many sigma from 0: one within its noise of 0 is kept at 0
     # (synchronised cameras stay on their stamps; applying noise cost accuracy: Pose2Sim's
     # demo, pose model, offsets 3-17 ms at sigma 8-12 ms: 2.29 % of the mean baseline applied,
@@ -155,6 +156,6 @@ class ClockParams:
     # agent points (the pairs' epipolar fits each see two cameras only: 10-40 ms off on
     # the simulator's recordings, a few cm of relative pose).
     refine: bool = True
-    refine_range_s: float = 0.1         # largest correction of the refinement
-    refine_max_points: int = 3000       # agent points in the fit (evenly spread in time)
-    refine_min_observations: int = 50   # a member's observations the fit needs to refine its offset
+    refine_range_s: float = 0.1  # largest correction of the refinement
+    refine_max_points: int = 3000  # agent points in the fit (evenly spread in time)
+    refine_min_observations: int = 50  # a member's observations the fit needs to refine its offset

@@ -3,6 +3,7 @@
 within clock.min_significance sigma of 0 is not applied), the
 offsets refined per group with its poses and points, and the group SfM once more on the
 refined stamps. What the group SfM node and the offline API both run."""
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -32,13 +33,16 @@ def alone_in_time(tracks: list[CameraTracks], max_offset_s: float) -> dict[str, 
     for name, span in spans.items():
         others = [s for n, s in spans.items() if n != name and s is not None]
         if span is not None and not any(span[0] <= o[1] + slack and o[0] <= span[1] + slack for o in others):
-            out[name] = (f"saw the walker at no instant another camera did (its keypoint stamps "
-                         f"{span[0] / 1e9:.3f}..{span[1] / 1e9:.3f} s)")
+            out[name] = (
+                f"saw the walker at no instant another camera did (its keypoint stamps "
+                f"{span[0] / 1e9:.3f}..{span[1] / 1e9:.3f} s)"
+            )
     return out
 
 
-def calibrate_cmcs_apart(tracks: list[CameraTracks], params: CmcParams = CmcParams(),
-                         estimate_intrinsics: frozenset[str] = frozenset()) -> GroupingResult:
+def calibrate_cmcs_apart(
+    tracks: list[CameraTracks], params: CmcParams = CmcParams(), estimate_intrinsics: frozenset[str] = frozenset()
+) -> GroupingResult:
     """calibrate_cmcs; where it fails, without the one camera whose data makes it fail (tried
     one at a time), which is left ungrouped with the error: one camera's fault stays its own."""
     try:
@@ -57,8 +61,9 @@ def calibrate_cmcs_apart(tracks: list[CameraTracks], params: CmcParams = CmcPara
         raise
 
 
-def calibrate_cmcs(tracks: list[CameraTracks], params: CmcParams = CmcParams(),
-                   estimate_intrinsics: frozenset[str] = frozenset()) -> GroupingResult:
+def calibrate_cmcs(
+    tracks: list[CameraTracks], params: CmcParams = CmcParams(), estimate_intrinsics: frozenset[str] = frozenset()
+) -> GroupingResult:
     """Groups with relative poses and agent tracks. Each group's points are stamped on
     its reference camera's clock, and `clock_offsets_s` says how far each member's clock
     is from it (member's stamp of an instant = reference's + offset). `estimate_intrinsics`:
@@ -105,8 +110,9 @@ def calibrate_cmcs(tracks: list[CameraTracks], params: CmcParams = CmcParams(),
                 offsets[n] = ref + (relative if abs(relative) > params.clock.min_significance * sigma else 0.0)
                 sigmas[n], sigmas[g.reference] = sigma, 0.0
         if offsets != applied:
-            grouping = calibrate_groups([t.shifted(offsets.get(t.name, 0.0)) for t in tracks], params.sfm,
-                                        components, unknown)
+            grouping = calibrate_groups(
+                [t.shifted(offsets.get(t.name, 0.0)) for t in tracks], params.sfm, components, unknown
+            )
     for g in grouping.groups:
         ref = offsets.get(g.reference, 0.0)
         # The group's points onto its reference camera's own clock.
@@ -114,6 +120,7 @@ def calibrate_cmcs(tracks: list[CameraTracks], params: CmcParams = CmcParams(),
         g.clocks_applied = True
         for n in g.names:
             g.clock_offsets_s[n] = offsets.get(n, 0.0) - ref
-            g.clock_sigmas_s[n] = 0.0 if n == g.reference else float(
-                (sigmas.get(n, 0.0) ** 2 + sigmas.get(g.reference, 0.0) ** 2) ** 0.5)
+            g.clock_sigmas_s[n] = (
+                0.0 if n == g.reference else float((sigmas.get(n, 0.0) ** 2 + sigmas.get(g.reference, 0.0) ** 2) ** 0.5)
+            )
     return grouping

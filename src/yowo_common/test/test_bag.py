@@ -18,10 +18,18 @@ def compiled_hash(msgtype: str) -> str:
     return next(h["hash_string"] for h in desc["type_hashes"] if h["type_name"] == msgtype)
 
 
-@pytest.mark.parametrize("msgtype", ["tf2_msgs/msg/TFMessage", "yowo_msgs/msg/AgentKeypoints",
-                                     "yowo_msgs/msg/EgoMap", "yowo_msgs/msg/RegisteredCameraArray",
-                                     "yowo_msgs/msg/CameraGroupArray", "yowo_msgs/msg/SceneLayout",
-                                     "yowo_msgs/msg/ReplayStatus"])
+@pytest.mark.parametrize(
+    "msgtype",
+    [
+        "tf2_msgs/msg/TFMessage",
+        "yowo_msgs/msg/AgentKeypoints",
+        "yowo_msgs/msg/EgoMap",
+        "yowo_msgs/msg/RegisteredCameraArray",
+        "yowo_msgs/msg/CameraGroupArray",
+        "yowo_msgs/msg/SceneLayout",
+        "yowo_msgs/msg/ReplayStatus",
+    ],
+)
 def test_type_hashes_match_compiled_interfaces(msgtype):
     """Bags we write carry the hash rclpy's compiled types have (and upstream's, for TFMessage)."""
     assert typestore().hash_rihs01(msgtype) == compiled_hash(msgtype)
@@ -29,8 +37,10 @@ def test_type_hashes_match_compiled_interfaces(msgtype):
 
 def test_tfmessage_matches_upstream_jazzy():
     from rosbags.typesys import Stores, get_typestore
+
     assert compiled_hash("tf2_msgs/msg/TFMessage") == get_typestore(Stores.ROS2_JAZZY).hash_rihs01(
-        "tf2_msgs/msg/TFMessage")
+        "tf2_msgs/msg/TFMessage"
+    )
 
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
@@ -40,13 +50,20 @@ def test_write_read_roundtrip(tmp_path, storage):
     with BagWriter(path, storage=storage) as bag:
         for i in range(3):
             stamp = 1_000_000_000 + i * 100_000_000
-            kp = AgentKeypoints(header=Header(stamp=ns_to_time(stamp), frame_id="cam0_optical_frame"),
-                                camera_name="cam0", keypoints=[Keypoint2D(id=0, x=10.5 + i, y=20.25, confidence=0.9)])
+            kp = AgentKeypoints(
+                header=Header(stamp=ns_to_time(stamp), frame_id="cam0_optical_frame"),
+                camera_name="cam0",
+                keypoints=[Keypoint2D(id=0, x=10.5 + i, y=20.25, confidence=0.9)],
+            )
             bag.write("/cmc/cam0/agent_keypoints", kp, stamp)
-            bag.write("/gt/ego/pose", PoseStamped(header=Header(stamp=ns_to_time(stamp), frame_id="map"),
-                                                  pose=matrix_to_pose(T)), stamp)
-        tf = TFMessage(transforms=[TransformStamped(child_frame_id="cam0_optical_frame",
-                                                    transform=matrix_to_transform(T))])
+            bag.write(
+                "/gt/ego/pose",
+                PoseStamped(header=Header(stamp=ns_to_time(stamp), frame_id="map"), pose=matrix_to_pose(T)),
+                stamp,
+            )
+        tf = TFMessage(
+            transforms=[TransformStamped(child_frame_id="cam0_optical_frame", transform=matrix_to_transform(T))]
+        )
         bag.write("/tf_static", tf, 1_000_000_000, latched=True)
     topics = {t.name: t for t in list_topics(path)}
     assert topics["/cmc/cam0/agent_keypoints"].count == 3

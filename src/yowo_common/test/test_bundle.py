@@ -24,8 +24,13 @@ def scene(seed=0, n_cams=5, n_pts=150):
 
 
 def perturbed(poses, pts, rng, rot_deg=1.0, trans_m=0.05, pt_m=0.05):
-    P = [se3(Rotation.from_rotvec(rng.normal(size=3) * np.radians(rot_deg)).as_matrix() @ T[:3, :3],
-             T[:3, 3] + rng.normal(size=3) * trans_m) for T in poses]
+    P = [
+        se3(
+            Rotation.from_rotvec(rng.normal(size=3) * np.radians(rot_deg)).as_matrix() @ T[:3, :3],
+            T[:3, 3] + rng.normal(size=3) * trans_m,
+        )
+        for T in poses
+    ]
     return P, pts + rng.normal(size=pts.shape) * pt_m
 
 

@@ -138,15 +138,18 @@ def test_colmap_cameras_txt(tmp_path):
     np.testing.assert_array_equal(m.D, [-0.12, 0.03, 0.001, -0.002, 0])
 
 
-@pytest.mark.parametrize("model, params", [
-    ("SIMPLE_PINHOLE", [500.0, 320.5, 240.25]),
-    ("PINHOLE", [500.0, 510.0, 320.5, 240.25]),
-    ("SIMPLE_RADIAL", [500.0, 320.5, 240.25, -0.08]),
-    ("RADIAL", [500.0, 320.5, 240.25, -0.08, 0.01]),
-    ("OPENCV", [500.0, 510.0, 320.5, 240.25, -0.1, 0.02, 0.001, -0.002]),
-    ("FULL_OPENCV", [500.0, 510.0, 320.5, 240.25, -0.1, 0.02, 0.001, -0.002, 0.003, 0.01, -0.004, 0.002]),
-    ("OPENCV_FISHEYE", [500.0, 510.0, 320.5, 240.25, -0.02, 0.004, -0.001, 0.0005]),
-])
+@pytest.mark.parametrize(
+    "model, params",
+    [
+        ("SIMPLE_PINHOLE", [500.0, 320.5, 240.25]),
+        ("PINHOLE", [500.0, 510.0, 320.5, 240.25]),
+        ("SIMPLE_RADIAL", [500.0, 320.5, 240.25, -0.08]),
+        ("RADIAL", [500.0, 320.5, 240.25, -0.08, 0.01]),
+        ("OPENCV", [500.0, 510.0, 320.5, 240.25, -0.1, 0.02, 0.001, -0.002]),
+        ("FULL_OPENCV", [500.0, 510.0, 320.5, 240.25, -0.1, 0.02, 0.001, -0.002, 0.003, 0.01, -0.004, 0.002]),
+        ("OPENCV_FISHEYE", [500.0, 510.0, 320.5, 240.25, -0.02, 0.004, -0.001, 0.0005]),
+    ],
+)
 def test_colmap_projection_matches_pycolmap(tmp_path, model, params):
     path = write(tmp_path, "cameras.txt", f"7 {model} 640 480 {' '.join(map(repr, params))}\n")
     m = read_intrinsics(path)
@@ -159,7 +162,7 @@ def test_colmap_projection_matches_pycolmap(tmp_path, model, params):
 def write_filestorage(path: Path, entries: dict) -> Path:
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
     for key, value in entries.items():
-        if isinstance(value, list):   # a plain sequence, as cv::Size is written
+        if isinstance(value, list):  # a plain sequence, as cv::Size is written
             fs.startWriteStruct(key, cv2.FileNode_SEQ)
             for item in value:
                 fs.write("", item)
@@ -176,14 +179,17 @@ D4 = np.array([-0.02, 0.004, -0.001, 0.0005])
 
 
 @pytest.mark.parametrize("ext", ["yaml", "xml"])
-@pytest.mark.parametrize("entries, model, D", [
-    ({"image_width": 640, "image_height": 480, "camera_matrix": K, "distortion_coefficients": D5}, PLUMB_BOB, D5),
-    ({"cameraMatrix": K, "distCoeffs": D8, "imageSize": np.array([640, 480])}, RATIONAL_POLYNOMIAL, D8),
-    ({"K": K, "D": D4, "image_size": [640, 480], "fisheye": 1}, EQUIDISTANT, D4),
-    ({"K": K, "D": D4, "image_size": [640, 480], "model": "fisheye"}, EQUIDISTANT, D4),
-    ({"K": K, "dist_coeffs": D4, "image_size": [640, 480]}, PLUMB_BOB, np.append(D4, 0.0)),
-    ({"K": K, "dist_coeffs": np.append(D8, np.zeros(6)), "imageSize": [640, 480]}, RATIONAL_POLYNOMIAL, D8),
-])
+@pytest.mark.parametrize(
+    "entries, model, D",
+    [
+        ({"image_width": 640, "image_height": 480, "camera_matrix": K, "distortion_coefficients": D5}, PLUMB_BOB, D5),
+        ({"cameraMatrix": K, "distCoeffs": D8, "imageSize": np.array([640, 480])}, RATIONAL_POLYNOMIAL, D8),
+        ({"K": K, "D": D4, "image_size": [640, 480], "fisheye": 1}, EQUIDISTANT, D4),
+        ({"K": K, "D": D4, "image_size": [640, 480], "model": "fisheye"}, EQUIDISTANT, D4),
+        ({"K": K, "dist_coeffs": D4, "image_size": [640, 480]}, PLUMB_BOB, np.append(D4, 0.0)),
+        ({"K": K, "dist_coeffs": np.append(D8, np.zeros(6)), "imageSize": [640, 480]}, RATIONAL_POLYNOMIAL, D8),
+    ],
+)
 def test_opencv_filestorage(tmp_path, ext, entries, model, D):
     m = read_intrinsics(write_filestorage(tmp_path / f"calib.{ext}", entries))
     assert (m.width, m.height, m.distortion_model) == (640, 480, model)
@@ -198,8 +204,9 @@ def test_opencv4_tutorial_yaml(tmp_path):
     np.testing.assert_array_equal(m.D, [-0.41802327176423804, 0.50715244063187526, 0, 0, -0.57843597214487474])
 
 
-@pytest.mark.parametrize("model, D", [(PLUMB_BOB, [-0.3, 0.1, 1e-4, -2e-4, 0.02]),
-                                      (RATIONAL_POLYNOMIAL, D8), (EQUIDISTANT, D4)])
+@pytest.mark.parametrize(
+    "model, D", [(PLUMB_BOB, [-0.3, 0.1, 1e-4, -2e-4, 0.02]), (RATIONAL_POLYNOMIAL, D8), (EQUIDISTANT, D4)]
+)
 def test_camera_info_yaml_round_trip(tmp_path, model, D):
     R = cv2.Rodrigues(np.array([0.01, -0.02, 0.003]))[0]
     P = np.array([[480.123456789, 0, 321.1, -30.5], [0, 480.123456789, 239.9, 0], [0, 0, 1, 0]])
@@ -212,28 +219,42 @@ def test_camera_info_yaml_round_trip(tmp_path, model, D):
         np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.parametrize("name, content, camera, message", [
-    ("calib.yaml", "camera_matrix: [1, 2\n", "", "not YAML"),
-    ("calib.yaml", b"\x89PNG\r\n\x1a\n\xff\xfe", "", "not a text file"),
-    ("calib.yaml", "just a sentence\n", "", "not a calibration file"),
-    ("cameras.txt", "1 FOV 640 480 500 500 320 240 0.9\n", "", "COLMAP model FOV is not supported"),
-    ("cameras.txt", "1 PINHOLE 640 480 500 500 320\n", "", "takes 4 parameters, got 3"),
-    ("cameras.txt", COLMAP_TXT, "", "holds 4 cameras, select one (camera=...): 1 (SIMPLE_PINHOLE 3072x2304), 2 ("),
-    ("cameras.txt", COLMAP_TXT, "9", "no camera '9'; candidates: 1 (SIMPLE_PINHOLE"),
-    ("camchain.yaml", KALIBR_YAML, "", "select one (camera=...): cam0 (/cctv/lobby/image_raw), cam1 ("),
-    ("camchain.yaml", KALIBR_YAML, "cctv", "camera 'cctv' is ambiguous"),
-    ("camchain.yaml", KALIBR_YAML.replace("camera_model: pinhole", "camera_model: omni"), "cam0",
-     "camera 'cam0': Kalibr camera_model 'omni' is not supported"),
-    ("camchain.yaml", KALIBR_YAML.replace("distortion_model: radtan", "distortion_model: fov"), "cam0",
-     "Kalibr distortion_model 'fov' is not supported"),
-    ("narrow.yaml", ROS_YAML.replace("plumb_bob", "thin_prism"), "", "'thin_prism' is not supported"),
-    ("narrow.yaml", ROS_YAML.replace("data: [423.23,", "data: [0,"), "", "fx=0, fy=423.89 (must be > 0)"),
-    ("narrow.yaml", ROS_YAML.replace("rows: 1\n  cols: 5", "rows: 1\n  cols: 4"), "", "rows x cols is 1 x 4"),
-    ("out_camera_data.yml", OPENCV4_YAML.replace("image_width: 640\nimage_height: 480\n", ""), "",
-     "no image size"),
-    ("out_camera_data.yml", OPENCV4_YAML.replace("fisheye_model: 0", "fisheye_model: 1"), "",
-     "the fisheye (equidistant) model takes 4 coefficients k1..k4, got 5"),
-])
+@pytest.mark.parametrize(
+    "name, content, camera, message",
+    [
+        ("calib.yaml", "camera_matrix: [1, 2\n", "", "not YAML"),
+        ("calib.yaml", b"\x89PNG\r\n\x1a\n\xff\xfe", "", "not a text file"),
+        ("calib.yaml", "just a sentence\n", "", "not a calibration file"),
+        ("cameras.txt", "1 FOV 640 480 500 500 320 240 0.9\n", "", "COLMAP model FOV is not supported"),
+        ("cameras.txt", "1 PINHOLE 640 480 500 500 320\n", "", "takes 4 parameters, got 3"),
+        ("cameras.txt", COLMAP_TXT, "", "holds 4 cameras, select one (camera=...): 1 (SIMPLE_PINHOLE 3072x2304), 2 ("),
+        ("cameras.txt", COLMAP_TXT, "9", "no camera '9'; candidates: 1 (SIMPLE_PINHOLE"),
+        ("camchain.yaml", KALIBR_YAML, "", "select one (camera=...): cam0 (/cctv/lobby/image_raw), cam1 ("),
+        ("camchain.yaml", KALIBR_YAML, "cctv", "camera 'cctv' is ambiguous"),
+        (
+            "camchain.yaml",
+            KALIBR_YAML.replace("camera_model: pinhole", "camera_model: omni"),
+            "cam0",
+            "camera 'cam0': Kalibr camera_model 'omni' is not supported",
+        ),
+        (
+            "camchain.yaml",
+            KALIBR_YAML.replace("distortion_model: radtan", "distortion_model: fov"),
+            "cam0",
+            "Kalibr distortion_model 'fov' is not supported",
+        ),
+        ("narrow.yaml", ROS_YAML.replace("plumb_bob", "thin_prism"), "", "'thin_prism' is not supported"),
+        ("narrow.yaml", ROS_YAML.replace("data: [423.23,", "data: [0,"), "", "fx=0, fy=423.89 (must be > 0)"),
+        ("narrow.yaml", ROS_YAML.replace("rows: 1\n  cols: 5", "rows: 1\n  cols: 4"), "", "rows x cols is 1 x 4"),
+        ("out_camera_data.yml", OPENCV4_YAML.replace("image_width: 640\nimage_height: 480\n", ""), "", "no image size"),
+        (
+            "out_camera_data.yml",
+            OPENCV4_YAML.replace("fisheye_model: 0", "fisheye_model: 1"),
+            "",
+            "the fisheye (equidistant) model takes 4 coefficients k1..k4, got 5",
+        ),
+    ],
+)
 def test_bad_input_names_file(tmp_path, name, content, camera, message):
     path = tmp_path / name
     path.write_bytes(content if isinstance(content, bytes) else content.encode())
@@ -248,10 +269,13 @@ def test_missing_file(tmp_path):
         read_intrinsics(tmp_path / "missing.yaml")
 
 
-@pytest.mark.parametrize("D, message", [
-    (np.array([0.1, 0.0, 0.0, 0.0, 0.0, 0.0]), "6 distortion coefficients; OpenCV's models take 4, 5, 8, 12 or 14"),
-    (np.append(D8, [0.0, 0.003, 0.0, 0.0, 0.0, 0.001]), "YOWO cannot use the nonzero s2, tauY"),
-])
+@pytest.mark.parametrize(
+    "D, message",
+    [
+        (np.array([0.1, 0.0, 0.0, 0.0, 0.0, 0.0]), "6 distortion coefficients; OpenCV's models take 4, 5, 8, 12 or 14"),
+        (np.append(D8, [0.0, 0.003, 0.0, 0.0, 0.0, 0.001]), "YOWO cannot use the nonzero s2, tauY"),
+    ],
+)
 def test_opencv_unusable_coefficients(tmp_path, D, message):
     path = write_filestorage(tmp_path / "calib.yaml", {"K": K, "D": D, "image_size": [640, 480]})
     with pytest.raises(IntrinsicsError, match=message):

@@ -1,4 +1,5 @@
 """release_free_memory hands freed heap memory back: the resident set shrinks."""
+
 import subprocess
 import sys
 

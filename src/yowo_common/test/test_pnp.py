@@ -1,5 +1,6 @@
 """PnP shared by the stages: a known pose is recovered, and points without spread
 (SQPnP's assertion, which stopped the `large` benchmark) give no pose instead of a crash."""
+
 import cv2
 import numpy as np
 
@@ -19,7 +20,7 @@ def test_a_known_pose_is_recovered_with_and_without_ransac():
     rng = np.random.default_rng(0)
     P = np.column_stack([rng.uniform(-2, 2, 60), rng.uniform(0, 3, 60), rng.uniform(0, 1.8, 60)])
     uv, _ = CAMERA.project_world(T_WORLD_CAM, P)
-    uv[:6] += 80.0   # outliers for RANSAC
+    uv[:6] += 80.0  # outliers for RANSAC
     rvec, tvec, inliers = sqpnp_ransac(P, uv, CAMERA.K, 2.0)
     assert sorted(inliers.tolist()) == list(range(6, 60))
     np.testing.assert_allclose(_T_world_cam(rvec, tvec), T_WORLD_CAM, atol=1e-6)
@@ -28,7 +29,7 @@ def test_a_known_pose_is_recovered_with_and_without_ransac():
 
 
 def test_points_without_spread_give_no_pose():
-    still = np.tile([[0.3, 1.2, 1.7]], (40, 1))                 # an agent's head top, standing still
+    still = np.tile([[0.3, 1.2, 1.7]], (40, 1))  # an agent's head top, standing still
     uv, _ = CAMERA.project_world(T_WORLD_CAM, still)
     assert sqpnp_all(still, uv, CAMERA.K) == []
     # RANSAC's final fit on the inliers is the same degenerate case, among outliers with spread.

@@ -76,8 +76,11 @@ def test_jpeg_color_close():
 
 def test_depth_encodings():
     depth = np.array([[1.234, np.nan], [0.5, 7.0]], dtype=np.float32)
-    for msg in (encode_depth_png(depth), encode_raw((np.nan_to_num(depth) * 1000).round().astype(np.uint16), "16UC1"),
-                encode_raw(depth, "32FC1")):
+    for msg in (
+        encode_depth_png(depth),
+        encode_raw((np.nan_to_num(depth) * 1000).round().astype(np.uint16), "16UC1"),
+        encode_raw(depth, "32FC1"),
+    ):
         out = decode_depth(msg)
         assert np.isnan(out[0, 1])
         np.testing.assert_allclose(out[[0, 1, 1], [0, 0, 1]], [1.234, 0.5, 7.0], atol=5e-4)

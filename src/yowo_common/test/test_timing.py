@@ -6,11 +6,15 @@ from yowo_common.ros.timing import NodeTiming, relative_to
 def test_queue_waits_handling_and_marks_relative_to_the_run(tmp_path):
     t = NodeTiming(created=1000.0)
     s = 1_000_000_000
-    for i in range(20):            # received at 1001 + i, handled 5 ms (i < 19) or 500 ms (last) later
+    for i in range(20):  # received at 1001 + i, handled 5 ms (i < 19) or 500 ms (last) later
         wait = 5_000_000 if i < 19 else 500_000_000
         received = 1001 * s + i * s
-        t.received("/a", {"source_timestamp": received - 1_000_000, "received_timestamp": received},
-                   received + wait, received + wait + 2_000_000)
+        t.received(
+            "/a",
+            {"source_timestamp": received - 1_000_000, "received_timestamp": received},
+            received + wait,
+            received + wait + 2_000_000,
+        )
     t.marks["finalize_start"] = 1030.0
     t.add_seconds("ack_wait /a", 0.25)
     t.add_seconds("ack_wait /a", 0.5)

@@ -1,6 +1,7 @@
 """Bundle adjustment with GTSAM built-in factors (projection factors, Huber loss,
 Levenberg-Marquardt), shared by the ego BA (eq. ego_bd), the CMC group BA
 (eq. cmc_bd) and the joint optimisation (eq. factor_graph_all)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -29,10 +30,10 @@ def cal3(camera: CameraModel) -> gtsam.Cal3_S2:
 class Observations:
     """2D observations of points in cameras, in ideal (undistorted) pixels (parallel arrays)."""
 
-    camera: np.ndarray        # (M,) camera index
-    point: np.ndarray         # (M,) point index
-    uv: np.ndarray            # (M, 2) px
-    sigma_px: np.ndarray      # (M,) pixel noise of each observation
+    camera: np.ndarray  # (M,) camera index
+    point: np.ndarray  # (M,) point index
+    uv: np.ndarray  # (M, 2) px
+    sigma_px: np.ndarray  # (M,) pixel noise of each observation
 
     def __len__(self) -> int:
         return len(self.camera)
@@ -43,15 +44,15 @@ class Observations:
 
 @dataclass
 class BundleProblem:
-    cameras: list[CameraModel]                 # intrinsics per camera index
-    T_world_cam: list[np.ndarray]              # initial poses
-    points: np.ndarray                         # (P, 3) initial points
+    cameras: list[CameraModel]  # intrinsics per camera index
+    T_world_cam: list[np.ndarray]  # initial poses
+    points: np.ndarray  # (P, 3) initial points
     obs: Observations
-    fixed_cameras: set[int] = field(default_factory=set)       # held (almost) fixed: gauge
+    fixed_cameras: set[int] = field(default_factory=set)  # held (almost) fixed: gauge
     position_priors: dict[int, tuple[np.ndarray, float]] = field(default_factory=dict)  # cam -> (centre, sigma m)
     # (cam a, cam b, distance, sigma): fixes the scale of a reconstruction without fixing a direction
     baseline_prior: tuple[int, int, float, float] | None = None
-    point_priors: dict[int, tuple[np.ndarray, float]] = field(default_factory=dict)     # point -> (xyz, sigma m)
+    point_priors: dict[int, tuple[np.ndarray, float]] = field(default_factory=dict)  # point -> (xyz, sigma m)
     huber_k: float = 1.345
 
 
@@ -59,7 +60,7 @@ class BundleProblem:
 class BundleResult:
     T_world_cam: list[np.ndarray]
     points: np.ndarray
-    residuals_px: np.ndarray       # (M, 2) reprojection residuals of every observation
+    residuals_px: np.ndarray  # (M, 2) reprojection residuals of every observation
     initial_error: float
     final_error: float
     iterations: int
@@ -99,12 +100,19 @@ def solve(problem: BundleProblem, max_iterations: int = 100) -> BundleResult:
     points = problem.points.copy()
     for j in np.unique(problem.obs.point):
         points[j] = result.atPoint3(L(int(j)))
-    return BundleResult(T_out, points, reprojection_residuals(problem.cameras, T_out, points, problem.obs),
-                        initial_error, final_error, iterations)
+    return BundleResult(
+        T_out,
+        points,
+        reprojection_residuals(problem.cameras, T_out, points, problem.obs),
+        initial_error,
+        final_error,
+        iterations,
+    )
 
 
-def add_projection_factors(graph, obs: Observations, cameras: list[CameraModel], pose_key, point_key,
-                           huber_k: float) -> None:
+def add_projection_factors(
+    graph, obs: Observations, cameras: list[CameraModel], pose_key, point_key, huber_k: float
+) -> None:
     """One Huber-robust projection factor per observation (ideal pixels, Cal3_S2)."""
     cals = [cal3(c) for c in cameras]
     huber = gtsam.noiseModel.mEstimator.Huber.Create(huber_k)
@@ -112,9 +120,12 @@ def add_projection_factors(graph, obs: Observations, cameras: list[CameraModel],
     for c, j, uv, s in zip(obs.camera, obs.point, obs.uv, obs.sigma_px):
         model = models.get(float(s))
         if model is None:
-            model = models[float(s)] = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(2, float(s)))
-        graph.add(gtsam.GenericProjectionFactorCal3_S2(gtsam.Point2(*uv), model, pose_key(int(c)), point_key(int(j)),
-                                                       cals[c]))
+            model = models[float(s)] = gtsam.noiseModel.Robust.Create(
+                huber, gtsam.noiseModel.Isotropic.Sigma(2, float(s))
+            )
+        graph.add(
+            gtsam.GenericProjectionFactorCal3_S2(gtsam.Point2(*uv), model, pose_key(int(c)), point_key(int(j)), cals[c])
+        )
 
 
 def optimize(graph, values, max_iterations: int, relative_error_tol: float = 1e-10):
@@ -132,8 +143,9 @@ def optimize(graph, values, max_iterations: int, relative_error_tol: float = 1e-
     return result, initial_error, graph.error(result), optimizer.iterations()
 
 
-def reprojection_residuals(cameras: list[CameraModel], T_world_cam: list[np.ndarray], points: np.ndarray,
-                           obs: Observations) -> np.ndarray:
+def reprojection_residuals(
+    cameras: list[CameraModel], T_world_cam: list[np.ndarray], points: np.ndarray, obs: Observations
+) -> np.ndarray:
     """observed - projected (ideal pixels), (M, 2); NaN for points behind the camera."""
     out = np.full((len(obs), 2), np.nan)
     for c in np.unique(obs.camera):
@@ -156,8 +168,9 @@ def robust_sigma(residuals_px: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(r - np.median(r))))
 
 
-def pose_covariance(camera: CameraModel, T_world_cam: np.ndarray, points: np.ndarray, uv: np.ndarray,
-                    sigma_px) -> np.ndarray:
+def pose_covariance(
+    camera: CameraModel, T_world_cam: np.ndarray, points: np.ndarray, uv: np.ndarray, sigma_px
+) -> np.ndarray:
     """Marginal covariance of one camera pose seen through fixed 3D points (GTSAM Pose3
     tangent order [rotation, translation], body frame)."""
     graph = gtsam.NonlinearFactorGraph()
@@ -169,6 +182,9 @@ def pose_covariance(camera: CameraModel, T_world_cam: np.ndarray, points: np.nda
     for j, (P, p, s) in enumerate(zip(points, uv, sigmas)):
         values.insert(L(j), gtsam.Point3(*P))
         graph.add(gtsam.PriorFactorPoint3(L(j), gtsam.Point3(*P), fixed))
-        graph.add(gtsam.GenericProjectionFactorCal3_S2(gtsam.Point2(*p), gtsam.noiseModel.Isotropic.Sigma(2, float(s)),
-                                                       X(0), L(j), cal))
+        graph.add(
+            gtsam.GenericProjectionFactorCal3_S2(
+                gtsam.Point2(*p), gtsam.noiseModel.Isotropic.Sigma(2, float(s)), X(0), L(j), cal
+            )
+        )
     return gtsam.Marginals(graph, values).marginalCovariance(X(0))

@@ -1,4 +1,5 @@
 """Pinhole camera model with the distortion models of sensor_msgs/CameraInfo."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -61,8 +62,10 @@ class CameraModel:
             if self.K[0, 0] <= 0 or self.K[1, 1] <= 0:
                 out.append(f"K has focal lengths fx={self.K[0, 0]:g}, fy={self.K[1, 1]:g} (must be > 0)")
             if not np.allclose(self.K[2], (0.0, 0.0, 1.0)) or self.K[1, 0] != 0.0:
-                out.append(f"K is not an upper-triangular camera matrix with last row 0 0 1 "
-                           f"(rows {self.K[1].tolist()}, {self.K[2].tolist()}; transposed?)")
+                out.append(
+                    f"K is not an upper-triangular camera matrix with last row 0 0 1 "
+                    f"(rows {self.K[1].tolist()}, {self.K[2].tolist()}; transposed?)"
+                )
         if not np.isfinite(self.D).all():
             out.append(f"D has non-finite entries ({self.D.tolist()})")
         elif self.has_distortion:
@@ -70,8 +73,9 @@ class CameraModel:
             if lengths is None:
                 out.append(f"distortion model '{self.distortion_model}' is not supported")
             elif len(self.D) not in lengths:
-                out.append(f"D has {len(self.D)} coefficients; {self.distortion_model} takes "
-                           f"{' or '.join(map(str, lengths))}")
+                out.append(
+                    f"D has {len(self.D)} coefficients; {self.distortion_model} takes {' or '.join(map(str, lengths))}"
+                )
         return out
 
     @property
@@ -84,7 +88,7 @@ class CameraModel:
         in_front = P[:, 2] > 1e-9
         if not self.has_distortion:
             return self._ideal(P, in_front), in_front
-        if len(P) == 0:   # OpenCV returns None for no points
+        if len(P) == 0:  # OpenCV returns None for no points
             return np.zeros((0, 2)), in_front
         zero = np.zeros(3)
         if self.distortion_model == EQUIDISTANT:

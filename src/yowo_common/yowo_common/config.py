@@ -2,6 +2,7 @@
 dotted overrides (`ego.odometry.scale=1`), validated by dacite: an unknown key or a value
 of the wrong type is a ConfigError naming the key. The dataclasses are the one place where
 defaults live; this module knows none of them."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -37,12 +38,14 @@ _DACITE = dacite.Config(strict=True, check_types=True, cast=[tuple], type_hooks=
 
 def to_dict(obj) -> dict:
     """The tree as plain YAML-able values (tuples as lists)."""
+
     def plain(v):
         if isinstance(v, (list, tuple)):
             return [plain(x) for x in v]
         if isinstance(v, dict):
             return {k: plain(x) for k, x in v.items()}
         return v
+
     return plain(dataclasses.asdict(obj))
 
 
@@ -60,7 +63,9 @@ def check_ranges(obj, where: str = "") -> None:
         if dataclasses.is_dataclass(value):
             check_ranges(value, key)
         elif isinstance(value, (int, float)) and not isinstance(value, bool) and value != default:
-            lo, hi = f.metadata.get("range", ((abs(default) or 1.0) / RANGE_FACTOR, max(abs(default), 1.0) * RANGE_FACTOR))
+            lo, hi = f.metadata.get(
+                "range", ((abs(default) or 1.0) / RANGE_FACTOR, max(abs(default), 1.0) * RANGE_FACTOR)
+            )
             if not math.isfinite(value) or value < 0 or value > hi or 0 < value < lo:
                 raise ConfigError(f"{key}={value!r}: outside its range (0 or {lo:g} .. {hi:g}; default {default!r})")
 
@@ -74,8 +79,9 @@ def from_dict(cls: type[T], data: dict | None, where: str = "") -> T:
     except dacite.UnexpectedDataError as exc:
         raise ConfigError(f"unknown key(s) {', '.join(_key(where, k) for k in sorted(exc.keys))}") from exc
     except dacite.WrongTypeError as exc:
-        raise ConfigError(f"{_key(where, exc.field_path)}: expected {_type_name(exc.field_type)}, "
-                          f"got {exc.value!r}") from exc
+        raise ConfigError(
+            f"{_key(where, exc.field_path)}: expected {_type_name(exc.field_type)}, got {exc.value!r}"
+        ) from exc
     except dacite.DaciteError as exc:
         raise ConfigError(f"{where or 'configuration'}: {exc}") from exc
     check_ranges(obj, where)
@@ -99,9 +105,14 @@ def _merge(base: dict, over: dict, where: str, known: bool = True) -> dict:
     for k, v in over.items():
         if known and k not in out:
             near = difflib.get_close_matches(str(k), list(out), n=1)
-            raise ConfigError(f"unknown key {_key(where, k)}" + (f" (did you mean {_key(where, near[0])}?)"
-                                                                  if near else f"; {where or 'the tree'} has "
-                                                                  + ", ".join(out)))
+            raise ConfigError(
+                f"unknown key {_key(where, k)}"
+                + (
+                    f" (did you mean {_key(where, near[0])}?)"
+                    if near
+                    else f"; {where or 'the tree'} has " + ", ".join(out)
+                )
+            )
         if isinstance(out.get(k), dict) and isinstance(v, dict):
             out[k] = _merge(out[k], v, _key(where, k), known)
         elif isinstance(out.get(k), dict):
@@ -128,8 +139,9 @@ def dotted(items: list[str]) -> dict:
     return tree
 
 
-def load(cls: type[T], text_or_dict: str | dict | None = None, overrides: list[str] | None = None,
-         where: str = "") -> T:
+def load(
+    cls: type[T], text_or_dict: str | dict | None = None, overrides: list[str] | None = None, where: str = ""
+) -> T:
     """`cls` from YAML text (or a dict), then dotted overrides on top."""
     data = yaml.safe_load(text_or_dict) if isinstance(text_or_dict, str) else text_or_dict
     if data is not None and not isinstance(data, dict):
@@ -139,11 +151,13 @@ def load(cls: type[T], text_or_dict: str | dict | None = None, overrides: list[s
 
 def changed(obj) -> dict[str, Any]:
     """{dotted key: value} where `obj` differs from its class's defaults."""
+
     def flat(d: dict, prefix: str = "") -> dict:
         out = {}
         for k, v in d.items():
             out.update(flat(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": v})
         return out
+
     mine, defaults = flat(to_dict(obj)), flat(to_dict(type(obj)()))
     return {k: v for k, v in mine.items() if defaults.get(k) != v}
 

@@ -6,6 +6,7 @@ Conventions used across YOWO:
 - Camera frames are optical frames: x right, y down, z forward.
 - Quaternions are (x, y, z, w), as in ROS messages.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass

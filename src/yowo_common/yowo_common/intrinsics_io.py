@@ -4,6 +4,7 @@ Formats, told apart by content: camera_calibration_parsers YAML (what cameracali
 and camera_info_manager reads), Kalibr camchain(-imucam).yaml, COLMAP cameras.txt, and OpenCV
 FileStorage YAML/XML as cv2.calibrateCamera users save it.
 """
+
 from __future__ import annotations
 
 import re
@@ -55,8 +56,10 @@ def read_intrinsics(path: str | Path, camera: str = "") -> CameraModel:
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError:
-        raise IntrinsicsError(f"{path}: not a text file (COLMAP's cameras.bin: convert the model with "
-                              "`colmap model_converter --output_type TXT`)") from None
+        raise IntrinsicsError(
+            f"{path}: not a text file (COLMAP's cameras.bin: convert the model with "
+            "`colmap model_converter --output_type TXT`)"
+        ) from None
     return intrinsics_from_text(text, str(path), camera, path.suffix.lower())
 
 
@@ -82,6 +85,7 @@ def intrinsics_from_text(text: str, where: str, camera: str = "", suffix: str = 
 
 def camera_info_yaml(model: CameraModel, camera_name: str) -> str:
     """camera_calibration_parsers YAML of ``model`` (camera_info_manager reads it; so does read_intrinsics)."""
+
     def matrix(m: np.ndarray, rows: int) -> dict[str, Any]:
         return {"rows": rows, "cols": m.size // rows, "data": [float(x) for x in m.reshape(-1)]}
 
@@ -112,8 +116,9 @@ def _yaml(text: str, where: str) -> dict:
         problem = getattr(e, "problem", None) or str(e).splitlines()[0]
         raise IntrinsicsError(f"{where}: not YAML, OpenCV FileStorage or COLMAP cameras.txt ({problem}{at})") from None
     if not isinstance(data, dict):
-        raise IntrinsicsError(f"{where}: not a calibration file (expected a YAML mapping of keys, "
-                              f"got {type(data).__name__})")
+        raise IntrinsicsError(
+            f"{where}: not a calibration file (expected a YAML mapping of keys, got {type(data).__name__})"
+        )
     return data
 
 
@@ -121,7 +126,7 @@ def _filestorage(text: str, where: str) -> dict:
     """OpenCV FileStorage YAML/XML -> plain values (matrices as arrays). PyYAML cannot read these:
     OpenCV's own YAML header and !!opencv-matrix tags are not standard YAML."""
     if text.lstrip().startswith("<") and not text.lstrip().startswith("<?xml"):
-        text = '<?xml version="1.0"?>\n' + text   # OpenCV recognises XML by this declaration only
+        text = '<?xml version="1.0"?>\n' + text  # OpenCV recognises XML by this declaration only
     try:
         fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
         root = fs.root()
@@ -139,7 +144,7 @@ def _filestorage(text: str, where: str) -> dict:
 def _node(node: cv2.FileNode) -> Any:
     if node.isMap():
         keys = node.keys()
-        if "dt" in keys:   # !!opencv-matrix or !!opencv-nd-matrix
+        if "dt" in keys:  # !!opencv-matrix or !!opencv-nd-matrix
             return node.mat()
         return {key: _node(node.getNode(key)) for key in keys}
     if node.isSeq():
@@ -164,8 +169,7 @@ def _numbers(value: Any, what: str, count: int | None = None) -> np.ndarray:
         if "rows" in value and "cols" in value:
             rows, cols = _floats([value["rows"], value["cols"]], what)
             if rows * cols != data.size:
-                raise IntrinsicsError(f"{what}: rows x cols is {rows:g} x {cols:g} but data holds "
-                                      f"{data.size} numbers")
+                raise IntrinsicsError(f"{what}: rows x cols is {rows:g} x {cols:g} but data holds {data.size} numbers")
     else:
         data = _floats(value, what)
     if count is not None and data.size != count:
@@ -179,7 +183,7 @@ def _floats(value: Any, what: str) -> np.ndarray:
         out = np.asarray(value, dtype=float).reshape(-1)
     except (TypeError, ValueError):
         raise IntrinsicsError(f"{what} is not a list of numbers: {str(value)[:80]}") from None
-    if not np.isfinite(out).all():   # also YAML nulls, which become NaN
+    if not np.isfinite(out).all():  # also YAML nulls, which become NaN
         raise IntrinsicsError(f"{what} has empty or non-finite entries: {str(value)[:80]}")
     return out
 
@@ -205,8 +209,13 @@ def _pick(data: dict, keys: tuple[str, ...], where: str, missing: str) -> tuple[
 
 def _from_mapping(data: dict, where: str) -> CameraModel:
     """camera_calibration_parsers YAML and OpenCV-style files: one camera, flat keys."""
-    value, what = _pick(data, _K_KEYS, where, f"no camera matrix (keys {_either(_K_KEYS)}); expected a "
-                        "camera_calibration_parsers YAML, Kalibr camchain, COLMAP cameras.txt or OpenCV FileStorage file")
+    value, what = _pick(
+        data,
+        _K_KEYS,
+        where,
+        f"no camera matrix (keys {_either(_K_KEYS)}); expected a "
+        "camera_calibration_parsers YAML, Kalibr camchain, COLMAP cameras.txt or OpenCV FileStorage file",
+    )
     K = _numbers(value, what, 9).reshape(3, 3)
     if not np.allclose(K[2], [0.0, 0.0, 1.0]):
         raise IntrinsicsError(f"{what}: last row is {K[2].tolist()}, expected [0, 0, 1] (matrix transposed?)")
@@ -214,17 +223,32 @@ def _from_mapping(data: dict, where: str) -> CameraModel:
         width = _int(data.get("image_width"), f"{where}: key 'image_width'")
         height = _int(data.get("image_height"), f"{where}: key 'image_height'")
     else:
-        value, what = _pick(data, _SIZE_KEYS, where, "no image size (keys image_width and image_height, or "
-                            "imageSize / image_size as [w, h]); the size is needed: add the resolution "
-                            "the camera was calibrated at")
+        value, what = _pick(
+            data,
+            _SIZE_KEYS,
+            where,
+            "no image size (keys image_width and image_height, or "
+            "imageSize / image_size as [w, h]); the size is needed: add the resolution "
+            "the camera was calibrated at",
+        )
         width, height = (_int(v, what) for v in _numbers(value, what, 2))
-    value, what = _pick(data, _D_KEYS, where, f"no distortion coefficients (keys {_either(_D_KEYS)}; "
-                        "an empty list if the images are undistorted)")
+    value, what = _pick(
+        data,
+        _D_KEYS,
+        where,
+        f"no distortion coefficients (keys {_either(_D_KEYS)}; an empty list if the images are undistorted)",
+    )
     distortion_model, D = _distortion(_numbers(value, what), _model_hint(data, where), what)
-    R = _numbers(data["rectification_matrix"], f"{where}: key 'rectification_matrix'", 9) \
-        if "rectification_matrix" in data else None
-    P = _numbers(data["projection_matrix"], f"{where}: key 'projection_matrix'", 12) \
-        if "projection_matrix" in data else None
+    R = (
+        _numbers(data["rectification_matrix"], f"{where}: key 'rectification_matrix'", 9)
+        if "rectification_matrix" in data
+        else None
+    )
+    P = (
+        _numbers(data["projection_matrix"], f"{where}: key 'projection_matrix'", 12)
+        if "projection_matrix" in data
+        else None
+    )
     return CameraModel(width, height, K, D, distortion_model, R, P)
 
 
@@ -236,8 +260,10 @@ def _model_hint(data: dict, where: str) -> str | None:
             return EQUIDISTANT
         if name in (PLUMB_BOB, RATIONAL_POLYNOMIAL):
             return name
-        raise IntrinsicsError(f"{where}: key 'distortion_model': '{data['distortion_model']}' is not supported "
-                              f"(use {PLUMB_BOB}, {RATIONAL_POLYNOMIAL} or {EQUIDISTANT})")
+        raise IntrinsicsError(
+            f"{where}: key 'distortion_model': '{data['distortion_model']}' is not supported "
+            f"(use {PLUMB_BOB}, {RATIONAL_POLYNOMIAL} or {EQUIDISTANT})"
+        )
     for key, value in data.items():
         # Flags such as fisheye: 1 or OpenCV's tutorial's fisheye_model: 1, or a name as in model: fisheye.
         if "fisheye" in str(key).lower() and str(value).lower() in ("1", "true"):
@@ -261,8 +287,10 @@ def _distortion(D: np.ndarray, hint: str | None, what: str) -> tuple[str, np.nda
     size = _D_SIZE[hint]
     extra = [_OPENCV_COEFFS[i] for i in range(size, n) if D[i] != 0.0]
     if extra:
-        raise IntrinsicsError(f"{what}: {hint} takes {size} coefficients ({' '.join(_OPENCV_COEFFS[:size])}); "
-                              f"YOWO cannot use the nonzero {', '.join(extra)}")
+        raise IntrinsicsError(
+            f"{what}: {hint} takes {size} coefficients ({' '.join(_OPENCV_COEFFS[:size])}); "
+            f"YOWO cannot use the nonzero {', '.join(extra)}"
+        )
     return hint, np.concatenate([D[:size], np.zeros(max(0, size - n))])
 
 
@@ -298,22 +326,25 @@ def _kalibr(data: dict, camera: str, where: str) -> tuple[CameraModel, str]:
     cam, where = cams[key], f"{where}: camera '{key}'"
     kind = cam.get("camera_model", "pinhole")
     if kind != "pinhole":
-        raise IntrinsicsError(f"{where}: Kalibr camera_model '{kind}' is not supported (only pinhole; "
-                              "omni, ds and eucm have no CameraInfo counterpart)")
+        raise IntrinsicsError(
+            f"{where}: Kalibr camera_model '{kind}' is not supported (only pinhole; "
+            "omni, ds and eucm have no CameraInfo counterpart)"
+        )
     fu, fv, pu, pv = _numbers(cam.get("intrinsics"), f"{where}: key 'intrinsics' [fu, fv, pu, pv]", 4)
     what = f"{where}: key 'resolution' [w, h]"
     width, height = (_int(v, what) for v in _numbers(cam.get("resolution"), what, 2))
     distortion = cam.get("distortion_model", "none")
     what = f"{where}: key 'distortion_coeffs'"
-    if distortion == "radtan":   # k1 k2 p1 p2: OpenCV's plumb_bob without k3
+    if distortion == "radtan":  # k1 k2 p1 p2: OpenCV's plumb_bob without k3
         D, distortion_model = np.append(_numbers(cam.get("distortion_coeffs"), what, 4), 0.0), PLUMB_BOB
     elif distortion == "equidistant":
         D, distortion_model = _numbers(cam.get("distortion_coeffs"), what, 4), EQUIDISTANT
     elif distortion == "none":
         D, distortion_model = np.zeros(5), PLUMB_BOB
     else:
-        raise IntrinsicsError(f"{where}: Kalibr distortion_model '{distortion}' is not supported "
-                              f"(use {', '.join(_KALIBR_DISTORTIONS)})")
+        raise IntrinsicsError(
+            f"{where}: Kalibr distortion_model '{distortion}' is not supported (use {', '.join(_KALIBR_DISTORTIONS)})"
+        )
     K = np.array([[fu, 0.0, pu], [0.0, fv, pv], [0.0, 0.0, 1.0]])
     return CameraModel(width, height, K, D, distortion_model), where
 
@@ -339,12 +370,13 @@ def _colmap(text: str, camera: str, where: str) -> tuple[CameraModel, str]:
     single_focal, n_dist, distortion_model = _COLMAP_MODELS[name]
     n_focal = 1 if single_focal else 2
     if params.size != n_focal + 2 + n_dist:
-        raise IntrinsicsError(f"{where}: COLMAP model {name} takes {n_focal + 2 + n_dist} parameters, "
-                              f"got {params.size}")
+        raise IntrinsicsError(
+            f"{where}: COLMAP model {name} takes {n_focal + 2 + n_dist} parameters, got {params.size}"
+        )
     fx, fy = params[0], params[n_focal - 1]
     # COLMAP puts the centre of the top-left pixel at (0.5, 0.5), ROS and OpenCV at (0, 0).
     cx, cy = params[n_focal] - 0.5, params[n_focal + 1] - 0.5
     D = np.zeros(_D_SIZE[distortion_model])
-    D[:n_dist] = params[n_focal + 2:]
+    D[:n_dist] = params[n_focal + 2 :]
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     return CameraModel(width, height, K, D, distortion_model), where

@@ -2,6 +2,7 @@
 blocks (GTSAM's factors, Python objects) for the process's next allocations, so a stage
 that finished a multi-GB optimisation would go on holding it while the stages after it
 run (the 42-camera floor: the ego mapper held 7.5 GB through the whole fusion)."""
+
 from __future__ import annotations
 
 import ctypes

@@ -6,6 +6,7 @@ OpenCV's SQPnP asserts (`point_coordinate_variance >= POINT_VARIANCE_THRESHOLD` 
 a camera's whole view, or a RANSAC inlier set that is one repeated point. The `large`
 benchmark recording stopped on it after 40 minutes.
 """
+
 from __future__ import annotations
 
 import cv2
@@ -17,18 +18,30 @@ def _degenerate(exc: cv2.error) -> bool:
     return exc.func == "computeOmega"
 
 
-def sqpnp_ransac(points: np.ndarray, uv: np.ndarray, K: np.ndarray, reprojection_px: float,
-                 iterations: int = 2000, confidence: float = 0.999, seed: int = 0
-                 ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray]:
+def sqpnp_ransac(
+    points: np.ndarray,
+    uv: np.ndarray,
+    K: np.ndarray,
+    reprojection_px: float,
+    iterations: int = 2000,
+    confidence: float = 0.999,
+    seed: int = 0,
+) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray]:
     """(rvec, tvec, inlier indices) of T_cam_world from 3D points and ideal pixels;
     no inliers when RANSAC finds no pose or the points have no spread. The seed fixes
     OpenCV's global RANSAC RNG: the same input gives the same pose."""
     cv2.setRNGSeed(seed)
     try:
         ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-            np.ascontiguousarray(points, np.float64), np.ascontiguousarray(uv, np.float64), K, None,
-            iterationsCount=iterations, reprojectionError=reprojection_px, confidence=confidence,
-            flags=cv2.SOLVEPNP_SQPNP)
+            np.ascontiguousarray(points, np.float64),
+            np.ascontiguousarray(uv, np.float64),
+            K,
+            None,
+            iterationsCount=iterations,
+            reprojectionError=reprojection_px,
+            confidence=confidence,
+            flags=cv2.SOLVEPNP_SQPNP,
+        )
     except cv2.error as exc:
         if not _degenerate(exc):
             raise
@@ -42,9 +55,13 @@ def sqpnp_all(points: np.ndarray, uv: np.ndarray, K: np.ndarray) -> list[tuple[n
     """SQPnP's solutions (rvec, tvec) of T_cam_world on every correspondence, no RANSAC;
     none when the points have no spread."""
     try:
-        _, rvecs, tvecs, _ = cv2.solvePnPGeneric(np.ascontiguousarray(points, np.float64),
-                                                 np.ascontiguousarray(uv, np.float64), K, None,
-                                                 flags=cv2.SOLVEPNP_SQPNP)
+        _, rvecs, tvecs, _ = cv2.solvePnPGeneric(
+            np.ascontiguousarray(points, np.float64),
+            np.ascontiguousarray(uv, np.float64),
+            K,
+            None,
+            flags=cv2.SOLVEPNP_SQPNP,
+        )
     except cv2.error as exc:
         if not _degenerate(exc):
             raise

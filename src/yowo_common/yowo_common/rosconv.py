@@ -3,6 +3,7 @@
 Readers are duck-typed: they accept the rosidl Python classes used by rclpy and
 anything with the same fields.
 """
+
 from __future__ import annotations
 
 import struct
@@ -85,10 +86,14 @@ def camera_info_to_model(info) -> CameraModel:
     """CameraInfo -> CameraModel; raises ValueError naming what is wrong."""
     R, P = np.asarray(info.r, dtype=float), np.asarray(info.p, dtype=float)
     model = CameraModel(
-        int(info.width), int(info.height), np.asarray(info.k, dtype=float).reshape(3, 3),
-        np.asarray(info.d, dtype=float), info.distortion_model or PLUMB_BOB,
+        int(info.width),
+        int(info.height),
+        np.asarray(info.k, dtype=float).reshape(3, 3),
+        np.asarray(info.d, dtype=float),
+        info.distortion_model or PLUMB_BOB,
         # an uncalibrated driver leaves R and P zero: identity and [K | 0] then
-        R if R.any() else None, P if P.any() else None,
+        R if R.any() else None,
+        P if P.any() else None,
     )
     problems = model.problems()
     if problems:
@@ -111,9 +116,16 @@ def model_to_camera_info(model: CameraModel, header=None) -> CameraInfo:
 
 # --- images -------------------------------------------------------------------
 _RAW_LAYOUT = {  # encoding -> (dtype, channels)
-    "rgb8": (np.uint8, 3), "bgr8": (np.uint8, 3), "rgba8": (np.uint8, 4), "bgra8": (np.uint8, 4),
-    "mono8": (np.uint8, 1), "8UC1": (np.uint8, 1), "8UC3": (np.uint8, 3),
-    "mono16": (np.uint16, 1), "16UC1": (np.uint16, 1), "32FC1": (np.float32, 1),
+    "rgb8": (np.uint8, 3),
+    "bgr8": (np.uint8, 3),
+    "rgba8": (np.uint8, 4),
+    "bgra8": (np.uint8, 4),
+    "mono8": (np.uint8, 1),
+    "8UC1": (np.uint8, 1),
+    "8UC3": (np.uint8, 3),
+    "mono16": (np.uint16, 1),
+    "16UC1": (np.uint16, 1),
+    "32FC1": (np.float32, 1),
 }
 
 
@@ -127,7 +139,8 @@ def _raw_image_array(msg) -> np.ndarray:
     buf = np.frombuffer(msg.data, dtype=np.uint8)
     if msg.step < row_bytes or len(buf) < msg.step * msg.height:
         raise ValueError(
-            f"image data of {len(buf)} bytes does not fit {msg.width}x{msg.height} {enc} with step {msg.step}")
+            f"image data of {len(buf)} bytes does not fit {msg.width}x{msg.height} {enc} with step {msg.step}"
+        )
     rows = buf[: msg.step * msg.height].reshape(msg.height, msg.step)[:, :row_bytes]
     arr = np.ascontiguousarray(rows).view(dtype).reshape(msg.height, msg.width, ch)
     return arr.astype(dtype.newbyteorder("="))
@@ -157,7 +170,7 @@ def decode_depth(msg) -> np.ndarray:
     if hasattr(msg, "format"):
         data = bytes(msg.data)
         if not data.startswith(PNG_SIGNATURE):
-            data = data[COMPRESSED_DEPTH_HEADER.size:]
+            data = data[COMPRESSED_DEPTH_HEADER.size :]
         img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
         if img is None or img.dtype != np.uint16:
             raise ValueError(f"cannot decode compressed depth (format '{msg.format}'); expected 16-bit PNG")
@@ -195,8 +208,9 @@ def encode_depth_png(depth_m: np.ndarray, header=None) -> CompressedImage:
     ok, buf = cv2.imencode(".png", depth_to_mm(depth_m), [cv2.IMWRITE_PNG_COMPRESSION, 1])
     if not ok:
         raise ValueError("PNG encoding failed")
-    msg = CompressedImage(format="16UC1; compressedDepth png",
-                          data=COMPRESSED_DEPTH_HEADER.pack(0, 0.0, 0.0) + buf.tobytes())
+    msg = CompressedImage(
+        format="16UC1; compressedDepth png", data=COMPRESSED_DEPTH_HEADER.pack(0, 0.0, 0.0) + buf.tobytes()
+    )
     if header is not None:
         msg.header = header
     return msg
@@ -204,17 +218,30 @@ def encode_depth_png(depth_m: np.ndarray, header=None) -> CompressedImage:
 
 def encode_raw(arr: np.ndarray, encoding: str, header=None) -> Image:
     arr = np.ascontiguousarray(arr)
-    msg = Image(height=arr.shape[0], width=arr.shape[1], encoding=encoding, is_bigendian=0,
-                step=arr.shape[1] * (arr.shape[2] if arr.ndim == 3 else 1) * arr.dtype.itemsize,
-                data=arr.tobytes())
+    msg = Image(
+        height=arr.shape[0],
+        width=arr.shape[1],
+        encoding=encoding,
+        is_bigendian=0,
+        step=arr.shape[1] * (arr.shape[2] if arr.ndim == 3 else 1) * arr.dtype.itemsize,
+        data=arr.tobytes(),
+    )
     if header is not None:
         msg.header = header
     return msg
 
 
 # --- point clouds -----------------------------------------------------------------
-_PC2_DTYPES = {PointField.FLOAT32: "f4", PointField.FLOAT64: "f8", PointField.UINT32: "u4", PointField.UINT8: "u1",
-               PointField.INT32: "i4", PointField.UINT16: "u2", PointField.INT16: "i2", PointField.INT8: "i1"}
+_PC2_DTYPES = {
+    PointField.FLOAT32: "f4",
+    PointField.FLOAT64: "f8",
+    PointField.UINT32: "u4",
+    PointField.UINT8: "u1",
+    PointField.INT32: "i4",
+    PointField.UINT16: "u2",
+    PointField.INT16: "i2",
+    PointField.INT8: "i1",
+}
 
 
 def xyz_rgb_to_pointcloud2(xyz: np.ndarray, rgb: np.ndarray | None = None, header=None) -> PointCloud2:
@@ -227,10 +254,16 @@ def xyz_rgb_to_pointcloud2(xyz: np.ndarray, rgb: np.ndarray | None = None, heade
     if rgb is not None:
         c = np.asarray(rgb, dtype=np.uint32).reshape(-1, 3)
         data["rgb"] = ((c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]).view(np.float32)
-    msg = PointCloud2(height=1, width=len(xyz), is_bigendian=False, point_step=4 * len(names),
-                      row_step=4 * len(names) * len(xyz), is_dense=True,
-                      fields=[PointField(name=n, offset=4 * i, datatype=PointField.FLOAT32, count=1)
-                              for i, n in enumerate(names)], data=data.tobytes())
+    msg = PointCloud2(
+        height=1,
+        width=len(xyz),
+        is_bigendian=False,
+        point_step=4 * len(names),
+        row_step=4 * len(names) * len(xyz),
+        is_dense=True,
+        fields=[PointField(name=n, offset=4 * i, datatype=PointField.FLOAT32, count=1) for i, n in enumerate(names)],
+        data=data.tobytes(),
+    )
     if header is not None:
         msg.header = header
     return msg
@@ -242,14 +275,22 @@ def pointcloud2_to_xyz_rgb(msg) -> tuple[np.ndarray, np.ndarray | None]:
     if not {"x", "y", "z"} <= set(fields):
         raise ValueError(f"PointCloud2 without x, y, z fields (has {', '.join(fields)})")
     order = ">" if msg.is_bigendian else "<"
-    dtype = np.dtype({"names": list(fields), "offsets": [f.offset for f in fields.values()],
-                      "formats": [order + _PC2_DTYPES[f.datatype] for f in fields.values()],
-                      "itemsize": msg.point_step})
+    dtype = np.dtype(
+        {
+            "names": list(fields),
+            "offsets": [f.offset for f in fields.values()],
+            "formats": [order + _PC2_DTYPES[f.datatype] for f in fields.values()],
+            "itemsize": msg.point_step,
+        }
+    )
     data = np.frombuffer(bytes(msg.data), dtype=dtype, count=msg.width * msg.height)
     xyz = np.column_stack([data["x"], data["y"], data["z"]]).astype(float)
     rgb = None
     if "rgb" in fields:
-        packed = np.ascontiguousarray(data["rgb"]).view(np.uint32) if fields["rgb"].datatype == PointField.FLOAT32 \
+        packed = (
+            np.ascontiguousarray(data["rgb"]).view(np.uint32)
+            if fields["rgb"].datatype == PointField.FLOAT32
             else data["rgb"].astype(np.uint32)
+        )
         rgb = np.column_stack([(packed >> 16) & 255, (packed >> 8) & 255, packed & 255]).astype(np.uint8)
     return xyz, rgb

@@ -1,5 +1,6 @@
 """End-of-stream bookkeeping without ROS: a stage is complete when every upstream
 has announced it finished and every message it announced has been received."""
+
 from __future__ import annotations
 
 from collections import Counter
@@ -26,7 +27,8 @@ class StreamCompletion:
     @property
     def complete(self) -> bool:
         return all(src in self.finished_upstreams for src in self.inputs.values()) and all(
-            self.received[t] >= n for t, n in self.expected.items())
+            self.received[t] >= n for t, n in self.expected.items()
+        )
 
     def waiting_for(self) -> str:
         """What is still outstanding, for progress and timeout messages."""

@@ -1,5 +1,6 @@
 """Topic and stage names of YOWO in one place: the recorded inputs and ground
 truth of docs/design.md §3, and YOWO's own outputs."""
+
 import re
 
 # --- inputs (recordings or live cameras) ---
@@ -53,8 +54,10 @@ def unusable_cmc_topic(topic: str) -> str:
     if m is None or _CMC_TOPIC.match(topic):
         return ""
     good = usable_camera_name(m["name"])
-    return (f"{topic}: '{m['name'][:80]}' cannot be a camera name (letters, digits and '_', a letter first, at most 63 "
-            f"characters); rename it, e.g. -r {cmc_topic(good, m['kind'])}:={topic}")
+    return (
+        f"{topic}: '{m['name'][:80]}' cannot be a camera name (letters, digits and '_', a letter first, at most 63 "
+        f"characters); rename it, e.g. -r {cmc_topic(good, m['kind'])}:={topic}"
+    )
 
 
 def parse_cmc_topic(topic: str) -> tuple[str, str] | None:
@@ -74,7 +77,7 @@ def gt_cmc_clock_offset_topic(name: str) -> str:
     return f"/gt/cmc/{name}/clock_offset"
 
 
-GT_PREFIX = "/gt/"                          # ground truth: read by evaluation only, never played
+GT_PREFIX = "/gt/"  # ground truth: read by evaluation only, never played
 GT_EGO_POSE = "/gt/ego/pose"
 GT_FLOOR = "/gt/layout/floor"
 GT_AGENT_KEYPOINTS = "/gt/agent/keypoints"  # geometry_msgs/PoseArray: poses[k].position = keypoint id k in map
@@ -88,23 +91,24 @@ def parse_gt_cmc_pose_topic(topic: str) -> str | None:
     parts = topic.split("/")
     return parts[3] if len(parts) == 5 and topic == gt_cmc_pose_topic(parts[3]) else None
 
+
 # --- YOWO's own topics ---
-CLOCK = "/clock"                            # rosgraph_msgs/Clock: the recording's time while replaying
+CLOCK = "/clock"  # rosgraph_msgs/Clock: the recording's time while replaying
 REPLAY_STATUS = "/yowo/replay/status"
-GROUPS = "/yowo/cmc/groups"                 # yowo_msgs/CameraGroupArray, latched
-EGO_MAP = "/yowo/ego/map"                   # yowo_msgs/EgoMap, latched
-EGO_ODOMETRY = "/yowo/ego/odometry"         # nav_msgs/Odometry, online
-EGO_PATH = "/yowo/ego/path"                 # nav_msgs/Path, latched
-MAP_POINTS = "/yowo/map/points"             # sensor_msgs/PointCloud2, latched
-LAYOUT = "/yowo/layout"                     # yowo_msgs/SceneLayout, latched
-CMC_POSES = "/yowo/cmc_poses"               # yowo_msgs/RegisteredCameraArray, latched
-TF_STATIC = "/tf_static"                    # tf2_msgs/TFMessage, latched
-LAYOUT_MARKERS = "/yowo/layout/markers"     # visualization_msgs/MarkerArray, latched
+GROUPS = "/yowo/cmc/groups"  # yowo_msgs/CameraGroupArray, latched
+EGO_MAP = "/yowo/ego/map"  # yowo_msgs/EgoMap, latched
+EGO_ODOMETRY = "/yowo/ego/odometry"  # nav_msgs/Odometry, online
+EGO_PATH = "/yowo/ego/path"  # nav_msgs/Path, latched
+MAP_POINTS = "/yowo/map/points"  # sensor_msgs/PointCloud2, latched
+LAYOUT = "/yowo/layout"  # yowo_msgs/SceneLayout, latched
+CMC_POSES = "/yowo/cmc_poses"  # yowo_msgs/RegisteredCameraArray, latched
+TF_STATIC = "/tf_static"  # tf2_msgs/TFMessage, latched
+LAYOUT_MARKERS = "/yowo/layout/markers"  # visualization_msgs/MarkerArray, latched
 # The ego map's cloud and layout at the jointly optimised ego poses (the fusion's).
-REFINED_MAP_POINTS = "/yowo/fusion/map/points"   # sensor_msgs/PointCloud2, latched
-REFINED_LAYOUT = "/yowo/fusion/layout"           # yowo_msgs/SceneLayout, latched
-REFINED_EGO_PATH = "/yowo/fusion/path"           # nav_msgs/Path, latched: the ego trajectory after JO
-AGENT_FIT = "/yowo/fusion/agent_fit"             # yowo_msgs/CameraAgentFitArray, latched: the report's panels
+REFINED_MAP_POINTS = "/yowo/fusion/map/points"  # sensor_msgs/PointCloud2, latched
+REFINED_LAYOUT = "/yowo/fusion/layout"  # yowo_msgs/SceneLayout, latched
+REFINED_EGO_PATH = "/yowo/fusion/path"  # nav_msgs/Path, latched: the ego trajectory after JO
+AGENT_FIT = "/yowo/fusion/agent_fit"  # yowo_msgs/CameraAgentFitArray, latched: the report's panels
 
 EGO_STAGE, GROUP_SFM_STAGE, FUSION_STAGE = "ego_mapper", "group_sfm", "fusion"
 

@@ -1,5 +1,6 @@
 """Camera trajectories and their TUM text format (what evo, the TUM RGB-D tools and
 ORB-SLAM read and write)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -13,8 +14,8 @@ from .geometry import quat_xyzw_from_rotation, se3
 
 @dataclass
 class Trajectory:
-    stamps_ns: np.ndarray      # (N,) int64
-    T_world_cam: np.ndarray    # (N, 4, 4)
+    stamps_ns: np.ndarray  # (N,) int64
+    T_world_cam: np.ndarray  # (N, 4, 4)
 
     @property
     def positions(self) -> np.ndarray:
@@ -26,8 +27,9 @@ def write_tum(path, traj: Trajectory) -> None:
     rows = []
     for ns, T in zip(traj.stamps_ns, traj.T_world_cam):
         q = quat_xyzw_from_rotation(T[:3, :3])
-        rows.append(f"{int(ns) // 1_000_000_000}.{int(ns) % 1_000_000_000:09d} "
-                    + " ".join(f"{v:.9f}" for v in (*T[:3, 3], *q)))
+        rows.append(
+            f"{int(ns) // 1_000_000_000}.{int(ns) % 1_000_000_000:09d} " + " ".join(f"{v:.9f}" for v in (*T[:3, 3], *q))
+        )
     Path(path).write_text("\n".join(rows) + "\n")
 
 

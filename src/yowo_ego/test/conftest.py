@@ -1,5 +1,6 @@
 """Shared fixtures: one synthetic room and its renderer per test session (building
 the textured scene is the slow part)."""
+
 import numpy as np
 import pytest
 import rclpy
@@ -81,6 +82,7 @@ def make_node():
         nodes.append(EgoMapperNode())
         nodes[-1].published.clear()
         return nodes[-1]
+
     yield make
     for n in nodes:
         n.destroy_node()

@@ -2,6 +2,7 @@
 unobserved (depth has no gradient along it, intensity none at all), a textured plane
 observes it; the remapped pose keeps the observed part and takes the prediction's
 along the rest."""
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -44,7 +45,7 @@ def test_bare_wall_leaves_three_directions_unobserved():
 def test_remap_takes_the_prediction_along_the_wall_only():
     color, depth = _wall(False)
     info = motion_information(color, depth, color, depth, K, np.eye(4))
-    T_est = se3(Rotation.from_rotvec([0.01, 0.0, 0.02]).as_matrix(), [0.10, -0.05, 0.02])   # slid along the wall
+    T_est = se3(Rotation.from_rotvec([0.01, 0.0, 0.02]).as_matrix(), [0.10, -0.05, 0.02])  # slid along the wall
     T_pred = se3(np.eye(3), [0.03, 0.0, 0.0])
     T, k = remap_degenerate(T_est, T_pred, info)
     assert k == 3

@@ -2,6 +2,7 @@
 its largest wall its heading: the floor's normal and the wall's are found in one rendered
 depth image, and two halves of a walk joined by a tilted or turned step (bare walls, no
 shared features) come out level and square."""
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -76,8 +77,10 @@ def test_walls_agree_on_the_room_s_axes_and_a_turned_keyframe_gets_its_own(rende
         _, depth_mm = downsample(make_frame(0, view.rgb, view.depth, ego_camera), 2)
         keyframes.append(Keyframe(k, k, k, T, None, depth_mm, 0))
     K = scaled_K(ego_camera.K, 2)
-    for tracked in (poses[:4] + [_turned(T, 8.0) for T in poses[4:]],
-                    [_turned(T, 15.0 * (-1) ** k) for k, T in enumerate(poses)]):
+    for tracked in (
+        poses[:4] + [_turned(T, 8.0) for T in poses[4:]],
+        [_turned(T, 15.0 * (-1) ** k) for k, T in enumerate(poses)],
+    ):
         walls = wall_attitudes(keyframes, tracked, K, UP)
         assert walls is not None and len(walls.walls) == 6
         turns = _turn_from_truth(walls, poses)
@@ -93,10 +96,10 @@ def _corner_depth(K, angle_deg, width=320, height=240):
     t = np.full((height, width), np.inf)
     for sign in (1, -1):
         half = np.radians(angle_deg / 2) * sign
-        n = np.array([np.sin(half), 0.0, -np.cos(half)])      # facing the camera
+        n = np.array([np.sin(half), 0.0, -np.cos(half)])  # facing the camera
         along = rays @ n
         hit = (corner @ n) / np.where(along < 0, along, -1e-12)
-        t = np.minimum(t, np.where(hit > 0, hit, np.inf))   # the ray leaves the room at the nearer wall
+        t = np.minimum(t, np.where(hit > 0, hit, np.inf))  # the ray leaves the room at the nearer wall
     depth = np.where(t < 8.0, t * 1000.0, 0.0)
     return depth.astype(np.uint16)
 
@@ -105,7 +108,7 @@ def test_a_building_whose_corners_are_not_square_gets_no_walls():
     """Views whose two walls meet at 120 deg: not a Manhattan world, so no keyframe's
     heading is held to an axis; the same views of a square corner are."""
     K = scaled_K(CAM.K, 2)
-    up = np.array([0.0, -1.0, 0.0])                         # camera y points down
+    up = np.array([0.0, -1.0, 0.0])  # camera y points down
     poses = [se3(Rotation.from_rotvec(np.radians(d) * up).as_matrix(), np.zeros(3)) for d in (-10, 0, 10)]
     for angle, square in ((60.0, False), (90.0, True)):
         keyframes = [Keyframe(k, k, k, T, None, _corner_depth(K, angle), 0) for k, T in enumerate(poses)]
@@ -126,8 +129,11 @@ def _two_rooms(seed=0):
         uv, front = CAM.project(local)
         half = points[:, 0] < 1.6 if k < 4 else points[:, 0] >= 1.6
         seen = np.flatnonzero(front & CAM.in_image(uv, margin=5) & half)
-        features.append(KeyframeFeatures(uv[seen] + rng.normal(0, 0.5, (len(seen), 2)),
-                                         np.zeros((len(seen), 128), np.float32), local[seen, 2]))
+        features.append(
+            KeyframeFeatures(
+                uv[seen] + rng.normal(0, 0.5, (len(seen), 2)), np.zeros((len(seen), 128), np.float32), local[seen, 2]
+            )
+        )
         kf += [k] * len(seen)
         feat += list(range(len(seen)))
         trk += list(seen)
@@ -142,12 +148,14 @@ def test_a_tilted_step_between_two_halves_is_levelled_by_the_floor():
     init = poses[:4] + [poses[3] @ T_3_4 @ inv_se3(poses[4]) @ T for T in poses[4:]]
     edge = OdometryEdge(4, 3, T_3_4, np.diag([1e4] * 3 + [1e4] * 3), "odometry")
     plain = bundle_adjust(tracks, features, init, CAM, edges=[edge])
-    floor = FloorAttitudes(UP, {k: T[:3, :3].T @ UP for k, T in enumerate(poses)})   # each view's true floor
+    floor = FloorAttitudes(UP, {k: T[:3, :3].T @ UP for k, T in enumerate(poses)})  # each view's true floor
     levelled = bundle_adjust(tracks, features, init, CAM, edges=[edge], floor=floor)
-    worst = [max(rotation_angle_deg(a[:3, :3], b[:3, :3]) for a, b in zip(out.T_world_kf, poses))
-             for out in (plain, levelled)]
-    assert worst[0] > 4.0          # the features cannot see the tilt between the halves
-    assert worst[1] < 1.0          # from 5: the floor outweighs the one tracked step
+    worst = [
+        max(rotation_angle_deg(a[:3, :3], b[:3, :3]) for a, b in zip(out.T_world_kf, poses))
+        for out in (plain, levelled)
+    ]
+    assert worst[0] > 4.0  # the features cannot see the tilt between the halves
+    assert worst[1] < 1.0  # from 5: the floor outweighs the one tracked step
 
 
 def test_a_turned_step_between_two_halves_is_squared_by_the_walls():
@@ -158,10 +166,11 @@ def test_a_turned_step_between_two_halves_is_squared_by_the_walls():
     init = poses[:4] + [poses[3] @ T_3_4 @ inv_se3(poses[4]) @ T for T in poses[4:]]
     edge = OdometryEdge(4, 3, T_3_4, np.diag([1e4] * 3 + [1e4] * 3), "odometry")
     plain = bundle_adjust(tracks, features, init, CAM, edges=[edge])
-    wall = np.array([0.0, -1.0, 0.0])          # the wall at y = 3-3.5 faces the cameras
+    wall = np.array([0.0, -1.0, 0.0])  # the wall at y = 3-3.5 faces the cameras
     walls = WallAttitudes(UP, np.array([1.0, 0.0, 0.0]), {k: (T[:3, :3].T @ wall, wall) for k, T in enumerate(poses)})
     squared = bundle_adjust(tracks, features, init, CAM, edges=[edge], walls=walls)
-    worst = [max(rotation_angle_deg(a[:3, :3], b[:3, :3]) for a, b in zip(out.T_world_kf, poses))
-             for out in (plain, squared)]
-    assert worst[0] > 4.0          # the features cannot see the turn between the halves
-    assert worst[1] < 1.0          # from 5: the wall outweighs the one tracked step
+    worst = [
+        max(rotation_angle_deg(a[:3, :3], b[:3, :3]) for a, b in zip(out.T_world_kf, poses)) for out in (plain, squared)
+    ]
+    assert worst[0] > 4.0  # the features cannot see the turn between the halves
+    assert worst[1] < 1.0  # from 5: the wall outweighs the one tracked step

@@ -4,6 +4,7 @@ every frame of a fast turn; every frame keeps its stamp with an interpolated pos
 trajectory stays as accurate as tracking all; a skipped frame is tracked after all when
 the frame after it does not track, or when it ends the walk. Without the IMU every frame
 is tracked. Real tracking throughout (no mocks)."""
+
 from dataclasses import replace
 
 import numpy as np
@@ -41,10 +42,13 @@ def walk(tiny_bag):
 
 def _map(walk, skip: bool, imu: bool = True):
     recording, frames, gt, _, _ = walk
-    recording.imu.bias = np.zeros(3)            # the tracker's running estimate starts afresh
+    recording.imu.bias = np.zeros(3)  # the tracker's running estimate starts afresh
     r = map_recording(frames, recording.camera, _params(skip), imu=recording.imu if imu else None)
-    return r, ate(Trajectory(r.stamps_ns, r.trajectories["odometry"]), gt).rmse_m, \
-        ate(Trajectory(r.stamps_ns, r.T_world_cam), gt).rmse_m
+    return (
+        r,
+        ate(Trajectory(r.stamps_ns, r.trajectories["odometry"]), gt).rmse_m,
+        ate(Trajectory(r.stamps_ns, r.T_world_cam), gt).rmse_m,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +74,7 @@ def test_slow_stretches_skip_frames_and_fast_turns_track_every_one(walk, runs):
     # A fast turn is tracked frame by frame: the gyro sees it coming, so no skipped frame
     # turned more than the threshold (plus the gyro's noise) since the frame before.
     limit = EgoParams().odometry.skip.max_rotation_deg
-    assert (turn > limit + 0.5).sum() >= 5                 # the walk turns its head
+    assert (turn > limit + 0.5).sum() >= 5  # the walk turns its head
     assert not (skipped & (turn > limit + 0.5)).any(), np.flatnonzero(skipped & (turn > limit + 0.5))
 
 
@@ -94,7 +98,7 @@ def test_every_frame_keeps_its_stamp_and_the_trajectory_its_accuracy(walk, runs)
     d_true = np.array([inv_se3(T_true[j - 1]) @ T_true[j] for j in k])
     error_m = np.linalg.norm(d_est[:, :3, 3] - d_true[:, :3, 3], axis=1)
     step_m = np.linalg.norm(d_true[:, :3, 3], axis=1)
-    assert step_m.mean() > 0.015                           # measured 3.4 cm (errors 0.7 mm, at most 5.0)
+    assert step_m.mean() > 0.015  # measured 3.4 cm (errors 0.7 mm, at most 5.0)
     assert error_m.mean() < 0.0015 and error_m.max() < 0.008, (error_m.mean(), error_m.max())
     # The gyro shapes the turn in between: 0.02 deg on average, 0.21 at most (a slerp: 1.8).
     error_deg = [rotation_angle_deg(a[:3, :3], b[:3, :3]) for a, b in zip(d_est, d_true)]

@@ -1,5 +1,6 @@
 """Bad ego input gives clear errors that name the topic and the frame's stamp;
 colour/depth pairing."""
+
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
@@ -17,7 +18,7 @@ from yowo_ego.pipeline import EgoMapper
 from yowo_ego.recording import EgoRecording, find_ego_topics, read_ego_frames
 
 CAM = CameraModel(64, 48, [[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]])
-RGB = np.random.default_rng(0).integers(0, 256, (48, 64, 3)).astype(np.uint8)   # textured
+RGB = np.random.default_rng(0).integers(0, 256, (48, 64, 3)).astype(np.uint8)  # textured
 DEPTH = np.full((48, 64), 2.0, np.float32)
 
 
@@ -26,13 +27,16 @@ def test_zero_K_is_rejected_naming_the_topic():
         EgoMapper(CameraModel(64, 48, np.zeros((3, 3))), topic="/ego/color/camera_info")
 
 
-@pytest.mark.parametrize("color, depth, topic, what", [
-    (RGB, np.full((48, 64), np.nan, np.float32), "/d", "valid depth"),
-    (RGB, np.zeros((48, 64), np.float32), "/d", "valid depth"),
-    (RGB, np.full((24, 32), 2.0, np.float32), "/d", "registered"),
-    (np.full((24, 32, 3), 1, np.uint8), np.full((24, 32), 2.0, np.float32), "/c", "CameraInfo"),
-    (RGB[..., 0], DEPTH, "/c", "H x W x 3"),
-])
+@pytest.mark.parametrize(
+    "color, depth, topic, what",
+    [
+        (RGB, np.full((48, 64), np.nan, np.float32), "/d", "valid depth"),
+        (RGB, np.zeros((48, 64), np.float32), "/d", "valid depth"),
+        (RGB, np.full((24, 32), 2.0, np.float32), "/d", "registered"),
+        (np.full((24, 32, 3), 1, np.uint8), np.full((24, 32), 2.0, np.float32), "/c", "CameraInfo"),
+        (RGB[..., 0], DEPTH, "/c", "H x W x 3"),
+    ],
+)
 def test_unusable_frames_name_topic_stamp_and_problem(color, depth, topic, what):
     with pytest.raises(FrameError, match=rf"^{topic} @ 123 ns: .*{what}"):
         make_frame(123, color, depth, CAM, color_topic="/c", depth_topic="/d")
@@ -71,22 +75,25 @@ def test_pairer_matches_stamps_and_drops_orphans():
     p = StampPairer(tolerance_ns=1000)
     assert p.add_color(10_000, "c0") == []
     assert p.add_depth(10_400, "d0") == [(10_000, "c0", "d0")]
-    assert p.add_depth(20_000, "d1") == []          # its colour never comes
+    assert p.add_depth(20_000, "d1") == []  # its colour never comes
     assert p.add_color(30_000, "c2") == []
     assert p.add_depth(30_000, "d2") == [(30_000, "c2", "d2")]
-    assert p.dropped == 1                            # d1 is older than the last pair
-    assert p.problem("/c", "/d") == "1 /c / /d image(s) without a partner within 0.001 ms dropped, the first: /d @ 20000 ns"
+    assert p.dropped == 1  # d1 is older than the last pair
+    assert (
+        p.problem("/c", "/d")
+        == "1 /c / /d image(s) without a partner within 0.001 ms dropped, the first: /d @ 20000 ns"
+    )
     assert StampPairer().problem("/c", "/d") == ""
 
 
 def test_undistortion_moves_depth_without_blending():
-    cam = CameraModel(64, 48, CAM.K, [0.3, 0.1, 0, 0, 0])   # pincushion: corners come from outside
+    cam = CameraModel(64, 48, CAM.K, [0.3, 0.1, 0, 0, 0])  # pincushion: corners come from outside
     depth = np.full((48, 64), 3.0, np.float32)
     depth[:, 32:] = 1.0
     _, out = Undistorter(cam)(RGB, depth)
     values = np.unique(out[np.isfinite(out)])
-    assert set(values.tolist()) <= {1.0, 3.0}        # nearest-neighbour: no mixed depths at the edge
-    assert np.isnan(out[0, 0])                       # pulled in from outside the image
+    assert set(values.tolist()) <= {1.0, 3.0}  # nearest-neighbour: no mixed depths at the edge
+    assert np.isnan(out[0, 0])  # pulled in from outside the image
 
 
 def test_textureless_frame_is_tracked_by_depth_and_tracking_continues(renderer, ego_camera):
@@ -125,9 +132,11 @@ def test_colour_frame_without_depth_is_dropped_and_named(tmp_path):
     recording = EgoRecording(find_ego_topics(tmp_path / "bag"))
     stamps = [s for s, _, _ in read_ego_frames(tmp_path / "bag", recording)]
     assert stamps == [1_000_000_000 + i * 66_666_667 for i in (0, 1, 3, 4)]
-    assert recording.problems == [f"1 /ego/color/image_raw/compressed / /ego/depth/image_raw/compressedDepth "
-                                  f"image(s) without a partner within 5 ms dropped, the first: "
-                                  f"/ego/color/image_raw/compressed @ {1_000_000_000 + 2 * 66_666_667} ns"]
+    assert recording.problems == [
+        f"1 /ego/color/image_raw/compressed / /ego/depth/image_raw/compressedDepth "
+        f"image(s) without a partner within 5 ms dropped, the first: "
+        f"/ego/color/image_raw/compressed @ {1_000_000_000 + 2 * 66_666_667} ns"
+    ]
 
 
 def test_recording_without_depth_names_the_missing_topic(tmp_path):

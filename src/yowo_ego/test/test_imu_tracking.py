@@ -1,6 +1,7 @@
 """Gyro-aided ego tracking: the gyro rotation between camera stamps against the simulator's
 ground truth, a scripted stretch that vision alone cannot track, bridged with the IMU,
 and the wiring (offline reader, node, run planner)."""
+
 from dataclasses import replace
 
 import numpy as np
@@ -75,13 +76,13 @@ def test_gyro_rotation_matches_the_ground_truth(walk):
         noisy.bias = noisy_data.gyro_bias[int(a * params.rate_hz)]
         err_debiased.append(_deg(noisy.rotation_between(t0, t1), R_true))
         noisy.bias = np.zeros(3)
-    assert max(turned) > 30.0                          # the head turns: a still camera proves nothing
+    assert max(turned) > 30.0  # the head turns: a still camera proves nothing
     assert max(err_free) < 0.05
     bias_drift_deg = np.degrees(np.linalg.norm(noisy_data.gyro_bias[0])) * 1.0
     white_deg = np.degrees(params.gyro_noise_density)  # per axis over 1 s
     assert max(err_noisy) < bias_drift_deg + 5 * white_deg
     assert max(err_debiased) < 5 * white_deg
-    assert np.median(err_noisy) > 2 * np.median(err_debiased)   # the bias is what is left
+    assert np.median(err_noisy) > 2 * np.median(err_debiased)  # the bias is what is left
 
 
 def test_bias_follows_tracked_rotations(walk):
@@ -94,13 +95,19 @@ def test_bias_follows_tracked_rotations(walk):
     for a, b in zip(stamps[:-1], stamps[1:]):
         imu.update_bias(_truth(walk, a * 1e-9, b * 1e-9), int(a), int(b), time_constant_s=1.0)
     true_bias = data.gyro_bias[int(stamps[-1] * 1e-9 * params.rate_hz)]
-    assert np.linalg.norm(true_bias) > 1.5e-3          # a bias worth estimating (0.12 deg/s)
+    assert np.linalg.norm(true_bias) > 1.5e-3  # a bias worth estimating (0.12 deg/s)
     assert np.linalg.norm(imu.bias - true_bias) < 0.2 * np.linalg.norm(true_bias)
     errors = []
     for bias in (imu.bias, np.zeros(3)):
         imu.bias = bias
-        errors.append(np.mean([_deg(imu.rotation_between(int(a * 1e9), int(b * 1e9)), _truth(walk, a, b))
-                               for a, b in _windows(walk, 1.0)]))
+        errors.append(
+            np.mean(
+                [
+                    _deg(imu.rotation_between(int(a * 1e9), int(b * 1e9)), _truth(walk, a, b))
+                    for a, b in _windows(walk, 1.0)
+                ]
+            )
+        )
     assert errors[0] < 0.5 * errors[1]
 
 
@@ -128,8 +135,8 @@ def test_samples_and_coverage():
         ImuSamples(np.array([0, 5, 5]), np.zeros((3, 3)), np.zeros((3, 3)))
     imu = ImuBuffer(ImuCalibration.from_yaml(calibration_yaml(ImuParams(), EGO_FRAME)), capacity=2)
     wait = CoverageWait(imu, max_wait_ns=100)
-    assert wait.push(10, "a") == []                     # no sample at or after 10 yet
-    for t in (0, 5, 5, 12):                             # the repeated stamp is dropped
+    assert wait.push(10, "a") == []  # no sample at or after 10 yet
+    for t in (0, 5, 5, 12):  # the repeated stamp is dropped
         imu.add(t, (0.0, 0.0, 1.0), (0.0, 0.0, 9.8))
     assert len(imu) == 3 and imu.rejected == 1 and imu.covers(12) and not imu.covers(13)
     assert wait.ready() == ["a"] and wait.released_without == 0
@@ -169,10 +176,10 @@ def test_vision_loss_is_bridged_by_the_gyro(dark_walk, tiny_bag):
         r = map_recording(frames, recording.camera, params, imu=imu)
         runs[name] = (r, ate(Trajectory(r.stamps_ns, r.T_world_cam), gt).rmse_m)
     (vision, ate_vision), (inertial, ate_imu) = runs["vision"], runs["imu"]
-    assert len(vision.stamps_ns) == len(inertial.stamps_ns) == len(frames)   # all reach the tracker
+    assert len(vision.stamps_ns) == len(inertial.stamps_ns) == len(frames)  # all reach the tracker
     assert vision.stats["breaks"] >= 8 and vision.stats["imu_bridged"] == 0
     assert inertial.stats["breaks"] == 0 and inertial.stats["imu_bridged"] >= 8
-    assert inertial.stats["imu_bridged"] <= 10        # the 8, the first frame after, little more
+    assert inertial.stats["imu_bridged"] <= 10  # the 8, the first frame after, little more
     assert ate_imu < 0.02 and ate_vision > 3 * ate_imu
 
 
@@ -191,9 +198,13 @@ def test_planner_plays_the_imu_when_recorded(tiny_bag, tmp_path):
     _copy(tiny_bag, tmp_path / "no_imu", lambda t: t not in IMU_TOPICS)
     _copy(tiny_bag, tmp_path / "no_calibration", lambda t: t != topics.EGO_IMU_CALIBRATION)
     _copy(tiny_bag, tmp_path / "no_extrinsics", lambda t: t not in (topics.EGO_IMU_CALIBRATION, topics.TF_STATIC))
-    for bag, mode, imu, calibration in (("full", FULL, True, "topic"), ("no_cmc", EGO, True, "topic"),
-                                        ("no_imu", FULL, False, ""), ("no_calibration", FULL, True, "tf"),
-                                        ("no_extrinsics", FULL, False, "")):
+    for bag, mode, imu, calibration in (
+        ("full", FULL, True, "topic"),
+        ("no_cmc", EGO, True, "topic"),
+        ("no_imu", FULL, False, ""),
+        ("no_calibration", FULL, True, "tf"),
+        ("no_extrinsics", FULL, False, ""),
+    ):
         plan = plan_run(tiny_bag if bag == "full" else tmp_path / bag, tmp_path / f"out_{bag}")
         assert plan.mode == mode, bag
         nodes = {n.name: n for n in plan.nodes}
@@ -207,8 +218,11 @@ def test_planner_plays_the_imu_when_recorded(tiny_bag, tmp_path):
         assert plan.replay_messages == sum(t.count for t in list_topics(plan.bag) if t.name in played)
     assert "no extrinsics" in plan.inputs["imu"]["reason"]
     # Told not to use it, the graph neither plays nor waits for it.
-    off = plan_run(tiny_bag, tmp_path / "out_off", config=YowoConfig(ego=EgoParams(
-        odometry=replace(EgoParams().odometry, use_imu=False))))
+    off = plan_run(
+        tiny_bag,
+        tmp_path / "out_off",
+        config=YowoConfig(ego=EgoParams(odometry=replace(EgoParams().odometry, use_imu=False))),
+    )
     nodes = {n.name: n for n in off.nodes}
     assert topics.EGO_IMU not in nodes["replay"].parameters["topics"]
     assert not nodes["ego_mapper"].parameters.get("imu_topic")
@@ -233,7 +247,7 @@ def test_node_waits_for_the_imu_covering_each_frame(imu_node, tiny_bag):
             calibration = msg
         elif topic == INFO_TOPIC:
             node.on_info(msg)
-        elif frames < 30:                   # 2 s of frames, all before any IMU message
+        elif frames < 30:  # 2 s of frames, all before any IMU message
             add = node.pairer.add_color if topic == COLOR_TOPICS[1] else node.pairer.add_depth
             node.on_waiting(add(stamp_to_ns(msg.header.stamp), msg))
             frames += topic == COLOR_TOPICS[1]
@@ -243,7 +257,7 @@ def test_node_waits_for_the_imu_covering_each_frame(imu_node, tiny_bag):
         node.on_imu(msg)
         if stamp_to_ns(msg.header.stamp) > last:
             break
-    assert node.published["/yowo/ego/odometry"] == 0          # no calibration yet: still held
+    assert node.published["/yowo/ego/odometry"] == 0  # no calibration yet: still held
     node.on_imu_calibration(calibration)
     # All released: tracked, but the newest, which is being prepared while the one before is tracked.
     assert len(node.preparing) <= 1
@@ -263,7 +277,7 @@ def test_node_with_a_malformed_calibration_tracks_without_the_imu(imu_node, tiny
     for topic, _, msg in read_messages(tiny_bag, [COLOR_TOPICS[1], DEPTH_TOPICS[1], INFO_TOPIC]):
         if topic == INFO_TOPIC:
             node.on_info(msg)
-        elif frames < 45:                   # 3 s: enough for a map to finish
+        elif frames < 45:  # 3 s: enough for a map to finish
             add = node.pairer.add_color if topic == COLOR_TOPICS[1] else node.pairer.add_depth
             node.on_waiting(add(stamp_to_ns(msg.header.stamp), msg))
             frames += topic == COLOR_TOPICS[1]
@@ -277,7 +291,7 @@ def test_use_imu_off_equals_a_recording_without_imu(tiny_bag, tmp_path):
     off, _ = map_bag(tiny_bag, EgoParams(odometry=replace(EgoParams().odometry, use_imu=False)))
     none, _ = map_bag(tmp_path / "no_imu")
     assert off.stats["imu_frames"] == 0 and none.stats["imu_frames"] == 0
-    assert not off.imu and not none.imu                 # the fusion is told (EgoMap.imu)
+    assert not off.imu and not none.imu  # the fusion is told (EgoMap.imu)
     np.testing.assert_array_equal(off.trajectories["odometry"], none.trajectories["odometry"])
     on, _ = map_bag(tiny_bag)
     # Every frame tracked after the first used the gyro (the others were skipped: OdometryParams.skip).

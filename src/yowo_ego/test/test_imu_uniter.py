@@ -1,4 +1,5 @@
 """Separate gyro and accelerometer streams united as one IMU stream."""
+
 import numpy as np
 
 from yowo_ego.imu import ImuUniter
@@ -6,14 +7,19 @@ from yowo_ego.imu import ImuUniter
 
 def test_accelerometer_is_interpolated_at_each_gyro_stamp_in_any_arrival_order():
     rng = np.random.default_rng(0)
-    gyro_ns = np.arange(0, 2_000_000_000, 5_000_000)          # 200 Hz
+    gyro_ns = np.arange(0, 2_000_000_000, 5_000_000)  # 200 Hz
     accel_ns = np.arange(1_000_000, 2_000_000_000, 16_000_000)  # 62.5 Hz, offset
     accel = lambda t: np.array([np.sin(t * 1e-9), 9.81 + 0.1 * t * 1e-9, np.cos(2 * t * 1e-9)])  # noqa: E731
+
     # A driver's two streams arrive interleaved, each in order, up to a few samples late.
     def arrival(ns):
         return np.maximum.accumulate(ns + rng.integers(0, 12_000_000, len(ns)))
-    events = sorted([(a, t, "g") for a, t in zip(arrival(gyro_ns), gyro_ns)] +
-                    [(a, t, "a") for a, t in zip(arrival(accel_ns), accel_ns)], key=lambda e: (e[0], e[2]))
+
+    events = sorted(
+        [(a, t, "g") for a, t in zip(arrival(gyro_ns), gyro_ns)]
+        + [(a, t, "a") for a, t in zip(arrival(accel_ns), accel_ns)],
+        key=lambda e: (e[0], e[2]),
+    )
     events = [(t, kind) for _, t, kind in events]
     uniter, out = ImuUniter(), []
     for t, kind in events:

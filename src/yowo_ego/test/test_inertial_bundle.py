@@ -1,6 +1,7 @@
 """The IMU in the ego bundle adjustment: GTSAM's combined preintegration of the
 simulator's IMU between ground-truth keyframe poses (lever arm, gravity, biases), the
 accelerometer's up direction, and pose-graph edges as between factors."""
+
 import gtsam
 import numpy as np
 import pytest
@@ -72,7 +73,7 @@ def test_preintegration_fits_the_true_motion(walk):
     result, chi2 = _solve_velocities_and_biases(terms, T[kf])
     assert np.median(chi2) < 15.0
     bias = result.atConstantBias(B(0))
-    assert np.linalg.norm(data.accel_bias[0]) > 0.03           # a bias worth estimating
+    assert np.linalg.norm(data.accel_bias[0]) > 0.03  # a bias worth estimating
     assert np.linalg.norm(bias.accelerometer() - data.accel_bias[0]) < 0.015
     assert np.linalg.norm(bias.gyroscope() - data.gyro_bias[0]) < 5e-4
 
@@ -99,7 +100,7 @@ def test_edge_factor_keeps_open3d_information():
     A = rng.normal(size=(6, 6))
     info = A @ A.T + 6 * np.eye(6)
     factor = edge_factor(OdometryEdge(1, 0, T, info, "odometry"), BundleParams(edge_huber_k=1e9))
-    delta = rng.normal(scale=1e-3, size=6)                      # (rotation, translation), target frame
+    delta = rng.normal(scale=1e-3, size=6)  # (rotation, translation), target frame
     perturbed = se3(Rotation.from_rotvec(delta[:3]).as_matrix(), delta[3:]) @ T
     values = gtsam.Values()
     values.insert(X(0), gtsam.Pose3())

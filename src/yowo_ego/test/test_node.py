@@ -1,5 +1,6 @@
 """ego_mapper_node wiring: the recording's ego messages handed to the node's
 callbacks (no DDS needed), then the end-of-stream outputs."""
+
 import pytest
 from sensor_msgs.msg import CameraInfo, CompressedImage
 
@@ -20,7 +21,7 @@ def test_node_streams_odometry_and_publishes_the_map(node, tiny_bag):
     # the first pair forms, and reported.
     node.on_pairs(node.pairer.add_depth(1, CompressedImage()))
     for topic, _, msg in read_messages(tiny_bag, [COLOR_TOPICS[1], DEPTH_TOPICS[1], INFO_TOPIC]):
-        if frames == 45:                   # the first 3 s are enough for the wiring
+        if frames == 45:  # the first 3 s are enough for the wiring
             break
         if topic == INFO_TOPIC:
             node.on_info(msg)
@@ -37,14 +38,18 @@ def test_node_streams_odometry_and_publishes_the_map(node, tiny_bag):
     summary = node.finalize()
     for topic in ("/yowo/ego/map", "/yowo/ego/path", "/yowo/map/points", "/yowo/layout"):
         assert node.published[topic] == 1
-    assert (f"1 frame(s) rejected, the first: /ego/color/image_raw/compressed @ {10**19} ns: cannot decode the image"
-            in summary)
-    assert (f"1 {COLOR_TOPICS[1]} / {DEPTH_TOPICS[1]} image(s) without a partner within 5 ms dropped, the first: "
-            f"{DEPTH_TOPICS[1]} @ 1 ns" in summary)
+    assert (
+        f"1 frame(s) rejected, the first: /ego/color/image_raw/compressed @ {10**19} ns: cannot decode the image"
+        in summary
+    )
+    assert (
+        f"1 {COLOR_TOPICS[1]} / {DEPTH_TOPICS[1]} image(s) without a partner within 5 ms dropped, the first: "
+        f"{DEPTH_TOPICS[1]} @ 1 ns" in summary
+    )
 
 
 def test_node_without_usable_camera_info_fails_with_the_reason(node):
-    node.on_info(CameraInfo(width=640, height=480))                 # K = 0
+    node.on_info(CameraInfo(width=640, height=480))  # K = 0
     with pytest.raises(ValueError, match="/ego/color/camera_info: .*focal"):
         node.finalize()
 

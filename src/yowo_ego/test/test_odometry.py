@@ -1,4 +1,5 @@
 """Frame-to-frame RGB-D odometry on noise-free frames rendered by the simulator."""
+
 from dataclasses import replace
 
 import numpy as np
@@ -40,12 +41,16 @@ def _track_step(renderer, ego_camera, motion):
     return tracker.track(make_frame(FRAME_NS, b.rgb, b.depth, ego_camera))
 
 
-@pytest.mark.parametrize("motion", [
-    _motion([0.0, 1.5, 0.0], [0.04, 0.0, 0.0]),        # side step while turning
-    _motion([1.0, 0.0, 0.0], [0.0, 0.01, 0.067]),      # a walking step (1 m/s at 15 Hz) with a nod
-    _motion([1.0, 4.0, 0.5], [0.0, 0.0, 0.0]),         # head turn, no translation
-    _motion([-2.0, 3.0, 1.0], [0.03, -0.02, 0.05]),
-], ids=["sidestep", "walk", "turn", "mixed"])
+@pytest.mark.parametrize(
+    "motion",
+    [
+        _motion([0.0, 1.5, 0.0], [0.04, 0.0, 0.0]),  # side step while turning
+        _motion([1.0, 0.0, 0.0], [0.0, 0.01, 0.067]),  # a walking step (1 m/s at 15 Hz) with a nod
+        _motion([1.0, 4.0, 0.5], [0.0, 0.0, 0.0]),  # head turn, no translation
+        _motion([-2.0, 3.0, 1.0], [0.03, -0.02, 0.05]),
+    ],
+    ids=["sidestep", "walk", "turn", "mixed"],
+)
 def test_noise_free_frame_to_frame_motion(renderer, ego_camera, motion):
     result = _track_step(renderer, ego_camera, motion)
     assert result.status != LOST
@@ -78,8 +83,8 @@ def test_blank_view_breaks_instead_of_inventing_motion(renderer, ego_camera):
 
 def test_downsampled_depth_ignores_dropouts_and_edges():
     depth = np.full((4, 4), 2.0, np.float32)
-    depth[0, 0] = np.nan                 # an isolated dropout: the block keeps its depth
-    depth[2:, 2] = 1.0                   # a depth edge inside the bottom-right block
+    depth[0, 0] = np.nan  # an isolated dropout: the block keeps its depth
+    depth[2:, 2] = 1.0  # a depth edge inside the bottom-right block
     _, mm = downsample(RgbdFrame(0, np.zeros((4, 4, 3), np.uint8), depth), 2)
     assert mm[0, 0] == 2000 and mm[0, 1] == 2000 and mm[1, 0] == 2000
     assert mm[1, 1] == 0
@@ -100,12 +105,14 @@ def test_frames_between_keyframes_share_the_keyframe_correction():
     """Keyframe b was tracked 0.1 m / 2 deg off; after optimisation the frames
     between a and b take the correction in proportion to their time."""
     step = _motion([0.0, 2.0, 0.0], [0.0, 0.0, 0.5])
-    tracked_b = _motion([0.0, 4.0, 0.0], [0.1, 0.0, 1.0])      # what tracking said
-    true_b = step @ step                                       # what the optimisation found
+    tracked_b = _motion([0.0, 4.0, 0.0], [0.1, 0.0, 1.0])  # what tracking said
+    true_b = step @ step  # what the optimisation found
     kfs = [Keyframe(i, 2 * i, 2 * i, np.eye(4), None, None, 0) for i in range(2)]
-    results = [TrackResult(0, 0, 0, np.eye(4), np.eye(4), 1.0, "tracked", True),
-               TrackResult(1, 1, 0, step, step, 1.0, "tracked", False),          # midway, tracked right
-               TrackResult(2, 2, 1, np.eye(4), tracked_b, 1.0, "tracked", True)]
+    results = [
+        TrackResult(0, 0, 0, np.eye(4), np.eye(4), 1.0, "tracked", True),
+        TrackResult(1, 1, 0, step, step, 1.0, "tracked", False),  # midway, tracked right
+        TrackResult(2, 2, 1, np.eye(4), tracked_b, 1.0, "tracked", True),
+    ]
     edges = [OdometryEdge(1, 0, tracked_b, np.eye(6), "odometry")]
     T = frames_between_keyframes(results, edges, kfs, [np.eye(4), true_b])
     assert np.allclose(T[2], true_b)
@@ -119,7 +126,7 @@ def test_low_overlap_result_far_from_the_prediction_is_ambiguous(ego_camera):
     tracker = KeyframeTracker(ego_camera.K)
     predicted, settled = _motion([0.0, 44.0, 0.0], [0.0, 0.0, 0.0]), np.eye(4)
     assert tracker._ambiguous(settled, 0.3, predicted)
-    assert not tracker._ambiguous(settled, 0.5, predicted)                         # enough overlap
+    assert not tracker._ambiguous(settled, 0.5, predicted)  # enough overlap
     assert not tracker._ambiguous(_motion([0.0, 40.0, 0.0], [0, 0, 0]), 0.3, predicted)  # near the prediction
     # Right after a lost frame (whose pose is a guess) no prediction vouches for little overlap.
     tracker._prev_result = TrackResult(1, FRAME_NS, 1, np.eye(4), np.eye(4), 0.0, LOST, True)
@@ -150,8 +157,9 @@ def test_an_untracked_whip_turn_is_placed_in_the_map_of_the_keyframes_before(ren
     headings = [*range(0, 360, 10), 350 + 120]
     for enabled in (True, False):
         p = OdometryParams()
-        tracker, result, T_true = _look_around(renderer, ego_camera,
-                                               replace(p, maploc=replace(p.maploc, enabled=enabled)), headings)
+        tracker, result, T_true = _look_around(
+            renderer, ego_camera, replace(p, maploc=replace(p.maploc, enabled=enabled)), headings
+        )
         err_m = np.linalg.norm(result.T_odom_cam[:3, 3] - T_true[:3, 3])
         err_deg = rotation_angle_deg(result.T_odom_cam[:3, :3], T_true[:3, :3])
         if enabled:
@@ -165,8 +173,9 @@ def test_an_untracked_whip_turn_is_placed_in_the_map_of_the_keyframes_before(ren
 def test_a_whip_turn_in_the_middle_of_a_square_room_is_not_placed_at_a_look_alike_heading(renderer, ego_camera):
     """At the centre of the square room, turned headings 90 deg apart see the same walls at
     the same distances: the map cannot tell them apart, so the frame is a break."""
-    tracker, result, _ = _look_around(renderer, ego_camera, OdometryParams(), [*range(0, 360, 10), 350 + 120],
-                                      eye=(2.0, 2.0, 1.6))
+    tracker, result, _ = _look_around(
+        renderer, ego_camera, OdometryParams(), [*range(0, 360, 10), 350 + 120], eye=(2.0, 2.0, 1.6)
+    )
     assert result.status == LOST and tracker.map_relocalised == 0
     assert "another heading fits almost as well" in tracker.map_failures[-1]
 
@@ -174,7 +183,7 @@ def test_a_whip_turn_in_the_middle_of_a_square_room_is_not_placed_at_a_look_alik
 def test_constant_velocity_is_per_second_not_per_step(renderer, ego_camera):
     """After a step across a gap (frames rejected or missing), the next frame's prediction is
     the velocity over its own interval: a step of 10 frames' time is not replayed per frame."""
-    walk = _motion([0.0, 10.0, 0.0], [0.0, 0.0, 0.30])        # 10 frames of 3 cm and 1 deg each, at once
+    walk = _motion([0.0, 10.0, 0.0], [0.0, 0.0, 0.30])  # 10 frames of 3 cm and 1 deg each, at once
     tracker = KeyframeTracker(ego_camera.K)
     for k, T in ((0, T_START), (10, T_START @ walk)):
         f = renderer.render(ego_camera, T)
@@ -209,7 +218,7 @@ def test_a_suspect_result_is_checked_by_the_other_cascade(renderer, ego_camera):
     truth = np.linalg.inv(T_START) @ T
     assert np.linalg.norm(result.T_odom_cam[:3, 3] - truth[:3, 3]) < 0.003
     assert tracker.suspect_frames == 1
-    assert [c for on, c in calls if not on] == [("Hybrid",)] * 7       # one registration per ordinary frame
+    assert [c for on, c in calls if not on] == [("Hybrid",)] * 7  # one registration per ordinary frame
     assert ("PointToPlane", "Hybrid") in [c for on, c in calls if on]
 
 
@@ -226,7 +235,7 @@ def test_keyframe_images_are_packed_losslessly_in_about_half_their_bytes(rendere
     assert kf.image_bytes < 0.75 * (color.nbytes + depth_mm.nbytes), (kf.image_bytes, color.nbytes + depth_mm.nbytes)
     moved = kf.moved(se3(np.eye(3), [1.0, 0.0, 0.0]))
     assert moved.image_bytes == kf.image_bytes and np.array_equal(moved.depth_mm, depth_mm)
-    assert moved.T_odom_cam[0, 3] == 1.0 and np.allclose(kf.T_odom_cam, np.eye(4))   # the first: odom origin
+    assert moved.T_odom_cam[0, 3] == 1.0 and np.allclose(kf.T_odom_cam, np.eye(4))  # the first: odom origin
     raw = KeyframeTracker(ego_camera.K, replace(OdometryParams(), compress_keyframes=False))
     raw.track(frame)
     assert raw.keyframes[0].image_bytes == color.nbytes + depth_mm.nbytes
@@ -245,5 +254,5 @@ def test_fitness_counts_a_frame_with_little_depth_as_one_with_depth_almost_every
     odometry = RgbdOdometry(ego_camera.K)
     fit_full = odometry.register(full.rgbd, full.rgbd, np.eye(4))[1]
     fit_half = odometry.register(half.rgbd, full.rgbd, np.eye(4))[1]
-    assert 0.85 < fit_full <= 320 * 240 / (336 * 256)      # Open3D's: the padding cannot match
+    assert 0.85 < fit_full <= 320 * 240 / (336 * 256)  # Open3D's: the padding cannot match
     assert fit_half == pytest.approx(odometry.params.full_depth_fraction * fit_full, abs=0.02)

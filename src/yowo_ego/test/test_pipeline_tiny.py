@@ -1,5 +1,6 @@
 """End to end on a generated 'tiny' recording: the ego stage reads the bag's ego
 topics only and is checked against the simulator's ground truth."""
+
 from dataclasses import replace
 
 import numpy as np
@@ -26,7 +27,7 @@ def test_trajectory_gravity_and_scale(tiny):
     bag, result, _ = tiny
     gt = read_ground_truth(bag)
     m = evaluate(result, gt)
-    assert len(result.stamps_ns) == len(gt.ego.stamps_ns)     # every frame tracked and reported
+    assert len(result.stamps_ns) == len(gt.ego.stamps_ns)  # every frame tracked and reported
     # Every stage stays within about a centimetre on this walk (odometry ~3 mm,
     # bundle adjustment ~6 mm: SIFT at 320 x 240 is the coarser measurement here).
     assert m["ate_odometry_m"] < 0.012 and m["ate_multiway_m"] < 0.012
@@ -60,7 +61,7 @@ def test_bad_camera_info_is_named(tmp_path):
             h = Header(stamp=Time(sec=1, nanosec=i * 1000), frame_id="ego")
             w.write("/ego/color/image_raw/compressed", encode_color_jpeg(np.zeros((48, 64, 3), np.uint8), h), i)
             w.write("/ego/depth/image_raw/compressedDepth", encode_depth_png(np.ones((48, 64)), h), i)
-            w.write("/ego/color/camera_info", CameraInfo(header=h, width=64, height=48), i)   # K = 0
+            w.write("/ego/color/camera_info", CameraInfo(header=h, width=64, height=48), i)  # K = 0
     with pytest.raises(ValueError, match=r"/ego/color/camera_info: .*focal"):
         map_bag(bag)
 

@@ -3,6 +3,7 @@ graphs with a known answer: it is Open3D's ``global_optimization`` (same poses, 
 loops pruned) without the dense system, it removes the odometry's drift, drops a
 wrong loop closure, and leaves a part of the graph without edges to keyframe 0
 where it is."""
+
 import numpy as np
 import open3d as o3d
 import pytest
@@ -49,7 +50,7 @@ def _ring(rng, n: int = 60):
     edges.append(wrong)
     # Nodes start on the odometry chain, as the ego stage starts them.
     chain = [truth[0]]
-    for e in edges[:n - 1]:
+    for e in edges[: n - 1]:
         chain.append(chain[-1] @ e.T_target_source)
     return truth, chain, edges
 
@@ -63,21 +64,27 @@ def _open3d(T_init, edges, params: LoopParams):
     for T in T_init:
         graph.nodes.append(reg.PoseGraphNode(T))
     for e in edges:
-        graph.edges.append(reg.PoseGraphEdge(e.source, e.target, e.T_target_source, e.information,
-                                             uncertain=e.kind == "loop"))
-    option = reg.GlobalOptimizationOption(max_correspondence_distance=params.max_correspondence_distance_m,
-                                          edge_prune_threshold=params.edge_prune_threshold,
-                                          preference_loop_closure=params.preference_loop_closure,
-                                          reference_node=0)
+        graph.edges.append(
+            reg.PoseGraphEdge(e.source, e.target, e.T_target_source, e.information, uncertain=e.kind == "loop")
+        )
+    option = reg.GlobalOptimizationOption(
+        max_correspondence_distance=params.max_correspondence_distance_m,
+        edge_prune_threshold=params.edge_prune_threshold,
+        preference_loop_closure=params.preference_loop_closure,
+        reference_node=0,
+    )
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        reg.global_optimization(graph, reg.GlobalOptimizationLevenbergMarquardt(),
-                                reg.GlobalOptimizationConvergenceCriteria(), option)
+        reg.global_optimization(
+            graph, reg.GlobalOptimizationLevenbergMarquardt(), reg.GlobalOptimizationConvergenceCriteria(), option
+        )
     return [np.asarray(n.pose) for n in graph.nodes], {(g.source_node_id, g.target_node_id) for g in graph.edges}
 
 
 def _errors(T, truth):
-    return (max(np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in zip(T, truth)),
-            max(rotation_angle_deg(a[:3, :3], b[:3, :3]) for a, b in zip(T, truth)))
+    return (
+        max(np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in zip(T, truth)),
+        max(rotation_angle_deg(a[:3, :3], b[:3, :3]) for a, b in zip(T, truth)),
+    )
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -90,7 +97,7 @@ def test_the_ring_closes_like_open3d_and_the_wrong_loop_is_pruned(seed):
     wrong = edges[-1]
     assert (wrong.source, wrong.target) not in kept_pairs
     assert len(kept) == len(edges) - 1
-    np.testing.assert_allclose(T[0], chain[0], atol=1e-9)       # keyframe 0 is the reference
+    np.testing.assert_allclose(T[0], chain[0], atol=1e-9)  # keyframe 0 is the reference
     # The walk closes: its last keyframe is where the loops put it, not where the odometry drifted.
     n = len(truth)
     closure = [_errors([inv_se3(T_[0]) @ T_[n - 1]], [inv_se3(truth[0]) @ truth[n - 1]]) for T_ in (chain, T)]

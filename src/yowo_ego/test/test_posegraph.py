@@ -1,6 +1,7 @@
 """Multiway registration's edge check (yowo_ego.posegraph.verify_edge) on two rendered
 keyframes: a tracking edge that SIFT + PnP contradict is replaced, unless the gyro's
 rotation over the edge says the edge is right (a symmetric room's look-alike views)."""
+
 import cv2
 import numpy as np
 import pytest
@@ -37,7 +38,7 @@ def two_keyframes(renderer, ego_camera):
 @pytest.mark.parametrize("gyro, replaced", [("none", True), ("true", True), ("wrong", False)])
 def test_an_edge_is_replaced_by_pnp_only_where_the_gyro_agrees(two_keyframes, gyro, replaced):
     T_0_1, features, keyframes, odometry, pair = two_keyframes
-    wrong = T_0_1 @ _move([0.0, 12.0, 0.0], [0.0, 0.0, 0.0])      # what a wrong dense minimum gives
+    wrong = T_0_1 @ _move([0.0, 12.0, 0.0], [0.0, 0.0, 0.0])  # what a wrong dense minimum gives
     R_gyro = {"none": None, "true": T_0_1[:3, :3], "wrong": wrong[:3, :3]}[gyro]
     edge = OdometryEdge(1, 0, wrong, np.eye(6), "odometry", R_gyro)
     out, was_replaced = verify_edge(edge, pair, features, keyframes, odometry, LoopParams())
@@ -105,5 +106,8 @@ def test_an_edge_the_matches_support_stays_against_a_look_alike_view(three_keyfr
         features = [_seen(K, T0, points, descriptors), None, _seen(K, T2, look_alike, descriptors)]
         replaced, T = _across(T_0_1, T_1_2, features, keyframes, odometry)
         assert replaced == replaced_expected
-        assert np.linalg.norm(T[:3, 3] - T_1_2[:3, 3]) < 0.01 if not replaced else \
-            np.linalg.norm(T[:3, 3] - T_1_2[:3, 3]) > 0.3
+        assert (
+            np.linalg.norm(T[:3, 3] - T_1_2[:3, 3]) < 0.01
+            if not replaced
+            else np.linalg.norm(T[:3, 3] - T_1_2[:3, 3]) > 0.3
+        )

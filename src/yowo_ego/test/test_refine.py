@@ -1,4 +1,5 @@
 """Bundle adjustment (eq. ego_bd) with depth range factors on synthetic tracks."""
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -34,14 +35,17 @@ def synthetic(outlier_fraction: float, seed: int = 0):
         feat += list(range(len(seen)))
         trk += list(seen)
     tracks = Tracks(np.array(kf), np.array(feat), np.array(trk))
-    init = [poses[0]] + [T @ se3(Rotation.from_rotvec(rng.normal(0, 0.01, 3)).as_matrix(), rng.normal(0, 0.03, 3))
-                         for T in poses[1:]]
+    init = [poses[0]] + [
+        T @ se3(Rotation.from_rotvec(rng.normal(0, 0.01, 3)).as_matrix(), rng.normal(0, 0.03, 3)) for T in poses[1:]
+    ]
     return poses, init, tracks, features
 
 
 def pose_errors(est, truth):
-    return (np.mean([np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in zip(est, truth)]),
-            np.mean([rotation_angle_deg(a[:3, :3], b[:3, :3]) for a, b in zip(est, truth)]))
+    return (
+        np.mean([np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in zip(est, truth)]),
+        np.mean([rotation_angle_deg(a[:3, :3], b[:3, :3]) for a, b in zip(est, truth)]),
+    )
 
 
 def test_clean_tracks_are_recovered():
@@ -58,7 +62,7 @@ def test_huber_loss_resists_five_percent_outliers():
     squared = bundle_adjust(tracks, features, init, CAM, BundleParams(rounds=1, huber_k=1e9))
     pos_h, rot_h = pose_errors(huber.T_world_kf, truth)
     pos_s, rot_s = pose_errors(squared.T_world_kf, truth)
-    assert pos_h < 0.01 and rot_h < 0.15           # from 4 cm / 0.6 deg initial errors
+    assert pos_h < 0.01 and rot_h < 0.15  # from 4 cm / 0.6 deg initial errors
     assert pos_h < 0.5 * pos_s and rot_h < 0.5 * rot_s
     # The second round drops the outliers and re-estimates the pixel noise.
     two_rounds = bundle_adjust(tracks, features, init, CAM)
@@ -74,7 +78,7 @@ def test_observation_budget_keeps_each_keyframes_longest_tracks():
     rng = np.random.default_rng(1)
     n_kf, n_lm = 60, 3000
     start = rng.integers(0, n_kf, n_lm)
-    length = np.minimum(rng.geometric(0.3, n_lm) + 1, n_kf - start)      # most tracks short, a few long
+    length = np.minimum(rng.geometric(0.3, n_lm) + 1, n_kf - start)  # most tracks short, a few long
     landmark = np.repeat(np.arange(n_lm), length)
     keyframe = np.concatenate([np.arange(s, s + n) for s, n in zip(start, length)])
     length = np.bincount(landmark)
@@ -86,7 +90,7 @@ def test_observation_budget_keeps_each_keyframes_longest_tracks():
     for k in range(n_kf):
         seen = np.unique(landmark[keyframe == k])
         assert kept[seen].any()
-        assert kept[seen[np.argmax(length[seen])]]                         # its longest track stays
+        assert kept[seen[np.argmax(length[seen])]]  # its longest track stays
     assert length[kept].mean() > 1.5 * length[~kept].mean()
 
 
@@ -95,7 +99,7 @@ def test_bundle_adjustment_within_an_observation_budget():
     budget = len(tracks.track) // 3
     out = bundle_adjust(tracks, features, init, CAM, BundleParams(max_observations=budget))
     assert 0.8 * budget < len(out.obs) <= budget
-    assert len(out.obs) + out.left_out > 0.95 * len(tracks.track)     # what the tracks give, apart from 1-view tracks
+    assert len(out.obs) + out.left_out > 0.95 * len(tracks.track)  # what the tracks give, apart from 1-view tracks
     assert len(out.landmarks) == len(np.unique(out.obs.point)) < len(np.unique(tracks.track))
     pos, rot = pose_errors(out.T_world_kf, truth)
-    assert pos < 0.006 and rot < 0.1                 # from 4 cm / 0.6 deg; all observations: 3 mm / 0.05 deg
+    assert pos < 0.006 and rot < 0.1  # from 4 cm / 0.6 deg; all observations: 3 mm / 0.05 deg

@@ -1,6 +1,7 @@
 """Relocalisation by place recognition (yowo_ego.retrieval): after a stretch that vision
 cannot track, the new segment is joined to the keyframes before it by what it sees, not
 by a constant-velocity guess; and the place index itself."""
+
 from dataclasses import replace
 
 import numpy as np
@@ -36,9 +37,9 @@ def _across_the_gap(result, gt, dark: range) -> tuple[float, float]:
 def test_a_segment_after_a_lost_track_is_relocalised_against_the_keyframes_before(dark_walk, tiny_bag):
     recording, frames, dark = dark_walk
     gt = read_ground_truth(tiny_bag).ego
-    runs = {on: map_recording(frames, recording.camera, _with_retrieval(on)) for on in (True, False)}   # no IMU
+    runs = {on: map_recording(frames, recording.camera, _with_retrieval(on)) for on in (True, False)}  # no IMU
     for r in runs.values():
-        assert r.stats["breaks"] >= 8           # every dark frame starts a segment
+        assert r.stats["breaks"] >= 8  # every dark frame starts a segment
     relocalised, guessed = runs[True], runs[False]
     assert relocalised.stats["relocalised"] >= 1 and guessed.stats["relocalised"] == 0
     # Measured: 1.3 mm / 0.06 deg and ATE 0.009 m relocalised; 31 mm / 21.6 deg and ATE 0.12 m
@@ -79,8 +80,11 @@ def _views(rng, places: int, words: int = 64, per_view: int = 300) -> list[np.nd
     a view of it draws noisy descriptors around a random subset of them."""
     centres = rng.random((words, 128)).astype(np.float32) * 100
     place_words = [rng.choice(words, 20, replace=False) for _ in range(places)]
-    return [centres[rng.choice(place_words[p], per_view)] + rng.normal(0, 2, (per_view, 128)).astype(np.float32)
-            for _ in range(2) for p in range(places)]
+    return [
+        centres[rng.choice(place_words[p], per_view)] + rng.normal(0, 2, (per_view, 128)).astype(np.float32)
+        for _ in range(2)
+        for p in range(places)
+    ]
 
 
 def test_place_index_ranks_the_other_view_of_the_same_place_first():

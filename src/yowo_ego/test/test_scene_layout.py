@@ -1,5 +1,6 @@
 """Ground plane, vertical rectification (eq. rot_gp2w) and layout on a rendered room
 whose reconstruction starts tilted, as an ego map does before rectification."""
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -55,8 +56,13 @@ def test_layout_of_the_room(reconstruction, room):
     T_odom, points, cams, patches, small, normals = reconstruction
     n, c, support = find_floor(patches, small, normals, cams, up_from_cameras(T_odom))
     W = rectify(n, c, T_odom[0], support).T_world_odom
-    layout = build_layout(transform_points(W, points), transform_points(W, small), normals @ W[:3, :3].T,
-                          [p.transformed(W) for p in patches], transform_points(W, cams))
+    layout = build_layout(
+        transform_points(W, points),
+        transform_points(W, small),
+        normals @ W[:3, :3].T,
+        [p.transformed(W) for p in patches],
+        transform_points(W, cams),
+    )
     assert abs(layout.ceiling_height - room.spec.ceiling_height) < 0.05
     walls = [p for p in layout.planes if p.kind == KIND_WALL]
     assert len(walls) >= 4 and sum(p.kind == KIND_CEILING for p in layout.planes) == 1
@@ -87,6 +93,7 @@ def test_the_floor_is_the_plane_most_points_lie_on_not_the_largest_patch():
 
     def patch(n, c, count):
         return PlanarPatch(np.asarray(n, float), np.asarray(c, float), float(-np.dot(n, c)), np.tile(c, (4, 1)), count)
+
     patches = [patch(slab_n, [5.0, 3.0, 0.4], 800), patch([0.0, 0.0, 1.0], [2.0, 2.0, 0.0], 300)]
     n, c, support = find_floor(patches, points, normals, cams, np.array([0.05, 0.0, 1.0]))
     assert np.degrees(np.arccos(min(1.0, n[2]))) < 0.5 and abs(c @ n) < 0.01, (n, c)

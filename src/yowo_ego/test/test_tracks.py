@@ -1,5 +1,6 @@
 """Epipolar and depth/triangulation consistency filter; multi-view tracks; the
 PnP check of tracking edges."""
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -21,7 +22,7 @@ def scene(n=300, seed=0):
     rng = np.random.default_rng(seed)
     uv = rng.uniform([40, 40], [600, 440], (n, 2))
     z = rng.uniform(1.2, 5.0, n)
-    return np.column_stack([(uv - K[:2, 2]) / 457.0, np.ones(n)]) * z[:, None]   # in camera a = world
+    return np.column_stack([(uv - K[:2, 2]) / 457.0, np.ones(n)]) * z[:, None]  # in camera a = world
 
 
 T_A = np.eye(4)
@@ -49,7 +50,7 @@ def test_wrong_matches_on_the_epipolar_line_are_rejected_by_depth():
     # The poses carry a multiway-registration-sized error (5 mm, 0.1 deg).
     T_B_est = T_B @ se3(Rotation.from_euler("y", 0.1, degrees=True).as_matrix(), [0.005, 0.0, 0.0])
     result = filter_matches(noisy_a, noisy_b, depth_a, depth_b, T_A, T_B_est, K)
-    assert result.epipolar_rejected <= 0.02 * n          # none of them is off the epipolar line
+    assert result.epipolar_rejected <= 0.02 * n  # none of them is off the epipolar line
     assert not result.keep[wrong].any()
     assert result.keep[~wrong].mean() > 0.97
     assert result.depth_rejected >= wrong.sum()
@@ -80,11 +81,13 @@ def test_pure_rotation_wrong_matches_are_rejected_by_the_depth_transfer():
 
 
 def test_tracks_chain_matches_and_drop_conflicts():
-    pairs = [(0, 1, np.array([[0, 0], [1, 1]])),
-             (1, 2, np.array([[0, 5], [1, 6]])),
-             (0, 2, np.array([[0, 7]]))]           # feature 0 of kf 0 matched to 5 and 7 of kf 2
+    pairs = [
+        (0, 1, np.array([[0, 0], [1, 1]])),
+        (1, 2, np.array([[0, 5], [1, 6]])),
+        (0, 2, np.array([[0, 7]])),
+    ]  # feature 0 of kf 0 matched to 5 and 7 of kf 2
     tracks = build_tracks(pairs, [3, 3, 8])
-    assert tracks.count == 1                       # the conflicting track is dropped
+    assert tracks.count == 1  # the conflicting track is dropped
     assert sorted(zip(tracks.keyframe.tolist(), tracks.feature.tolist())) == [(0, 1), (1, 1), (2, 6)]
 
 
@@ -96,22 +99,25 @@ def test_tracking_edge_is_checked_against_pnp():
     feats = []
     for T in (T_A, T_B):
         uv, z = project(T, X)
-        feats.append(KeyframeFeatures(uv + rng.normal(0, 0.3, uv.shape), rng.normal(size=(300, 128)).astype(np.float32),
-                                      z))
-    feats[1].descriptors[:] = feats[0].descriptors                  # every point matches its twin
+        feats.append(
+            KeyframeFeatures(uv + rng.normal(0, 0.3, uv.shape), rng.normal(size=(300, 128)).astype(np.float32), z)
+        )
+    feats[1].descriptors[:] = feats[0].descriptors  # every point matches its twin
     m = match(feats[0], feats[1])
     assert len(m) == 300
     pair = PairMatches(0, 1, m, relative_pose(feats[0], feats[1], m, K))
     blank = np.zeros((240, 320, 3), np.uint8), np.zeros((240, 320), np.uint16)
     kfs = [Keyframe(i, i, i, np.eye(4), *blank, 0) for i in range(2)]
     odometry = RgbdOdometry(K)
-    T_true = inv_se3(T_A) @ T_B                                     # T_a_b
+    T_true = inv_se3(T_A) @ T_B  # T_a_b
     wrong = T_true @ se3(Rotation.from_euler("x", 2.0, degrees=True).as_matrix(), [0.0, 0.03, 0.0])
-    fixed, replaced = verify_edge(OdometryEdge(1, 0, wrong, np.eye(6), "odometry"), pair, feats, kfs, odometry,
-                                  LoopParams())
+    fixed, replaced = verify_edge(
+        OdometryEdge(1, 0, wrong, np.eye(6), "odometry"), pair, feats, kfs, odometry, LoopParams()
+    )
     assert replaced
     assert np.linalg.norm(fixed.T_target_source[:3, 3] - T_true[:3, 3]) < 0.005
     assert rotation_angle_deg(fixed.T_target_source[:3, :3], T_true[:3, :3]) < 0.1
-    kept, replaced = verify_edge(OdometryEdge(1, 0, T_true, np.eye(6), "odometry"), pair, feats, kfs, odometry,
-                                 LoopParams())
+    kept, replaced = verify_edge(
+        OdometryEdge(1, 0, T_true, np.eye(6), "odometry"), pair, feats, kfs, odometry, LoopParams()
+    )
     assert not replaced and kept.T_target_source is T_true

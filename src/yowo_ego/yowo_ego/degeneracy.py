@@ -16,6 +16,7 @@ degeneracy of optimization-based state estimation problems" (ICRA 2016).
 Perturbations are on the left, in the target (keyframe) frame: T' = exp(d) T, with
 d = (rotation, translation) as Open3D's and GTSAM's tangent order; rotations are
 compared with translations at ``length_m`` (1 rad ~ length_m metres)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -28,11 +29,11 @@ import numpy as np
 @dataclass(frozen=True)
 class DegeneracyParams:
     enabled: bool = True
-    depth_sigma_m: float = 0.005         # point-to-plane residual (sensor noise plus normal errors)
-    intensity_sigma: float = 0.02        # grey level in [0, 1] (sensor noise, shading between views)
-    correspondence_m: float = 0.07       # depth difference beyond which a pixel has no correspondence
-    stride: int = 4                      # every stride-th pixel (each way) of the odometry images
-    length_m: float = 1.0                # rotation vs translation scale
+    depth_sigma_m: float = 0.005  # point-to-plane residual (sensor noise plus normal errors)
+    intensity_sigma: float = 0.02  # grey level in [0, 1] (sensor noise, shading between views)
+    correspondence_m: float = 0.07  # depth difference beyond which a pixel has no correspondence
+    stride: int = 4  # every stride-th pixel (each way) of the odometry images
+    length_m: float = 1.0  # rotation vs translation scale
     # A direction whose information leaves more than this sigma per tracked step is
     # degenerate (a step is ~7 cm of walking). The pixels' errors are taken as independent,
     # so the sigmas are optimistic: rooms, bare-walled ones too (small texture_poor), give
@@ -43,7 +44,7 @@ class DegeneracyParams:
 def depth_points(depth_mm: np.ndarray, K: np.ndarray, stride: int) -> tuple[np.ndarray, np.ndarray]:
     """(points (h, w, 3) camera frame, valid (h, w)) of every stride-th pixel."""
     z = depth_mm[::stride, ::stride].astype(float) / 1000.0
-    v, u = np.mgrid[0:depth_mm.shape[0]:stride, 0:depth_mm.shape[1]:stride].astype(float)
+    v, u = np.mgrid[0 : depth_mm.shape[0] : stride, 0 : depth_mm.shape[1] : stride].astype(float)
     P = np.dstack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z])
     return P, z > 0
 
@@ -52,9 +53,15 @@ def _gray(color: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(color, cv2.COLOR_RGB2GRAY).astype(np.float32) / 255.0
 
 
-def motion_information(source_color: np.ndarray, source_depth_mm: np.ndarray, target_color: np.ndarray,
-                       target_depth_mm: np.ndarray, K: np.ndarray, T_target_source: np.ndarray,
-                       params: DegeneracyParams = DegeneracyParams()) -> np.ndarray:
+def motion_information(
+    source_color: np.ndarray,
+    source_depth_mm: np.ndarray,
+    target_color: np.ndarray,
+    target_depth_mm: np.ndarray,
+    K: np.ndarray,
+    T_target_source: np.ndarray,
+    params: DegeneracyParams = DegeneracyParams(),
+) -> np.ndarray:
     """6x6 information (rotation scaled by ``length_m``, then translation) of the
     depth and intensity terms at T_target_source, odometry-resolution images with
     intrinsics K."""
@@ -76,10 +83,12 @@ def motion_information(source_color: np.ndarray, source_depth_mm: np.ndarray, ta
     P, u, v, ui, vi = P[ok], u[ok], v[ok], ui[ok], vi[ok]
     if len(P) < 6:
         return np.zeros((6, 6))
+
     # Target normals from the neighbouring pixels' points.
     def at(du, dv):
         zz = zt[vi + dv, ui + du]
         return np.column_stack([(ui + du - K[0, 2]) / K[0, 0] * zz, (vi + dv - K[1, 2]) / K[1, 1] * zz, zz])
+
     right, left, down, up = at(1, 0), at(-1, 0), at(0, 1), at(0, -1)
     n = np.cross(right - left, down - up)
     norm = np.linalg.norm(n, axis=1)
@@ -93,8 +102,7 @@ def motion_information(source_color: np.ndarray, source_depth_mm: np.ndarray, ta
     gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)[vi, ui] / 8.0
     x, y, zz = P[:, 0], P[:, 1], P[:, 2]
     # d(intensity)/dP = g_u * du/dP + g_v * dv/dP
-    dI = np.column_stack([gx * K[0, 0] / zz, gy * K[1, 1] / zz,
-                          -(gx * K[0, 0] * x + gy * K[1, 1] * y) / zz ** 2])
+    dI = np.column_stack([gx * K[0, 0] / zz, gy * K[1, 1] / zz, -(gx * K[0, 0] * x + gy * K[1, 1] * y) / zz**2])
     # dP/d(rotation) = -[P]x : dI . (w x P) = w . (P x dI)
     J_int = np.hstack([np.cross(P, dI) / params.length_m, dI]) / params.intensity_sigma
     return J_depth.T @ J_depth + J_int.T @ J_int
@@ -104,11 +112,12 @@ def degenerate_directions(information: np.ndarray, params: DegeneracyParams = De
     """(6, k) orthonormal directions (scaled tangent) with less information than
     ``max_sigma_m`` allows."""
     values, vectors = np.linalg.eigh(information)
-    return vectors[:, values < params.max_sigma_m ** -2]
+    return vectors[:, values < params.max_sigma_m**-2]
 
 
-def remap_degenerate(T_est: np.ndarray, T_pred: np.ndarray, information: np.ndarray,
-                     params: DegeneracyParams = DegeneracyParams()) -> tuple[np.ndarray, int]:
+def remap_degenerate(
+    T_est: np.ndarray, T_pred: np.ndarray, information: np.ndarray, params: DegeneracyParams = DegeneracyParams()
+) -> tuple[np.ndarray, int]:
     """T_est with its component along the degenerate directions replaced by the
     prediction's; (pose, number of degenerate directions)."""
     D = degenerate_directions(information, params)

@@ -6,6 +6,7 @@ arrive in no common order: rclpy's executor takes one message per subscription i
 turn, so the 200 Hz IMU falls seconds behind the frames of a fast replay); frames the
 IMU never covers are tracked without it at the end of the stream. No bound in stream
 time: it would make the result depend on timing (a replay gives the same map every run)."""
+
 from __future__ import annotations
 
 from collections import deque
@@ -62,8 +63,7 @@ class EgoMapperNode(StageNode):
         self.imu_topic = self.declare_parameter("imu_topic", "").value
         self.gyro_topic = self.declare_parameter("gyro_topic", "").value
         self.accel_topic = self.declare_parameter("accel_topic", "").value
-        self.imu_calibration_topic = self.declare_parameter("imu_calibration_topic",
-                                                            topics.EGO_IMU_CALIBRATION).value
+        self.imu_calibration_topic = self.declare_parameter("imu_calibration_topic", topics.EGO_IMU_CALIBRATION).value
         # The calibration as text (Kalibr's keys), when the planner found it elsewhere than on
         # imu_calibration_topic (Kalibr files, /tf_static).
         imu_calibration = self.declare_parameter("imu_calibration", "").value
@@ -76,7 +76,7 @@ class EgoMapperNode(StageNode):
         self.mapper: EgoMapper | None = None
         self.info_problem = ""
         self.early: list[tuple[int, object, object]] = []
-        self.early_dropped = 0                   # frames beyond MAX_EARLY_FRAMES before the first CameraInfo
+        self.early_dropped = 0  # frames beyond MAX_EARLY_FRAMES before the first CameraInfo
         self.pairer = StampPairer()
         # Decoding, undistorting and downsampling a frame (EgoMapper.prepare) on a thread of its
         # own overlaps the previous frame's tracking (OpenCV and Open3D release the GIL);
@@ -92,10 +92,16 @@ class EgoMapperNode(StageNode):
         self.pub_layout = self.output(SceneLayout, topics.LAYOUT, LATCHED)
         image_type = lambda t: CompressedImage if t.endswith(("/compressed", "/compressedDepth")) else Image  # noqa: E731
         self.stream_input(CameraInfo, self.info_topic, self.on_info)
-        self.stream_input(image_type(self.color_topic), self.color_topic,
-                          lambda m: self.on_waiting(self.pairer.add_color(stamp_to_ns(m.header.stamp), m)))
-        self.stream_input(image_type(self.depth_topic), self.depth_topic,
-                          lambda m: self.on_waiting(self.pairer.add_depth(stamp_to_ns(m.header.stamp), m)))
+        self.stream_input(
+            image_type(self.color_topic),
+            self.color_topic,
+            lambda m: self.on_waiting(self.pairer.add_color(stamp_to_ns(m.header.stamp), m)),
+        )
+        self.stream_input(
+            image_type(self.depth_topic),
+            self.depth_topic,
+            lambda m: self.on_waiting(self.pairer.add_depth(stamp_to_ns(m.header.stamp), m)),
+        )
         if self.imu is not None:
             if self.imu_topic:
                 self.stream_input(Imu, self.imu_topic, self.on_imu)
@@ -132,7 +138,7 @@ class EgoMapperNode(StageNode):
             except ValueError as exc:
                 self.imu_problem = f"{exc}; the IMU is not used"
                 self.get_logger().error(self.imu_problem)
-                self.wait.imu = None        # nothing to wait for
+                self.wait.imu = None  # nothing to wait for
         self.on_pairs(self.wait.ready())
 
     def on_waiting(self, pairs) -> None:
@@ -156,8 +162,10 @@ class EgoMapperNode(StageNode):
             self.early += pairs
             if len(self.early) > MAX_EARLY_FRAMES:
                 if not self.early_dropped:
-                    self.get_logger().warning(f"no usable {self.info_topic} yet: keeping the last {MAX_EARLY_FRAMES} "
-                                              "frames, dropping older ones")
+                    self.get_logger().warning(
+                        f"no usable {self.info_topic} yet: keeping the last {MAX_EARLY_FRAMES} "
+                        "frames, dropping older ones"
+                    )
                 self.early_dropped += len(self.early) - MAX_EARLY_FRAMES
                 self.early = self.early[-MAX_EARLY_FRAMES:]
             return
@@ -219,8 +227,7 @@ class EgoMapperNode(StageNode):
             raise error from exc
 
     def _odometry(self, result) -> Odometry:
-        msg = Odometry(header=Header(stamp=ns_to_time(result.stamp_ns), frame_id=ODOM_FRAME),
-                       child_frame_id=EGO_FRAME)
+        msg = Odometry(header=Header(stamp=ns_to_time(result.stamp_ns), frame_id=ODOM_FRAME), child_frame_id=EGO_FRAME)
         msg.pose.pose = matrix_to_pose(result.T_odom_cam)
         return msg
 
@@ -230,29 +237,36 @@ class EgoMapperNode(StageNode):
         self.preparer.shutdown()
         if self.mapper is None:
             waited = len(self.early) + self.early_dropped
-            raise ValueError(self.info_problem or f"no usable {self.info_topic} received ({waited} frame(s) waited "
-                             "for it); no ego map")
-        r = self.mapper.finish()                 # tracks a skipped frame that ends the walk
+            raise ValueError(
+                self.info_problem
+                or f"no usable {self.info_topic} received ({waited} frame(s) waited for it); no ego map"
+            )
+        r = self.mapper.finish()  # tracks a skipped frame that ends the walk
         for result in self.mapper.settled():
             self.pub_odom.publish(self._odometry(result))
         self.pub_map.publish(ego_map_msg(r))
         self.pub_path.publish(path_msg(r.stamps_ns, r.T_world_cam))
         self.pub_cloud.publish(cloud_msg(r))
         self.pub_layout.publish(layout_msg(r))
-        text = (f"{len(r.stamps_ns)} frames, {len(r.keyframe_frames)} keyframes, {len(r.landmarks)} landmarks, "
-                f"{len(r.cloud_points)} cloud points, {len(r.layout.floor_polygons)} floor polygon(s)")
-        self.mapper = None                       # published: the keyframes' images can go
+        text = (
+            f"{len(r.stamps_ns)} frames, {len(r.keyframe_frames)} keyframes, {len(r.landmarks)} landmarks, "
+            f"{len(r.cloud_points)} cloud points, {len(r.layout.floor_polygons)} floor polygon(s)"
+        )
+        self.mapper = None  # published: the keyframes' images can go
         # Input the map was made without: unpaired images (the offline reader reports the same) and the IMU.
         lost = [self.pairer.problem(self.color_topic, self.depth_topic)] if self.pairer.dropped else []
         if self.early_dropped:
-            lost.append(f"{self.early_dropped} frame(s) before the first usable {self.info_topic} dropped "
-                        f"(the last {MAX_EARLY_FRAMES} were kept)")
+            lost.append(
+                f"{self.early_dropped} frame(s) before the first usable {self.info_topic} dropped "
+                f"(the last {MAX_EARLY_FRAMES} were kept)"
+            )
         if self.imu_problem:
             lost.append(self.imu_problem)
         if self.wait.released_without:
             imu = self.imu_topic or f"{self.gyro_topic} with {self.accel_topic}"
-            lost.append(f"{self.wait.released_without} frame(s) tracked without the IMU: {imu} did not "
-                        "cover their stamps")
+            lost.append(
+                f"{self.wait.released_without} frame(s) tracked without the IMU: {imu} did not cover their stamps"
+            )
         return "; ".join([text, *r.warnings, *lost])
 
 

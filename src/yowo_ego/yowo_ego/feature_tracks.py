@@ -12,6 +12,7 @@ For a match between keyframes a and b with the multiway-registration poses:
 Surviving matches are chained into multi-view tracks (union-find); a track that
 claims two keypoints of one keyframe is dropped.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -29,17 +30,17 @@ from .features import backproject
 @dataclass(frozen=True)
 class FilterParams:
     epipolar_px: float = 2.5
-    depth_abs_m: float = 0.05            # plus depth_rel * z: depth noise and pose error
+    depth_abs_m: float = 0.05  # plus depth_rel * z: depth noise and pose error
     depth_rel: float = 0.02
-    keypoint_sigma_px: float = 1.0       # for the triangulation uncertainty
+    keypoint_sigma_px: float = 1.0  # for the triangulation uncertainty
     triangulation_k: float = 3.0
     transfer_px: float = 4.0
-    min_translation_m: float = 1e-3      # below this the epipolar geometry is undefined
+    min_translation_m: float = 1e-3  # below this the epipolar geometry is undefined
 
 
 @dataclass
 class FilterResult:
-    keep: np.ndarray                     # (M,) bool
+    keep: np.ndarray  # (M,) bool
     epipolar_rejected: int
     depth_rejected: int
 
@@ -54,9 +55,16 @@ def sampson_px(F: np.ndarray, uv_a: np.ndarray, uv_b: np.ndarray) -> np.ndarray:
     return np.sqrt(num / np.maximum(den, 1e-30))
 
 
-def filter_matches(uv_a: np.ndarray, uv_b: np.ndarray, depth_a: np.ndarray, depth_b: np.ndarray,
-                   T_world_a: np.ndarray, T_world_b: np.ndarray, K: np.ndarray,
-                   params: FilterParams = FilterParams()) -> FilterResult:
+def filter_matches(
+    uv_a: np.ndarray,
+    uv_b: np.ndarray,
+    depth_a: np.ndarray,
+    depth_b: np.ndarray,
+    T_world_a: np.ndarray,
+    T_world_b: np.ndarray,
+    K: np.ndarray,
+    params: FilterParams = FilterParams(),
+) -> FilterResult:
     """Which matches (undistorted pixels, depth NaN = none) pass the epipolar and
     depth-consistency checks for the given camera poses."""
     n = len(uv_a)
@@ -92,8 +100,10 @@ def filter_matches(uv_a: np.ndarray, uv_b: np.ndarray, depth_a: np.ndarray, dept
             err = np.linalg.norm(X_tri - X_d, axis=1)
         depth_ok &= ~has | ~np.isfinite(err) | (err <= thr)
     # Transfer: a's depth point seen from b lands on b's keypoint (and vice versa).
-    for uv_s, depth_s, T_ws, uv_t, T_wt in ((uv_a, depth_a, T_world_a, uv_b, T_world_b),
-                                           (uv_b, depth_b, T_world_b, uv_a, T_world_a)):
+    for uv_s, depth_s, T_ws, uv_t, T_wt in (
+        (uv_a, depth_a, T_world_a, uv_b, T_world_b),
+        (uv_b, depth_b, T_world_b, uv_a, T_world_a),
+    ):
         has = np.isfinite(depth_s)
         X = transform_points(inv_se3(T_wt) @ T_ws, backproject(uv_s, np.where(has, depth_s, 1.0), K))
         front = X[:, 2] > 1e-6
@@ -107,9 +117,9 @@ def filter_matches(uv_a: np.ndarray, uv_b: np.ndarray, depth_a: np.ndarray, dept
 class Tracks:
     """Multi-view tracks: observation arrays (parallel) grouped by track id."""
 
-    keyframe: np.ndarray                 # (M,) keyframe index of each observation
-    feature: np.ndarray                  # (M,) feature index within that keyframe
-    track: np.ndarray                    # (M,) track id, 0..T-1
+    keyframe: np.ndarray  # (M,) keyframe index of each observation
+    feature: np.ndarray  # (M,) feature index within that keyframe
+    track: np.ndarray  # (M,) track id, 0..T-1
 
     @property
     def count(self) -> int:

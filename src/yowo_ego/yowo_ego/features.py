@@ -3,6 +3,7 @@ SuperPoint/SuperGlue/LoFTR replaced by OpenCV SIFT with the ratio test and a
 mutual check, which needs no network and handles the viewpoint changes of a
 head-mounted camera), and the relative pose of two keyframes from matches with
 depth (PnP RANSAC), used for loop closures and for re-tracking after fast turns."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -17,9 +18,9 @@ from yowo_common.pnp import sqpnp_ransac
 @dataclass(frozen=True)
 class FeatureParams:
     max_features: int = 1000
-    ratio: float = 0.8                  # Lowe's ratio test
-    depth_edge_ratio: float = 0.03      # keypoints on depth discontinuities get no depth
-    pnp_px: float = 3.0                 # PnP RANSAC reprojection threshold
+    ratio: float = 0.8  # Lowe's ratio test
+    depth_edge_ratio: float = 0.03  # keypoints on depth discontinuities get no depth
+    pnp_px: float = 3.0  # PnP RANSAC reprojection threshold
     pnp_min_inliers: int = 25
 
 
@@ -27,9 +28,9 @@ class FeatureParams:
 class KeyframeFeatures:
     """Keypoints of one image in undistorted pixels, their SIFT descriptors and depth."""
 
-    uv: np.ndarray            # (N, 2) float
-    descriptors: np.ndarray   # (N, 128) uint8: OpenCV's SIFT values are integers (4x less than float32)
-    depth: np.ndarray         # (N,) metres, NaN where the depth is missing or on an edge
+    uv: np.ndarray  # (N, 2) float
+    descriptors: np.ndarray  # (N, 128) uint8: OpenCV's SIFT values are integers (4x less than float32)
+    depth: np.ndarray  # (N,) metres, NaN where the depth is missing or on an edge
 
     def __len__(self) -> int:
         return len(self.uv)
@@ -49,8 +50,10 @@ def sample_depth(depth: np.ndarray, uv: np.ndarray, edge_ratio: float) -> np.nda
     y = np.clip(uv[:, 1], v - 0.5, v + 0.5)
     x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
     fx, fy = x - x0, y - y0
-    z = ((1 - fy) * ((1 - fx) * depth[y0, x0] + fx * depth[y0, x0 + 1])
-         + fy * ((1 - fx) * depth[y0 + 1, x0] + fx * depth[y0 + 1, x0 + 1])).astype(float)
+    z = (
+        (1 - fy) * ((1 - fx) * depth[y0, x0] + fx * depth[y0, x0 + 1])
+        + fy * ((1 - fx) * depth[y0 + 1, x0] + fx * depth[y0 + 1, x0 + 1])
+    ).astype(float)
     with np.errstate(invalid="ignore"):
         spread = np.ptp(patch, axis=1)
         bad = ~np.isfinite(spread) | (spread > edge_ratio * z) | ~(z > 0)
@@ -88,8 +91,7 @@ def match(a: KeyframeFeatures, b: KeyframeFeatures, ratio: float = 0.8) -> np.nd
     if len(a) < 2 or len(b) < 2:
         return np.zeros((0, 2), int)
     da, db = a.descriptors.astype(np.float32), b.descriptors.astype(np.float32)
-    d2 = (da * da).sum(1)[:, None] + (db * db).sum(1)[None, :] - cv2.gemm(da, db, 2.0, None, 0.0,
-                                                                            flags=cv2.GEMM_2_T)
+    d2 = (da * da).sum(1)[:, None] + (db * db).sum(1)[None, :] - cv2.gemm(da, db, 2.0, None, 0.0, flags=cv2.GEMM_2_T)
     np.maximum(d2, 0.0, out=d2)
     i, j = np.arange(len(da)), np.arange(len(db))
     nn_ab, nn_ba = d2.argmin(axis=1), d2.argmin(axis=0)
@@ -112,12 +114,17 @@ def backproject(uv: np.ndarray, depth: np.ndarray, K: np.ndarray) -> np.ndarray:
 
 @dataclass
 class PnpResult:
-    T_b_a: np.ndarray         # maps points of keyframe a into keyframe b
-    inliers: np.ndarray       # indices into the matches passed in
+    T_b_a: np.ndarray  # maps points of keyframe a into keyframe b
+    inliers: np.ndarray  # indices into the matches passed in
 
 
-def relative_pose(a: KeyframeFeatures, b: KeyframeFeatures, matches: np.ndarray, K: np.ndarray,
-                  params: FeatureParams = FeatureParams()) -> PnpResult | None:
+def relative_pose(
+    a: KeyframeFeatures,
+    b: KeyframeFeatures,
+    matches: np.ndarray,
+    K: np.ndarray,
+    params: FeatureParams = FeatureParams(),
+) -> PnpResult | None:
     """T_b_a from a's keypoints lifted with a's depth and their matches in b (PnP
     RANSAC); None when too few inliers support it."""
     ok = np.isfinite(a.depth[matches[:, 0]]) if len(matches) else np.zeros(0, bool)
@@ -136,8 +143,9 @@ def relative_pose(a: KeyframeFeatures, b: KeyframeFeatures, matches: np.ndarray,
     return PnpResult(T, idx[inl])
 
 
-def support(a: KeyframeFeatures, b: KeyframeFeatures, matches: np.ndarray, T_b_a: np.ndarray, K: np.ndarray,
-            px: float = 3.0) -> int:
+def support(
+    a: KeyframeFeatures, b: KeyframeFeatures, matches: np.ndarray, T_b_a: np.ndarray, K: np.ndarray, px: float = 3.0
+) -> int:
     """How many matches (with depth in a) reproject within ``px`` under T_b_a."""
     if len(matches) == 0:
         return 0
@@ -148,8 +156,14 @@ def support(a: KeyframeFeatures, b: KeyframeFeatures, matches: np.ndarray, T_b_a
     return int(np.sum(front & (np.linalg.norm(uv - b.uv[matches[ok, 1]], axis=1) <= px)))
 
 
-def pose_from_images(gray_src: np.ndarray, depth_src: np.ndarray, gray_tgt: np.ndarray, depth_tgt: np.ndarray,
-                     K: np.ndarray, extractor: FeatureExtractor) -> np.ndarray | None:
+def pose_from_images(
+    gray_src: np.ndarray,
+    depth_src: np.ndarray,
+    gray_tgt: np.ndarray,
+    depth_tgt: np.ndarray,
+    K: np.ndarray,
+    extractor: FeatureExtractor,
+) -> np.ndarray | None:
     """T_target_source of two raw images, or None."""
     fs, ft = extractor(gray_src, depth_src), extractor(gray_tgt, depth_tgt)
     r = relative_pose(ft, fs, match(ft, fs, extractor.params.ratio), K, extractor.params)

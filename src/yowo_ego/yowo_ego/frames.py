@@ -6,6 +6,7 @@ TSDF fusion and the projection factors of the bundle adjustment all see the
 same ideal camera. Observations handed to other stages are mapped back to raw
 pixels with ``CameraModel.project``.
 """
+
 from __future__ import annotations
 
 from collections import OrderedDict
@@ -28,7 +29,7 @@ MAX_MEDIAN_DEPTH_M = 50.0
 # texture_poor s1 without the IMU: 36 such frames, ego ATE 0.65 -> 0.35 m when kept;
 # a single plane's unobserved directions take the motion prediction, yowo_ego.degeneracy).
 MIN_TEXTURED_FRACTION = 0.01
-TEXTURE_MIN_GRADIENT = 8.0   # grey levels per pixel at 1/4 resolution (sensor noise averages out)
+TEXTURE_MIN_GRADIENT = 8.0  # grey levels per pixel at 1/4 resolution (sensor noise averages out)
 
 
 class FrameError(ValueError):
@@ -46,8 +47,8 @@ class RgbdFrame:
     """One undistorted colour + registered depth pair."""
 
     stamp_ns: int
-    color: np.ndarray   # H x W x 3 uint8 RGB
-    depth: np.ndarray   # H x W float32 metres, NaN = invalid
+    color: np.ndarray  # H x W x 3 uint8 RGB
+    depth: np.ndarray  # H x W float32 metres, NaN = invalid
 
 
 def pinhole(camera: CameraModel) -> CameraModel:
@@ -65,11 +66,11 @@ class Undistorter:
         if camera.has_distortion:
             size = (camera.width, camera.height)
             if camera.distortion_model == EQUIDISTANT:
-                self._maps = cv2.fisheye.initUndistortRectifyMap(camera.K, camera.D[:4], np.eye(3), camera.K,
-                                                                 size, cv2.CV_32FC1)
+                self._maps = cv2.fisheye.initUndistortRectifyMap(
+                    camera.K, camera.D[:4], np.eye(3), camera.K, size, cv2.CV_32FC1
+                )
             else:
-                self._maps = cv2.initUndistortRectifyMap(camera.K, camera.D, np.eye(3), camera.K, size,
-                                                         cv2.CV_32FC1)
+                self._maps = cv2.initUndistortRectifyMap(camera.K, camera.D, np.eye(3), camera.K, size, cv2.CV_32FC1)
 
     def __call__(self, color: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if self._maps is None:
@@ -85,38 +86,68 @@ def textured_fraction(color: np.ndarray) -> float:
     1/4-resolution image (block means suppress sensor noise and JPEG artefacts;
     smooth shading does not count)."""
     gray = cv2.cvtColor(color, cv2.COLOR_RGB2GRAY)
-    small = cv2.resize(gray, (max(1, gray.shape[1] // 4), max(1, gray.shape[0] // 4)),
-                       interpolation=cv2.INTER_AREA).astype(np.float32)
+    small = cv2.resize(
+        gray, (max(1, gray.shape[1] // 4), max(1, gray.shape[0] // 4)), interpolation=cv2.INTER_AREA
+    ).astype(np.float32)
     gx = cv2.Sobel(small, cv2.CV_32F, 1, 0, ksize=3) / 8.0
     gy = cv2.Sobel(small, cv2.CV_32F, 0, 1, ksize=3) / 8.0
     return float(np.mean(np.hypot(gx, gy) > TEXTURE_MIN_GRADIENT))
 
 
-def validate_frame(color: np.ndarray, depth: np.ndarray, camera: CameraModel, color_topic: str = "colour",
-                   depth_topic: str = "depth", stamp_ns: int | None = None) -> None:
+def validate_frame(
+    color: np.ndarray,
+    depth: np.ndarray,
+    camera: CameraModel,
+    color_topic: str = "colour",
+    depth_topic: str = "depth",
+    stamp_ns: int | None = None,
+) -> None:
     """Raise FrameError naming the topic (and the frame's stamp) when a frame cannot be used."""
     if color.ndim != 3 or color.shape[2] != 3 or color.dtype != np.uint8:
-        raise FrameError(color_topic, "expected an H x W x 3 uint8 image", f", got {color.shape} {color.dtype}",
-                         stamp_ns)
+        raise FrameError(
+            color_topic, "expected an H x W x 3 uint8 image", f", got {color.shape} {color.dtype}", stamp_ns
+        )
     if (color.shape[1], color.shape[0]) != (camera.width, camera.height):
-        raise FrameError(color_topic, "image size differs from CameraInfo",
-                         f": {color.shape[1]}x{color.shape[0]} vs {camera.width}x{camera.height}", stamp_ns)
+        raise FrameError(
+            color_topic,
+            "image size differs from CameraInfo",
+            f": {color.shape[1]}x{color.shape[0]} vs {camera.width}x{camera.height}",
+            stamp_ns,
+        )
     if depth.shape != color.shape[:2]:
-        raise FrameError(depth_topic, "depth size differs from colour (depth must be registered to colour)",
-                         f": {depth.shape[1]}x{depth.shape[0]} vs {color.shape[1]}x{color.shape[0]}", stamp_ns)
+        raise FrameError(
+            depth_topic,
+            "depth size differs from colour (depth must be registered to colour)",
+            f": {depth.shape[1]}x{depth.shape[0]} vs {color.shape[1]}x{color.shape[0]}",
+            stamp_ns,
+        )
     valid = np.isfinite(depth) & (depth > 0)
     if valid.mean() < MIN_VALID_DEPTH_FRACTION:
-        raise FrameError(depth_topic, f"too few valid depth pixels (need {100 * MIN_VALID_DEPTH_FRACTION:.0f} %)",
-                         f": {100 * valid.mean():.1f} %", stamp_ns)
+        raise FrameError(
+            depth_topic,
+            f"too few valid depth pixels (need {100 * MIN_VALID_DEPTH_FRACTION:.0f} %)",
+            f": {100 * valid.mean():.1f} %",
+            stamp_ns,
+        )
     median = float(np.median(depth[valid]))
     if median > MAX_MEDIAN_DEPTH_M:
-        raise FrameError(depth_topic, "depth beyond any RGB-D sensor's range (millimetres in an image of metres? "
-                         "32FC1 depth holds metres)", f": median {median:.0f}", stamp_ns)
+        raise FrameError(
+            depth_topic,
+            "depth beyond any RGB-D sensor's range (millimetres in an image of metres? 32FC1 depth holds metres)",
+            f": median {median:.0f}",
+            stamp_ns,
+        )
 
 
-def make_frame(stamp_ns: int, color: np.ndarray, depth: np.ndarray, camera: CameraModel,
-               undistort: Undistorter | None = None, color_topic: str = "colour",
-               depth_topic: str = "depth") -> RgbdFrame:
+def make_frame(
+    stamp_ns: int,
+    color: np.ndarray,
+    depth: np.ndarray,
+    camera: CameraModel,
+    undistort: Undistorter | None = None,
+    color_topic: str = "colour",
+    depth_topic: str = "depth",
+) -> RgbdFrame:
     """Validate and undistort one decoded pair (depth in metres, NaN or 0 = invalid)."""
     depth = np.asarray(depth, dtype=np.float32)
     validate_frame(color, depth, camera, color_topic, depth_topic, stamp_ns)
@@ -150,9 +181,11 @@ class StampPairer:
         if not self.dropped:
             return ""
         stream, stamp = self.first_dropped
-        return (f"{self.dropped} {color_topic} / {depth_topic} image(s) without a partner within "
-                f"{self.tolerance_ns / 1e6:g} ms dropped, the first: "
-                f"{color_topic if stream == 'colour' else depth_topic} @ {stamp} ns")
+        return (
+            f"{self.dropped} {color_topic} / {depth_topic} image(s) without a partner within "
+            f"{self.tolerance_ns / 1e6:g} ms dropped, the first: "
+            f"{color_topic if stream == 'colour' else depth_topic} @ {stamp} ns"
+        )
 
     def _drop(self, queue: OrderedDict, stamp_ns: int) -> None:
         del queue[stamp_ns]

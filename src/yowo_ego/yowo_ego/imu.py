@@ -16,6 +16,7 @@ and read by the tracker: appends go into a pre-allocated array under a lock, and
 rotation only ever uses the samples up to the first one at or after its end stamp,
 so it does not depend on how far ahead the appending is once the interval is covered.
 """
+
 from __future__ import annotations
 
 import threading
@@ -41,15 +42,17 @@ MAX_BIAS_ERROR_RADPS = np.radians(2.0)
 class ImuSamples:
     """IMU samples in the IMU's own frame, stamps strictly increasing."""
 
-    stamps_ns: np.ndarray    # (N,) int64
-    gyro: np.ndarray         # (N, 3) angular velocity [rad/s]
-    accel: np.ndarray        # (N, 3) specific force [m/s^2]
+    stamps_ns: np.ndarray  # (N,) int64
+    gyro: np.ndarray  # (N, 3) angular velocity [rad/s]
+    accel: np.ndarray  # (N, 3) specific force [m/s^2]
 
     def __post_init__(self):
         n = len(self.stamps_ns)
         if np.shape(self.gyro) != (n, 3) or np.shape(self.accel) != (n, 3):
-            raise ValueError(f"IMU samples: {n} stamps but gyro {np.shape(self.gyro)}, accel "
-                             f"{np.shape(self.accel)} (expected ({n}, 3))")
+            raise ValueError(
+                f"IMU samples: {n} stamps but gyro {np.shape(self.gyro)}, accel "
+                f"{np.shape(self.accel)} (expected ({n}, 3))"
+            )
         if n > 1 and not np.all(np.diff(self.stamps_ns) > 0):
             raise ValueError("IMU samples: stamps are not strictly increasing")
 
@@ -61,10 +64,10 @@ class ImuCalibration:
     optical frame; timeshift_cam_imu: t_imu = t_cam + shift."""
 
     T_cam_imu: np.ndarray
-    gyroscope_noise_density: float       # rad/s/sqrt(Hz)
-    gyroscope_random_walk: float         # rad/s^2/sqrt(Hz)
-    accelerometer_noise_density: float   # m/s^2/sqrt(Hz)
-    accelerometer_random_walk: float     # m/s^3/sqrt(Hz)
+    gyroscope_noise_density: float  # rad/s/sqrt(Hz)
+    gyroscope_random_walk: float  # rad/s^2/sqrt(Hz)
+    accelerometer_noise_density: float  # m/s^2/sqrt(Hz)
+    accelerometer_random_walk: float  # m/s^3/sqrt(Hz)
     update_rate_hz: float
     timeshift_cam_imu_s: float = 0.0
 
@@ -78,9 +81,18 @@ class ImuCalibration:
             raise ValueError(f"{topic}: not YAML: {exc}") from exc
         if not isinstance(doc, dict):
             raise ValueError(f"{topic}: expected a YAML mapping, got {type(doc).__name__}")
-        missing = [k for k in ("T_cam_imu", "gyroscope_noise_density", "gyroscope_random_walk",
-                               "accelerometer_noise_density", "accelerometer_random_walk", "update_rate")
-                   if k not in doc]
+        missing = [
+            k
+            for k in (
+                "T_cam_imu",
+                "gyroscope_noise_density",
+                "gyroscope_random_walk",
+                "accelerometer_noise_density",
+                "accelerometer_random_walk",
+                "update_rate",
+            )
+            if k not in doc
+        ]
         if missing:
             raise ValueError(f"{topic}: missing {', '.join(missing)}")
         try:
@@ -90,10 +102,15 @@ class ImuCalibration:
         if T.shape != (4, 4) or not np.isfinite(T).all():
             raise ValueError(f"{topic}: T_cam_imu must be a finite 4x4 matrix, got shape {T.shape}")
         R = T[:3, :3]
-        if (not np.allclose(T[3], (0.0, 0.0, 0.0, 1.0)) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6)
-                or np.linalg.det(R) < 0):
-            raise ValueError(f"{topic}: T_cam_imu is not a rigid transform (rotation block not orthonormal "
-                             "with det +1, or last row not 0 0 0 1)")
+        if (
+            not np.allclose(T[3], (0.0, 0.0, 0.0, 1.0))
+            or not np.allclose(R @ R.T, np.eye(3), atol=1e-6)
+            or np.linalg.det(R) < 0
+        ):
+            raise ValueError(
+                f"{topic}: T_cam_imu is not a rigid transform (rotation block not orthonormal "
+                "with det +1, or last row not 0 0 0 1)"
+            )
 
         def number(key: str, default=None, positive: bool = False) -> float:
             value = doc.get(key, default)
@@ -110,9 +127,15 @@ class ImuCalibration:
             shift = float(shift)
         except (TypeError, ValueError):
             raise ValueError(f"{topic}: timeshift_cam_imu must be a number, got {shift!r}") from None
-        return ImuCalibration(T, number("gyroscope_noise_density"), number("gyroscope_random_walk"),
-                              number("accelerometer_noise_density"), number("accelerometer_random_walk"),
-                              number("update_rate", positive=True), shift)
+        return ImuCalibration(
+            T,
+            number("gyroscope_noise_density"),
+            number("gyroscope_random_walk"),
+            number("accelerometer_noise_density"),
+            number("accelerometer_random_walk"),
+            number("update_rate", positive=True),
+            shift,
+        )
 
 
 class ImuUniter:
@@ -159,7 +182,7 @@ class ImuBuffer:
     def __init__(self, calibration: ImuCalibration | None = None, capacity: int = 4096):
         self.calibration = calibration
         self.bias = np.zeros(3)
-        self.rejected = 0                 # samples not after the previous one (dropped)
+        self.rejected = 0  # samples not after the previous one (dropped)
         self._stamps = np.zeros(capacity, dtype=np.int64)
         self._data = np.zeros((capacity, 6))
         self._n = 0
@@ -173,7 +196,7 @@ class ImuBuffer:
             if self._n and stamp_ns <= self._stamps[self._n - 1]:
                 self.rejected += 1
                 return
-            if self._n == len(self._stamps):   # grow: readers keep views of the old arrays
+            if self._n == len(self._stamps):  # grow: readers keep views of the old arrays
                 self._stamps = np.concatenate([self._stamps, np.zeros_like(self._stamps)])
                 self._data = np.concatenate([self._data, np.zeros_like(self._data)])
             self._stamps[self._n] = stamp_ns
@@ -191,7 +214,7 @@ class ImuBuffer:
 
     def _view(self) -> tuple[np.ndarray, np.ndarray]:
         with self._lock:
-            return self._stamps[:self._n], self._data[:self._n]
+            return self._stamps[: self._n], self._data[: self._n]
 
     def _imu_ns(self, t_cam_ns: int) -> int:
         return int(t_cam_ns + round(self.calibration.timeshift_cam_imu_s * 1e9))
@@ -216,14 +239,14 @@ class ImuBuffer:
         if not len(stamps) or stamps[0] > a or stamps[-1] < b:
             span = f"{stamps[0]}..{stamps[-1]} ns" if len(stamps) else "none"
             raise ValueError(f"IMU samples do not cover {a}..{b} ns (have {span})")
-        i0 = int(np.searchsorted(stamps, a, side="right")) - 1     # last sample at or before a
-        i1 = int(np.searchsorted(stamps, b, side="left"))          # first at or after b
-        s = stamps[i0:i1 + 1]
+        i0 = int(np.searchsorted(stamps, a, side="right")) - 1  # last sample at or before a
+        i1 = int(np.searchsorted(stamps, b, side="left"))  # first at or after b
+        s = stamps[i0 : i1 + 1]
         gap = max(MAX_GAP_S, 5.0 / self.calibration.update_rate_hz) * 1e9
         if np.diff(s).max() > gap:
             raise ValueError(f"IMU samples have a gap of {np.diff(s).max() * 1e-9:.3f} s within {a}..{b} ns")
         knots = np.concatenate([[a], s[(s > a) & (s < b)], [b]])
-        return knots, np.column_stack([np.interp(knots, s, data[i0:i1 + 1, k]) for k in range(6)])
+        return knots, np.column_stack([np.interp(knots, s, data[i0 : i1 + 1, k]) for k in range(6)])
 
     def _imu_rotation(self, t0_ns: int, t1_ns: int) -> np.ndarray:
         """R_imu0_imu1 from the bias-corrected gyro between camera stamps t0 < t1."""
@@ -231,12 +254,13 @@ class ImuBuffer:
         w = signal[:, :3]
         steps = Rotation.from_rotvec((0.5 * (w[1:] + w[:-1]) - self.bias) * (np.diff(knots) * 1e-9)[:, None])
         R = np.eye(3)
-        for step in steps.as_matrix():     # matrix products: scipy's per-step composition cost ~1 ms a frame
+        for step in steps.as_matrix():  # matrix products: scipy's per-step composition cost ~1 ms a frame
             R = R @ step
         return R
 
-    def preintegrate(self, t0_ns: int, t1_ns: int, params: gtsam.PreintegrationCombinedParams,
-                     bias: gtsam.imuBias.ConstantBias) -> gtsam.PreintegratedCombinedMeasurements:
+    def preintegrate(
+        self, t0_ns: int, t1_ns: int, params: gtsam.PreintegrationCombinedParams, bias: gtsam.imuBias.ConstantBias
+    ) -> gtsam.PreintegratedCombinedMeasurements:
         """GTSAM's combined preintegration between camera stamps t0 < t1 of the motion
         of the camera's origin, in the IMU's orientation (``params``' body_P_sensor is
         T_cam_imu's rotation alone): the specific force is moved along the lever arm r
@@ -293,7 +317,7 @@ class CoverageWait:
     def __init__(self, imu: ImuBuffer | None, max_wait_ns: int | None):
         self.imu, self.max_wait_ns = imu, max_wait_ns
         self._held: deque = deque()
-        self.released_without = 0        # frames that went on before the IMU covered them
+        self.released_without = 0  # frames that went on before the IMU covered them
 
     def push(self, stamp_ns: int, item) -> list:
         self._held.append((stamp_ns, item))
@@ -318,14 +342,14 @@ class InertialParams:
     gravity check of the floor rectification (used when the recording has an IMU and
     ``OdometryParams.use_imu``)."""
 
-    bundle_factors: bool = True          # CombinedImuFactor between consecutive keyframes
+    bundle_factors: bool = True  # CombinedImuFactor between consecutive keyframes
     gravity_mps2: float = 9.81
     # Bias priors at each chain's first keyframe: consumer MEMS turn-on offsets (BMI055/
     # BMI088, ICM-42688: accelerometer <= 20-60 mg, gyro <= 1-3 deg/s; the tracker's running
     # gyro estimate is the prior's mean).
     accel_bias_prior_mps2: float = 0.3
     gyro_bias_prior_radps: float = 0.01
-    integration_sigma: float = 1e-4      # preintegration's position integration noise (GTSAM's term)
+    integration_sigma: float = 1e-4  # preintegration's position integration noise (GTSAM's term)
     # The map may tilt this much (a loose prior) in the bundle adjustment for the IMU's gravity.
     tilt_prior_deg: float = 5.0
     # The floor rectification's vertical and the accelerometer's gravity further apart than
@@ -338,10 +362,10 @@ class InertialTerms:
     """Preintegrated IMU between consecutive keyframes, for the bundle adjustment."""
 
     between: dict[int, gtsam.PreintegratedCombinedMeasurements]  # i -> from keyframe i to i + 1
-    stamps_s: np.ndarray                 # (K,) keyframe stamps
-    bias: gtsam.imuBias.ConstantBias     # initial estimate and prior mean (IMU frame)
+    stamps_s: np.ndarray  # (K,) keyframe stamps
+    bias: gtsam.imuBias.ConstantBias  # initial estimate and prior mean (IMU frame)
     bias_prior: gtsam.noiseModel.Base
-    up_odom: np.ndarray                  # gravity's opposite in the factors' frame (unit)
+    up_odom: np.ndarray  # gravity's opposite in the factors' frame (unit)
     tilt_prior_deg: float
     skipped: list[int] = field(default_factory=list)  # intervals the samples do not cover
 
@@ -358,24 +382,26 @@ def up_from_accelerometer(imu: ImuBuffer, stamps_ns: np.ndarray, T_odom_cam: np.
     if inside.sum() < 2 or len(stamps_ns) < 2:
         raise ValueError("the IMU samples do not overlap the ego frames")
     R = Slerp((t_imu - t_imu[0]) * 1e-9, Rotation.from_matrix(T_odom_cam[:, :3, :3]))(
-        (samples.stamps_ns[inside] - t_imu[0]) * 1e-9)
+        (samples.stamps_ns[inside] - t_imu[0]) * 1e-9
+    )
     f = R.apply(samples.accel[inside] @ cal.T_cam_imu[:3, :3].T).mean(axis=0)
     return f / np.linalg.norm(f)
 
 
-def keyframe_preintegration(imu: ImuBuffer, stamps_ns: np.ndarray, up_odom: np.ndarray,
-                            params: InertialParams = InertialParams()) -> InertialTerms:
+def keyframe_preintegration(
+    imu: ImuBuffer, stamps_ns: np.ndarray, up_odom: np.ndarray, params: InertialParams = InertialParams()
+) -> InertialTerms:
     """GTSAM combined preintegration between each pair of consecutive keyframes, with
     the calibration's noise densities (Kalibr's are GTSAM's continuous-time ones), the
     IMU's orientation in the camera frame (the BA's body; the lever arm is applied in
     ``ImuBuffer.preintegrate``) and gravity along -``up_odom``."""
     cal = imu.calibration
     pim_params = gtsam.PreintegrationCombinedParams(-params.gravity_mps2 * np.asarray(up_odom, float))
-    pim_params.setGyroscopeCovariance(cal.gyroscope_noise_density ** 2 * np.eye(3))
-    pim_params.setAccelerometerCovariance(cal.accelerometer_noise_density ** 2 * np.eye(3))
-    pim_params.setBiasOmegaCovariance(cal.gyroscope_random_walk ** 2 * np.eye(3))
-    pim_params.setBiasAccCovariance(cal.accelerometer_random_walk ** 2 * np.eye(3))
-    pim_params.setIntegrationCovariance(params.integration_sigma ** 2 * np.eye(3))
+    pim_params.setGyroscopeCovariance(cal.gyroscope_noise_density**2 * np.eye(3))
+    pim_params.setAccelerometerCovariance(cal.accelerometer_noise_density**2 * np.eye(3))
+    pim_params.setBiasOmegaCovariance(cal.gyroscope_random_walk**2 * np.eye(3))
+    pim_params.setBiasAccCovariance(cal.accelerometer_random_walk**2 * np.eye(3))
+    pim_params.setIntegrationCovariance(params.integration_sigma**2 * np.eye(3))
     pim_params.setBodyPSensor(gtsam.Pose3(gtsam.Rot3(cal.T_cam_imu[:3, :3]), np.zeros(3)))
     bias = gtsam.imuBias.ConstantBias(np.zeros(3), imu.bias)
     between, skipped = {}, []
@@ -384,7 +410,9 @@ def keyframe_preintegration(imu: ImuBuffer, stamps_ns: np.ndarray, up_odom: np.n
             between[i] = imu.preintegrate(int(stamps_ns[i]), int(stamps_ns[i + 1]), pim_params, bias)
         except ValueError:
             skipped.append(i)
-    prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([params.accel_bias_prior_mps2] * 3
-                                                      + [params.gyro_bias_prior_radps] * 3))
-    return InertialTerms(between, np.asarray(stamps_ns) * 1e-9, bias, prior, np.asarray(up_odom, float),
-                         params.tilt_prior_deg, skipped)
+    prior = gtsam.noiseModel.Diagonal.Sigmas(
+        np.array([params.accel_bias_prior_mps2] * 3 + [params.gyro_bias_prior_radps] * 3)
+    )
+    return InertialTerms(
+        between, np.asarray(stamps_ns) * 1e-9, bias, prior, np.asarray(up_odom, float), params.tilt_prior_deg, skipped
+    )

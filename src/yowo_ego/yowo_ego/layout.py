@@ -13,6 +13,7 @@ opening removes thin spurs, and each remaining region becomes a polygon
 points lie on average). Rooms are assumed rectangular (Manhattan layout): the
 walls cut the region into rooms and a room observed over a good part of its
 bounding box (``room_fill_min``) is completed to that box."""
+
 from __future__ import annotations
 
 from contextlib import contextmanager
@@ -26,20 +27,20 @@ from shapely.geometry.polygon import orient
 
 from .scene import PlanarPatch
 
-KIND_OTHER, KIND_FLOOR, KIND_WALL, KIND_CEILING = 0, 1, 2, 3   # yowo_msgs/Plane kinds
+KIND_OTHER, KIND_FLOOR, KIND_WALL, KIND_CEILING = 0, 1, 2, 3  # yowo_msgs/Plane kinds
 
 
 @dataclass(frozen=True)
 class LayoutParams:
     cell_m: float = 0.05
-    floor_band_m: float = 0.15           # points from this far below the floor count
-    below_ceiling_m: float = 0.25        # ceiling points (and lamps) do not
-    default_top_m: float = 2.3           # upper bound when no ceiling was found
-    wall_from_m: float = 0.3             # points above this height block the inside test
+    floor_band_m: float = 0.15  # points from this far below the floor count
+    below_ceiling_m: float = 0.25  # ceiling points (and lamps) do not
+    default_top_m: float = 2.3  # upper bound when no ceiling was found
+    wall_from_m: float = 0.3  # points above this height block the inside test
     wall_min_points: int = 2
-    enclosing_sides: int = 3             # of the four wall directions, for unobserved floor to count
-    door_gap_m: float = 1.2              # wall pieces this far apart count as one wall (a door)
-    room_fill_min: float = 0.3           # observed fraction of a room's box for rectangle completion
+    enclosing_sides: int = 3  # of the four wall directions, for unobserved floor to count
+    door_gap_m: float = 1.2  # wall pieces this far apart count as one wall (a door)
+    room_fill_min: float = 0.3  # observed fraction of a room's box for rectangle completion
     close_m: float = 0.35
     open_m: float = 0.2
     min_area_m2: float = 1.0
@@ -47,7 +48,7 @@ class LayoutParams:
     wall_max_tilt_deg: float = 10.0
     wall_min_height_m: float = 0.6
     wall_ransac_m: float = 0.04
-    wall_min_points_plane: int = 150     # at the 6 cm sampling of the cloud: ~0.5 m^2
+    wall_min_points_plane: int = 150  # at the 6 cm sampling of the cloud: ~0.5 m^2
     wall_gap_m: float = 0.5
     max_walls: int = 60
     horizontal_max_tilt_deg: float = 10.0
@@ -57,16 +58,16 @@ class LayoutParams:
 @dataclass
 class LayoutPlane:
     kind: int
-    coefficients: np.ndarray             # (a, b, c, d), unit normal, n . p + d = 0
-    boundary: np.ndarray                 # (N, 3)
+    coefficients: np.ndarray  # (a, b, c, d), unit normal, n . p + d = 0
+    boundary: np.ndarray  # (N, 3)
     num_points: int
 
 
 @dataclass
 class Layout:
-    floor_polygons: list[np.ndarray]     # (N, 2) counter-clockwise, metres
+    floor_polygons: list[np.ndarray]  # (N, 2) counter-clockwise, metres
     floor_height: float
-    ceiling_height: float                # NaN when no ceiling was seen
+    ceiling_height: float  # NaN when no ceiling was seen
     planes: list[LayoutPlane] = field(default_factory=list)
 
 
@@ -85,8 +86,13 @@ def wall_orientation(walls: list[LayoutPlane]) -> float:
     return float(np.arctan2((w * np.sin(4 * a)).sum(), (w * np.cos(4 * a)).sum()) / 4)
 
 
-def floor_polygons(points: np.ndarray, top_m: float, params: LayoutParams = LayoutParams(),
-                   orientation_rad: float = 0.0, walls: list[LayoutPlane] = ()) -> list[np.ndarray]:
+def floor_polygons(
+    points: np.ndarray,
+    top_m: float,
+    params: LayoutParams = LayoutParams(),
+    orientation_rad: float = 0.0,
+    walls: list[LayoutPlane] = (),
+) -> list[np.ndarray]:
     """Top-view outline(s) of the space the points occupy between the floor
     (z = 0) and top_m, on a grid aligned with ``orientation_rad``. Unobserved
     floor (a head-worn camera rarely sees every corner) counts as inside when
@@ -94,7 +100,7 @@ def floor_polygons(points: np.ndarray, top_m: float, params: LayoutParams = Layo
     wall directions, and rooms are completed to rectangles (below)."""
     sel = (points[:, 2] > -params.floor_band_m) & (points[:, 2] < top_m)
     c, s = np.cos(orientation_rad), np.sin(orientation_rad)
-    R = np.array([[c, s], [-s, c]])                       # world -> grid axes
+    R = np.array([[c, s], [-s, c]])  # world -> grid axes
     xy = points[sel, :2] @ R.T
     if len(xy) < 10:
         return []
@@ -155,7 +161,7 @@ def _complete_rooms(occ: np.ndarray, wall_segments: list[np.ndarray], params: La
     for k in range(1, n):
         x, y, w, h, area = stats[k]
         if area >= min_cells and area >= params.room_fill_min * w * h:
-            out[y:y + h, x:x + w] = 255
+            out[y : y + h, x : x + w] = 255
     return out
 
 
@@ -172,8 +178,7 @@ def _one_open3d_thread():
         o3d.utility.set_max_threads(before)
 
 
-def extract_walls(points: np.ndarray, normals: np.ndarray, params: LayoutParams = LayoutParams()
-                  ) -> list[LayoutPlane]:
+def extract_walls(points: np.ndarray, normals: np.ndarray, params: LayoutParams = LayoutParams()) -> list[LayoutPlane]:
     """Vertical planes by sequential RANSAC (Open3D ``segment_plane``) on the
     points whose normal is horizontal; each plane is split into wall pieces at
     gaps along it (collinear walls of neighbouring rooms share a plane).
@@ -182,7 +187,7 @@ def extract_walls(points: np.ndarray, normals: np.ndarray, params: LayoutParams 
     sin_tilt = np.sin(np.radians(params.wall_max_tilt_deg))
     idx = np.flatnonzero(np.abs(normals[:, 2]) <= sin_tilt)
     walls = []
-    o3d.utility.random.seed(0)          # the same recording gives the same layout
+    o3d.utility.random.seed(0)  # the same recording gives the same layout
     while len(idx) >= params.wall_min_points_plane and len(walls) < params.max_walls:
         cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[idx]))
         with _one_open3d_thread():
@@ -194,7 +199,7 @@ def extract_walls(points: np.ndarray, normals: np.ndarray, params: LayoutParams 
         members = idx[inliers]
         idx = np.delete(idx, inliers)
         if abs(n[2]) > sin_tilt:
-            continue                      # a slanted surface (furniture, a stair), not a wall
+            continue  # a slanted surface (furniture, a stair), not a wall
         n = np.array([n[0], n[1], 0.0]) / np.hypot(n[0], n[1])
         # Orient the normal like the points' own normals (towards the room side seen).
         if np.mean(normals[members] @ n) < 0:
@@ -211,33 +216,48 @@ def extract_walls(points: np.ndarray, normals: np.ndarray, params: LayoutParams 
             d = -float(np.median(pts @ n))
             u0, u1 = u[piece].min(), u[piece].max()
             base = -d * n
-            corners = np.array([base + u0 * along + z.min() * np.array([0, 0, 1.0]),
-                                base + u1 * along + z.min() * np.array([0, 0, 1.0]),
-                                base + u1 * along + z.max() * np.array([0, 0, 1.0]),
-                                base + u0 * along + z.max() * np.array([0, 0, 1.0])])
+            corners = np.array(
+                [
+                    base + u0 * along + z.min() * np.array([0, 0, 1.0]),
+                    base + u1 * along + z.min() * np.array([0, 0, 1.0]),
+                    base + u1 * along + z.max() * np.array([0, 0, 1.0]),
+                    base + u0 * along + z.max() * np.array([0, 0, 1.0]),
+                ]
+            )
             walls.append(LayoutPlane(KIND_WALL, np.append(n, d), corners, len(piece)))
     return walls
 
 
-def build_layout(points: np.ndarray, sampled: np.ndarray, normals: np.ndarray, patches: list[PlanarPatch],
-                 cameras: np.ndarray, params: LayoutParams = LayoutParams()) -> Layout:
+def build_layout(
+    points: np.ndarray,
+    sampled: np.ndarray,
+    normals: np.ndarray,
+    patches: list[PlanarPatch],
+    cameras: np.ndarray,
+    params: LayoutParams = LayoutParams(),
+) -> Layout:
     """Layout from the rectified cloud (all points, and a downsampled copy with
     normals), its planar patches (for the ceiling) and the camera centres."""
     cos_h = np.cos(np.radians(params.horizontal_max_tilt_deg))
     top_camera = float(np.max(cameras[:, 2])) if len(cameras) else 0.0
     planes = extract_walls(sampled, normals, params)
-    ceilings = [p for p in patches if p.normal[2] <= -cos_h
-                and p.center[2] > top_camera + params.ceiling_above_camera_m]
+    ceilings = [
+        p for p in patches if p.normal[2] <= -cos_h and p.center[2] > top_camera + params.ceiling_above_camera_m
+    ]
     ceiling = max(ceilings, key=lambda p: p.num_points, default=None)
     ceiling_height = float(ceiling.center[2]) if ceiling is not None else float("nan")
     if ceiling is not None:
-        planes.append(LayoutPlane(KIND_CEILING, np.array([0.0, 0.0, -1.0, ceiling_height]), ceiling.corners,
-                                  ceiling.num_points))
+        planes.append(
+            LayoutPlane(KIND_CEILING, np.array([0.0, 0.0, -1.0, ceiling_height]), ceiling.corners, ceiling.num_points)
+        )
     top = ceiling_height - params.below_ceiling_m if ceiling is not None else params.default_top_m
     walls = [q for q in planes if q.kind == KIND_WALL]
     polygons = floor_polygons(points, top, params, wall_orientation(walls), walls)
     floor_support = int(np.sum((np.abs(sampled[:, 2]) < 0.05) & (normals[:, 2] > cos_h)))
     for poly in polygons:
-        planes.append(LayoutPlane(KIND_FLOOR, np.array([0.0, 0.0, 1.0, 0.0]),
-                                  np.column_stack([poly, np.zeros(len(poly))]), floor_support))
+        planes.append(
+            LayoutPlane(
+                KIND_FLOOR, np.array([0.0, 0.0, 1.0, 0.0]), np.column_stack([poly, np.zeros(len(poly))]), floor_support
+            )
+        )
     return Layout(polygons, 0.0, ceiling_height, planes)

@@ -11,6 +11,7 @@ tables), then point-to-plane ICP from the best headings. A pose is accepted only
 it fits well, stays within reach of the previous frame, and fits clearly better than
 any other heading that does: a box-shaped room offers look-alike headings 90 or 180
 deg apart."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -28,20 +29,20 @@ _reg = o3d.pipelines.registration
 @dataclass(frozen=True)
 class MapLocParams:
     enabled: bool = True
-    keyframes: int = 60                  # most recent keyframes of the current chain that form the map
-    pixel_step: int = 4                  # every pixel_step-th pixel (each way) of the odometry images
+    keyframes: int = 60  # most recent keyframes of the current chain that form the map
+    pixel_step: int = 4  # every pixel_step-th pixel (each way) of the odometry images
     voxel_m: float = 0.04
     heading_step_deg: float = 3.0
-    inlier_m: float = 0.15               # heading scan: a frame point this close to the map fits
-    candidates: int = 4                  # best headings (local maxima of the scan) refined by ICP
+    inlier_m: float = 0.15  # heading scan: a frame point this close to the map fits
+    candidates: int = 4  # best headings (local maxima of the scan) refined by ICP
     icp_distances_m: tuple[float, ...] = (0.15, 0.08, 0.04)
     icp_iterations: int = 20
-    min_fitness: float = 0.8             # share of the frame's points within the finest ICP distance
+    min_fitness: float = 0.8  # share of the frame's points within the finest ICP distance
     # Over the best other heading (more than distinct_deg away) that stays within reach.
     min_margin: float = 0.1
     distinct_deg: float = 10.0
-    reach_margin_m: float = 0.1          # beyond odometry.max_speed_mps x the time since the previous frame
-    horizontal_deg: float = 25.0         # surface normals this close to the cameras' mean down: horizontal
+    reach_margin_m: float = 0.1  # beyond odometry.max_speed_mps x the time since the previous frame
+    horizontal_deg: float = 25.0  # surface normals this close to the cameras' mean down: horizontal
     # Uncertainty of the "map" edge to the previous keyframe (ICP against a 4 cm voxel map:
     # within 0.1 deg and 1 cm on the simulator's whip turns).
     sigma_deg: float = 1.0
@@ -50,7 +51,7 @@ class MapLocParams:
 
 @dataclass
 class MapLocResult:
-    T_odom_cam: np.ndarray | None        # None: not relocalised (see reason)
+    T_odom_cam: np.ndarray | None  # None: not relocalised (see reason)
     fitness: float = 0.0
     margin: float = 0.0
     reason: str = ""
@@ -59,7 +60,7 @@ class MapLocResult:
 def depth_points(depth_mm: np.ndarray, K: np.ndarray, step: int) -> np.ndarray:
     """(N, 3) camera-frame points of every step-th pixel with depth."""
     z = depth_mm[::step, ::step].astype(float) / 1000.0
-    v, u = np.mgrid[0:depth_mm.shape[0]:step, 0:depth_mm.shape[1]:step].astype(float)
+    v, u = np.mgrid[0 : depth_mm.shape[0] : step, 0 : depth_mm.shape[1] : step].astype(float)
     ok = z > 0
     return np.column_stack([(u[ok] - K[0, 2]) / K[0, 0] * z[ok], (v[ok] - K[1, 2]) / K[1, 1] * z[ok], z[ok]])
 
@@ -70,8 +71,9 @@ def _cloud(points: np.ndarray, params: MapLocParams) -> o3d.geometry.PointCloud:
     return cloud
 
 
-def map_cloud(depths_mm: list[np.ndarray], T_odom_cams: list[np.ndarray], K: np.ndarray,
-              params: MapLocParams) -> o3d.geometry.PointCloud:
+def map_cloud(
+    depths_mm: list[np.ndarray], T_odom_cams: list[np.ndarray], K: np.ndarray, params: MapLocParams
+) -> o3d.geometry.PointCloud:
     """The keyframes' depth in the odometry frame, voxel-filtered, with normals."""
     points = [depth_points(d, K, params.pixel_step) @ T[:3, :3].T + T[:3, 3] for d, T in zip(depths_mm, T_odom_cams)]
     return _cloud(np.vstack(points) if points else np.zeros((0, 3)), params)
@@ -93,8 +95,15 @@ def up_direction(cloud: o3d.geometry.PointCloud, T_odom_cams: list[np.ndarray], 
     return up if up @ down < 0 else -up
 
 
-def relocalise(depth_mm: np.ndarray, K: np.ndarray, cloud: o3d.geometry.PointCloud, up: np.ndarray,
-               T_odom_prev: np.ndarray, max_move_m: float, params: MapLocParams) -> MapLocResult:
+def relocalise(
+    depth_mm: np.ndarray,
+    K: np.ndarray,
+    cloud: o3d.geometry.PointCloud,
+    up: np.ndarray,
+    T_odom_prev: np.ndarray,
+    max_move_m: float,
+    params: MapLocParams,
+) -> MapLocResult:
     """The frame's pose in the map: heading scan about `up` at the previous frame's
     position, ICP from the best headings, the best one that stays within max_move_m of
     the previous frame if it fits well and clearly better than any other heading."""
@@ -111,15 +120,24 @@ def relocalise(depth_mm: np.ndarray, K: np.ndarray, cloud: o3d.geometry.PointClo
     world = np.einsum("hij,jk,nk->hni", turns, R_prev, source) + t_prev
     dist, _ = tree.query(world.reshape(-1, 3), distance_upper_bound=params.inlier_m)
     score = (dist.reshape(len(headings), -1) < params.inlier_m).mean(axis=1)
-    peaks = [k for k in range(len(score)) if score[k] >= score[k - 1] and score[k] >= score[(k + 1) % len(score)]
-             and score[k] > 0]
-    peaks = sorted(peaks, key=lambda k: -score[k])[:params.candidates]
+    peaks = [
+        k
+        for k in range(len(score))
+        if score[k] >= score[k - 1] and score[k] >= score[(k + 1) % len(score)] and score[k] > 0
+    ]
+    peaks = sorted(peaks, key=lambda k: -score[k])[: params.candidates]
     fits = []
     for k in peaks:
         T = se3(turns[k] @ R_prev, t_prev)
         for distance in params.icp_distances_m:
-            result = _reg.registration_icp(frame, cloud, distance, T, _reg.TransformationEstimationPointToPlane(),
-                                           _reg.ICPConvergenceCriteria(max_iteration=params.icp_iterations))
+            result = _reg.registration_icp(
+                frame,
+                cloud,
+                distance,
+                T,
+                _reg.TransformationEstimationPointToPlane(),
+                _reg.ICPConvergenceCriteria(max_iteration=params.icp_iterations),
+            )
             T = np.asarray(result.transformation)
         if np.linalg.norm(T[:3, 3] - t_prev) <= max_move_m:
             fits.append((result.fitness, T))

@@ -40,6 +40,7 @@ images are made after all (the caller hands ``skip`` a function for that) and tr
 first, then the frame again: skipping never costs a frame. Without the IMU every frame is
 tracked.
 """
+
 from __future__ import annotations
 
 from collections import deque
@@ -62,7 +63,7 @@ from .maploc import MapLocParams, MapLocResult, map_cloud, relocalise, up_direct
 
 _odo = o3d.t.pipelines.odometry
 TRACKED, RECOVERED, LOST, IMU_BRIDGED = "tracked", "recovered", "lost", "imu_bridged"
-MAP_RELOCALISED = "map_relocalised"      # untracked, placed in the map of the recent keyframes
+MAP_RELOCALISED = "map_relocalised"  # untracked, placed in the map of the recent keyframes
 # Not tracked (slow motion, OdometryParams.skip): the pose interpolated between the tracked
 # frames either side, both densely tracked; SKIPPED until the next frame is tracked.
 INTERPOLATED, SKIPPED = "interpolated", "skipped"
@@ -90,16 +91,16 @@ class SkipParams:
     max_rotation_deg: float = 4.0
     # Predicted translation (last tracked step's velocity x interval): 1 m/s walking is 6.7 cm a frame.
     max_translation_m: float = 0.08
-    max_frames: int = 1                  # skipped frames in a row (1: every 2nd frame at least)
-    max_interval_s: float = 0.2          # from the last tracked frame (a gap in the stream: track)
+    max_frames: int = 1  # skipped frames in a row (1: every 2nd frame at least)
+    max_interval_s: float = 0.2  # from the last tracked frame (a gap in the stream: track)
     # The last tracked frame's overlap with its keyframe below this: weak, track every frame.
     min_fitness: float = 0.5
 
 
 @dataclass(frozen=True)
 class OdometryParams:
-    scale: int = 2                       # image downsampling for dense odometry (2: 320x240 from VGA)
-    depth_max_m: float = 6.0             # Open3D defaults to 3-4 m; indoor rooms need more
+    scale: int = 2  # image downsampling for dense odometry (2: 320x240 from VGA)
+    depth_max_m: float = 6.0  # Open3D defaults to 3-4 m; indoor rooms need more
     # Method cascades tried in turn from each initial guess. Hybrid alone is the
     # most accurate and cheapest; point-to-plane first has the wider basin but
     # slides along degenerate geometry (two walls), so it is the second choice.
@@ -112,10 +113,10 @@ class OdometryParams:
     # since Open3D's default tolerance, 1e-6, ran every level to its maximum).
     iterations: tuple[int, ...] = (20, 10, 5)
     relative_tolerance: float = 1e-4
-    polish_iterations: int = 1           # point-to-plane at the finest level after an accepted result
+    polish_iterations: int = 1  # point-to-plane at the finest level after an accepted result
     polish_max_m: float = 0.005
     polish_max_deg: float = 0.2
-    min_fitness: float = 0.2             # fraction of pixels with a correspondence (fast turns: little overlap)
+    min_fitness: float = 0.2  # fraction of pixels with a correspondence (fast turns: little overlap)
     # An accepted result whose inlier RMSE exceeds suspect_rmse_ratio x the median of the last
     # rmse_window accepted ones is suspect: the other cascades run from the same guess and the
     # result with the most overlap is kept. On bare walls Hybrid settles in wrong minima 6-44 cm
@@ -126,18 +127,18 @@ class OdometryParams:
     # Hybrid residual RMSE (Open3D's mixed depth/intensity units): converged
     # results stay below ~4e-4, wrong minima lie above ~1e-3 on the synthetic data.
     max_inlier_rmse: float = 6e-4
-    max_speed_mps: float = 3.0           # motion plausibility between consecutive frames
-    max_turn_dps: float = 900.0          # head turns reach several hundred deg/s
+    max_speed_mps: float = 3.0  # motion plausibility between consecutive frames
+    max_turn_dps: float = 900.0  # head turns reach several hundred deg/s
     # A result with little overlap that turns far from the motion prediction is ambiguous:
     # in a whip turn on bare walls dense odometry settles near zero motion at fitness ~0.3,
     # tens of degrees off. Such a result is not accepted without the feature guess agreeing;
     # otherwise the frame is lost and relocalisation joins what follows.
     ambiguous_fitness: float = 0.4
     max_prediction_disagreement_deg: float = 15.0
-    keyframe_fitness: float = 0.65       # a new keyframe when the overlap with the last falls below
+    keyframe_fitness: float = 0.65  # a new keyframe when the overlap with the last falls below
     keyframe_translation_m: float = 0.5
     keyframe_rotation_deg: float = 20.0
-    info_distance_m: float = 0.07        # correspondence distance for edge information matrices
+    info_distance_m: float = 0.07  # correspondence distance for edge information matrices
     # Open3D's fitness is a share of all pixels, and the fitness thresholds above hold for frames
     # with depth almost everywhere. A frame with depth in fewer than this share of its pixels
     # (a Kinect: ~70 %) has its fitness scaled up by this share over its own: unscaled, TUM
@@ -148,8 +149,8 @@ class OdometryParams:
     recovery_features: FeatureParams = FeatureParams(ratio=0.9, pnp_min_inliers=15)
     # IMU (when the recording has one): gyro rotation as first guess and check, bridging.
     use_imu: bool = True
-    max_gyro_disagreement_deg: float = 5.0   # between consecutive frames; the gyro is off ~0.02 deg there
-    max_bridge_s: float = 1.0                # longest stretch of frames bridged by the gyro alone
+    max_gyro_disagreement_deg: float = 5.0  # between consecutive frames; the gyro is off ~0.02 deg there
+    max_bridge_s: float = 1.0  # longest stretch of frames bridged by the gyro alone
     # Uncertainty of a bridged step (its "imu" edge): rotation from the gyro (bias and noise),
     # translation from the constant velocity of the last visual step (a walk's speed changes).
     bridge_rotation_sigma_dps: float = 1.0
@@ -196,11 +197,20 @@ class Keyframe:
 
     __slots__ = ("index", "frame_index", "stamp_ns", "T_odom_cam", "segment", "_color", "_depth")
 
-    def __init__(self, index: int, frame_index: int, stamp_ns: int, T_odom_cam: np.ndarray,
-                 color: np.ndarray | None, depth_mm: np.ndarray | None, segment: int, compress: bool = False):
+    def __init__(
+        self,
+        index: int,
+        frame_index: int,
+        stamp_ns: int,
+        T_odom_cam: np.ndarray,
+        color: np.ndarray | None,
+        depth_mm: np.ndarray | None,
+        segment: int,
+        compress: bool = False,
+    ):
         self.index, self.frame_index, self.stamp_ns = index, frame_index, stamp_ns
-        self.T_odom_cam = T_odom_cam         # chained odometry pose (odom = first camera frame)
-        self.segment = segment               # increases after every tracking break
+        self.T_odom_cam = T_odom_cam  # chained odometry pose (odom = first camera frame)
+        self.segment = segment  # increases after every tracking break
         self._color = None if color is None else PackedImage(color, compress)
         self._depth = None if depth_mm is None else PackedImage(depth_mm, compress)
 
@@ -232,20 +242,20 @@ class OdometryEdge:
     source: int
     target: int
     T_target_source: np.ndarray
-    information: np.ndarray              # 6x6 (Open3D order: rotation, translation)
-    kind: str                            # "odometry" | "loop" | "break" | "imu" | "map"
-    R_gyro: np.ndarray | None = None     # tracking edges with the IMU: the gyro's R_target_source
+    information: np.ndarray  # 6x6 (Open3D order: rotation, translation)
+    kind: str  # "odometry" | "loop" | "break" | "imu" | "map"
+    R_gyro: np.ndarray | None = None  # tracking edges with the IMU: the gyro's R_target_source
 
 
 @dataclass
 class TrackResult:
     frame_index: int
     stamp_ns: int
-    keyframe: int                        # reference keyframe index
+    keyframe: int  # reference keyframe index
     T_kf_cam: np.ndarray
     T_odom_cam: np.ndarray
-    fitness: float                       # overlap with the keyframe (the map's share within ICP reach when placed)
-    status: str                          # tracked | recovered | lost | imu_bridged | map_relocalised | interpolated
+    fitness: float  # overlap with the keyframe (the map's share within ICP reach when placed)
+    status: str  # tracked | recovered | lost | imu_bridged | map_relocalised | interpolated
     new_keyframe: bool
 
 
@@ -313,8 +323,9 @@ def o3d_rgbd(color: np.ndarray, depth_mm: np.ndarray) -> o3d.t.geometry.RGBDImag
     pad = ODOMETRY_PAD_PX
     color = np.pad(np.asarray(color, dtype=np.float32) / 255.0, ((pad, pad), (pad, pad), (0, 0)), mode="edge")
     depth = np.pad(np.asarray(depth_mm, dtype=np.float32), pad)
-    return o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(o3d.core.Tensor(color)),
-                                    o3d.t.geometry.Image(o3d.core.Tensor(depth)))
+    return o3d.t.geometry.RGBDImage(
+        o3d.t.geometry.Image(o3d.core.Tensor(color)), o3d.t.geometry.Image(o3d.core.Tensor(depth))
+    )
 
 
 @dataclass
@@ -357,24 +368,37 @@ class RgbdOdometry:
         self.K = scaled_K(self.K_full, params.scale)
         K_padded = self.K.copy()
         K_padded[:2, 2] += ODOMETRY_PAD_PX
-        self._K = o3d.core.Tensor(K_padded)        # of the images o3d_rgbd makes
-        self._K_depth = o3d.core.Tensor(self.K)     # of the plain depth images `information` takes
-        self._criteria = [_odo.OdometryConvergenceCriteria(n, params.relative_tolerance, params.relative_tolerance)
-                          for n in params.iterations]
+        self._K = o3d.core.Tensor(K_padded)  # of the images o3d_rgbd makes
+        self._K_depth = o3d.core.Tensor(self.K)  # of the plain depth images `information` takes
+        self._criteria = [
+            _odo.OdometryConvergenceCriteria(n, params.relative_tolerance, params.relative_tolerance)
+            for n in params.iterations
+        ]
         self._polish_criteria = [_odo.OdometryConvergenceCriteria(params.polish_iterations)]
 
-    def register(self, source: o3d.t.geometry.RGBDImage, target: o3d.t.geometry.RGBDImage,
-                 init_target_source: np.ndarray, cascade: tuple[str, ...] = ("Hybrid",)
-                 ) -> tuple[np.ndarray, float, float]:
+    def register(
+        self,
+        source: o3d.t.geometry.RGBDImage,
+        target: o3d.t.geometry.RGBDImage,
+        init_target_source: np.ndarray,
+        cascade: tuple[str, ...] = ("Hybrid",),
+    ) -> tuple[np.ndarray, float, float]:
         """(T_target_source, fitness, inlier RMSE) after running the methods of
         ``cascade`` in turn (fitness scaled for a source with little depth, full_depth_fraction);
         fitness 0 when Open3D gives up."""
         T = init_target_source
         for method in cascade:
             try:
-                r = _odo.rgbd_odometry_multi_scale(source, target, self._K, o3d.core.Tensor(T), 1000.0,
-                                                   self.params.depth_max_m, self._criteria,
-                                                   getattr(_odo.Method, method))
+                r = _odo.rgbd_odometry_multi_scale(
+                    source,
+                    target,
+                    self._K,
+                    o3d.core.Tensor(T),
+                    1000.0,
+                    self.params.depth_max_m,
+                    self._criteria,
+                    getattr(_odo.Method, method),
+                )
             except RuntimeError:  # "Singular 6x6 linear system": nothing to track
                 return init_target_source, 0.0, np.inf
             T = r.transformation.numpy()
@@ -388,8 +412,9 @@ class RgbdOdometry:
         depth = source.depth.as_tensor().numpy()[ODOMETRY_PAD_PX:-ODOMETRY_PAD_PX, ODOMETRY_PAD_PX:-ODOMETRY_PAD_PX]
         return max(1.0, self.params.full_depth_fraction * depth.size / max(np.count_nonzero(depth), 1))
 
-    def polish(self, source: o3d.t.geometry.RGBDImage, target: o3d.t.geometry.RGBDImage,
-               T_target_source: np.ndarray) -> np.ndarray:
+    def polish(
+        self, source: o3d.t.geometry.RGBDImage, target: o3d.t.geometry.RGBDImage, T_target_source: np.ndarray
+    ) -> np.ndarray:
         """A few point-to-plane iterations at full odometry resolution from an
         accepted result. The photometric term leaves a bias of 1-3 mm (texture
         filtering differs between views); the depth term alone is unbiased
@@ -398,26 +423,41 @@ class RgbdOdometry:
         further than ``polish_max_m`` / ``polish_max_deg`` is discarded."""
         p = self.params
         try:
-            r = _odo.rgbd_odometry_multi_scale(source, target, self._K, o3d.core.Tensor(T_target_source), 1000.0,
-                                               p.depth_max_m, self._polish_criteria, _odo.Method.PointToPlane)
+            r = _odo.rgbd_odometry_multi_scale(
+                source,
+                target,
+                self._K,
+                o3d.core.Tensor(T_target_source),
+                1000.0,
+                p.depth_max_m,
+                self._polish_criteria,
+                _odo.Method.PointToPlane,
+            )
         except RuntimeError:
             return T_target_source
         T = r.transformation.numpy()
         if not np.isfinite(T).all():
             return T_target_source
         T = orthonormalize(T)
-        if (np.linalg.norm(T[:3, 3] - T_target_source[:3, 3]) > p.polish_max_m
-                or rotation_angle_deg(T[:3, :3], T_target_source[:3, :3]) > p.polish_max_deg):
+        if (
+            np.linalg.norm(T[:3, 3] - T_target_source[:3, 3]) > p.polish_max_m
+            or rotation_angle_deg(T[:3, :3], T_target_source[:3, :3]) > p.polish_max_deg
+        ):
             return T_target_source
         return T
 
-    def information(self, source_depth_mm: np.ndarray, target_depth_mm: np.ndarray,
-                    T_target_source: np.ndarray) -> np.ndarray:
+    def information(
+        self, source_depth_mm: np.ndarray, target_depth_mm: np.ndarray, T_target_source: np.ndarray
+    ) -> np.ndarray:
         info = _odo.compute_odometry_information_matrix(
             o3d.t.geometry.Image(o3d.core.Tensor(np.ascontiguousarray(source_depth_mm, dtype=np.float32))),
             o3d.t.geometry.Image(o3d.core.Tensor(np.ascontiguousarray(target_depth_mm, dtype=np.float32))),
-            self._K_depth, o3d.core.Tensor(T_target_source), self.params.info_distance_m, 1000.0,
-            self.params.depth_max_m).numpy()
+            self._K_depth,
+            o3d.core.Tensor(T_target_source),
+            self.params.info_distance_m,
+            1000.0,
+            self.params.depth_max_m,
+        ).numpy()
         return np.asarray(info, dtype=float)
 
 
@@ -425,8 +465,9 @@ class KeyframeTracker:
     """Streams frames through frame-to-keyframe odometry; collects keyframes and
     the odometry edges between consecutive keyframes."""
 
-    def __init__(self, K: np.ndarray, params: OdometryParams = OdometryParams(), on_keyframe=None,
-                 imu: ImuBuffer | None = None):
+    def __init__(
+        self, K: np.ndarray, params: OdometryParams = OdometryParams(), on_keyframe=None, imu: ImuBuffer | None = None
+    ):
         """``on_keyframe(keyframe, edge, gray, depth)`` sees every new keyframe with
         the edge from the previous keyframe (None for the first) and its
         full-resolution grey image and depth (for feature extraction). ``imu``: the
@@ -446,20 +487,20 @@ class KeyframeTracker:
         # gap (rejected frames) is not repeated frame by frame.
         self._velocity = np.zeros(6)
         self._features = FeatureExtractor(params.recovery_features)
-        self._gyro: np.ndarray | None = None     # R_prev_cur of the frame being tracked
-        self._velocity_odom = np.zeros(3)        # odom-frame velocity of the last visual step [m/s]
-        self._anchor_ns = 0                      # stamp of the last frame not bridged
-        self.imu_frames = 0                      # frames tracked with a gyro rotation
-        self.degenerate_frames = 0               # accepted results remapped along unobserved directions
-        self.suspect_frames = 0                  # results checked by the other cascades (suspect_rmse_ratio)
-        self._rmse: deque[float] = deque(maxlen=params.rmse_window)   # of the last accepted results
-        self._chain: list[Keyframe] = []         # recent keyframes with poses in one consistent frame
-        self.map_relocalised = 0                 # breaks whose pose the map gave
-        self.map_failures: list[str] = []        # why the others' did not
-        self.skipped = 0                         # frames not tracked (SkipParams), interpolated
-        self.backfilled = 0                      # of them tracked after all (the next frame did not track)
-        self._skipped: list[tuple[TrackResult, FrameSource | None]] = []   # waiting for the next tracked frame
-        self._easy = False                       # the last frame tracked at its first attempt (may skip after)
+        self._gyro: np.ndarray | None = None  # R_prev_cur of the frame being tracked
+        self._velocity_odom = np.zeros(3)  # odom-frame velocity of the last visual step [m/s]
+        self._anchor_ns = 0  # stamp of the last frame not bridged
+        self.imu_frames = 0  # frames tracked with a gyro rotation
+        self.degenerate_frames = 0  # accepted results remapped along unobserved directions
+        self.suspect_frames = 0  # results checked by the other cascades (suspect_rmse_ratio)
+        self._rmse: deque[float] = deque(maxlen=params.rmse_window)  # of the last accepted results
+        self._chain: list[Keyframe] = []  # recent keyframes with poses in one consistent frame
+        self.map_relocalised = 0  # breaks whose pose the map gave
+        self.map_failures: list[str] = []  # why the others' did not
+        self.skipped = 0  # frames not tracked (SkipParams), interpolated
+        self.backfilled = 0  # of them tracked after all (the next frame did not track)
+        self._skipped: list[tuple[TrackResult, FrameSource | None]] = []  # waiting for the next tracked frame
+        self._easy = False  # the last frame tracked at its first attempt (may skip after)
 
     # --- public -----------------------------------------------------------------
     def track(self, frame: RgbdFrame, images: OdometryImages | None = None) -> TrackResult:
@@ -486,8 +527,16 @@ class KeyframeTracker:
         tracked. ``source`` makes its images should that frame not track at its first
         attempts (or should it end the walk, ``flush``)."""
         prev = self._prev_result
-        result = TrackResult(len(self.results), stamp_ns, prev.keyframe, prev.T_kf_cam.copy(),
-                             prev.T_odom_cam.copy(), prev.fitness, SKIPPED, False)
+        result = TrackResult(
+            len(self.results),
+            stamp_ns,
+            prev.keyframe,
+            prev.T_kf_cam.copy(),
+            prev.T_odom_cam.copy(),
+            prev.fitness,
+            SKIPPED,
+            False,
+        )
         self.results.append(result)
         self._skipped.append((result, source))
         self.skipped += 1
@@ -501,7 +550,7 @@ class KeyframeTracker:
             made = source() if source is not None else None
             self.skipped -= 1
             if made is None:
-                del self.results[result.frame_index]     # the last result: nothing refers to it
+                del self.results[result.frame_index]  # the last result: nothing refers to it
                 continue
             self.backfilled += 1
             self._process(self._level(result.frame_index, *made))
@@ -520,8 +569,8 @@ class KeyframeTracker:
             j = int(np.searchsorted(tracked, k))
             if j < 2 or j + 1 >= len(tracked):
                 continue
-            around = tracked[j - 2:j + 2]
-            if any(r.status not in (TRACKED, RECOVERED, INTERPOLATED) for r in res[around[0]:around[-1] + 1]):
+            around = tracked[j - 2 : j + 2]
+            if any(r.status not in (TRACKED, RECOVERED, INTERPOLATED) for r in res[around[0] : around[-1] + 1]):
                 continue
             t = np.array([res[i].stamp_ns for i in around], dtype=float) * 1e-9 - res[k].stamp_ns * 1e-9
             # Lagrange weights of the four stamps at the frame's (t = 0).
@@ -540,14 +589,21 @@ class KeyframeTracker:
         skipped since) to ``stamp_ns`` is small enough to leave the frame out."""
         s, prev = self.params.skip, self._prev_result
         dt_s = (stamp_ns - last_ns) * 1e-9
-        if (run >= s.max_frames or not 0.0 < dt_s <= s.max_interval_s or not self._easy
-                or prev.status != TRACKED or prev.fitness < s.min_fitness):
+        if (
+            run >= s.max_frames
+            or not 0.0 < dt_s <= s.max_interval_s
+            or not self._easy
+            or prev.status != TRACKED
+            or prev.fitness < s.min_fitness
+        ):
             return False
         R = self._gyro_rotation(last_ns, stamp_ns) if self.imu is not None else None
-        if R is None:                         # no IMU, or it does not cover the interval: track
+        if R is None:  # no IMU, or it does not cover the interval: track
             return False
-        return (rotation_angle_deg(np.eye(3), R) <= s.max_rotation_deg
-                and np.linalg.norm(self._velocity[3:]) * dt_s <= s.max_translation_m)
+        return (
+            rotation_angle_deg(np.eye(3), R) <= s.max_rotation_deg
+            and np.linalg.norm(self._velocity[3:]) * dt_s <= s.max_translation_m
+        )
 
     def _process(self, level: _Level) -> TrackResult:
         """Track ``level`` into its place in ``results`` (appended, or a skipped frame's)."""
@@ -606,7 +662,7 @@ class KeyframeTracker:
         pending, self._skipped = self._skipped, []
         for result, source in pending:
             made = source() if source is not None else None
-            if made is None:                 # unusable after all: interpolated between its neighbours
+            if made is None:  # unusable after all: interpolated between its neighbours
                 self._skipped.append((result, None))
                 continue
             self.skipped -= 1
@@ -635,7 +691,7 @@ class KeyframeTracker:
             return None
         try:
             return self.imu.rotation_between(t0_ns, t1_ns)
-        except ValueError:   # not calibrated, or a gap in the samples: vision alone
+        except ValueError:  # not calibrated, or a gap in the samples: vision alone
             return None
 
     def _predicted_step(self, dt_s: float) -> np.ndarray:
@@ -645,10 +701,13 @@ class KeyframeTracker:
     def _plausible(self, T_prev_cur: np.ndarray, dt_s: float) -> bool:
         p = self.params
         dt = max(dt_s, 1e-3)
-        return (np.linalg.norm(T_prev_cur[:3, 3]) <= p.max_speed_mps * dt
-                and rotation_angle_deg(np.eye(3), T_prev_cur[:3, :3]) <= p.max_turn_dps * dt
-                and (self._gyro is None
-                     or rotation_angle_deg(self._gyro, T_prev_cur[:3, :3]) <= p.max_gyro_disagreement_deg))
+        return (
+            np.linalg.norm(T_prev_cur[:3, 3]) <= p.max_speed_mps * dt
+            and rotation_angle_deg(np.eye(3), T_prev_cur[:3, :3]) <= p.max_turn_dps * dt
+            and (
+                self._gyro is None or rotation_angle_deg(self._gyro, T_prev_cur[:3, :3]) <= p.max_gyro_disagreement_deg
+            )
+        )
 
     def _ambiguous(self, T_ref_cur: np.ndarray, fitness: float, T_ref_pred: np.ndarray) -> bool:
         """Little overlap, and far from the prediction or with none (right after a lost
@@ -656,7 +715,8 @@ class KeyframeTracker:
         p = self.params
         return fitness < p.ambiguous_fitness and (
             (self._prev_result is not None and self._prev_result.status == LOST)
-            or rotation_angle_deg(T_ref_pred[:3, :3], T_ref_cur[:3, :3]) > p.max_prediction_disagreement_deg)
+            or rotation_angle_deg(T_ref_pred[:3, :3], T_ref_cur[:3, :3]) > p.max_prediction_disagreement_deg
+        )
 
     def _attempts(self, level: _Level, ref: _Level, T_ref_prev: np.ndarray, dt_s: float):
         """The first acceptable T_ref_cur of the method cascades from the gyro guess
@@ -669,13 +729,16 @@ class KeyframeTracker:
         inits = [T_ref_prev @ step, T_ref_prev]
         if self._gyro is not None:
             inits.insert(0, T_ref_prev @ se3(self._gyro, step[:3, 3]))
-        first_try = False       # accepted from the first guess by the first cascade, not suspect
+        first_try = False  # accepted from the first guess by the first cascade, not suspect
         for n_init, init in enumerate(inits):
             accepted = []
             for n_cascade, cascade in enumerate(self.params.cascades):
                 T, fit, rmse = odo.register(level.rgbd, ref.rgbd, orthonormalize(init), cascade)
-                if (fit < self.params.min_fitness or not self._plausible(inv_se3(T_ref_prev) @ T, dt_s)
-                        or self._ambiguous(T, fit, inits[0])):
+                if (
+                    fit < self.params.min_fitness
+                    or not self._plausible(inv_se3(T_ref_prev) @ T, dt_s)
+                    or self._ambiguous(T, fit, inits[0])
+                ):
                     continue
                 if rmse > self.params.max_inlier_rmse:
                     if fallback is None or rmse < fallback[2]:
@@ -685,7 +748,7 @@ class KeyframeTracker:
                 accepted.append((T, fit, rmse))
                 if not self._suspect(rmse):
                     break
-                self.suspect_frames += len(accepted) == 1     # counted once, at the first suspect result
+                self.suspect_frames += len(accepted) == 1  # counted once, at the first suspect result
             if accepted:
                 T, fit, rmse = max(accepted, key=lambda r: r[1])
                 self._rmse.append(rmse)
@@ -737,8 +800,9 @@ class KeyframeTracker:
             best, fallback = self._attempts(level, self._kf, T_kf_prev, dt_s)
             self._easy = False
         if best is None:
-            guess = pose_from_images(level.full_gray, level.full_depth, prev.full_gray, prev.full_depth,
-                                     self.odometry.K_full, self._features)
+            guess = pose_from_images(
+                level.full_gray, level.full_depth, prev.full_gray, prev.full_depth, self.odometry.K_full, self._features
+            )
             if guess is not None and self._plausible(guess, dt_s):
                 status = RECOVERED
                 for cascade in p.cascades:
@@ -760,24 +824,37 @@ class KeyframeTracker:
             placed = self._map_pose(level, prev_res, dt_s)
             if placed is not None:
                 T_odom_cam, m = placed.T_odom_cam, p.maploc
-                info = np.diag([np.radians(m.sigma_deg) ** -2] * 3 + [m.sigma_m ** -2] * 3)
+                info = np.diag([np.radians(m.sigma_deg) ** -2] * 3 + [m.sigma_m**-2] * 3)
                 self._add_keyframe(level, T_odom_cam, kf, inv_se3(kf.T_odom_cam) @ T_odom_cam, ("map", info))
-                return TrackResult(level.frame_index, level.stamp_ns, len(self.keyframes) - 1, np.eye(4),
-                                   T_odom_cam, placed.fitness, MAP_RELOCALISED, True)
+                return TrackResult(
+                    level.frame_index,
+                    level.stamp_ns,
+                    len(self.keyframes) - 1,
+                    np.eye(4),
+                    T_odom_cam,
+                    placed.fitness,
+                    MAP_RELOCALISED,
+                    True,
+                )
             T_kf_cur = fallback[0] if fallback is not None else T_kf_prev @ self._predicted_step(dt_s)
             T_odom_cam = kf.T_odom_cam @ orthonormalize(T_kf_cur)
             self.breaks += 1
             self._add_keyframe(level, T_odom_cam, kf, None)
-            return TrackResult(level.frame_index, level.stamp_ns, len(self.keyframes) - 1, np.eye(4), T_odom_cam,
-                               0.0, LOST, True)
+            return TrackResult(
+                level.frame_index, level.stamp_ns, len(self.keyframes) - 1, np.eye(4), T_odom_cam, 0.0, LOST, True
+            )
         T_kf_cur, fitness = best
         T_odom_cam = kf.T_odom_cam @ T_kf_cur
-        new_kf = (fitness < p.keyframe_fitness or np.linalg.norm(T_kf_cur[:3, 3]) > p.keyframe_translation_m
-                  or rotation_angle_deg(np.eye(3), T_kf_cur[:3, :3]) > p.keyframe_rotation_deg)
+        new_kf = (
+            fitness < p.keyframe_fitness
+            or np.linalg.norm(T_kf_cur[:3, 3]) > p.keyframe_translation_m
+            or rotation_angle_deg(np.eye(3), T_kf_cur[:3, :3]) > p.keyframe_rotation_deg
+        )
         if new_kf:
             self._add_keyframe(level, T_odom_cam, kf, T_kf_cur)
-            return TrackResult(level.frame_index, level.stamp_ns, len(self.keyframes) - 1, np.eye(4), T_odom_cam,
-                               fitness, status, True)
+            return TrackResult(
+                level.frame_index, level.stamp_ns, len(self.keyframes) - 1, np.eye(4), T_odom_cam, fitness, status, True
+            )
         return TrackResult(level.frame_index, level.stamp_ns, kf.index, T_kf_cur, T_odom_cam, fitness, status, False)
 
     def _map_pose(self, level: _Level, prev_res: TrackResult, dt_s: float) -> MapLocResult | None:
@@ -788,8 +865,15 @@ class KeyframeTracker:
             return None
         poses = [k.T_odom_cam for k in self._chain]
         cloud = map_cloud([k.depth_mm for k in self._chain], poses, self.odometry.K, p.maploc)
-        found = relocalise(level.depth_mm, self.odometry.K, cloud, up_direction(cloud, poses, p.maploc),
-                           prev_res.T_odom_cam, p.max_speed_mps * dt_s + p.maploc.reach_margin_m, p.maploc)
+        found = relocalise(
+            level.depth_mm,
+            self.odometry.K,
+            cloud,
+            up_direction(cloud, poses, p.maploc),
+            prev_res.T_odom_cam,
+            p.max_speed_mps * dt_s + p.maploc.reach_margin_m,
+            p.maploc,
+        )
         if found.T_odom_cam is None:
             self.map_failures.append(f"frame {level.frame_index}: {found.reason}")
             return None
@@ -802,26 +886,42 @@ class KeyframeTracker:
         last visual step's velocity, as a keyframe (the previous keyframe's view may be
         gone when vision returns) joined by an "imu" edge with the bridge's uncertainty."""
         p = self.params
-        T_odom_cam = se3(prev_res.T_odom_cam[:3, :3] @ self._gyro, prev_res.T_odom_cam[:3, 3]
-                         + self._velocity_odom * dt_s)
+        T_odom_cam = se3(
+            prev_res.T_odom_cam[:3, :3] @ self._gyro, prev_res.T_odom_cam[:3, 3] + self._velocity_odom * dt_s
+        )
         kf = self.keyframes[-1]
         sigma_rot = np.radians(p.bridge_rotation_sigma_dps) * dt_s
         sigma_t = p.bridge_translation_sigma_mps * dt_s
-        info = np.diag([sigma_rot ** -2] * 3 + [sigma_t ** -2] * 3)
+        info = np.diag([sigma_rot**-2] * 3 + [sigma_t**-2] * 3)
         self._add_keyframe(level, T_odom_cam, kf, inv_se3(kf.T_odom_cam) @ T_odom_cam, ("imu", info))
-        return TrackResult(level.frame_index, level.stamp_ns, len(self.keyframes) - 1, np.eye(4), T_odom_cam, 0.0,
-                           IMU_BRIDGED, True)
+        return TrackResult(
+            level.frame_index, level.stamp_ns, len(self.keyframes) - 1, np.eye(4), T_odom_cam, 0.0, IMU_BRIDGED, True
+        )
 
-    def _add_keyframe(self, level: _Level, T_odom_cam: np.ndarray, previous: Keyframe | None,
-                      T_prev_cur: np.ndarray | None, given: tuple[str, np.ndarray] | None = None) -> None:
+    def _add_keyframe(
+        self,
+        level: _Level,
+        T_odom_cam: np.ndarray,
+        previous: Keyframe | None,
+        T_prev_cur: np.ndarray | None,
+        given: tuple[str, np.ndarray] | None = None,
+    ) -> None:
         """``T_prev_cur`` None: a break. ``given``: the edge's kind and information when
         they are not dense tracking's (a gyro bridge's "imu", a map relocalisation's "map")."""
         segment = 0 if previous is None else previous.segment + (T_prev_cur is None)
-        kf = Keyframe(len(self.keyframes), level.frame_index, level.stamp_ns, T_odom_cam, level.color,
-                      level.depth_mm, segment, self.params.compress_keyframes)
+        kf = Keyframe(
+            len(self.keyframes),
+            level.frame_index,
+            level.stamp_ns,
+            T_odom_cam,
+            level.color,
+            level.depth_mm,
+            segment,
+            self.params.compress_keyframes,
+        )
         self.keyframes.append(kf)
         # A break's guessed pose is not consistent with the keyframes before: the map restarts.
-        self._chain = (self._chain + [kf])[-self.params.maploc.keyframes:] if T_prev_cur is not None else [kf]
+        self._chain = (self._chain + [kf])[-self.params.maploc.keyframes :] if T_prev_cur is not None else [kf]
         edge = None
         if previous is not None:
             if given is not None:

@@ -13,6 +13,7 @@ closures run on a worker thread meanwhile; ``finish()`` runs what needs the
 whole recording (pose-graph optimisation, bundle adjustment, cloud, layout).
 ``map_recording()`` is the offline entry for an iterable of decoded frames.
 """
+
 from __future__ import annotations
 
 import time
@@ -58,7 +59,7 @@ from .scene import (
     wall_attitudes,
 )
 
-MIN_TRACKS = 10        # fewer feature tracks than this: no bundle adjustment
+MIN_TRACKS = 10  # fewer feature tracks than this: no bundle adjustment
 
 
 @dataclass(frozen=True)
@@ -71,7 +72,7 @@ class EgoParams:
     cloud: CloudParams = CloudParams()
     layout: LayoutParams = LayoutParams()
     inertial: InertialParams = InertialParams()
-    bundle_adjustment: bool = True       # False: stop after multiway registration (ablation)
+    bundle_adjustment: bool = True  # False: stop after multiway registration (ablation)
     # Open3D's parallel reductions (dense odometry, information matrices) sum in a
     # varying order: runs differ by micrometres per frame, which keyframe and loop
     # decisions turn into millimetres. One thread makes a recording map the same
@@ -86,25 +87,25 @@ class PreparedFrame:
 
     frame: RgbdFrame
     images: OdometryImages
-    textured: bool                       # colour with texture (else tracked by depth alone)
+    textured: bool  # colour with texture (else tracked by depth alone)
 
 
 @dataclass
 class EgoMapResult:
     """Everything in the world frame `map` (z up, floor z = 0) unless noted."""
 
-    camera: CameraModel                  # as received, with distortion
-    stamps_ns: np.ndarray                # (F,) every frame tracked or skipped (interpolated), none rejected
-    T_world_cam: np.ndarray              # (F, 4, 4) final poses
-    keyframe_frames: np.ndarray          # (K,) frame index of each keyframe
-    T_world_kf: np.ndarray               # (K, 4, 4)
-    landmarks: np.ndarray                # (P, 3)
-    descriptors: np.ndarray              # (P, 128) uint8 (SIFT)
-    obs_keyframe: np.ndarray             # (M,) index into keyframes
-    obs_landmark: np.ndarray             # (M,) index into landmarks
-    obs_uv: np.ndarray                   # (M, 2) raw (distorted) image pixels
-    cloud_points: np.ndarray             # (N, 3)
-    cloud_colors: np.ndarray             # (N, 3) in [0, 1]
+    camera: CameraModel  # as received, with distortion
+    stamps_ns: np.ndarray  # (F,) every frame tracked or skipped (interpolated), none rejected
+    T_world_cam: np.ndarray  # (F, 4, 4) final poses
+    keyframe_frames: np.ndarray  # (K,) frame index of each keyframe
+    T_world_kf: np.ndarray  # (K, 4, 4)
+    landmarks: np.ndarray  # (P, 3)
+    descriptors: np.ndarray  # (P, 128) uint8 (SIFT)
+    obs_keyframe: np.ndarray  # (M,) index into keyframes
+    obs_landmark: np.ndarray  # (M,) index into landmarks
+    obs_uv: np.ndarray  # (M, 2) raw (distorted) image pixels
+    cloud_points: np.ndarray  # (N, 3)
+    cloud_colors: np.ndarray  # (N, 3) in [0, 1]
     layout: Layout
     rectification: Rectification
     trajectories: dict[str, np.ndarray]  # stage -> (F, 4, 4) world poses: odometry, multiway, bundle
@@ -113,7 +114,7 @@ class EgoMapResult:
     # (F,) how each frame was tracked (yowo_ego.odometry statuses) and its overlap (TrackResult.fitness)
     tracking: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype="<U16"))
     tracking_fitness: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    imu: bool = False                    # frames were tracked with the gyro's rotation
+    imu: bool = False  # frames were tracked with the gyro's rotation
     # (F,) the keyframe each frame was tracked from had its attitude held to the building's
     # walls (and floor) in the bundle adjustment (refine.solve_bundle's ``walls``)
     attitude_held: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
@@ -124,8 +125,13 @@ class EgoMapResult:
 
 
 class EgoMapper:
-    def __init__(self, camera: CameraModel, params: EgoParams = EgoParams(), topic: str = "camera_info",
-                 imu: ImuBuffer | None = None):
+    def __init__(
+        self,
+        camera: CameraModel,
+        params: EgoParams = EgoParams(),
+        topic: str = "camera_info",
+        imu: ImuBuffer | None = None,
+    ):
         """``imu``: the ego IMU's samples, appended by the caller as they arrive (each
         frame is tracked with the samples up to its stamp; see ``imu.CoverageWait``)."""
         problems = camera.problems()
@@ -143,11 +149,11 @@ class EgoMapper:
         self._features: list[Future] = []
         self.tracker = KeyframeTracker(camera.K, params.odometry, on_keyframe=self._on_keyframe, imu=imu)
         self._multiway = MultiwayRegistration(self.tracker.odometry, params.loops)
-        self.rejected: dict[str, int] = {}      # problem (topic: what) -> frames
-        self.first_rejection: dict[str, str] = {}   # problem -> the first such frame's message
-        self.untextured = 0                      # frames tracked by depth alone (no texture in colour)
+        self.rejected: dict[str, int] = {}  # problem (topic: what) -> frames
+        self.first_rejection: dict[str, str] = {}  # problem -> the first such frame's message
+        self.untextured = 0  # frames tracked by depth alone (no texture in colour)
         self._last_stamp = -1
-        self._settled = 0                        # results handed out by ``settled``
+        self._settled = 0  # results handed out by ``settled``
         self._t_track = self._cpu_track = self._cpu_features = self._cpu_loops = 0.0
 
     def _on_keyframe(self, kf, edge, gray, depth) -> None:
@@ -173,16 +179,23 @@ class EgoMapper:
         self.rejected[error.key] = self.rejected.get(error.key, 0) + 1
         self.first_rejection.setdefault(error.key, str(error))
 
-    def add(self, stamp_ns: int, color: np.ndarray, depth: np.ndarray, color_topic: str = "colour",
-            depth_topic: str = "depth") -> TrackResult:
+    def add(
+        self,
+        stamp_ns: int,
+        color: np.ndarray,
+        depth: np.ndarray,
+        color_topic: str = "colour",
+        depth_topic: str = "depth",
+    ) -> TrackResult:
         """Track one decoded frame (RGB uint8, depth in metres with NaN/0 invalid), or skip
         it where the motion is slow (``skips``; its result is completed when the next frame
         is tracked). Raises FrameError (counted in ``rejected``) for frames that cannot be used
         (a skipped frame's images are not looked at unless it is tracked after all)."""
         self.admit(stamp_ns, color_topic)
         if self.skips(stamp_ns):
-            return self.skip(stamp_ns, lambda: self.prepare(stamp_ns, color, depth, color_topic, depth_topic,
-                                                             admitted=True))
+            return self.skip(
+                stamp_ns, lambda: self.prepare(stamp_ns, color, depth, color_topic, depth_topic, admitted=True)
+            )
         return self.track(self.prepare(stamp_ns, color, depth, color_topic, depth_topic, admitted=True))
 
     def admit(self, stamp_ns: int, topic: str = "colour") -> None:
@@ -193,8 +206,15 @@ class EgoMapper:
             raise error
         self._last_stamp = stamp_ns
 
-    def prepare(self, stamp_ns: int, color: np.ndarray, depth: np.ndarray, color_topic: str = "colour",
-                depth_topic: str = "depth", admitted: bool = False) -> PreparedFrame:
+    def prepare(
+        self,
+        stamp_ns: int,
+        color: np.ndarray,
+        depth: np.ndarray,
+        color_topic: str = "colour",
+        depth_topic: str = "depth",
+        admitted: bool = False,
+    ) -> PreparedFrame:
         """The checked, undistorted frame and its odometry images, which ``track`` takes;
         FrameError (counted) for a frame that cannot be used. Frames are admitted (``admit``,
         here unless ``admitted``) in stamp order, and prepared on any one thread (a node
@@ -206,8 +226,11 @@ class EgoMapper:
         except FrameError as exc:
             self.reject(exc)
             raise
-        return PreparedFrame(frame, OdometryImages.of(frame, self.params.odometry.scale),
-                             textured_fraction(frame.color) >= MIN_TEXTURED_FRACTION)
+        return PreparedFrame(
+            frame,
+            OdometryImages.of(frame, self.params.odometry.scale),
+            textured_fraction(frame.color) >= MIN_TEXTURED_FRACTION,
+        )
 
     def skips(self, stamp_ns: int, before: tuple[int, ...] = ()) -> bool:
         """Whether the next frame, at ``stamp_ns``, is to be skipped (``OdometryParams.skip``);
@@ -219,10 +242,11 @@ class EgoMapper:
         """Leave the next (admitted) frame untracked: its pose is interpolated once the next
         frame is tracked. ``source`` prepares it (FrameError when unusable) should it be
         tracked after all."""
+
         def made():
             try:
                 prepared = source()
-            except FrameError:          # counted by prepare
+            except FrameError:  # counted by prepare
                 return None
             self.untextured += not prepared.textured
             return prepared.frame, prepared.images
@@ -248,7 +272,7 @@ class EgoMapper:
         end = self._settled
         while end < len(results) and results[end].status != SKIPPED:
             end += 1
-        out, self._settled = results[self._settled:end], end
+        out, self._settled = results[self._settled : end], end
         return out
 
     def finish(self) -> EgoMapResult:
@@ -259,52 +283,82 @@ class EgoMapper:
 
     def _finish(self) -> EgoMapResult:
         t0, c0 = time.perf_counter(), time.thread_time()
-        self.tracker.flush()                     # skipped frames at the end of the walk
+        self.tracker.flush()  # skipped frames at the end of the walk
         self._t_track += time.perf_counter() - t0
         self._cpu_track += time.thread_time() - c0
         if len(self.tracker.results) < 2:
-            raise ValueError(f"ego camera: {len(self.tracker.results)} usable RGB-D frame(s); mapping needs at "
-                             "least 2" + (f" (rejected: {self.rejected})" if self.rejected else ""))
-        stats: dict[str, float] = {"frames": self.frames, "tracking_s": self._t_track,
-                                   "tracking_cpu_s": self._cpu_track}
+            raise ValueError(
+                f"ego camera: {len(self.tracker.results)} usable RGB-D frame(s); mapping needs at "
+                "least 2" + (f" (rejected: {self.rejected})" if self.rejected else "")
+            )
+        stats: dict[str, float] = {
+            "frames": self.frames,
+            "tracking_s": self._t_track,
+            "tracking_cpu_s": self._cpu_track,
+        }
         c_finish = time.thread_time()
-        warnings = [f"{n} frame(s) rejected, the first: {self.first_rejection.get(why, why)}"
-                    for why, n in self.rejected.items()]
+        warnings = [
+            f"{n} frame(s) rejected, the first: {self.first_rejection.get(why, why)}"
+            for why, n in self.rejected.items()
+        ]
         if self.untextured:
-            warnings.append(f"{self.untextured} frame(s) without texture (covered lens, darkness or a bare wall close "
-                            "up) tracked by their depth alone")
+            warnings.append(
+                f"{self.untextured} frame(s) without texture (covered lens, darkness or a bare wall close "
+                "up) tracked by their depth alone"
+            )
         t0 = time.perf_counter()
         features: list[KeyframeFeatures] = [f.result() for f in self._features]
-        self._features = []                      # the list above holds them, until the adjustment
+        self._features = []  # the list above holds them, until the adjustment
         self._pool.shutdown()
-        stats.update(feature_wait_s=time.perf_counter() - t0, features_cpu_s=self._cpu_features,
-                     loops_online_cpu_s=self._cpu_loops)
+        stats.update(
+            feature_wait_s=time.perf_counter() - t0,
+            features_cpu_s=self._cpu_features,
+            loops_online_cpu_s=self._cpu_loops,
+        )
         tr, p = self.tracker, self.params
         keyframes = tr.keyframes
         K = self.ideal.K
-        stats.update(keyframes=len(keyframes), breaks=tr.breaks,
-                     recovered=sum(r.status == RECOVERED for r in tr.results),
-                     imu_bridged=sum(r.status == IMU_BRIDGED for r in tr.results), imu_frames=tr.imu_frames,
-                     degenerate_frames=tr.degenerate_frames, suspect_frames=tr.suspect_frames,
-                     map_relocalised=tr.map_relocalised, skipped_frames=tr.skipped,
-                     backfilled_frames=tr.backfilled, untextured_frames=self.untextured)
+        stats.update(
+            keyframes=len(keyframes),
+            breaks=tr.breaks,
+            recovered=sum(r.status == RECOVERED for r in tr.results),
+            imu_bridged=sum(r.status == IMU_BRIDGED for r in tr.results),
+            imu_frames=tr.imu_frames,
+            degenerate_frames=tr.degenerate_frames,
+            suspect_frames=tr.suspect_frames,
+            map_relocalised=tr.map_relocalised,
+            skipped_frames=tr.skipped,
+            backfilled_frames=tr.backfilled,
+            untextured_frames=self.untextured,
+        )
         if tr.imu is not None:
             stats["imu_samples"] = len(tr.imu)
         T_odometry = [k.T_odom_cam for k in keyframes]
 
         t0 = time.perf_counter()
         mw = self._multiway.finish()
-        self._multiway = None                    # its features and pairs live on in `features` and mw
+        self._multiway = None  # its features and pairs live on in `features` and mw
         if tr.breaks:
-            failed = f" (not in the map: {'; '.join(tr.map_failures[:3])}{'; ...' if len(tr.map_failures) > 3 else ''})" \
-                if tr.map_failures else ""
-            warnings.append(f"odometry lost track {tr.breaks} time(s): {tr.map_relocalised} placed in the map of the "
-                            f"recent keyframes by their depth{failed}; {mw.relocalised} segment(s) relocalised by "
-                            "place recognition, the others joined by loop closures or weak constant-velocity edges")
-        stats.update(multiway_s=time.perf_counter() - t0, edges_corrected=mw.edges_corrected,
-                     loops_tried=mw.loops_tried,
-                     loops_verified=mw.loops_verified, loops_refined=mw.loops_refined,
-                     loops_kept=mw.loops_kept, relocalised=mw.relocalised, loops_retrieved=mw.loops_retrieved)
+            failed = (
+                f" (not in the map: {'; '.join(tr.map_failures[:3])}{'; ...' if len(tr.map_failures) > 3 else ''})"
+                if tr.map_failures
+                else ""
+            )
+            warnings.append(
+                f"odometry lost track {tr.breaks} time(s): {tr.map_relocalised} placed in the map of the "
+                f"recent keyframes by their depth{failed}; {mw.relocalised} segment(s) relocalised by "
+                "place recognition, the others joined by loop closures or weak constant-velocity edges"
+            )
+        stats.update(
+            multiway_s=time.perf_counter() - t0,
+            edges_corrected=mw.edges_corrected,
+            loops_tried=mw.loops_tried,
+            loops_verified=mw.loops_verified,
+            loops_refined=mw.loops_refined,
+            loops_kept=mw.loops_kept,
+            relocalised=mw.relocalised,
+            loops_retrieved=mw.loops_retrieved,
+        )
         T_kf = mw.T_odom_kf
 
         T_bundle, scene_map, inertial_up, held = T_kf, _SceneMap.empty(), None, np.zeros(len(keyframes), bool)
@@ -333,8 +387,13 @@ class EgoMapper:
         W = rect.T_world_odom
         if self._imu_usable():
             self._check_gravity(W, T_bundle, inertial_up, stats, warnings)
-        stats.update(cloud_s=time.perf_counter() - t0, cloud_points=len(points), patches=len(patches),
-                     floor_points=support, camera_height_m=rect.camera_height_m)
+        stats.update(
+            cloud_s=time.perf_counter() - t0,
+            cloud_points=len(points),
+            patches=len(patches),
+            floor_points=support,
+            camera_height_m=rect.camera_height_m,
+        )
 
         def frame_poses(T_keyframes: list[np.ndarray]) -> np.ndarray:
             return W @ frames_between_keyframes(tr.results, tr.edges, keyframes, T_keyframes)
@@ -345,21 +404,46 @@ class EgoMapper:
         final = trajectories["bundle" if p.bundle_adjustment else "multiway"]
         points_w = transform_points(W, points)
         t0 = time.perf_counter()
-        layout = build_layout(points_w, transform_points(W, small), small_normals @ W[:3, :3].T,
-                              [q.transformed(W) for q in patches], transform_points(W, cams), p.layout)
-        stats.update(layout_s=time.perf_counter() - t0, walls=sum(q.kind == KIND_WALL for q in layout.planes),
-                     ceiling_height_m=layout.ceiling_height, finish_cpu_s=time.thread_time() - c_finish)
+        layout = build_layout(
+            points_w,
+            transform_points(W, small),
+            small_normals @ W[:3, :3].T,
+            [q.transformed(W) for q in patches],
+            transform_points(W, cams),
+            p.layout,
+        )
+        stats.update(
+            layout_s=time.perf_counter() - t0,
+            walls=sum(q.kind == KIND_WALL for q in layout.planes),
+            ceiling_height_m=layout.ceiling_height,
+            finish_cpu_s=time.thread_time() - c_finish,
+        )
         m = scene_map
         # Observations back to raw pixels for other stages.
-        raw_uv = self.camera.project(backproject(m.obs_uv, np.ones(len(m.obs_uv)), K))[0] if len(m.obs_uv) \
-            else m.obs_uv
+        raw_uv = self.camera.project(backproject(m.obs_uv, np.ones(len(m.obs_uv)), K))[0] if len(m.obs_uv) else m.obs_uv
         return EgoMapResult(
-            self.camera, np.array([r.stamp_ns for r in tr.results], dtype=np.int64), final,
-            np.array([k.frame_index for k in keyframes], dtype=int), np.array([W @ T for T in T_bundle]),
-            transform_points(W, m.landmarks) if len(m.landmarks) else m.landmarks, m.descriptors, m.obs_keyframe,
-            m.obs_landmark, raw_uv, points_w, colors, layout, rect, trajectories, stats, warnings,
-            np.array([r.status for r in tr.results]), np.array([r.fitness for r in tr.results], dtype=float),
-            tr.imu_frames > 0, held[np.array([r.keyframe for r in tr.results], dtype=int)])
+            self.camera,
+            np.array([r.stamp_ns for r in tr.results], dtype=np.int64),
+            final,
+            np.array([k.frame_index for k in keyframes], dtype=int),
+            np.array([W @ T for T in T_bundle]),
+            transform_points(W, m.landmarks) if len(m.landmarks) else m.landmarks,
+            m.descriptors,
+            m.obs_keyframe,
+            m.obs_landmark,
+            raw_uv,
+            points_w,
+            colors,
+            layout,
+            rect,
+            trajectories,
+            stats,
+            warnings,
+            np.array([r.status for r in tr.results]),
+            np.array([r.fitness for r in tr.results], dtype=float),
+            tr.imu_frames > 0,
+            held[np.array([r.keyframe for r in tr.results], dtype=int)],
+        )
 
     def _imu_usable(self) -> bool:
         imu = self.tracker.imu
@@ -368,8 +452,10 @@ class EgoMapper:
     def _odom_frames(self, T_kf: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """(stamps, odometry-frame poses) of every frame given keyframe poses."""
         tr = self.tracker
-        return (np.array([r.stamp_ns for r in tr.results], dtype=np.int64),
-                frames_between_keyframes(tr.results, tr.edges, tr.keyframes, T_kf))
+        return (
+            np.array([r.stamp_ns for r in tr.results], dtype=np.int64),
+            frames_between_keyframes(tr.results, tr.edges, tr.keyframes, T_kf),
+        )
 
     def _inertial_terms(self, T_kf: list[np.ndarray], stats: dict, warnings: list[str]) -> InertialTerms | None:
         """The IMU between consecutive keyframes, gravity along the accelerometer's
@@ -381,8 +467,9 @@ class EgoMapper:
         except ValueError as exc:
             warnings.append(f"IMU not used in the bundle adjustment: {exc}")
             return None
-        terms = keyframe_preintegration(self.tracker.imu, np.array([k.stamp_ns for k in self.tracker.keyframes]),
-                                        up, self.params.inertial)
+        terms = keyframe_preintegration(
+            self.tracker.imu, np.array([k.stamp_ns for k in self.tracker.keyframes]), up, self.params.inertial
+        )
         stats.update(imu_factors=len(terms.between), imu_intervals_skipped=len(terms.skipped))
         return terms
 
@@ -397,8 +484,9 @@ class EgoMapper:
                 pass
         return up_from_cameras(T_bundle), "the camera's mean up direction"
 
-    def _check_gravity(self, W: np.ndarray, T_bundle: list[np.ndarray], up: np.ndarray | None, stats: dict,
-                       warnings: list[str]) -> None:
+    def _check_gravity(
+        self, W: np.ndarray, T_bundle: list[np.ndarray], up: np.ndarray | None, stats: dict, warnings: list[str]
+    ) -> None:
         """The rectified vertical (the floor's normal) against the IMU's gravity: the
         bundle adjustment's (``up``, its IMU factors' frame: accelerometer bias
         estimated) or else the accelerometer's mean over the final trajectory."""
@@ -412,12 +500,20 @@ class EgoMapper:
         stats["gravity_imu_angle_deg"] = angle
         limit = self.params.inertial.max_gravity_disagreement_deg
         if angle > limit:
-            warnings.append(f"the floor rectification's vertical is {angle:.1f} deg from the IMU's gravity (> {limit:g} "
-                            "deg): the floor plane found may be wrong, or the IMU calibration (T_cam_imu)")
+            warnings.append(
+                f"the floor rectification's vertical is {angle:.1f} deg from the IMU's gravity (> {limit:g} "
+                "deg): the floor plane found may be wrong, or the IMU calibration (T_cam_imu)"
+            )
 
-    def _refine(self, mw, features: list[KeyframeFeatures], T_kf: list[np.ndarray], stats: dict,
-                warnings: list[str], inertial: InertialTerms | None = None
-                ) -> tuple[list[np.ndarray], "_SceneMap", np.ndarray | None, np.ndarray]:
+    def _refine(
+        self,
+        mw,
+        features: list[KeyframeFeatures],
+        T_kf: list[np.ndarray],
+        stats: dict,
+        warnings: list[str],
+        inertial: InertialTerms | None = None,
+    ) -> tuple[list[np.ndarray], "_SceneMap", np.ndarray | None, np.ndarray]:
         """Visual refinement: filtered matches of every registered keyframe pair ->
         tracks -> bundle adjustment (with the pose graph's edges and ``inertial``).
         Returns the refined keyframe poses, the map, the up direction of the IMU
@@ -428,8 +524,16 @@ class EgoMapper:
         for pair in mw.pairs:
             fa, fb = features[pair.a], features[pair.b]
             m = pair.matches
-            res = filter_matches(fa.uv[m[:, 0]], fb.uv[m[:, 1]], fa.depth[m[:, 0]], fb.depth[m[:, 1]],
-                                 T_kf[pair.a], T_kf[pair.b], K, p.filter)
+            res = filter_matches(
+                fa.uv[m[:, 0]],
+                fb.uv[m[:, 1]],
+                fa.depth[m[:, 0]],
+                fb.depth[m[:, 1]],
+                T_kf[pair.a],
+                T_kf[pair.b],
+                K,
+                p.filter,
+            )
             accepted.append((pair.a, pair.b, m[res.keep]))
             n_matches += len(m)
             n_epi += res.epipolar_rejected
@@ -461,17 +565,29 @@ class EgoMapper:
         keep = counts >= 2
         remap = np.cumsum(keep) - 1
         sel = keep[ba.obs.point]
-        stats.update(landmarks=int(keep.sum()), observations=int(sel.sum()), bundle_rmse_px=ba.rmse_px,
-                     bundle_sigma_px=ba.sigma_px, bundle_dropped=ba.dropped,
-                     bundle_left_out=ba.left_out, bundle_iterations=ba.iterations)
+        stats.update(
+            landmarks=int(keep.sum()),
+            observations=int(sel.sum()),
+            bundle_rmse_px=ba.rmse_px,
+            bundle_sigma_px=ba.sigma_px,
+            bundle_dropped=ba.dropped,
+            bundle_left_out=ba.left_out,
+            bundle_iterations=ba.iterations,
+        )
         if ba.biases:
             b = np.array(list(ba.biases.values()))
-            stats.update(imu_accel_bias_mps2=float(np.linalg.norm(b[:, :3], axis=1).mean()),
-                         imu_gyro_bias_dps=float(np.degrees(np.linalg.norm(b[:, 3:], axis=1).mean())))
-        return (ba.T_world_kf, _SceneMap(ba.landmarks[keep], ba.descriptors[keep], ba.obs.camera[sel],
-                                         remap[ba.obs.point[sel]], ba.obs.uv[sel]),
-                inertial.up_odom if inertial is not None and inertial.between else None,
-                np.isin(np.arange(len(T_kf)), list(walls.walls) if walls is not None else []))
+            stats.update(
+                imu_accel_bias_mps2=float(np.linalg.norm(b[:, :3], axis=1).mean()),
+                imu_gyro_bias_dps=float(np.degrees(np.linalg.norm(b[:, 3:], axis=1).mean())),
+            )
+        return (
+            ba.T_world_kf,
+            _SceneMap(
+                ba.landmarks[keep], ba.descriptors[keep], ba.obs.camera[sel], remap[ba.obs.point[sel]], ba.obs.uv[sel]
+            ),
+            inertial.up_odom if inertial is not None and inertial.between else None,
+            np.isin(np.arange(len(T_kf)), list(walls.walls) if walls is not None else []),
+        )
 
 
 @dataclass
@@ -486,12 +602,14 @@ class _SceneMap:
 
     @staticmethod
     def empty() -> "_SceneMap":
-        return _SceneMap(np.zeros((0, 3)), np.zeros((0, 128), np.uint8), np.zeros(0, int), np.zeros(0, int),
-                         np.zeros((0, 2)))
+        return _SceneMap(
+            np.zeros((0, 3)), np.zeros((0, 128), np.uint8), np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))
+        )
 
 
-def frames_between_keyframes(results: list[TrackResult], edges: list[OdometryEdge], keyframes: list[Keyframe],
-                             T_keyframes: list[np.ndarray]) -> np.ndarray:
+def frames_between_keyframes(
+    results: list[TrackResult], edges: list[OdometryEdge], keyframes: list[Keyframe], T_keyframes: list[np.ndarray]
+) -> np.ndarray:
     """Every frame's pose from its keyframe's (optimised) pose and its tracked
     offset. Tracking and the optimised keyframes disagree about the next
     keyframe by a correction; frames between two keyframes take that correction
@@ -513,9 +631,14 @@ def frames_between_keyframes(results: list[TrackResult], edges: list[OdometryEdg
     return out
 
 
-def map_recording(frames: Iterable[tuple[int, np.ndarray, np.ndarray]], camera: CameraModel,
-                  params: EgoParams = EgoParams(), color_topic: str = "colour",
-                  depth_topic: str = "depth", imu: ImuBuffer | None = None) -> EgoMapResult:
+def map_recording(
+    frames: Iterable[tuple[int, np.ndarray, np.ndarray]],
+    camera: CameraModel,
+    params: EgoParams = EgoParams(),
+    color_topic: str = "colour",
+    depth_topic: str = "depth",
+    imu: ImuBuffer | None = None,
+) -> EgoMapResult:
     """Offline entry: (stamp_ns, RGB uint8, depth metres) in time order. Unusable
     frames are skipped and reported in the result's warnings. ``imu``: the ego IMU's
     samples, complete or filled while ``frames`` is consumed (up to each frame's stamp

@@ -22,6 +22,7 @@ registration [Choi et al. 2015]), as an Open3D pose graph:
 
 Edge checks and loop closures run per keyframe as the recording goes on
 (``MultiwayRegistration.add``); only the optimisation waits for its end."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -42,11 +43,11 @@ from .retrieval import PlaceIndex, RetrievalParams
 
 @dataclass(frozen=True)
 class LoopParams:
-    min_separation: int = 3              # keyframes; closer ones are linked by odometry already
-    max_distance_m: float = 2.5          # candidate camera centres this close ...
-    max_angle_deg: float = 45.0          # ... looking within this angle of each other
-    max_per_keyframe: int = 2            # nearest candidates verified per keyframe
-    break_window: int = 4                # keyframes either side of a tracking break, all pairs tried
+    min_separation: int = 3  # keyframes; closer ones are linked by odometry already
+    max_distance_m: float = 2.5  # candidate camera centres this close ...
+    max_angle_deg: float = 45.0  # ... looking within this angle of each other
+    max_per_keyframe: int = 2  # nearest candidates verified per keyframe
+    break_window: int = 4  # keyframes either side of a tracking break, all pairs tried
     features: FeatureParams = FeatureParams()
     # A tracking edge and the PnP estimate agree within these bounds; so must a
     # dense refinement started from PnP. PnP on SIFT is accurate to a few mm /
@@ -94,22 +95,22 @@ class PairMatches:
 
     a: int
     b: int
-    matches: np.ndarray            # (M, 2) feature indices (in a, in b)
+    matches: np.ndarray  # (M, 2) feature indices (in a, in b)
     pnp: PnpResult | None
 
 
 @dataclass
 class MultiwayResult:
-    T_odom_kf: list[np.ndarray]    # optimised keyframe poses
-    edges_corrected: int           # tracking edges replaced after the PnP check
+    T_odom_kf: list[np.ndarray]  # optimised keyframe poses
+    edges_corrected: int  # tracking edges replaced after the PnP check
     loops_tried: int
-    loops_verified: int            # by SIFT + PnP
-    loops_refined: int             # of those, refined densely
-    loops_kept: int                # after the line process pruned the inconsistent ones
-    relocalised: int               # segments joined to the walk by place recognition
-    loops_retrieved: int           # loop edges between keyframes found by place recognition
-    pairs: list[PairMatches]       # every matched keyframe pair (consecutive and loops)
-    edges: list[OdometryEdge]      # the graph's edges the optimisation kept (tracking, IMU, break, loop)
+    loops_verified: int  # by SIFT + PnP
+    loops_refined: int  # of those, refined densely
+    loops_kept: int  # after the line process pruned the inconsistent ones
+    relocalised: int  # segments joined to the walk by place recognition
+    loops_retrieved: int  # loop edges between keyframes found by place recognition
+    pairs: list[PairMatches]  # every matched keyframe pair (consecutive and loops)
+    edges: list[OdometryEdge]  # the graph's edges the optimisation kept (tracking, IMU, break, loop)
 
 
 def loop_candidates_of(b: int, T_odom_kf: list[np.ndarray], params: LoopParams = LoopParams()) -> list[int]:
@@ -118,12 +119,13 @@ def loop_candidates_of(b: int, T_odom_kf: list[np.ndarray], params: LoopParams =
     the ``max_per_keyframe`` nearest."""
     if b < params.min_separation:
         return []
-    C = np.array([T[:3, 3] for T in T_odom_kf[:b - params.min_separation + 1]])
-    Z = np.array([T[:3, 2] for T in T_odom_kf[:b - params.min_separation + 1]])
+    C = np.array([T[:3, 3] for T in T_odom_kf[: b - params.min_separation + 1]])
+    Z = np.array([T[:3, 2] for T in T_odom_kf[: b - params.min_separation + 1]])
     dist = np.linalg.norm(C - T_odom_kf[b][:3, 3], axis=1)
-    ok = np.flatnonzero((dist <= params.max_distance_m)
-                        & (Z @ T_odom_kf[b][:3, 2] >= np.cos(np.radians(params.max_angle_deg))))
-    return [int(a) for a in ok[np.argsort(dist[ok], kind="stable")][:params.max_per_keyframe]]
+    ok = np.flatnonzero(
+        (dist <= params.max_distance_m) & (Z @ T_odom_kf[b][:3, 2] >= np.cos(np.radians(params.max_angle_deg)))
+    )
+    return [int(a) for a in ok[np.argsort(dist[ok], kind="stable")][: params.max_per_keyframe]]
 
 
 def break_pairs(segments: list[int], params: LoopParams = LoopParams()) -> list[tuple[int, int]]:
@@ -136,21 +138,28 @@ def break_pairs(segments: list[int], params: LoopParams = LoopParams()) -> list[
     return sorted(pairs)
 
 
-def match_pair(fa: KeyframeFeatures, fb: KeyframeFeatures, a: int, b: int, K: np.ndarray,
-               params: FeatureParams) -> PairMatches:
+def match_pair(
+    fa: KeyframeFeatures, fb: KeyframeFeatures, a: int, b: int, K: np.ndarray, params: FeatureParams
+) -> PairMatches:
     m = match(fa, fb, params.ratio)
     return PairMatches(a, b, m, relative_pose(fa, fb, m, K, params))
 
 
 def _agree(T1: np.ndarray, T2: np.ndarray, params: LoopParams, loose: bool = False) -> bool:
-    max_m, max_deg = ((params.loop_refine_max_m, params.loop_refine_max_deg) if loose
-                      else (params.agree_m, params.agree_deg))
-    return (np.linalg.norm(T1[:3, 3] - T2[:3, 3]) <= max_m
-            and rotation_angle_deg(T1[:3, :3], T2[:3, :3]) <= max_deg)
+    max_m, max_deg = (
+        (params.loop_refine_max_m, params.loop_refine_max_deg) if loose else (params.agree_m, params.agree_deg)
+    )
+    return np.linalg.norm(T1[:3, 3] - T2[:3, 3]) <= max_m and rotation_angle_deg(T1[:3, :3], T2[:3, :3]) <= max_deg
 
 
-def dense_edge(pair: PairMatches, kf_a: Keyframe, kf_b: Keyframe, odometry: RgbdOdometry, params: LoopParams,
-               kind: str = "odometry") -> OdometryEdge | None:
+def dense_edge(
+    pair: PairMatches,
+    kf_a: Keyframe,
+    kf_b: Keyframe,
+    odometry: RgbdOdometry,
+    params: LoopParams,
+    kind: str = "odometry",
+) -> OdometryEdge | None:
     """Edge b -> a from a PnP-verified pair: dense refinement from the PnP
     estimate when it passes the odometry checks and agrees with PnP (closely
     for a tracking edge, loosely for a loop), else None."""
@@ -160,20 +169,29 @@ def dense_edge(pair: PairMatches, kf_a: Keyframe, kf_b: Keyframe, odometry: Rgbd
     src, tgt = o3d_rgbd(kf_b.color, kf_b.depth_mm), o3d_rgbd(kf_a.color, kf_a.depth_mm)
     for cascade in odometry.params.cascades:
         T, fit, rmse = odometry.register(src, tgt, T_a_b, cascade)
-        if (fit >= odometry.params.min_fitness and rmse <= odometry.params.max_inlier_rmse
-                and _agree(T, T_a_b, params, loose=kind == "loop")):
-            return OdometryEdge(kf_b.index, kf_a.index, T, odometry.information(kf_b.depth_mm, kf_a.depth_mm, T),
-                                kind)
+        if (
+            fit >= odometry.params.min_fitness
+            and rmse <= odometry.params.max_inlier_rmse
+            and _agree(T, T_a_b, params, loose=kind == "loop")
+        ):
+            return OdometryEdge(kf_b.index, kf_a.index, T, odometry.information(kf_b.depth_mm, kf_a.depth_mm, T), kind)
     return None
 
 
 def _gyro_agrees(edge: OdometryEdge, T_target_source: np.ndarray, params: LoopParams) -> bool:
-    return edge.R_gyro is None or (rotation_angle_deg(edge.R_gyro, T_target_source[:3, :3])
-                                   <= params.max_gyro_disagreement_deg)
+    return edge.R_gyro is None or (
+        rotation_angle_deg(edge.R_gyro, T_target_source[:3, :3]) <= params.max_gyro_disagreement_deg
+    )
 
 
-def verify_edge(edge: OdometryEdge, pair: PairMatches, features: list[KeyframeFeatures], keyframes: list[Keyframe],
-                odometry: RgbdOdometry, params: LoopParams) -> tuple[OdometryEdge, bool]:
+def verify_edge(
+    edge: OdometryEdge,
+    pair: PairMatches,
+    features: list[KeyframeFeatures],
+    keyframes: list[Keyframe],
+    odometry: RgbdOdometry,
+    params: LoopParams,
+) -> tuple[OdometryEdge, bool]:
     """Check a tracking edge against the keyframes' SIFT + PnP estimate. Dense
     odometry can settle in a wrong minimum that still fits well (along a wall,
     rotation and translation trade off), so an edge that disagrees with PnP
@@ -194,25 +212,34 @@ def verify_edge(edge: OdometryEdge, pair: PairMatches, features: list[KeyframeFe
     T_pnp = inv_se3(pnp.T_b_a)
     edge_support = support(fa, fb, matches, inv_se3(edge.T_target_source), K)
     pnp_support = support(fa, fb, matches, pnp.T_b_a, K)
-    if edge.kind == "odometry" and (_agree(edge.T_target_source, T_pnp, params)
-                                    or edge_support >= params.keep_support_ratio * pnp_support):
+    if edge.kind == "odometry" and (
+        _agree(edge.T_target_source, T_pnp, params) or edge_support >= params.keep_support_ratio * pnp_support
+    ):
         return edge, False
     kf_a, kf_b = keyframes[pair.a], keyframes[pair.b]
     fixed = dense_edge(PairMatches(pair.a, pair.b, matches, pnp), kf_a, kf_b, odometry, params)
     # A break edge is only a guess anyway; a contradicted one is worse than PnP.
-    if fixed is None and (not loose or edge.kind == "break"
-                          or edge_support < params.contradicted_support_ratio * pnp_support):
-        fixed = OdometryEdge(kf_b.index, kf_a.index, T_pnp,
-                             odometry.information(kf_b.depth_mm, kf_a.depth_mm, T_pnp), "odometry")
+    if fixed is None and (
+        not loose or edge.kind == "break" or edge_support < params.contradicted_support_ratio * pnp_support
+    ):
+        fixed = OdometryEdge(
+            kf_b.index, kf_a.index, T_pnp, odometry.information(kf_b.depth_mm, kf_a.depth_mm, T_pnp), "odometry"
+        )
     if fixed is None or not _gyro_agrees(edge, fixed.T_target_source, params):
         return edge, False
     fixed.R_gyro = edge.R_gyro
     return fixed, True
 
 
-def _verify_across(edges: list[OdometryEdge], checked: list[bool], pairs: list[PairMatches],
-                   features: list[KeyframeFeatures], keyframes: list[Keyframe], odometry: RgbdOdometry,
-                   params: LoopParams) -> int:
+def _verify_across(
+    edges: list[OdometryEdge],
+    checked: list[bool],
+    pairs: list[PairMatches],
+    features: list[KeyframeFeatures],
+    keyframes: list[Keyframe],
+    odometry: RgbdOdometry,
+    params: LoopParams,
+) -> int:
     """Edges a -> a+1 whose keyframes share too few matches to be checked are
     checked across a neighbour instead: PnP between a-1 and a+1 (or a and a+2)
     combined with the neighbour's checked edge implies the edge. Returns how
@@ -238,15 +265,23 @@ def _verify_across(edges: list[OdometryEdge], checked: list[bool], pairs: list[P
             # room of look-alike walls PnP across two keyframes can fit a shifted copy (small
             # symmetric s2 without IMU: a correctly tracked edge moved 0.50 m).
             T_lo_hi_edge = T_via @ e.T_target_source if lo == a - 1 else e.T_target_source @ T_via
-            if (support(features[lo], features[hi], pair.matches, inv_se3(T_lo_hi_edge), K)
-                    >= params.keep_support_ratio * support(features[lo], features[hi], pair.matches, pair.pnp.T_b_a, K)):
+            if support(
+                features[lo], features[hi], pair.matches, inv_se3(T_lo_hi_edge), K
+            ) >= params.keep_support_ratio * support(features[lo], features[hi], pair.matches, pair.pnp.T_b_a, K):
                 break
-            if (not _agree(e.T_target_source, implied, params) and _gyro_agrees(e, implied, params)
-                    and rotation_angle_deg(e.T_target_source[:3, :3], implied[:3, :3])
-                    <= params.max_across_correction_deg):
-                edges[i] = OdometryEdge(b, a, implied, odometry.information(keyframes[b].depth_mm,
-                                                                             keyframes[a].depth_mm, implied),
-                                        "odometry", e.R_gyro)
+            if (
+                not _agree(e.T_target_source, implied, params)
+                and _gyro_agrees(e, implied, params)
+                and rotation_angle_deg(e.T_target_source[:3, :3], implied[:3, :3]) <= params.max_across_correction_deg
+            ):
+                edges[i] = OdometryEdge(
+                    b,
+                    a,
+                    implied,
+                    odometry.information(keyframes[b].depth_mm, keyframes[a].depth_mm, implied),
+                    "odometry",
+                    e.R_gyro,
+                )
                 replaced += 1
             break
     return replaced
@@ -261,8 +296,9 @@ def chain_poses(n: int, edges: list[OdometryEdge]) -> list[np.ndarray]:
     return T
 
 
-def optimize(keyframes: list[Keyframe], edges: list[OdometryEdge],
-             params: LoopParams = LoopParams()) -> tuple[list[np.ndarray], list[OdometryEdge]]:
+def optimize(
+    keyframes: list[Keyframe], edges: list[OdometryEdge], params: LoopParams = LoopParams()
+) -> tuple[list[np.ndarray], list[OdometryEdge]]:
     """Global pose-graph optimisation of Choi et al. 2015 as Open3D's
     ``global_optimization`` does it (Levenberg-Marquardt with a line process on
     the loop edges; the loops whose line process ends below
@@ -282,13 +318,19 @@ def optimize(keyframes: list[Keyframe], edges: list[OdometryEdge],
     return [orthonormalize(t) for t in T], [edges[i] for i in active]
 
 
-def _optimize_once(T_init: list[np.ndarray], edges: list[OdometryEdge],
-                   params: LoopParams) -> tuple[list[np.ndarray], list[float]]:
+def _optimize_once(
+    T_init: list[np.ndarray], edges: list[OdometryEdge], params: LoopParams
+) -> tuple[list[np.ndarray], list[float]]:
     """One of Open3D's optimisation passes: poses and each edge's line process
     (1 for tracking edges)."""
     # Open3D's line-process weight (ComputeLineProcessWeight), over the edges of this pass.
-    mu = params.preference_loop_closure * params.max_correspondence_distance_m ** 2 * float(
-        np.mean([e.information[5, 5] for e in edges])) if edges else 0.0
+    mu = (
+        params.preference_loop_closure
+        * params.max_correspondence_distance_m**2
+        * float(np.mean([e.information[5, 5] for e in edges]))
+        if edges
+        else 0.0
+    )
     kernel = gtsam.noiseModel.mEstimator.GemanMcClure.Create(np.sqrt(mu)) if mu > 0 else None
     uncertain = [e.kind not in TRACKING_KINDS for e in edges]
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
@@ -304,8 +346,7 @@ def _optimize_once(T_init: list[np.ndarray], edges: list[OdometryEdge],
     # Fix one node per connected part: keyframe 0, and where pruned loops left a part
     # unattached (Open3D's damped solve leaves such a part where it is), its first keyframe.
     n = len(T_init)
-    adjacency = coo_matrix((np.ones(len(edges)), ([e.source for e in edges], [e.target for e in edges])),
-                           shape=(n, n))
+    adjacency = coo_matrix((np.ones(len(edges)), ([e.source for e in edges], [e.target for e in edges])), shape=(n, n))
     _, part = connected_components(adjacency, directed=False)
     for first in np.unique(part, return_index=True)[1]:
         graph.add(gtsam.NonlinearEqualityPose3(int(first), pose3(T_init[first])))
@@ -333,16 +374,16 @@ class MultiwayRegistration:
         self.odometry, self.params = odometry, params
         self.keyframes: list[Keyframe] = []
         self.features: list[KeyframeFeatures] = []
-        self.edges: list[OdometryEdge] = []          # checked tracking edges, b -> b - 1
+        self.edges: list[OdometryEdge] = []  # checked tracking edges, b -> b - 1
         self._checked: list[bool] = []
-        self._chain: list[np.ndarray] = []           # keyframe poses along the checked edges
+        self._chain: list[np.ndarray] = []  # keyframe poses along the checked edges
         self._pairs: list[PairMatches] = []
         self._loops: list[OdometryEdge] = []
         self._tried: set[tuple[int, int]] = set()
         self._corrected = self._verified = 0
         self.places = PlaceIndex(params.retrieval)
-        self._joined = {0}                           # segments tied to the walk's first keyframe
-        self._segment_start: dict[int, int] = {}     # segment -> its first keyframe
+        self._joined = {0}  # segments tied to the walk's first keyframe
+        self._segment_start: dict[int, int] = {}  # segment -> its first keyframe
         self._relocalised = self._retrieved = 0
 
     def add(self, keyframe: Keyframe, features: KeyframeFeatures, edge: OdometryEdge | None) -> None:
@@ -366,7 +407,7 @@ class MultiwayRegistration:
         self._corrected += replaced
         self._chain.append(orthonormalize(self._chain[a] @ edge.T_target_source))
         if edge.kind != "break" and self.keyframes[a].segment in self._joined:
-            self._joined.add(keyframe.segment)      # the break's edge was verified after all
+            self._joined.add(keyframe.segment)  # the break's edge was verified after all
         for a in loop_candidates_of(b, self._chain, self.params):
             self._try_loop(a, b)
         if self.params.retrieval.enabled:
@@ -379,16 +420,17 @@ class MultiwayRegistration:
         r, segment = self.params.retrieval, self.keyframes[b].segment
         joined = segment in self._joined
         last = b - self.params.min_separation if joined else b - 1
-        allowed = [a for a in range(last + 1) if self.keyframes[a].segment in self._joined
-                   and (a, b) not in self._tried]
-        for a, _ in self.places.query(b, allowed)[:r.loop_candidates if joined else r.relocalisation_candidates]:
+        allowed = [
+            a for a in range(last + 1) if self.keyframes[a].segment in self._joined and (a, b) not in self._tried
+        ]
+        for a, _ in self.places.query(b, allowed)[: r.loop_candidates if joined else r.relocalisation_candidates]:
             edge = self._try_loop(a, b)
             if edge is None:
                 continue
             if segment not in self._joined:
                 s0 = self._segment_start[segment]
                 T_s0 = self._relocalised_start(edge, s0)
-                if T_s0 is None:            # a look-alike place (a symmetric room)
+                if T_s0 is None:  # a look-alike place (a symmetric room)
                     self._loops.remove(edge)
                     continue
                 self._relocalise(s0, T_s0)
@@ -416,8 +458,14 @@ class MultiwayRegistration:
         brk = self.edges[s0 - 1]
         if brk.kind != "break":
             return
-        self.edges[s0 - 1] = OdometryEdge(brk.source, brk.target, orthonormalize(inv_se3(self._chain[s0 - 1]) @ T_s0),
-                                          brk.information, brk.kind, brk.R_gyro)
+        self.edges[s0 - 1] = OdometryEdge(
+            brk.source,
+            brk.target,
+            orthonormalize(inv_se3(self._chain[s0 - 1]) @ T_s0),
+            brk.information,
+            brk.kind,
+            brk.R_gyro,
+        )
         for k in range(s0, len(self.keyframes)):
             self._chain[k] = orthonormalize(self._chain[k - 1] @ self.edges[k - 1].T_target_source)
 
@@ -440,8 +488,9 @@ class MultiwayRegistration:
 
     def finish(self) -> MultiwayResult:
         p = self.params
-        self._corrected += _verify_across(self.edges, self._checked, self._pairs, self.features, self.keyframes,
-                                          self.odometry, p)
+        self._corrected += _verify_across(
+            self.edges, self._checked, self._pairs, self.features, self.keyframes, self.odometry, p
+        )
         for a, c in break_pairs([k.segment for k in self.keyframes], p):
             if (a, c) not in self._tried:
                 self._try_loop(a, c)
@@ -449,7 +498,15 @@ class MultiwayRegistration:
         T_init = chain_poses(len(self.keyframes), self.edges)
         nodes = [k.moved(T) for k, T in zip(self.keyframes, T_init)]
         T, kept = optimize(nodes, self.edges + self._loops, p)
-        return MultiwayResult(T, self._corrected, len(self._tried), self._verified, len(self._loops),
-                              sum(e.kind not in TRACKING_KINDS for e in kept), self._relocalised,
-                              self._retrieved, self._pairs, kept)
-
+        return MultiwayResult(
+            T,
+            self._corrected,
+            len(self._tried),
+            self._verified,
+            len(self._loops),
+            sum(e.kind not in TRACKING_KINDS for e in kept),
+            self._relocalised,
+            self._retrieved,
+            self._pairs,
+            kept,
+        )

@@ -1,6 +1,7 @@
 """Ego frames (and the ego IMU's samples, when recorded) from a rosbag2 recording
 for the offline entry ``map_recording`` (bag I/O through yowo_common.ros.bag, which
 deserialises with rclpy; the algorithm modules never import it)."""
+
 from __future__ import annotations
 
 import itertools
@@ -28,7 +29,7 @@ class EgoTopics:
     color: str
     depth: str
     info: str = INFO_TOPIC
-    imu: str = ""                 # "" when the recording has no usable IMU
+    imu: str = ""  # "" when the recording has no usable IMU
     imu_calibration: str = ""
 
 
@@ -46,8 +47,11 @@ def find_ego_topics(bag) -> EgoTopics:
     present = {t.name for t in list_topics(bag) if t.count > 0}
     color = next((t for t in COLOR_TOPICS if t in present), None)
     depth = next((t for t in DEPTH_TOPICS if t in present), None)
-    missing = [what for what, t in (("colour " + " or ".join(COLOR_TOPICS), color),
-                                    ("depth " + " or ".join(DEPTH_TOPICS), depth)) if t is None]
+    missing = [
+        what
+        for what, t in (("colour " + " or ".join(COLOR_TOPICS), color), ("depth " + " or ".join(DEPTH_TOPICS), depth))
+        if t is None
+    ]
     if INFO_TOPIC not in present:
         missing.append(INFO_TOPIC)
     if missing:
@@ -56,8 +60,9 @@ def find_ego_topics(bag) -> EgoTopics:
     return EgoTopics(color, depth, imu=EGO_IMU if imu else "", imu_calibration=EGO_IMU_CALIBRATION if imu else "")
 
 
-def read_ego_frames(bag, recording: EgoRecording, imu_wait_s: float = 0.5
-                    ) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+def read_ego_frames(
+    bag, recording: EgoRecording, imu_wait_s: float = 0.5
+) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
     """(stamp_ns, RGB, depth m) pairs in stamp order; undecodable messages and a
     bad CameraInfo are recorded in ``recording.problems``. Frames arriving before
     the first CameraInfo are held back until it comes. With ``recording.imu``, its
@@ -89,7 +94,7 @@ def read_ego_frames(bag, recording: EgoRecording, imu_wait_s: float = 0.5
                     imu.calibration = ImuCalibration.from_yaml(msg.data, topic)
                 except ValueError as exc:
                     recording.problems.append(f"{exc}; the IMU is not used")
-                    wait.imu = None       # nothing to wait for
+                    wait.imu = None  # nothing to wait for
             released = wait.ready()
         else:
             stamp = stamp_to_ns(msg.header.stamp)
@@ -110,8 +115,10 @@ def read_ego_frames(bag, recording: EgoRecording, imu_wait_s: float = 0.5
         return
     yield from pending + wait.ready(flush=True)
     if wait.released_without:
-        recording.problems.append(f"{wait.released_without} frame(s) tracked without the IMU: {t.imu} did not cover "
-                                  f"their stamps within {imu_wait_s:g} s")
+        recording.problems.append(
+            f"{wait.released_without} frame(s) tracked without the IMU: {t.imu} did not cover "
+            f"their stamps within {imu_wait_s:g} s"
+        )
     if pairer.dropped:
         recording.problems.append(pairer.problem(t.color, t.depth))
 
@@ -143,7 +150,7 @@ def prefetch(items: Iterator, depth: int = 8) -> Iterator:
             yield item
     finally:
         stop.set()
-        while thread.is_alive():     # unblock a producer waiting on a full queue
+        while thread.is_alive():  # unblock a producer waiting on a full queue
             try:
                 q.get_nowait()
             except queue.Empty:
@@ -158,13 +165,20 @@ def map_bag(bag, params: EgoParams = EgoParams()) -> tuple[EgoMapResult, EgoReco
     if recording.topics.imu and params.odometry.use_imu:
         recording.imu = ImuBuffer()
     elif EGO_IMU in {t.name for t in list_topics(bag) if t.count > 0} and not recording.topics.imu:
-        recording.problems.append(f"{EGO_IMU} without {EGO_IMU_CALIBRATION}: the IMU's extrinsics are unknown; "
-                                  "tracking without it")
+        recording.problems.append(
+            f"{EGO_IMU} without {EGO_IMU_CALIBRATION}: the IMU's extrinsics are unknown; tracking without it"
+        )
     frames = prefetch(read_ego_frames(bag, recording, params.odometry.imu_wait_s))
     first = next(frames, None)
     if first is None:
         raise ValueError(f"{bag}: no usable ego frames: " + ("; ".join(recording.problems) or "none recorded"))
-    result = map_recording(itertools.chain([first], frames), recording.camera, params, recording.topics.color,
-                           recording.topics.depth, recording.imu)
+    result = map_recording(
+        itertools.chain([first], frames),
+        recording.camera,
+        params,
+        recording.topics.color,
+        recording.topics.depth,
+        recording.imu,
+    )
     result.warnings.extend(recording.problems)
     return result, recording

@@ -15,6 +15,7 @@ projections, and a few wrong matches moved such keyframes by metres (texture_poo
 With the IMU (``InertialTerms``), consecutive keyframes are joined by GTSAM's
 CombinedImuFactor (preintegrated gyro and accelerometer) with a velocity and a
 bias per keyframe."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -44,19 +45,19 @@ from .scene import FloorAttitudeParams, FloorAttitudes, WallAttitudeParams, Wall
 
 @dataclass(frozen=True)
 class BundleParams:
-    sigma_px: float = 1.0                # first-round keypoint noise
+    sigma_px: float = 1.0  # first-round keypoint noise
     huber_k: float = 1.345
-    depth_sigma_a_m: float = 0.0012      # sigma(z) = a + b (z - 0.4)^2 (Kinect-like structured light)
+    depth_sigma_a_m: float = 0.0012  # sigma(z) = a + b (z - 0.4)^2 (Kinect-like structured light)
     depth_sigma_b: float = 0.0019
-    max_iterations: int = 8              # per round; LM starts close (multiway registration): 15 changed no ATE by 0.1 mm
+    max_iterations: int = 8  # per round; LM starts close (multiway registration): 15 changed no ATE by 0.1 mm
     rounds: int = 2
-    outlier_k: float = 5.0               # observations beyond k sigma are dropped between rounds
+    outlier_k: float = 5.0  # observations beyond k sigma are dropped between rounds
     min_track_length: int = 2
     # The pose graph's edges as between factors; their Open3D information counts each
     # depth correspondence as 1 m of noise, i.e. a few mm / 0.1 deg per tracking edge.
     pose_graph_factors: bool = True
     edge_information_scale: float = 1.0
-    edge_huber_k: float = 1.345          # on the whitened edge error: a wrong edge yields to the features
+    edge_huber_k: float = 1.345  # on the whitened edge error: a wrong edge yields to the features
     # Observations the adjustment (and so the map) keeps at most; 0: all. GTSAM's solve takes
     # ~3 kB per observation (a 25-minute floor: 1.09 M, +3.4 GB), so above this each keyframe
     # keeps its longest tracks (select_landmarks). The small and standard walks stay below it.
@@ -70,26 +71,31 @@ class BundleParams:
 @dataclass
 class BundleOutput:
     T_world_kf: list[np.ndarray]
-    landmarks: np.ndarray                # (P, 3) world
-    descriptors: np.ndarray              # (P, 128) uint8 (SIFT), of each landmark's first observation
-    obs: Observations                    # camera = keyframe, point = landmark (undistorted pixels)
+    landmarks: np.ndarray  # (P, 3) world
+    descriptors: np.ndarray  # (P, 128) uint8 (SIFT), of each landmark's first observation
+    obs: Observations  # camera = keyframe, point = landmark (undistorted pixels)
     rmse_px: float
     sigma_px: float
     initial_error: float
     final_error: float
     iterations: int
-    dropped: int                         # observations removed as outliers
-    left_out: int                        # observations over params.max_observations (select_landmarks)
-    velocities: dict[int, np.ndarray]    # keyframe -> world velocity [m/s] (IMU factors only)
-    biases: dict[int, np.ndarray]        # keyframe -> (accelerometer, gyro) bias, IMU frame (IMU factors only)
+    dropped: int  # observations removed as outliers
+    left_out: int  # observations over params.max_observations (select_landmarks)
+    velocities: dict[int, np.ndarray]  # keyframe -> world velocity [m/s] (IMU factors only)
+    biases: dict[int, np.ndarray]  # keyframe -> (accelerometer, gyro) bias, IMU frame (IMU factors only)
 
 
 def depth_sigma(z: np.ndarray, params: BundleParams) -> np.ndarray:
     return params.depth_sigma_a_m + params.depth_sigma_b * (np.asarray(z) - 0.4) ** 2
 
 
-def landmarks_from_tracks(tracks: Tracks, features: list[KeyframeFeatures], T_world_kf: list[np.ndarray],
-                          K: np.ndarray, params: BundleParams = BundleParams()):
+def landmarks_from_tracks(
+    tracks: Tracks,
+    features: list[KeyframeFeatures],
+    T_world_kf: list[np.ndarray],
+    K: np.ndarray,
+    params: BundleParams = BundleParams(),
+):
     """(landmark of each kept observation, initial landmark positions, keyframe,
     feature, undistorted pixel and depth of each kept observation). A landmark
     starts at the mean depth back-projection of its observations (the matches
@@ -128,13 +134,13 @@ def select_landmarks(landmark: np.ndarray, keyframe: np.ndarray, budget: int) ->
     if budget <= 0 or len(landmark) <= budget:
         return np.ones(n, bool)
     length = np.bincount(landmark, minlength=n)
-    order = np.lexsort((landmark, -length[landmark], keyframe))       # per keyframe, longest tracks first
-    first = np.searchsorted(keyframe[order], keyframe[order])          # start of each keyframe's run
+    order = np.lexsort((landmark, -length[landmark], keyframe))  # per keyframe, longest tracks first
+    first = np.searchsorted(keyframe[order], keyframe[order])  # start of each keyframe's run
     rank = np.empty(len(landmark), int)
     rank[order] = np.arange(len(order)) - first
     best = np.full(n, np.iinfo(int).max)
-    np.minimum.at(best, landmark, rank)                                # a landmark's best rank in any keyframe
-    lo, hi = 0, int(rank.max()) + 1                     # observations kept at q = lo fit, at q = hi do not
+    np.minimum.at(best, landmark, rank)  # a landmark's best rank in any keyframe
+    lo, hi = 0, int(rank.max()) + 1  # observations kept at q = lo fit, at q = hi do not
     while hi - lo > 1:
         mid = (lo + hi) // 2
         lo, hi = (mid, hi) if length[best < mid].sum() <= budget else (lo, mid)
@@ -148,13 +154,16 @@ def edge_factor(edge: OdometryEdge, params: BundleParams) -> gtsam.BetweenFactor
     T = pose3(edge.T_target_source)
     Ad = T.AdjointMap()
     info = Ad.T @ (edge.information * params.edge_information_scale) @ Ad
-    model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(params.edge_huber_k),
-                                           gtsam.noiseModel.Gaussian.Information(0.5 * (info + info.T)))
+    model = gtsam.noiseModel.Robust.Create(
+        gtsam.noiseModel.mEstimator.Huber.Create(params.edge_huber_k),
+        gtsam.noiseModel.Gaussian.Information(0.5 * (info + info.T)),
+    )
     return gtsam.BetweenFactorPose3(X(edge.target), X(edge.source), T, model)
 
 
-def gauge_model(T0: np.ndarray, up_odom: np.ndarray | None = None, tilt_deg: float = 0.0,
-                turn_deg: float = 0.0) -> gtsam.noiseModel.Base:
+def gauge_model(
+    T0: np.ndarray, up_odom: np.ndarray | None = None, tilt_deg: float = 0.0, turn_deg: float = 0.0
+) -> gtsam.noiseModel.Base:
     """The first keyframe's prior: fixed; with a vertical from other factors (``up_odom``:
     the IMU's gravity, the keyframes' floor) free to tilt by ``tilt_deg`` about the axes
     across it, so that those factors set the vertical rather than the first keyframe's
@@ -165,11 +174,11 @@ def gauge_model(T0: np.ndarray, up_odom: np.ndarray | None = None, tilt_deg: flo
         return gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)
     u = np.asarray(up_odom, float)
     tilt, turn = max(np.radians(tilt_deg), FIXED_SIGMA), max(np.radians(turn_deg), FIXED_SIGMA)
-    rot_nav = tilt ** 2 * (np.eye(3) - np.outer(u, u)) + turn ** 2 * np.outer(u, u)
-    R = T0[:3, :3]            # tangent perturbations are in the keyframe's frame
+    rot_nav = tilt**2 * (np.eye(3) - np.outer(u, u)) + turn**2 * np.outer(u, u)
+    R = T0[:3, :3]  # tangent perturbations are in the keyframe's frame
     cov = np.zeros((6, 6))
     cov[:3, :3] = R.T @ rot_nav @ R
-    cov[3:, 3:] = FIXED_SIGMA ** 2 * np.eye(3)
+    cov[3:, 3:] = FIXED_SIGMA**2 * np.eye(3)
     return gtsam.noiseModel.Gaussian.Covariance(cov)
 
 
@@ -200,24 +209,37 @@ class BundleProblem:
     observation's landmark, keyframe, undistorted pixel and depth, the landmarks' initial
     positions and descriptors. The features (a 25-minute floor's: 0.32 GB, its matches
     0.05 GB) can go before the solve."""
-    landmark: np.ndarray                 # (M,) per observation
-    keyframe: np.ndarray                 # (M,)
-    uv: np.ndarray                       # (M, 2) undistorted pixels
-    depth: np.ndarray                    # (M,) metres, NaN without
-    points: np.ndarray                   # (P, 3) world, initial
-    descriptors: np.ndarray              # (P, 128) uint8, of each landmark's first observation
-    left_out: int                        # observations over params.max_observations
+
+    landmark: np.ndarray  # (M,) per observation
+    keyframe: np.ndarray  # (M,)
+    uv: np.ndarray  # (M, 2) undistorted pixels
+    depth: np.ndarray  # (M,) metres, NaN without
+    points: np.ndarray  # (P, 3) world, initial
+    descriptors: np.ndarray  # (P, 128) uint8, of each landmark's first observation
+    left_out: int  # observations over params.max_observations
 
     @classmethod
-    def from_tracks(cls, tracks: Tracks, features: list[KeyframeFeatures], T_world_kf: list[np.ndarray],
-                    K: np.ndarray, params: BundleParams = BundleParams()) -> "BundleProblem":
+    def from_tracks(
+        cls,
+        tracks: Tracks,
+        features: list[KeyframeFeatures],
+        T_world_kf: list[np.ndarray],
+        K: np.ndarray,
+        params: BundleParams = BundleParams(),
+    ) -> "BundleProblem":
         lm, points, kf, feat, uv, depth = landmarks_from_tracks(tracks, features, T_world_kf, K, params)
         kept = select_landmarks(lm, kf, params.max_observations)
         left_out = int((~kept[lm]).sum())
         if left_out:
             sel = kept[lm]
-            lm, points, kf, feat, uv, depth = np.cumsum(kept)[lm[sel]] - 1, points[kept], kf[sel], feat[sel], \
-                uv[sel], depth[sel]
+            lm, points, kf, feat, uv, depth = (
+                np.cumsum(kept)[lm[sel]] - 1,
+                points[kept],
+                kf[sel],
+                feat[sel],
+                uv[sel],
+                depth[sel],
+            )
         descriptors = np.zeros((len(points), 128), np.uint8)
         first = np.unique(lm, return_index=True)[1]
         for i in first:
@@ -225,22 +247,43 @@ class BundleProblem:
         return cls(lm, kf, uv, depth, points, descriptors, left_out)
 
 
-def bundle_adjust(tracks: Tracks, features: list[KeyframeFeatures], T_world_kf: list[np.ndarray],
-                  camera: CameraModel, params: BundleParams = BundleParams(),
-                  edges: list[OdometryEdge] = (), inertial: InertialTerms | None = None,
-                  floor: FloorAttitudes | None = None, walls: WallAttitudes | None = None) -> BundleOutput:
+def bundle_adjust(
+    tracks: Tracks,
+    features: list[KeyframeFeatures],
+    T_world_kf: list[np.ndarray],
+    camera: CameraModel,
+    params: BundleParams = BundleParams(),
+    edges: list[OdometryEdge] = (),
+    inertial: InertialTerms | None = None,
+    floor: FloorAttitudes | None = None,
+    walls: WallAttitudes | None = None,
+) -> BundleOutput:
     """Refine keyframe poses and landmarks; `camera` is the undistorted pinhole.
     ``edges``: the pose graph's (with ``params.pose_graph_factors``); ``inertial``:
     preintegrated IMU between consecutive keyframes; ``floor`` / ``walls``: each keyframe's
     view of the floor / its largest wall."""
-    return solve_bundle(BundleProblem.from_tracks(tracks, features, T_world_kf, camera.K, params), T_world_kf,
-                        camera, params, edges, inertial, floor, walls)
+    return solve_bundle(
+        BundleProblem.from_tracks(tracks, features, T_world_kf, camera.K, params),
+        T_world_kf,
+        camera,
+        params,
+        edges,
+        inertial,
+        floor,
+        walls,
+    )
 
 
-def solve_bundle(problem: BundleProblem, T_world_kf: list[np.ndarray], camera: CameraModel,
-                 params: BundleParams = BundleParams(), edges: list[OdometryEdge] = (),
-                 inertial: InertialTerms | None = None, floor: FloorAttitudes | None = None,
-                 walls: WallAttitudes | None = None) -> BundleOutput:
+def solve_bundle(
+    problem: BundleProblem,
+    T_world_kf: list[np.ndarray],
+    camera: CameraModel,
+    params: BundleParams = BundleParams(),
+    edges: list[OdometryEdge] = (),
+    inertial: InertialTerms | None = None,
+    floor: FloorAttitudes | None = None,
+    walls: WallAttitudes | None = None,
+) -> BundleOutput:
     """bundle_adjust on a BundleProblem; ``floor``: the keyframes' views of the floor, each an
     attitude factor (GTSAM's AttitudeFactorPose3, Huber) towards the up direction they share;
     ``walls``: their largest walls, each one towards the building's axis it belongs to."""
@@ -249,15 +292,21 @@ def solve_bundle(problem: BundleProblem, T_world_kf: list[np.ndarray], camera: C
     cameras = [camera] * len(T_world_kf)
     obs = Observations(kf, lm, uv, np.full(len(kf), params.sigma_px))
     rays = np.linalg.norm(np.column_stack([(uv - K[:2, 2]) / np.diag(K)[:2], np.ones(len(uv))]), axis=1)
-    ranges = depth * rays                     # camera centre -> point distance
+    ranges = depth * rays  # camera centre -> point distance
     T, P = list(T_world_kf), points
     sigma, dropped, keep = params.sigma_px, 0, np.ones(len(kf), bool)
     initial_error = final_error = 0.0
     iterations = 0
     result = None
-    vertical = ((inertial.up_odom, inertial.tilt_prior_deg) if inertial is not None and inertial.between
-                else (floor.up_odom, params.floor.tilt_prior_deg) if floor is not None
-                else (walls.up_odom, 0.0) if walls is not None else ())
+    vertical = (
+        (inertial.up_odom, inertial.tilt_prior_deg)
+        if inertial is not None and inertial.between
+        else (floor.up_odom, params.floor.tilt_prior_deg)
+        if floor is not None
+        else (walls.up_odom, 0.0)
+        if walls is not None
+        else ()
+    )
     if walls is not None:
         vertical += (params.walls.turn_prior_deg,)
     for rnd in range(params.rounds):
@@ -279,8 +328,10 @@ def solve_bundle(problem: BundleProblem, T_world_kf: list[np.ndarray], camera: C
         has = keep & np.isfinite(ranges)
         # Range sigmas on a 0.5 mm grid share their noise models.
         sigmas = np.maximum(np.round(depth_sigma(depth[has], params) / 5e-4), 1) * 5e-4
-        models = {s: gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(1, float(s)))
-                  for s in np.unique(sigmas)}
+        models = {
+            s: gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(1, float(s)))
+            for s in np.unique(sigmas)
+        }
         for c, j, r, s in zip(obs.camera[has], obs.point[has], ranges[has], sigmas):
             graph.add(gtsam.RangeFactor3D(X(int(c)), L(int(j)), float(r), models[s]))
         if params.pose_graph_factors:
@@ -290,12 +341,14 @@ def solve_bundle(problem: BundleProblem, T_world_kf: list[np.ndarray], camera: C
             add_inertial(graph, values, T, inertial, result)
         if floor is not None:
             tilt = gtsam.noiseModel.Robust.Create(
-                huber, gtsam.noiseModel.Isotropic.Sigma(2, float(np.radians(params.floor.sigma_deg))))
+                huber, gtsam.noiseModel.Isotropic.Sigma(2, float(np.radians(params.floor.sigma_deg)))
+            )
             for i, n in floor.normals.items():
                 graph.add(gtsam.AttitudeFactorPose3(X(i), gtsam.Unit3(floor.up_odom), tilt, gtsam.Unit3(n)))
         if walls is not None:
             turn = gtsam.noiseModel.Robust.Create(
-                huber, gtsam.noiseModel.Isotropic.Sigma(2, float(np.radians(params.walls.sigma_deg))))
+                huber, gtsam.noiseModel.Isotropic.Sigma(2, float(np.radians(params.walls.sigma_deg)))
+            )
             for i, (n, axis) in walls.walls.items():
                 graph.add(gtsam.AttitudeFactorPose3(X(i), gtsam.Unit3(axis), turn, gtsam.Unit3(n)))
         result, e0, e1, its = optimize(graph, values, params.max_iterations)
@@ -315,5 +368,18 @@ def solve_bundle(problem: BundleProblem, T_world_kf: list[np.ndarray], camera: C
             velocities[i] = np.asarray(result.atVector(V(i)))
             b = result.atConstantBias(B(i))
             biases[i] = np.concatenate([b.accelerometer(), b.gyroscope()])
-    return BundleOutput(T, P, problem.descriptors, final_obs, rmse, sigma, initial_error, final_error, iterations,
-                        dropped, problem.left_out, velocities, biases)
+    return BundleOutput(
+        T,
+        P,
+        problem.descriptors,
+        final_obs,
+        rmse,
+        sigma,
+        initial_error,
+        final_error,
+        iterations,
+        dropped,
+        problem.left_out,
+        velocities,
+        biases,
+    )

@@ -9,6 +9,7 @@ vocabulary is k-means (scipy) over the descriptors of the recording's first keyf
 no vocabulary file to ship, and a building's own words tell its places apart. A
 retrieved keyframe is only a candidate: the multiway registration verifies it (SIFT
 matches + PnP RANSAC, then dense refinement), as it does every loop."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -20,14 +21,14 @@ from scipy.cluster.vq import kmeans2, vq
 @dataclass(frozen=True)
 class RetrievalParams:
     enabled: bool = True
-    words: int = 256                     # vocabulary size
-    vocabulary_keyframes: int = 8        # built once this many keyframes have descriptors
-    vocabulary_iterations: int = 10      # k-means iterations (seeded: runs are repeatable)
+    words: int = 256  # vocabulary size
+    vocabulary_keyframes: int = 8  # built once this many keyframes have descriptors
+    vocabulary_iterations: int = 10  # k-means iterations (seeded: runs are repeatable)
     # Best-scoring earlier keyframes verified per keyframe: of a segment not yet joined to
     # the walk's first one (relocalisation), and of one that is (loop closures by appearance).
     relocalisation_candidates: int = 3
     loop_candidates: int = 1
-    min_score: float = 0.1               # cosine similarity of the tf-idf vectors
+    min_score: float = 0.1  # cosine similarity of the tf-idf vectors
 
 
 class PlaceIndex:
@@ -36,7 +37,7 @@ class PlaceIndex:
     def __init__(self, params: RetrievalParams = RetrievalParams()):
         self.params = params
         self.codebook: np.ndarray | None = None
-        self._pending: list[np.ndarray] = []     # descriptors until the vocabulary exists
+        self._pending: list[np.ndarray] = []  # descriptors until the vocabulary exists
         # Histograms in a buffer that doubles as it fills (one query per keyframe must not
         # copy every earlier histogram), and how many keyframes hold each word.
         self._counts = np.zeros((0, params.words))
@@ -77,8 +78,7 @@ class PlaceIndex:
         data = np.vstack(self._pending) if self._pending else np.zeros((0, 128), np.float32)
         if len(data) < 4 * self.params.words:
             return
-        self.codebook, _ = kmeans2(data, self.params.words, iter=self.params.vocabulary_iterations, minit="++",
-                                   seed=0)
+        self.codebook, _ = kmeans2(data, self.params.words, iter=self.params.vocabulary_iterations, minit="++", seed=0)
         for d in self._pending:
             self._append(self._histogram(d))
         self._pending = []

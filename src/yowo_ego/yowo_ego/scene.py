@@ -17,6 +17,7 @@ is the first ego camera centre projected onto the floor, so the floor is z = 0;
 world +x is the first camera's viewing direction projected onto the floor (the
 agent's initial heading, as a body frame's x would be).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -37,12 +38,12 @@ class CloudParams:
     block_resolution: int = 8
     depth_max_m: float = 5.0
     trunc_voxels: float = 4.0
-    min_weight: float = 2.0              # TSDF surface points seen fewer times are dropped
-    plane_voxel_m: float = 0.06          # cloud resolution for plane detection
+    min_weight: float = 2.0  # TSDF surface points seen fewer times are dropped
+    plane_voxel_m: float = 0.06  # cloud resolution for plane detection
     plane_min_points: int = 60
     plane_min_edge_m: float = 0.4
-    patch_normal_cos: float = 0.94       # a point belongs to a patch when its normal is within 20 deg
-    floor_bin_m: float = 0.02            # height histogram of upward-facing points
+    patch_normal_cos: float = 0.94  # a point belongs to a patch when its normal is within 20 deg
+    floor_bin_m: float = 0.02  # height histogram of upward-facing points
     floor_max_tilt_deg: float = 35.0
     floor_below_camera_m: float = 0.5
     floor_refit_band_m: float = 0.04
@@ -50,10 +51,10 @@ class CloudParams:
 
 @dataclass
 class PlanarPatch:
-    normal: np.ndarray                   # unit, facing the side the cameras saw
+    normal: np.ndarray  # unit, facing the side the cameras saw
     center: np.ndarray
-    d: float                             # n . p + d = 0
-    corners: np.ndarray                  # (4, 3) patch rectangle
+    d: float  # n . p + d = 0
+    corners: np.ndarray  # (4, 3) patch rectangle
     num_points: int
 
     def transformed(self, T: np.ndarray) -> "PlanarPatch":
@@ -64,56 +65,68 @@ class PlanarPatch:
 
 @dataclass
 class Rectification:
-    T_world_odom: np.ndarray             # applied to every pose, landmark and cloud point
-    R_rect: np.ndarray                   # eq. rot_gp2w (before the heading turn)
-    floor_normal_odom: np.ndarray        # v_gp
+    T_world_odom: np.ndarray  # applied to every pose, landmark and cloud point
+    R_rect: np.ndarray  # eq. rot_gp2w (before the heading turn)
+    floor_normal_odom: np.ndarray  # v_gp
     floor_points: int
-    camera_height_m: float               # first camera centre above the floor
+    camera_height_m: float  # first camera centre above the floor
 
 
-def fuse_cloud(keyframes: list[Keyframe], T_odom_kf: list[np.ndarray], K_small: np.ndarray,
-               params: CloudParams = CloudParams()) -> tuple[np.ndarray, np.ndarray]:
+def fuse_cloud(
+    keyframes: list[Keyframe], T_odom_kf: list[np.ndarray], K_small: np.ndarray, params: CloudParams = CloudParams()
+) -> tuple[np.ndarray, np.ndarray]:
     """TSDF-fuse the keyframes' (downsampled) RGB-D images; returns surface
     points (N, 3) and colours (N, 3) in [0, 1], in the frame of the poses."""
     vbg = o3d.t.geometry.VoxelBlockGrid(
-        ("tsdf", "weight", "color"), (o3d.core.float32, o3d.core.float32, o3d.core.float32),
-        ((1), (1), (3)), params.voxel_m, params.block_resolution, 20000)
+        ("tsdf", "weight", "color"),
+        (o3d.core.float32, o3d.core.float32, o3d.core.float32),
+        ((1), (1), (3)),
+        params.voxel_m,
+        params.block_resolution,
+        20000,
+    )
     K = o3d.core.Tensor(K_small)
     for kf, T in zip(keyframes, T_odom_kf):
         depth = o3d.t.geometry.Image(o3d.core.Tensor(kf.depth_mm))
         color = o3d.t.geometry.Image(o3d.core.Tensor(np.ascontiguousarray(kf.color)))
         extrinsic = o3d.core.Tensor(inv_se3(T))
-        coords = vbg.compute_unique_block_coordinates(depth, K, extrinsic, 1000.0, params.depth_max_m,
-                                                      params.trunc_voxels)
+        coords = vbg.compute_unique_block_coordinates(
+            depth, K, extrinsic, 1000.0, params.depth_max_m, params.trunc_voxels
+        )
         vbg.integrate(coords, depth, color, K, extrinsic, 1000.0, params.depth_max_m, params.trunc_voxels)
     pcd = vbg.extract_point_cloud(weight_threshold=params.min_weight)
     if "positions" not in pcd.point or len(pcd.point.positions) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3))
     colors = pcd.point.colors.numpy().astype(float)
-    if colors.size and colors.max() > 1.0:     # uint8 input keeps the 0..255 range
+    if colors.size and colors.max() > 1.0:  # uint8 input keeps the 0..255 range
         colors /= 255.0
     return pcd.point.positions.numpy().astype(float), np.clip(colors, 0.0, 1.0)
 
 
-def planar_patches(points: np.ndarray, cameras: np.ndarray, params: CloudParams = CloudParams()
-                   ) -> tuple[list[PlanarPatch], np.ndarray, np.ndarray]:
+def planar_patches(
+    points: np.ndarray, cameras: np.ndarray, params: CloudParams = CloudParams()
+) -> tuple[list[PlanarPatch], np.ndarray, np.ndarray]:
     """Planar patches of a (downsampled) cloud. Returns the patches, the
     downsampled points and their normals (oriented towards the nearest camera)."""
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points)).voxel_down_sample(params.plane_voxel_m)
     pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=3 * params.plane_voxel_m, max_nn=30))
     pts = np.asarray(pcd.points)
     normals = np.asarray(pcd.normals)
-    if len(pts) < params.plane_min_points:       # a walk of a few frames: no plane to find
+    if len(pts) < params.plane_min_points:  # a walk of a few frames: no plane to find
         return [], pts, normals
     # Orient point normals towards the closest camera centre (the side it was seen from).
     nearest = cameras[cKDTree(cameras).query(pts)[1]]
     flip = np.einsum("ij,ij->i", normals, nearest - pts) < 0
     normals[flip] *= -1
     pcd.normals = o3d.utility.Vector3dVector(normals)
-    boxes = pcd.detect_planar_patches(normal_variance_threshold_deg=60, coplanarity_deg=75, outlier_ratio=0.75,
-                                      min_plane_edge_length=params.plane_min_edge_m,
-                                      min_num_points=params.plane_min_points,
-                                      search_param=o3d.geometry.KDTreeSearchParamKNN(knn=30))
+    boxes = pcd.detect_planar_patches(
+        normal_variance_threshold_deg=60,
+        coplanarity_deg=75,
+        outlier_ratio=0.75,
+        min_plane_edge_length=params.plane_min_edge_m,
+        min_num_points=params.plane_min_points,
+        search_param=o3d.geometry.KDTreeSearchParamKNN(knn=30),
+    )
     patches = []
     for box in boxes:
         R = np.asarray(box.R)
@@ -143,8 +156,14 @@ def _fit_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return Vt[2], centroid
 
 
-def find_floor(patches: list[PlanarPatch], points: np.ndarray, normals: np.ndarray, cameras: np.ndarray,
-               up_guess: np.ndarray, params: CloudParams = CloudParams()) -> tuple[np.ndarray, np.ndarray, int]:
+def find_floor(
+    patches: list[PlanarPatch],
+    points: np.ndarray,
+    normals: np.ndarray,
+    cameras: np.ndarray,
+    up_guess: np.ndarray,
+    params: CloudParams = CloudParams(),
+) -> tuple[np.ndarray, np.ndarray, int]:
     """(floor normal pointing up, a point on the floor, supporting points).
 
     The direction: the normal of the planar patch within ``floor_max_tilt_deg``
@@ -164,14 +183,16 @@ def find_floor(patches: list[PlanarPatch], points: np.ndarray, normals: np.ndarr
     def plane_support(n: np.ndarray, c: np.ndarray) -> int:
         on = (normals @ n >= params.patch_normal_cos) & (np.abs((points - c) @ n) <= 2 * params.floor_refit_band_m)
         return int(np.sum(on & (points @ n <= np.median(cameras @ n) - params.floor_below_camera_m)))
+
     n = max(horizontal, key=lambda t: plane_support(*t))[0]
     facing = normals @ n >= params.patch_normal_cos
     h = points[facing] @ n
     below = h <= np.median(cameras @ n) - params.floor_below_camera_m
     if below.sum() < 3:
         raise ValueError("no upward-facing surface below the cameras: cannot find the floor")
-    counts, edges = np.histogram(h[below], bins=np.arange(h[below].min(), h[below].max() + 2 * params.floor_bin_m,
-                                                          params.floor_bin_m))
+    counts, edges = np.histogram(
+        h[below], bins=np.arange(h[below].min(), h[below].max() + 2 * params.floor_bin_m, params.floor_bin_m)
+    )
     level = edges[np.argmax(counts)] + params.floor_bin_m / 2
     c, support = n * level, 0
     for band in (2 * params.floor_refit_band_m, params.floor_refit_band_m):
@@ -184,8 +205,9 @@ def find_floor(patches: list[PlanarPatch], points: np.ndarray, normals: np.ndarr
     return n, c, support
 
 
-def rectify(floor_normal: np.ndarray, floor_point: np.ndarray, T_odom_first: np.ndarray,
-            support: int = 0) -> Rectification:
+def rectify(
+    floor_normal: np.ndarray, floor_point: np.ndarray, T_odom_first: np.ndarray, support: int = 0
+) -> Rectification:
     """T_world_odom: eq. rot_gp2w (floor normal -> +z), then the heading and
     origin conventions of the module docstring."""
     R_rect = rotation_aligning(floor_normal, [0.0, 0.0, 1.0])
@@ -196,8 +218,9 @@ def rectify(floor_normal: np.ndarray, floor_point: np.ndarray, T_odom_first: np.
     first = R @ T_odom_first[:3, 3]
     floor_z = float((R @ floor_point)[2])
     T = se3(R, [-first[0], -first[1], -floor_z])
-    return Rectification(T, R_rect, np.asarray(floor_normal, float), support,
-                         float(transform_points(T, T_odom_first[:3, 3])[0, 2]))
+    return Rectification(
+        T, R_rect, np.asarray(floor_normal, float), support, float(transform_points(T, T_odom_first[:3, 3])[0, 2])
+    )
 
 
 def up_from_cameras(T_odom_cam: list[np.ndarray]) -> np.ndarray:
@@ -214,13 +237,13 @@ class FloorAttitudeParams:
     small texture_poor s2). Not the paper's (an extension, like the IMU's gravity)."""
 
     enabled: bool = True
-    sigma_deg: float = 1.0               # a keyframe's floor normal (plane fit to its own depth)
-    tilt_prior_deg: float = 5.0          # the map may tilt this much (the first keyframe's prior)
-    below_camera_m: float = 0.8          # floor candidates: this far below the camera at least
-    max_tilt_deg: float = 20.0           # from the up direction the keyframe's pose predicts
-    distance_m: float = 0.02             # RANSAC inlier distance of the plane fit
-    min_points: int = 1500               # inliers (of the 320x240 depth) for a keyframe to count
-    stride: int = 2                      # every stride-th pixel each way
+    sigma_deg: float = 1.0  # a keyframe's floor normal (plane fit to its own depth)
+    tilt_prior_deg: float = 5.0  # the map may tilt this much (the first keyframe's prior)
+    below_camera_m: float = 0.8  # floor candidates: this far below the camera at least
+    max_tilt_deg: float = 20.0  # from the up direction the keyframe's pose predicts
+    distance_m: float = 0.02  # RANSAC inlier distance of the plane fit
+    min_points: int = 1500  # inliers (of the 320x240 depth) for a keyframe to count
+    stride: int = 2  # every stride-th pixel each way
 
 
 def _plane(P: np.ndarray, distance_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -232,8 +255,9 @@ def _plane(P: np.ndarray, distance_m: float) -> tuple[np.ndarray, np.ndarray]:
     return np.linalg.svd(Q, full_matrices=False)[2][2], inliers
 
 
-def floor_normal_in_view(depth_mm: np.ndarray, K: np.ndarray, up_cam: np.ndarray,
-                         params: FloorAttitudeParams = FloorAttitudeParams()) -> np.ndarray | None:
+def floor_normal_in_view(
+    depth_mm: np.ndarray, K: np.ndarray, up_cam: np.ndarray, params: FloorAttitudeParams = FloorAttitudeParams()
+) -> np.ndarray | None:
     """The floor's upward normal in the camera frame from one depth image (intrinsics K),
     or None: a plane through the points at least ``below_camera_m`` under the camera
     (along ``up_cam``, the up direction the keyframe's pose predicts) within
@@ -244,7 +268,7 @@ def floor_normal_in_view(depth_mm: np.ndarray, K: np.ndarray, up_cam: np.ndarray
     P = P[P @ up_cam <= -params.below_camera_m]
     if len(P) < params.min_points // (s * s):
         return None
-    o3d.utility.random.seed(0)          # the same recording gives the same map
+    o3d.utility.random.seed(0)  # the same recording gives the same map
     n, inliers = _plane(P, params.distance_m)
     if len(inliers) * s * s < params.min_points:
         return None
@@ -261,8 +285,12 @@ class FloorAttitudes:
     normals: dict[int, np.ndarray]
 
 
-def floor_attitudes(keyframes: list[Keyframe], T_odom_kf: list[np.ndarray], K: np.ndarray,
-                    params: FloorAttitudeParams = FloorAttitudeParams()) -> FloorAttitudes | None:
+def floor_attitudes(
+    keyframes: list[Keyframe],
+    T_odom_kf: list[np.ndarray],
+    K: np.ndarray,
+    params: FloorAttitudeParams = FloorAttitudeParams(),
+) -> FloorAttitudes | None:
     """The keyframes that see the floor (``floor_normal_in_view``, K of their depth images)
     and the up direction most of them agree on; None with fewer than three."""
     guess = up_from_cameras(T_odom_kf)
@@ -275,7 +303,7 @@ def floor_attitudes(keyframes: list[Keyframe], T_odom_kf: list[np.ndarray], K: n
         return None
     seen = np.array([T_odom_kf[i][:3, :3] @ n for i, n in normals.items()])
     up = seen.mean(axis=0)
-    for _ in range(3):       # the majority: keyframes tracked with a tilt lean away from it
+    for _ in range(3):  # the majority: keyframes tracked with a tilt lean away from it
         up /= np.linalg.norm(up)
         near = seen @ up >= np.cos(np.radians(params.max_tilt_deg / 2))
         up = seen[near].mean(axis=0) if near.any() else up
@@ -295,21 +323,22 @@ class WallAttitudeParams:
     perpendicular in at least ``min_share`` of such views; otherwise no keyframe gets one."""
 
     enabled: bool = True
-    sigma_deg: float = 1.0               # a keyframe's largest wall's normal (plane fit to its own depth)
-    turn_prior_deg: float = 5.0          # the map may turn this much (the first keyframe's prior)
-    max_tilt_deg: float = 10.0           # a wall's normal from horizontal (across the up direction)
-    max_turn_deg: float = 20.0           # a keyframe's wall from the nearest axis, as tracked
-    perpendicular_deg: float = 5.0       # two walls of one view are perpendicular within this
+    sigma_deg: float = 1.0  # a keyframe's largest wall's normal (plane fit to its own depth)
+    turn_prior_deg: float = 5.0  # the map may turn this much (the first keyframe's prior)
+    max_tilt_deg: float = 10.0  # a wall's normal from horizontal (across the up direction)
+    max_turn_deg: float = 20.0  # a keyframe's wall from the nearest axis, as tracked
+    perpendicular_deg: float = 5.0  # two walls of one view are perpendicular within this
     min_share: float = 0.7
-    min_corners: int = 3                 # views holding two walls that are not parallel, at least
-    max_planes: int = 3                  # planes tried per view, largest first
-    distance_m: float = 0.02             # RANSAC inlier distance of each plane fit
-    min_points: int = 3000               # inliers (of the 320x240 depth) for a plane to count
-    stride: int = 2                      # every stride-th pixel each way
+    min_corners: int = 3  # views holding two walls that are not parallel, at least
+    max_planes: int = 3  # planes tried per view, largest first
+    distance_m: float = 0.02  # RANSAC inlier distance of each plane fit
+    min_points: int = 3000  # inliers (of the 320x240 depth) for a plane to count
+    stride: int = 2  # every stride-th pixel each way
 
 
-def wall_normals_in_view(depth_mm: np.ndarray, K: np.ndarray, up_cam: np.ndarray,
-                         params: WallAttitudeParams = WallAttitudeParams()) -> list[np.ndarray]:
+def wall_normals_in_view(
+    depth_mm: np.ndarray, K: np.ndarray, up_cam: np.ndarray, params: WallAttitudeParams = WallAttitudeParams()
+) -> list[np.ndarray]:
     """The normals (camera frame, either sign) of the walls in one depth image (intrinsics
     K), largest first: of up to ``max_planes`` planes (RANSAC, then least squares over its
     inliers, largest first) those whose normal lies within ``max_tilt_deg`` of horizontal
@@ -317,7 +346,7 @@ def wall_normals_in_view(depth_mm: np.ndarray, K: np.ndarray, up_cam: np.ndarray
     s = params.stride
     P, valid = depth_points(depth_mm, K, s)
     P = P[valid]
-    o3d.utility.random.seed(0)          # the same recording gives the same map
+    o3d.utility.random.seed(0)  # the same recording gives the same map
     walls = []
     for _ in range(params.max_planes):
         if len(P) * s * s < params.min_points:
@@ -348,8 +377,13 @@ def _fold(angle: np.ndarray) -> np.ndarray:
     return (angle + np.pi / 4) % (np.pi / 2) - np.pi / 4
 
 
-def wall_attitudes(keyframes: list[Keyframe], T_odom_kf: list[np.ndarray], K: np.ndarray, up_odom: np.ndarray,
-                   params: WallAttitudeParams = WallAttitudeParams()) -> WallAttitudes | None:
+def wall_attitudes(
+    keyframes: list[Keyframe],
+    T_odom_kf: list[np.ndarray],
+    K: np.ndarray,
+    up_odom: np.ndarray,
+    params: WallAttitudeParams = WallAttitudeParams(),
+) -> WallAttitudes | None:
     """The keyframes' walls (``wall_normals_in_view``, K of their depth images) and the two
     axes most of their largest walls agree on (mod 90 deg); None unless the building is a
     Manhattan world by its views' corners (``WallAttitudeParams``). Each largest wall within
@@ -368,18 +402,21 @@ def wall_attitudes(keyframes: list[Keyframe], T_odom_kf: list[np.ndarray], K: np
         largest[i] = walls[0]
         headings.append(h[0])
         d = (h[1:] - h[0]) % np.pi
-        between = np.degrees(np.minimum(d, np.pi - d))      # the walls' lines: 0 parallel, 90 deg square
+        between = np.degrees(np.minimum(d, np.pi - d))  # the walls' lines: 0 parallel, 90 deg square
         corners += [abs(b - 90.0) <= params.perpendicular_deg for b in between if b > params.max_turn_deg]
     if len(corners) < params.min_corners or np.mean(corners) < params.min_share:
         return None
     heading = np.array(headings)
     # Headings fold onto one axis mod 90 deg: the axis is a quarter of the mean of 4 x heading.
     axis = np.angle(np.exp(4j * heading).mean()) / 4
-    for _ in range(3):       # the majority: keyframes tracked with a turn lean away from it
+    for _ in range(3):  # the majority: keyframes tracked with a turn lean away from it
         near = np.abs(_fold(heading - axis)) <= np.radians(params.max_turn_deg / 2)
         axis = np.angle(np.exp(4j * heading[near]).mean()) / 4 if near.any() else axis
     turn = _fold(heading - axis)
     snapped = heading - turn
-    walls = {i: (n, np.cos(a) * e1 + np.sin(a) * e2)
-             for (i, n), a, t in zip(largest.items(), snapped, turn) if abs(t) <= np.radians(params.max_turn_deg)}
+    walls = {
+        i: (n, np.cos(a) * e1 + np.sin(a) * e2)
+        for (i, n), a, t in zip(largest.items(), snapped, turn)
+        if abs(t) <= np.radians(params.max_turn_deg)
+    }
     return WallAttitudes(up, np.cos(axis) * e1 + np.sin(axis) * e2, walls) if walls else None

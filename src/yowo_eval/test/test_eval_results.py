@@ -1,4 +1,5 @@
 """`yowo eval` on a results directory (yowo_eval.results_eval.evaluate)."""
+
 import numpy as np
 import pytest
 import yaml
@@ -13,8 +14,10 @@ def test_isolated_cameras_get_registration_errors_and_no_table_of_nan(tmp_path, 
     gt = {"cam00": look_at([0.0, 0.0, 3.0], [1.0, 1.0, 0.0]), "cam01": look_at([4.0, 0.0, 3.0], [3.0, 1.0, 0.0])}
     est = {n: T.copy() for n, T in gt.items()}
     est["cam01"][:3, 3] += [0.0, 0.1, 0.0]
-    doc = {"frame": "map", "cameras": [{"name": n, "group": None, "T_world_camera": pose_entry(T)}
-                                       for n, T in est.items()]}
+    doc = {
+        "frame": "map",
+        "cameras": [{"name": n, "group": None, "T_world_camera": pose_entry(T)} for n, T in est.items()],
+    }
     (tmp_path / "cameras.yaml").write_text(yaml.safe_dump(doc))
     monkeypatch.setattr(yowo_eval, "read_ground_truth", lambda bag: GroundTruth(gt, None, []))
     m = yowo_eval.evaluate(tmp_path, "rec.mcap")

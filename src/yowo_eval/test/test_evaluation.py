@@ -23,7 +23,7 @@ def rig(n=4):
 def test_registration_errors_known_perturbation():
     gt = rig()
     est = {n: T.copy() for n, T in gt.items()}
-    est["c1"][:3, 3] += [0.03, 0.04, 0.0]                                      # 5 cm
+    est["c1"][:3, 3] += [0.03, 0.04, 0.0]  # 5 cm
     est["c2"] = se3(Rotation.from_rotvec([0, 0, np.radians(0.5)]).as_matrix() @ gt["c2"][:3, :3], gt["c2"][:3, 3])
     errs = {e.name: e for e in registration_errors(est, gt)}
     assert errs["c1"].eps_pos_m == pytest.approx(0.05)
@@ -60,9 +60,14 @@ def make_traj(n=200, seed=0):
 
 
 def test_relative_errors_as_percent_of_each_groups_mean_baseline():
-    gt = {"a": se3(np.eye(3), [0, 0, 0]), "b": se3(np.eye(3), [3, 0, 0]), "c": se3(np.eye(3), [0, 4, 0]),
-          "d": se3(np.eye(3), [10, 0, 0]), "e": se3(np.eye(3), [10, 1, 0])}
-    assert mean_baseline_m([gt[n] for n in "abc"]) == pytest.approx(4.0)          # (3 + 4 + 5) / 3
+    gt = {
+        "a": se3(np.eye(3), [0, 0, 0]),
+        "b": se3(np.eye(3), [3, 0, 0]),
+        "c": se3(np.eye(3), [0, 4, 0]),
+        "d": se3(np.eye(3), [10, 0, 0]),
+        "e": se3(np.eye(3), [10, 1, 0]),
+    }
+    assert mean_baseline_m([gt[n] for n in "abc"]) == pytest.approx(4.0)  # (3 + 4 + 5) / 3
     errs = [PoseError("a", 0.04, 1.0), PoseError("c", 0.08, 2.0), PoseError("e", 0.05, 0.5)]
     pct = {e.name: e for e in relative_errors_of_baseline(errs, gt, {"g0": ["a", "b", "c"], "g1": ["d", "e"]})}
     assert pct["a"].eps_pos_m == pytest.approx(1.0) and pct["c"].eps_pos_m == pytest.approx(2.0)
@@ -124,10 +129,11 @@ def test_layout_iou():
 def test_map_frame_from_first_pose():
     from yowo_common.geometry import look_at
     from yowo_eval.metrics import map_frame_from_first_pose
-    first = look_at([3.0, 4.0, 1.6], [5.0, 4.0, 0.5])       # looking along +x, down
+
+    first = look_at([3.0, 4.0, 1.6], [5.0, 4.0, 0.5])  # looking along +x, down
     T = map_frame_from_first_pose(first)
     moved = T @ first
     np.testing.assert_allclose(moved[:3, 3], [0, 0, 1.6], atol=1e-12)
-    assert moved[1, 2] == pytest.approx(0.0, abs=1e-12) and moved[0, 2] > 0   # optical axis in the x-z plane
-    turned = look_at([3.0, 4.0, 1.6], [3.0, 6.0, 0.5])        # looking along +y
+    assert moved[1, 2] == pytest.approx(0.0, abs=1e-12) and moved[0, 2] > 0  # optical axis in the x-z plane
+    turned = look_at([3.0, 4.0, 1.6], [3.0, 6.0, 0.5])  # looking along +y
     np.testing.assert_allclose((map_frame_from_first_pose(turned) @ turned)[:3, 3], [0, 0, 1.6], atol=1e-12)

@@ -1,11 +1,22 @@
 from yowo_eval.graph_bench import BEGIN, END, keep_section, replace_section, speed_markdown
 
-CASE = {"bag": "small_normal_s0", "source": "keypoints", "exit": 0, "recording_s": 40.0, "wall_s": 66.0, "ratio": 1.65,
-        "registration_pos_avg_m": 0.0123, "registration_rot_avg_deg": 0.201, "ego_ate_m": 0.0031,
-        "peak_memory_mb": 1234.4,
-        "resources": {"keypoint_tracker_a": {"cpu_s": 2.0, "wall_s": 60.0, "peak_rss_mb": 210.0},
-                      "keypoint_tracker_b": {"cpu_s": 4.0, "wall_s": 62.0, "peak_rss_mb": 230.0},
-                      "ego_mapper": {"cpu_s": 30.5, "wall_s": 63.0, "peak_rss_mb": 800.0}}}
+CASE = {
+    "bag": "small_normal_s0",
+    "source": "keypoints",
+    "exit": 0,
+    "recording_s": 40.0,
+    "wall_s": 66.0,
+    "ratio": 1.65,
+    "registration_pos_avg_m": 0.0123,
+    "registration_rot_avg_deg": 0.201,
+    "ego_ate_m": 0.0031,
+    "peak_memory_mb": 1234.4,
+    "resources": {
+        "keypoint_tracker_a": {"cpu_s": 2.0, "wall_s": 60.0, "peak_rss_mb": 210.0},
+        "keypoint_tracker_b": {"cpu_s": 4.0, "wall_s": 62.0, "peak_rss_mb": 230.0},
+        "ego_mapper": {"cpu_s": 30.5, "wall_s": 63.0, "peak_rss_mb": 800.0},
+    },
+}
 
 
 def test_the_table_has_the_ratio_and_each_stage_once(tmp_path):
@@ -15,9 +26,21 @@ def test_the_table_has_the_ratio_and_each_stage_once(tmp_path):
     # Trackers: mean CPU and lifetime, the largest peak.
     assert "keypoint_tracker (each process): 3.0 / 61 / 230" in row and "ego_mapper: 30.5 / 63 / 800" in row
     # The graph's peak and the stages that held most of it then (trackers summed).
-    held = speed_markdown([{**CASE, "peak_memory_by_process_mb": {
-        "keypoint_tracker_a": 60.0, "keypoint_tracker_b": 70.0, "ego_mapper": 700.0, "supervisor": 40.0,
-        "fusion": 364.4}}], "c")
+    held = speed_markdown(
+        [
+            {
+                **CASE,
+                "peak_memory_by_process_mb": {
+                    "keypoint_tracker_a": 60.0,
+                    "keypoint_tracker_b": 70.0,
+                    "ego_mapper": 700.0,
+                    "supervisor": 40.0,
+                    "fusion": 364.4,
+                },
+            }
+        ],
+        "c",
+    )
     assert "| 1234<br>ego_mapper 700<br>fusion 364<br>keypoint_trackers 130 |" in held, held
     failed = speed_markdown([{**CASE, "exit": 1}], "c")
     assert "failed (exit 1)" in failed
@@ -36,12 +59,27 @@ def test_the_section_is_replaced_in_place_and_survives_a_rerender(tmp_path):
 
 
 TOPIC = {"messages": 10, "queue_wait_ms": {"p50": 1.0, "p95": 2.0, "max": 3.0}, "handling_s": 0.5}
-TIMING = {"ego_mapper": {"spawned_s": 0.1, "created_s": 3.0, "finalize_start_s": 40.0, "finalize_end_s": 52.5,
-                         "topics": {"/a": {**TOPIC, "first_s": 9.0, "last_s": 38.0},
-                                    "/b": {**TOPIC, "queue_wait_ms": {"p50": 1, "p95": 900.0, "max": 950.0},
-                                           "first_s": 9.1, "last_s": 39.0}}},
-          "replay": {"spawned_s": 0.2, "created_s": 2.0, "announced_s": 6.1, "playing_s": 8.9, "played_s": 37.0,
-                     "seconds": {"ack_wait /a": 1.5, "ack_wait /b": 2.0}, "topics": {}}}
+TIMING = {
+    "ego_mapper": {
+        "spawned_s": 0.1,
+        "created_s": 3.0,
+        "finalize_start_s": 40.0,
+        "finalize_end_s": 52.5,
+        "topics": {
+            "/a": {**TOPIC, "first_s": 9.0, "last_s": 38.0},
+            "/b": {**TOPIC, "queue_wait_ms": {"p50": 1, "p95": 900.0, "max": 950.0}, "first_s": 9.1, "last_s": 39.0},
+        },
+    },
+    "replay": {
+        "spawned_s": 0.2,
+        "created_s": 2.0,
+        "announced_s": 6.1,
+        "playing_s": 8.9,
+        "played_s": 37.0,
+        "seconds": {"ack_wait /a": 1.5, "ack_wait /b": 2.0},
+        "topics": {},
+    },
+}
 
 
 def test_the_timeline_says_when_each_stage_worked_and_how_long_inputs_waited():

@@ -2,6 +2,7 @@
 TOML, OpenPose BODY_25B JSON frames with a bystander, a short video): K, distortion,
 reference poses, stamps, keypoint ids, confidences and the derived ids 0/1 come back from
 the recording field by field; bad input is named without a traceback."""
+
 import json
 import re
 
@@ -20,10 +21,18 @@ from yowo_eval.multiview_import import FORMATS, START_NS, import_multiview, join
 
 W, H = 160, 120
 CAMS = {
-    "cam_01": dict(K=[[150.0, 0, 79.5], [0, 151.0, 60.25], [0, 0, 1]], D=[-0.05, 0.01, 0.001, -0.002],
-                   rvec=[1.7, 0.2, -0.3], tvec=[0.3, 0.9, 2.9]),
-    "cam_02": dict(K=[[140.0, 0, 81.0], [0, 139.5, 58.0], [0, 0, 1]], D=[0.02, -0.03, 0.0, 0.0005],
-                   rvec=[1.3, 1.6, -1.2], tvec=[-0.1, 0.8, 3.1]),
+    "cam_01": dict(
+        K=[[150.0, 0, 79.5], [0, 151.0, 60.25], [0, 0, 1]],
+        D=[-0.05, 0.01, 0.001, -0.002],
+        rvec=[1.7, 0.2, -0.3],
+        tvec=[0.3, 0.9, 2.9],
+    ),
+    "cam_02": dict(
+        K=[[140.0, 0, 81.0], [0, 139.5, 58.0], [0, 0, 1]],
+        D=[0.02, -0.03, 0.0, 0.0005],
+        rvec=[1.3, 1.6, -1.2],
+        tvec=[-0.1, 0.8, 3.1],
+    ),
 }
 JOINTS = FORMATS["BODY_25B"]
 
@@ -31,21 +40,50 @@ JOINTS = FORMATS["BODY_25B"]
 def toml_text() -> str:
     out = []
     for name, c in CAMS.items():
-        out += [f"[{name}]", f'name = "{name}"', f"size = [ {W}.0, {H}.0]", f"matrix = {c['K']}",
-                f"distortions = {c['D']}", f"rotation = {c['rvec']}", f"translation = {c['tvec']}",
-                "fisheye = false", ""]
+        out += [
+            f"[{name}]",
+            f'name = "{name}"',
+            f"size = [ {W}.0, {H}.0]",
+            f"matrix = {c['K']}",
+            f"distortions = {c['D']}",
+            f"rotation = {c['rvec']}",
+            f"translation = {c['tvec']}",
+            "fisheye = false",
+            "",
+        ]
     return "\n".join(out + ["[metadata]", "adjusted = false", "error = 0.0", ""])
 
 
 def skeleton(x0: float, frame: int) -> tuple[np.ndarray, np.ndarray]:
     """A standing person's BODY_25B joints (uv, confidence) around column x0; the left
     small toe is not found (OpenPose's 0, 0, 0)."""
-    rel = {"nose": (0, 12), "left_eye": (2, 10), "right_eye": (-2, 10), "left_ear": (4, 11), "right_ear": (-4, 11),
-           "left_shoulder": (8, 25), "right_shoulder": (-8, 25), "left_elbow": (10, 40), "right_elbow": (-10, 40),
-           "left_wrist": (11, 52), "right_wrist": (-11, 52), "left_hip": (5, 55), "right_hip": (-5, 55),
-           "left_knee": (5, 78), "right_knee": (-5, 78), "left_ankle": (5, 100), "right_ankle": (-5, 100),
-           "neck": (0, 22), "head_top": (0, 3), "left_big_toe": (8, 106), "left_small_toe": (0, 0),
-           "left_heel": (4, 104), "right_big_toe": (-8, 106), "right_small_toe": (-10, 105), "right_heel": (-4, 104)}
+    rel = {
+        "nose": (0, 12),
+        "left_eye": (2, 10),
+        "right_eye": (-2, 10),
+        "left_ear": (4, 11),
+        "right_ear": (-4, 11),
+        "left_shoulder": (8, 25),
+        "right_shoulder": (-8, 25),
+        "left_elbow": (10, 40),
+        "right_elbow": (-10, 40),
+        "left_wrist": (11, 52),
+        "right_wrist": (-11, 52),
+        "left_hip": (5, 55),
+        "right_hip": (-5, 55),
+        "left_knee": (5, 78),
+        "right_knee": (-5, 78),
+        "left_ankle": (5, 100),
+        "right_ankle": (-5, 100),
+        "neck": (0, 22),
+        "head_top": (0, 3),
+        "left_big_toe": (8, 106),
+        "left_small_toe": (0, 0),
+        "left_heel": (4, 104),
+        "right_big_toe": (-8, 106),
+        "right_small_toe": (-10, 105),
+        "right_heel": (-4, 104),
+    }
     uv = np.array([(x0 + dx + 0.5 * frame, dy + 5.0) for dx, dy in (rel[n] for n in JOINTS)])
     conf = np.round(np.linspace(0.5, 0.9, len(JOINTS)), 3)
     k = JOINTS.index("left_small_toe")
@@ -69,13 +107,12 @@ def write_session(root, frames: int = 3, video: bool = False):
                 people.append({"person_id": [-1], "pose_keypoints_2d": [round(float(v), 4) for v in flat]})
             if f:
                 people.reverse()
-                people.append({"person_id": [-1], "pose_keypoints_2d": []})   # OpenPose: a body not estimated
+                people.append({"person_id": [-1], "pose_keypoints_2d": []})  # OpenPose: a body not estimated
             (d / f"{cam}.{f:04d}.json").write_text(json.dumps({"version": 1.3, "people": people}))
     if video:
         (root / "videos").mkdir()
         for cam in ("cam01", "cam02"):
-            out = cv2.VideoWriter(str(root / "videos" / f"{cam}.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 30.0,
-                                  (W, H))
+            out = cv2.VideoWriter(str(root / "videos" / f"{cam}.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (W, H))
             for f in range(frames):
                 out.write(np.full((H, W, 3), 40 + 60 * f, np.uint8))
             out.release()
@@ -108,20 +145,20 @@ def test_session_round_trip(tmp_path):
         assert np.allclose(cam.K, c["K"]) and np.allclose(cam.D, c["D"]) and cam.distortion_model == "plumb_bob"
         assert [stamp_to_ns(m.header.stamp) for m in kps[name]] == [START_NS + f * 40_000_000 for f in range(3)]
         for f, msg in enumerate(kps[name]):
-            uv, conf = skeleton(80.0, f)        # always the agent, never the bystander at x0 = 20
+            uv, conf = skeleton(80.0, f)  # always the agent, never the bystander at x0 = 20
             got = {k.id: (k.x, k.y, k.confidence) for k in msg.keypoints}
-            assert ids["left_small_toe"] not in got       # not found: left out
+            assert ids["left_small_toe"] not in got  # not found: left out
             for j, n in enumerate(JOINTS):
                 if n != "left_small_toe":
                     assert np.allclose(got[ids[n]], (*uv[j], conf[j]), atol=1e-4), (name, f, n)
             assert [ids[n] for n in ("nose", "right_ankle", "neck", "right_heel")] == [2, 18, 19, 27]
             joints = dict(zip(JOINTS, zip(uv, conf)))
             top = head_top(joints, p.joint_score)
-            assert np.allclose(got[0], top, atol=1e-4)           # ears' rule: above the ears' midpoint
+            assert np.allclose(got[0], top, atol=1e-4)  # ears' rule: above the ears' midpoint
             assert got[0][1] < uv[JOINTS.index("left_ear")][1]
             joints |= {"left_foot_index": joints["left_big_toe"], "right_foot_index": joints["right_big_toe"]}
             ground = ground_point(joints, p.joint_score, p.ankle_to_ground)
-            assert np.allclose(got[1], ground, atol=1e-4)        # the feet's contact points' mean
+            assert np.allclose(got[1], ground, atol=1e-4)  # the feet's contact points' mean
             assert np.isclose(got[1][1], np.mean([104, 104, 106, 106]) + 5.0, atol=1e-3)
 
 
@@ -129,12 +166,14 @@ def test_videos_become_cmc_images(tmp_path):
     write_session(tmp_path / "s", frames=3, video=True)
     bag = tmp_path / "bag"
     s = import_multiview(tmp_path / "s", bag, videos=True)
-    assert s.fps == pytest.approx(30.0)           # from the videos (no Config.toml)
+    assert s.fps == pytest.approx(30.0)  # from the videos (no Config.toml)
     images = [(topic, msg) for topic, _, msg in read_messages(bag, [topics.cmc_image_topics("cam_01")[1]])]
     assert len(images) == 3
     for f, (_, msg) in enumerate(images):
         rgb = decode_color(msg)
-        assert rgb.shape == (H, W, 3) and abs(float(rgb.mean()) - (40 + 60 * f)) < 10   # mp4v and JPEG are lossy; frames are 60 apart
+        assert (
+            rgb.shape == (H, W, 3) and abs(float(rgb.mean()) - (40 + 60 * f)) < 10
+        )  # mp4v and JPEG are lossy; frames are 60 apart
         assert stamp_to_ns(msg.header.stamp) == START_NS + round(f / 30.0 * 1e9)
 
 
@@ -157,7 +196,9 @@ def test_bad_input_is_named(tmp_path, capsys):
     (tmp_path / "s" / "pose" / "cam02_json" / "cam02.0001.json").write_text("{nope")
     code, err = run_cli(capsys, tmp_path / "s", "-o", tmp_path / "b3", "--fps", "30")
     assert code == 2 and "cam02.0001.json: not JSON" in err
-    (tmp_path / "s" / "calibration" / "Calib_test.toml").write_text(toml_text().replace("matrix = [[150.0", "matrix = [[-1"))
+    (tmp_path / "s" / "calibration" / "Calib_test.toml").write_text(
+        toml_text().replace("matrix = [[150.0", "matrix = [[-1")
+    )
     code, err = run_cli(capsys, tmp_path / "s", "-o", tmp_path / "b4", "--fps", "30")
     assert code == 2 and "[cam_01]" in err and "focal lengths" in err
 
@@ -171,14 +212,33 @@ def write_caliscope(root, cams: dict | None = None) -> tuple:
     lines = ["CreationDate = 2023-05-06T11:12:27", "fps_recording = 24", ""]
     for port, c in cams.items():
         R = cv2.Rodrigues(np.array(c["rvec"]))[0]
-        lines += [f"[cam_{port}]", f"port = {port}", f"size = [ {W}, {H},]", f"matrix = {c['K']}",
-                  f"distortions = {c['D'] + [0.001]}", f"translation = {c['tvec']}",
-                  f"rotation = {R.tolist()}", "ignore = false", ""]
-    lines += ["[cam_7]", "port = 7", "ignore = false", ""]      # not posed yet: left out
+        lines += [
+            f"[cam_{port}]",
+            f"port = {port}",
+            f"size = [ {W}, {H},]",
+            f"matrix = {c['K']}",
+            f"distortions = {c['D'] + [0.001]}",
+            f"translation = {c['tvec']}",
+            f"rotation = {R.tolist()}",
+            "ignore = false",
+            "",
+        ]
+    lines += ["[cam_7]", "port = 7", "ignore = false", ""]  # not posed yet: left out
     (root / "recordings" / "r" / "HOLISTIC").mkdir(parents=True)
     (root / "config.toml").write_text("\n".join(lines))
-    points = {0: (80, 20), 7: (84, 19), 8: (76, 19), 11: (88, 30), 12: (72, 30), 29: (84, 104), 30: (76, 104), 31: (88, 106), 32: (72, 106),
-              101: (95, 60), 502: (81, 22)}
+    points = {
+        0: (80, 20),
+        7: (84, 19),
+        8: (76, 19),
+        11: (88, 30),
+        12: (72, 30),
+        29: (84, 104),
+        30: (76, 104),
+        31: (88, 106),
+        32: (72, 106),
+        101: (95, 60),
+        502: (81, 22),
+    }
     times = {0: (100.000, 100.041), 3: (100.013, 100.055)}
     rows = ["sync_index,port,frame_index,frame_time,point_id,img_loc_x,img_loc_y,obj_loc_x,obj_loc_y"]
     for port in cams:
@@ -192,7 +252,7 @@ def write_caliscope(root, cams: dict | None = None) -> tuple:
 def test_caliscope_round_trip(tmp_path, capsys):
     csv, points, times = write_caliscope(tmp_path / "cs")
     bag = tmp_path / "bag"
-    code, err = run_cli(capsys, csv, "-o", bag)        # the calibration found above the table
+    code, err = run_cli(capsys, csv, "-o", bag)  # the calibration found above the table
     assert code == 0, err
     gt = read_ground_truth(bag)
     assert sorted(gt.cameras) == ["cam_0", "cam_3"]
@@ -204,18 +264,19 @@ def test_caliscope_round_trip(tmp_path, capsys):
     for topic, _, msg in read_messages(bag):
         msgs.setdefault((topic, msg.header.frame_id), []).append(msg)
     for name, port in (("cam_0", 0), ("cam_3", 3)):
-        (info, *_), kps = msgs[(topics.cmc_info_topic(name), f"{name}_optical_frame")], \
-            msgs[(topics.cmc_keypoints_topic(name), f"{name}_optical_frame")]
+        (info, *_), kps = (
+            msgs[(topics.cmc_info_topic(name), f"{name}_optical_frame")],
+            msgs[(topics.cmc_keypoints_topic(name), f"{name}_optical_frame")],
+        )
         cam = camera_info_to_model(info)
         assert np.allclose(cam.D[:5], CAMS["cam_01" if port == 0 else "cam_02"]["D"] + [0.001])
         # stamped by each camera's own capture times, from the earliest of all
-        assert [stamp_to_ns(m.header.stamp) for m in kps] == [START_NS + round((t - 100.0) * 1e9)
-                                                             for t in times[port]]
+        assert [stamp_to_ns(m.header.stamp) for m in kps] == [START_NS + round((t - 100.0) * 1e9) for t in times[port]]
         for f, m in enumerate(kps):
             got = {k.id: (k.x, k.y) for k in m.keypoints}
             assert got[ids["nose"]] == (80.0 + f, 20.0) and got[ids["left_ear"]] == (84.0 + f, 19.0)
-            assert got[103] == (95.0 + f, 60.0) and got[504] == (81.0 + f, 22.0)     # hand, face: id + 2
-            assert got[0][1] < 19.0 and 104.0 < got[1][1] < 107.0                   # head top, ground point
+            assert got[103] == (95.0 + f, 60.0) and got[504] == (81.0 + f, 22.0)  # hand, face: id + 2
+            assert got[0][1] < 19.0 and 104.0 < got[1][1] < 107.0  # head top, ground point
             assert len(got) == len(points) + 2
 
 
@@ -231,7 +292,8 @@ def test_caliscope_bad_input_is_named(tmp_path, capsys):
     assert not (tmp_path / "b1").exists()
     csv.write_text(text)
     cfg = tmp_path / "cs" / "config.toml"
-    cfg.write_text(re.sub(r"rotation = \[\[.*\]\]", "rotation = [[2.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]]",
-                          cfg.read_text(), count=1))
+    cfg.write_text(
+        re.sub(r"rotation = \[\[.*\]\]", "rotation = [[2.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]]", cfg.read_text(), count=1)
+    )
     code, err = run_cli(capsys, csv, "-o", tmp_path / "b2")
     assert code == 2 and "[cam_0]" in err and "rotation" in err

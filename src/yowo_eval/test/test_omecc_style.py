@@ -32,7 +32,7 @@ def test_noise_free_rig_exact_up_to_scale_and_metric_from_height():
     assert group.T_local_cam[group.reference] is not None
     pos, rot, scale = relative_errors(group, cams)
     assert pos < 1e-4 and rot < 1e-3
-    assert abs(scale - 1.0) < 1e-3          # the right height gives the right metric scale
+    assert abs(scale - 1.0) < 1e-3  # the right height gives the right metric scale
     assert max(group.rmse_px.values()) < 1e-3
 
 
@@ -49,8 +49,15 @@ def test_scale_follows_the_height_prior():
 
 def test_noisy_distorted_unequal_rates():
     cams = three_camera_rig(D=[-0.2, 0.04, 0, 0, 0])
-    tracks = observe(cams, loop_walk((3.0, 2.5), (2.0, 1.5)), 40.0, rate_hz={"a": 10.0, "b": 15.0, "c": 7.5},
-                     offsets_s=[0.0, 0.031, 0.057], sigma_px=1.0, seed=3)
+    tracks = observe(
+        cams,
+        loop_walk((3.0, 2.5), (2.0, 1.5)),
+        40.0,
+        rate_hz={"a": 10.0, "b": 15.0, "c": 7.5},
+        offsets_s=[0.0, 0.031, 0.057],
+        sigma_px=1.0,
+        seed=3,
+    )
     (group,) = calibrate_groups_omecc(tracks, OmeccParams(person_height_m=HEIGHT)).groups
     pos, rot, scale = relative_errors(group, cams)
     assert pos < 0.01 and rot < 0.2

@@ -1,6 +1,7 @@
 """`yowo import-tum` on a tiny TUM RGB-D folder the test renders (a textured floor seen from
 known poses): stamps, colour/depth association, depth scale, intrinsics and ground truth
 come back from the recording; bad input is named without a traceback."""
+
 import cv2
 import numpy as np
 import pytest
@@ -19,7 +20,9 @@ K_FR1 = np.array([[517.3, 0, 318.6], [0, 516.5, 255.3], [0, 0, 1]])
 def camera_pose(t: float) -> np.ndarray:
     """T_world_cam (optical frame) 1.5 m above the floor z = 0, looking down at 60 deg, moving along x."""
     a = np.radians(60)
-    R = np.column_stack([[0, -1, 0], [-np.sin(a), 0, -np.cos(a)], [np.cos(a), 0, -np.sin(a)]])  # x right, y down, z ahead
+    R = np.column_stack(
+        [[0, -1, 0], [-np.sin(a), 0, -np.cos(a)], [np.cos(a), 0, -np.sin(a)]]
+    )  # x right, y down, z ahead
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, [0.2 * t, 0.0, 1.5]
     return T
@@ -28,9 +31,9 @@ def camera_pose(t: float) -> np.ndarray:
 def render_floor(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(RGB checkerboard of the floor, depth [m] along the optical axis) through K_FR1, no distortion."""
     u, v = np.meshgrid(np.arange(640), np.arange(480))
-    rays = np.linalg.inv(K_FR1) @ np.stack([u.ravel(), v.ravel(), np.ones(u.size)])   # z = 1 in the camera
+    rays = np.linalg.inv(K_FR1) @ np.stack([u.ravel(), v.ravel(), np.ones(u.size)])  # z = 1 in the camera
     world = T[:3, :3] @ rays
-    scale = -T[2, 3] / world[2]                       # where each ray meets z = 0
+    scale = -T[2, 3] / world[2]  # where each ray meets z = 0
     depth = np.where(scale > 0, scale, 0).reshape(480, 640)
     xy = T[:2, 3, None] + world[:2] * scale
     checker = ((np.floor(xy[0] / 0.1) + np.floor(xy[1] / 0.1)) % 2).reshape(480, 640)
@@ -49,18 +52,21 @@ def write_sequence(folder, rgb_stamps=RGB_STAMPS, depth_stamps=DEPTH_STAMPS):
     (folder / "depth").mkdir()
     t0 = float(rgb_stamps[0])
     for s in rgb_stamps:
-        cv2.imwrite(str(folder / "rgb" / f"{s}.png"), cv2.cvtColor(render_floor(camera_pose(float(s) - t0))[0],
-                                                                    cv2.COLOR_RGB2BGR))
+        cv2.imwrite(
+            str(folder / "rgb" / f"{s}.png"),
+            cv2.cvtColor(render_floor(camera_pose(float(s) - t0))[0], cv2.COLOR_RGB2BGR),
+        )
     for s in depth_stamps:
         depth = render_floor(camera_pose(float(s) - t0))[1]
         cv2.imwrite(str(folder / "depth" / f"{s}.png"), np.round(depth * 5000).astype(np.uint16))
     header = "# color images\n# file: 'rgbd_dataset_freiburg1_test.bag'\n# timestamp filename\n"
     (folder / "rgb.txt").write_text(header + "".join(f"{s} rgb/{s}.png\n" for s in rgb_stamps))
-    (folder / "depth.txt").write_text(header.replace("color images", "depth maps")
-                                      + "".join(f"{s} depth/{s}.png\n" for s in depth_stamps))
+    (folder / "depth.txt").write_text(
+        header.replace("color images", "depth maps") + "".join(f"{s} depth/{s}.png\n" for s in depth_stamps)
+    )
     lines = ["# ground truth trajectory", "# timestamp tx ty tz qx qy qz qw"]
     gt = {}
-    for k in range(12):   # 100 Hz mocap, from before the first image to after the last
+    for k in range(12):  # 100 Hz mocap, from before the first image to after the last
         s = f"{1305031102.16 + 0.01 * k:.4f}"
         T = camera_pose(float(s) - t0)
         q = Rotation.from_matrix(T[:3, :3]).as_quat()
@@ -94,9 +100,10 @@ def test_import_round_trips(tmp_path):
         assert [stamp_to_ns(m.header.stamp) for _, m in by_topic[topic]] == want, topic
         assert [t for t, _ in by_topic[topic]] == want
     t0 = float(RGB_STAMPS[0])
-    for k, ((_, color), (_, depth), (_, info)) in enumerate(zip(*(by_topic[t] for t in (
-            topics.EGO_COLOR[1], topics.EGO_DEPTH[1], topics.EGO_INFO)))):
-        assert bytes(color.data) == (seq / "rgb" / f"{RGB_STAMPS[k]}.png").read_bytes()   # lossless
+    for k, ((_, color), (_, depth), (_, info)) in enumerate(
+        zip(*(by_topic[t] for t in (topics.EGO_COLOR[1], topics.EGO_DEPTH[1], topics.EGO_INFO)))
+    ):
+        assert bytes(color.data) == (seq / "rgb" / f"{RGB_STAMPS[k]}.png").read_bytes()  # lossless
         rgb, _ = render_floor(camera_pose(float(RGB_STAMPS[k]) - t0))
         assert np.array_equal(decode_color(color), rgb)
         # Depth in metres: the depth file of the pair (DEPTH_STAMPS[k]), 1/5000 m per unit,
@@ -113,8 +120,9 @@ def test_import_round_trips(tmp_path):
     poses = {stamp_to_ns(m.header.stamp): pose_to_matrix(m.pose) for _, m in by_topic[topics.GT_EGO_POSE]}
     assert sorted(poses) == sorted(gt)
     for stamp, T in gt.items():
-        assert np.allclose(poses[stamp][:3, 3], T[:3, 3], atol=1e-4) and np.allclose(poses[stamp][:3, :3], T[:3, :3],
-                                                                                      atol=1e-5)
+        assert np.allclose(poses[stamp][:3, 3], T[:3, 3], atol=1e-4) and np.allclose(
+            poses[stamp][:3, :3], T[:3, :3], atol=1e-5
+        )
     # The evaluation reads it as the ego trajectory; the pose is the optical frame's: the
     # imported depth back-projected through the CameraInfo's K and the ground-truth pose
     # at the frame's stamp lands on the rendered floor (z = 0).
@@ -167,7 +175,7 @@ def test_bad_input_is_named(tmp_path, capsys):
     (seq / "rgb" / f"{RGB_STAMPS[1]}.png").write_bytes(b"not a png")
     code, err = run_cli(capsys, seq, "-o", tmp_path / "b3")
     assert code == 2 and f"rgb/{RGB_STAMPS[1]}.png: not a readable image" in err
-    assert not (tmp_path / "b3").exists()            # no half recording left behind
+    assert not (tmp_path / "b3").exists()  # no half recording left behind
     (seq / "rgb" / f"{RGB_STAMPS[1]}.png").unlink()
     code, err = run_cli(capsys, seq, "-o", tmp_path / "b4")
     assert code == 2 and f"rgb/{RGB_STAMPS[1]}.png: missing (listed in rgb.txt)" in err
@@ -190,8 +198,9 @@ def test_bad_input_is_named(tmp_path, capsys):
     assert code == 2 and "already exists" in err
 
 
-@pytest.mark.parametrize("name,kinect", [("rgbd_dataset_freiburg2_pioneer_360", "fr2"), ("fr1_desk", "fr1"),
-                                         ("tum_fr3_office", "fr3")])
+@pytest.mark.parametrize(
+    "name,kinect", [("rgbd_dataset_freiburg2_pioneer_360", "fr2"), ("fr1_desk", "fr1"), ("tum_fr3_office", "fr3")]
+)
 def test_kinect_from_the_sequence_name(tmp_path, name, kinect):
     from yowo_eval.tum_import import camera_for
 
@@ -202,8 +211,10 @@ def test_kinect_from_the_sequence_name(tmp_path, name, kinect):
 def test_yowo_bench_keeps_the_tum_section():
     from yowo_eval.bench_report import keep_sections
 
-    old = ("# BENCHMARKS\n\nold tables\n\n<!-- graph-speed:begin -->\nspeed\n<!-- graph-speed:end -->\n\n"
-           "<!-- tum-rgbd:begin -->\n## TUM\nATE\n<!-- tum-rgbd:end -->\n")
+    old = (
+        "# BENCHMARKS\n\nold tables\n\n<!-- graph-speed:begin -->\nspeed\n<!-- graph-speed:end -->\n\n"
+        "<!-- tum-rgbd:begin -->\n## TUM\nATE\n<!-- tum-rgbd:end -->\n"
+    )
     new = keep_sections(old, "# BENCHMARKS\n\nnew tables\n")
     assert "old tables" not in new and new.startswith("# BENCHMARKS\n\nnew tables\n")
     assert new.count("<!-- tum-rgbd:begin -->\n## TUM\nATE\n<!-- tum-rgbd:end -->") == 1
@@ -221,10 +232,20 @@ def test_bench_tum_table_sits_beside_published_numbers_in_its_own_section(tmp_pa
     assert short_name(Path("my_walk")) == "my_walk"
     assert published_cell("fr1_desk") == "0.021 DVO-SLAM<br>0.020 ElasticFusion<br>0.016 ORB-SLAM2 RGB-D"
     assert published_cell("my_walk") == "-"
-    case = {"sequence": "fr1_desk", "frames": 573, "recording_s": 23.4, "ego_ate_m": 0.0291, "ego_ate_max_m": 0.07,
-            "ratio": 3.1, "exit": 0, "resources": {"ego_mapper": {"cpu_s": 95.2, "wall_s": 80.0, "peak_rss_mb": 1500.0}}}
+    case = {
+        "sequence": "fr1_desk",
+        "frames": 573,
+        "recording_s": 23.4,
+        "ego_ate_m": 0.0291,
+        "ego_ate_max_m": 0.07,
+        "ratio": 3.1,
+        "exit": 0,
+        "resources": {"ego_mapper": {"cpu_s": 95.2, "wall_s": 80.0, "peak_rss_mb": 1500.0}},
+    }
     row = next(line for line in tum_markdown([case], "c").splitlines() if line.startswith("| fr1_desk"))
-    assert row.startswith("| fr1_desk | 573 | 23.4 | 0.0291 | 0.0700 | 0.021 DVO-SLAM") and row.endswith("| 3.10 | 95 / 1500 |")
+    assert row.startswith("| fr1_desk | 573 | 23.4 | 0.0291 | 0.0700 | 0.021 DVO-SLAM") and row.endswith(
+        "| 3.10 | 95 / 1500 |"
+    )
     failed = tum_markdown([{**case, "ego_ate_m": None, "ego_ate_max_m": None, "exit": 1, "resources": {}}], "c")
     assert "| - (exit 1) | - |" in failed
     doc = tmp_path / "BENCHMARKS.md"

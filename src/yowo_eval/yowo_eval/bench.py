@@ -2,6 +2,7 @@
 to BENCHMARKS.md (tables + the exact command + versions + machine, see
 bench_report) and results.json. Each case runs in a fresh process so its peak
 memory is its own."""
+
 from __future__ import annotations
 
 import json
@@ -58,12 +59,18 @@ RELATIVE_METHODS = {
     "YOWO, pose model": ("pose", calibrate_cmcs),
     # Cameras outside the 2-edge-connected groups also pair up along their strongest
     # edge: more cameras calibrated, each pair resting on a single edge.
-    "YOWO, left-over pairs": ("keypoints", lambda tracks, cmc: calibrate_cmcs(
-        tracks, replace(cmc, sfm=replace(cmc.sfm, pair_leftovers=True)))),
+    "YOWO, left-over pairs": (
+        "keypoints",
+        lambda tracks, cmc: calibrate_cmcs(tracks, replace(cmc, sfm=replace(cmc.sfm, pair_leftovers=True))),
+    ),
     # E-matrix pair with the most inliers, PnP in order of matches, one BA with one
     # sigma; no overlap scores (neither for ordering nor for the edge rule).
-    "ECCMP-style": ("keypoints", lambda tracks, cmc: calibrate_groups(
-        tracks, replace(cmc.sfm, overlap_ordering=False, class_sigma=False, min_edge_overlap=0.0))),
+    "ECCMP-style": (
+        "keypoints",
+        lambda tracks, cmc: calibrate_groups(
+            tracks, replace(cmc.sfm, overlap_ordering=False, class_sigma=False, min_edge_overlap=0.0)
+        ),
+    ),
     # Factor graph over the person keypoints from a pairwise initialisation with a
     # person-height scale prior (yowo_eval.omecc_style); YOWO's grouping.
     "OMECC-style": ("keypoints", lambda tracks, cmc: calibrate_groups_omecc(tracks)),
@@ -82,8 +89,15 @@ def scenario_preset(preset: str, scenario: str):
         p = replace(p, walk=replace(p.walk, long_pause_s=spec["long_pause_s"]))
     if "kp_sigma_px" in spec:
         s = spec["kp_sigma_px"]
-        p = replace(p, detector=replace(p.detector, sigma_px={0: s, 1: 1.5 * s}, sigma_body_px=4.0 * s,
-                                        outlier_rate=spec.get("outlier_rate", p.detector.outlier_rate)))
+        p = replace(
+            p,
+            detector=replace(
+                p.detector,
+                sigma_px={0: s, 1: 1.5 * s},
+                sigma_body_px=4.0 * s,
+                outlier_rate=spec.get("outlier_rate", p.detector.outlier_rate),
+            ),
+        )
     return p
 
 
@@ -92,6 +106,7 @@ def bag_for(preset: str, scenario: str, seed: int, bags_dir: Path, log=print) ->
     per bag lets several runs share `bags_dir` (one generates, the others wait)."""
     import fcntl
     import shutil
+
     path = bags_dir / f"{preset}_{scenario}_s{seed}"
     bags_dir.mkdir(parents=True, exist_ok=True)
     with open(bags_dir / f".{path.name}.lock", "w") as lock:
@@ -101,8 +116,10 @@ def bag_for(preset: str, scenario: str, seed: int, bags_dir: Path, log=print) ->
                 shutil.rmtree(path)  # an interrupted generation
             t0 = time.perf_counter()
             summary = generate(scenario_preset(preset, scenario), seed, path)
-            log(f"generated {path.name}: {summary.duration_s:.0f} s walk, {len(summary.cmcs)} CMCs "
-                f"in {time.perf_counter() - t0:.0f} s")
+            log(
+                f"generated {path.name}: {summary.duration_s:.0f} s walk, {len(summary.cmcs)} CMCs "
+                f"in {time.perf_counter() - t0:.0f} s"
+            )
     return path
 
 
@@ -111,6 +128,7 @@ KEYPOINT_NAMES = {0: "head_top", 1: "ground"}
 
 def has_cmc_images(bag: Path) -> bool:
     from yowo_bringup.contract import cmc_image_topics, discover_inputs
+
     inputs = discover_inputs(bag)
     counts = {t.name: t.count for t in inputs.topics}
     return any(counts.get(t, 0) for name in inputs.cmc_names for t in cmc_image_topics(name))
@@ -121,8 +139,11 @@ def truth_clocked(tracks: list, truth, config: YowoConfig) -> tuple[list, YowoCo
     (same noise, same frames): each CMC's stamps moved onto the ego clock by the recorded
     truth, clock estimation off. Evaluation only: the pipeline never reads /gt."""
     synced = [t.shifted(truth.clock_offsets_s.get(t.name, 0.0)) for t in tracks]
-    off = replace(config, cmc=replace(config.cmc, estimate_clock_offsets=False),
-                  fusion=replace(config.fusion, align=replace(config.fusion.align, estimate_clock_offset=False)))
+    off = replace(
+        config,
+        cmc=replace(config.cmc, estimate_clock_offsets=False),
+        fusion=replace(config.fusion, align=replace(config.fusion.align, estimate_clock_offset=False)),
+    )
     return synced, off
 
 
@@ -143,14 +164,22 @@ def relative_pose_case(bag: Path, images: bool, baselines: bool = True, config: 
         est = {n: T for g in result.groups for n, T in g.T_local_cam.items()}
         groups = {g.group_id: g.names for g in result.groups}
         errs, _ = relative_pose_errors(est, gt, groups)
-        entry = {"summary": asdict(ErrorSummary.of(errs)), "calibrated": len(est), "cameras": len(gt),
-                 "seconds": seconds, "errors": {e.name: [e.eps_pos_m, e.eps_rot_deg] for e in errs},
-                 "groups": groups}
+        entry = {
+            "summary": asdict(ErrorSummary.of(errs)),
+            "calibrated": len(est),
+            "cameras": len(gt),
+            "seconds": seconds,
+            "errors": {e.name: [e.eps_pos_m, e.eps_rot_deg] for e in errs},
+            "groups": groups,
+        }
         if truth.clock_offsets_s and cmc_params.estimate_clock_offsets:
-            true = truth.clock_offsets_s   # each member's offset to its group's reference against the truth
+            true = truth.clock_offsets_s  # each member's offset to its group's reference against the truth
             entry["clock_errors_ms"] = {
                 n: 1e3 * (o - (true.get(n, 0.0) - true.get(g.reference, 0.0)))
-                for g in result.groups for n, o in g.clock_offsets_s.items() if n != g.reference}
+                for g in result.groups
+                for n, o in g.clock_offsets_s.items()
+                if n != g.reference
+            }
         return entry
 
     for method, (source, calibrate) in RELATIVE_METHODS.items():
@@ -182,7 +211,7 @@ def detector_case(bag: Path, preset, seed: int, config: YowoConfig = YowoConfig(
     renderer = Renderer(setup.scene)
     cmcs = {c.name: (c, renderer.render(c.camera, c.T_world_cam)[1]) for c in setup.cmcs}
     agent, frames = {}, {}
-    truth = read_ground_truth(bag)          # the agent on the ego clock; each CMC's stamps on its own
+    truth = read_ground_truth(bag)  # the agent on the ego clock; each CMC's stamps on its own
     for topic, _, msg in read_messages(bag):
         if topic == GT_AGENT_KEYPOINTS:
             agent[stamp_to_ns(msg.header.stamp)] = points_to_array([p.position for p in msg.poses])
@@ -192,11 +221,19 @@ def detector_case(bag: Path, preset, seed: int, config: YowoConfig = YowoConfig(
     full = detected = 0
     for name, stamps in frames.items():
         cmc, depth = cmcs[name]
-        found = {k: dict(zip(tr.stamps_ns.tolist(), tr.uv)) for k, tr in tracks[name].tracks.items()} \
-            if name in tracks else {}
+        found = (
+            {k: dict(zip(tr.stamps_ns.tolist(), tr.uv)) for k, tr in tracks[name].tracks.items()}
+            if name in tracks
+            else {}
+        )
         for s in stamps:
-            uv, visible = visible_points(cmc.camera, cmc.T_world_cam, agent[truth.true_time_ns(name, s)], depth,
-                                         preset.detector.occlusion_margin_m)
+            uv, visible = visible_points(
+                cmc.camera,
+                cmc.T_world_cam,
+                agent[truth.true_time_ns(name, s)],
+                depth,
+                preset.detector.occlusion_margin_m,
+            )
             if not visible.all():
                 continue
             full += 1
@@ -205,12 +242,18 @@ def detector_case(bag: Path, preset, seed: int, config: YowoConfig = YowoConfig(
                 if s in found.get(k, {}):
                     errors[k].append(float(np.linalg.norm(found[k][s] - uv[k])))
     both = errors[0] + errors[1]
-    return {"frames_full_view": full, "detected": detected, "detection_rate": detected / max(full, 1),
-            "median_px": float(np.median(both)) if both else float("nan"),
-            "median_px_by_id": {KEYPOINT_NAMES[k]: float(np.median(v)) if v else float("nan") for k, v in errors.items()},
-            "p90_px_by_id": {KEYPOINT_NAMES[k]: float(np.percentile(v, 90)) if v else float("nan")
-                             for k, v in errors.items()},
-            "seconds": seconds, "frames": sum(len(v) for v in frames.values())}
+    return {
+        "frames_full_view": full,
+        "detected": detected,
+        "detection_rate": detected / max(full, 1),
+        "median_px": float(np.median(both)) if both else float("nan"),
+        "median_px_by_id": {KEYPOINT_NAMES[k]: float(np.median(v)) if v else float("nan") for k, v in errors.items()},
+        "p90_px_by_id": {
+            KEYPOINT_NAMES[k]: float(np.percentile(v, 90)) if v else float("nan") for k, v in errors.items()
+        },
+        "seconds": seconds,
+        "frames": sum(len(v) for v in frames.values()),
+    }
 
 
 def full_case(bag: Path, images: bool, config: YowoConfig = YowoConfig()) -> dict:
@@ -229,75 +272,114 @@ def full_case(bag: Path, images: bool, config: YowoConfig = YowoConfig()) -> dic
     gt = read_ground_truth(bag)
     r = process(bag, config)
     tracks, backgrounds = r.tracks, r.backgrounds
-    no_jo = fuse(ego_map_data(r.ego), r.grouping.groups, r.grouping.ungrouped,
-                 {t.name: CmcInput(t, backgrounds.get(t.name)) for t in tracks},
-                 replace(config.fusion, joint_optimisation=False), fusion_upstream(config))
+    no_jo = fuse(
+        ego_map_data(r.ego),
+        r.grouping.groups,
+        r.grouping.ungrouped,
+        {t.name: CmcInput(t, backgrounds.get(t.name)) for t in tracks},
+        replace(config.fusion, joint_optimisation=False),
+        fusion_upstream(config),
+    )
 
     def registration(est: dict, cameras: int = len(gt.cameras)) -> dict:
         errors = registration_errors(est, gt.cameras)
-        return asdict(ErrorSummary.of(errors)) | {"registered": len(est), "cameras": cameras,
-                                                  "errors": {e.name: [e.eps_pos_m, e.eps_rot_deg] for e in errors}}
+        return asdict(ErrorSummary.of(errors)) | {
+            "registered": len(est),
+            "cameras": cameras,
+            "errors": {e.name: [e.eps_pos_m, e.eps_rot_deg] for e in errors},
+        }
 
     def registered(result) -> dict:
         return {c.name: c.T_world_cam for c in result.cameras if c.T_world_cam is not None}
 
-    reg = {"YOWO without joint optimisation": registration(registered(no_jo)),
-           "YOWO": registration(registered(r.fusion)) | {"statuses": {c.name: c.status for c in r.fusion.cameras}}}
+    reg = {
+        "YOWO without joint optimisation": registration(registered(no_jo)),
+        "YOWO": registration(registered(r.fusion)) | {"statuses": {c.name: c.status for c in r.fusion.cameras}},
+    }
     # Cameras outside every group, registered one by one from the agent track (issue: within 0.2 m).
     outside = [c for c in r.fusion.cameras if not c.group]
     reg["YOWO, cameras outside groups"] = registration(
-        {c.name: c.T_world_cam for c in outside if c.method == ISOLATED_PNP and c.T_world_cam is not None}, len(outside))
+        {c.name: c.T_world_cam for c in outside if c.method == ISOLATED_PNP and c.T_world_cam is not None}, len(outside)
+    )
     if images and backgrounds:
         db = build_database(r.ego.camera, r.ego.T_world_kf, read_keyframe_images(bag, r.ego))
         priors = registered(r.fusion)
         cams = {t.name: t.camera for t in tracks}
         for label, use_prior in (("Hloc-style", False), ("Hloc-style with YOWO prior", True)):
             t0 = time.perf_counter()
-            found = {n: localize(db, n, bg, cams[n], priors.get(n) if use_prior else None) for n, bg in backgrounds.items()}
-            reg[label] = registration({n: f.T_world_cam for n, f in found.items() if f.T_world_cam is not None}) \
-                | {"seconds": time.perf_counter() - t0}
+            found = {
+                n: localize(db, n, bg, cams[n], priors.get(n) if use_prior else None) for n, bg in backgrounds.items()
+            }
+            reg[label] = registration({n: f.T_world_cam for n, f in found.items() if f.T_world_cam is not None}) | {
+                "seconds": time.perf_counter() - t0
+            }
     clocks = {}
     if gt.clock_offsets_s:
         synced, synced_config = truth_clocked(tracks, gt, config)
         grouping = calibrate_cmcs(synced, synced_config.cmc)
-        reg[TRUE_CLOCKS] = registration(registered(fuse(
-            ego_map_data(r.ego), grouping.groups, grouping.ungrouped,
-            {t.name: CmcInput(t, backgrounds.get(t.name)) for t in synced}, synced_config.fusion,
-            fusion_upstream(synced_config))))
+        reg[TRUE_CLOCKS] = registration(
+            registered(
+                fuse(
+                    ego_map_data(r.ego),
+                    grouping.groups,
+                    grouping.ungrouped,
+                    {t.name: CmcInput(t, backgrounds.get(t.name)) for t in synced},
+                    synced_config.fusion,
+                    fusion_upstream(synced_config),
+                )
+            )
+        )
         # Each registered camera's offset to the ego clock against the truth.
-        clocks = {c.name: 1e3 * (c.clock_offset_s - gt.clock_offsets_s.get(c.name, 0.0))
-                  for c in r.fusion.cameras if c.clock_offset_s is not None}
-    ate_by_stage = {stage: ate(Trajectory(r.ego.stamps_ns, T), gt.ego).rmse_m
-                    for stage, T in r.ego.trajectories.items()}
+        clocks = {
+            c.name: 1e3 * (c.clock_offset_s - gt.clock_offsets_s.get(c.name, 0.0))
+            for c in r.fusion.cameras
+            if c.clock_offset_s is not None
+        }
+    ate_by_stage = {
+        stage: ate(Trajectory(r.ego.stamps_ns, T), gt.ego).rmse_m for stage, T in r.ego.trajectories.items()
+    }
     ate_by_stage["joint"] = ate(Trajectory(r.ego.stamps_ns, r.fusion.T_world_ego), gt.ego).rmse_m
     duration = (gt.ego.stamps_ns.max() - gt.ego.stamps_ns.min()) / 1e9
-    return {"registration": reg, "ate": ate_by_stage, "layout_iou": layout_iou(r.ego.layout.floor_polygons, gt.floor),
-            "layout_iou_joint": layout_iou(r.fusion.layout.floor_polygons, gt.floor),
-            "seconds": r.seconds, "recording_s": duration, "realtime_factor": sum(r.seconds.values()) / duration,
-            "cmcs": len(gt.cameras)} | ({"clock_errors_to_ego_ms": clocks} if gt.clock_offsets_s else {})
+    return {
+        "registration": reg,
+        "ate": ate_by_stage,
+        "layout_iou": layout_iou(r.ego.layout.floor_polygons, gt.floor),
+        "layout_iou_joint": layout_iou(r.fusion.layout.floor_polygons, gt.floor),
+        "seconds": r.seconds,
+        "recording_s": duration,
+        "realtime_factor": sum(r.seconds.values()) / duration,
+        "cmcs": len(gt.cameras),
+    } | ({"clock_errors_to_ego_ms": clocks} if gt.clock_offsets_s else {})
 
 
 def code_version() -> str:
     """The git commit of the source tree this process runs ("+changes" when src/ has
     uncommitted edits), so a resumed run shows which cases ran on which code."""
     import subprocess
+
     here = Path(__file__).parent
 
     def git(*args) -> str:
         return subprocess.run(["git", "-C", str(here), *args], capture_output=True, text=True).stdout.strip()
+
     head = git("rev-parse", "--short", "HEAD")
     if not head:
         return "unknown (not a git checkout)"
     return head + ("+changes" if git("status", "--porcelain", "--", str(here.parents[1])) else "")
 
 
-def run_case(preset: str, scenario: str, seed: int, bag: Path, full: bool, config: YowoConfig = YowoConfig()
-             ) -> dict:
+def run_case(preset: str, scenario: str, seed: int, bag: Path, full: bool, config: YowoConfig = YowoConfig()) -> dict:
     """One recording: every table's numbers, and this process's peak memory."""
     images = has_cmc_images(bag)
-    case = {"preset": preset, "scenario": scenario, "seed": seed, "bag": bag.name, "code": code_version(),
-            # The scale-only presets measure speed and scale: YOWO alone.
-            "relative": relative_pose_case(bag, images, preset not in SCALE_ONLY_PRESETS, config)}
+    case = {
+        "preset": preset,
+        "scenario": scenario,
+        "seed": seed,
+        "bag": bag.name,
+        "code": code_version(),
+        # The scale-only presets measure speed and scale: YOWO alone.
+        "relative": relative_pose_case(bag, images, preset not in SCALE_ONLY_PRESETS, config),
+    }
     case["bound"] = bound_case(case, bag, scenario_preset(preset, scenario))
     if images:
         case["detector"] = detector_case(bag, scenario_preset(preset, scenario), seed, config)
@@ -307,9 +389,18 @@ def run_case(preset: str, scenario: str, seed: int, bag: Path, full: bool, confi
     return case
 
 
-def run_bench(presets: list[str], seeds: list[int], scenarios: list[str], out_dir: Path, log=print,
-              full: bool = True, sweep_preset: str | None = None, resume: bool = False, on_case=None,
-              config: YowoConfig = YowoConfig()) -> dict:
+def run_bench(
+    presets: list[str],
+    seeds: list[int],
+    scenarios: list[str],
+    out_dir: Path,
+    log=print,
+    full: bool = True,
+    sweep_preset: str | None = None,
+    resume: bool = False,
+    on_case=None,
+    config: YowoConfig = YowoConfig(),
+) -> dict:
     """Every preset x scenario x seed; with `sweep_preset`, scenarios other than
     "normal" run on that preset only (the larger presets take the normal scenario).
     Each finished case is saved at once to cases.jsonl; `resume` reuses those; `on_case`
@@ -328,11 +419,19 @@ def run_bench(presets: list[str], seeds: list[int], scenarios: list[str], out_di
         saved.write_text("".join(json.dumps(c) + "\n" for c in stored))
     elif saved.exists():
         saved.unlink()
-    plan = [(preset, scenario, seed) for preset in presets for scenario in scenarios
-            if not (sweep_preset and scenario != "normal" and preset != sweep_preset
-                    and not SCENARIOS[scenario].get("every_preset"))
-            and not (preset in SCALE_ONLY_PRESETS and scenario != "normal")
-            for seed in (seeds[:1] if preset in SCALE_ONLY_PRESETS else seeds)]
+    plan = [
+        (preset, scenario, seed)
+        for preset in presets
+        for scenario in scenarios
+        if not (
+            sweep_preset
+            and scenario != "normal"
+            and preset != sweep_preset
+            and not SCENARIOS[scenario].get("every_preset")
+        )
+        and not (preset in SCALE_ONLY_PRESETS and scenario != "normal")
+        for seed in (seeds[:1] if preset in SCALE_ONLY_PRESETS else seeds)
+    ]
     # Reused cases first, so the tables written after each new case hold every finished one.
     cases = [done[(p, s, seed, full)] for p, s, seed in plan if (p, s, seed, full) in done]
     for p, s, seed in plan:
@@ -350,23 +449,38 @@ def run_bench(presets: list[str], seeds: list[int], scenarios: list[str], out_di
         except Exception as exc:  # one broken case must not lose the others
             # The worker's traceback arrives as the exception's cause; keep it to find the failing call.
             trace = "".join(traceback.format_exception(exc))
-            failures.append({"preset": preset, "scenario": scenario, "seed": seed, "error": str(exc),
-                             "traceback": trace})
+            failures.append(
+                {"preset": preset, "scenario": scenario, "seed": seed, "error": str(exc), "traceback": trace}
+            )
             log(f"{preset} {scenario} seed {seed}: FAILED: {exc}\n{trace}")
             continue
         with saved.open("a") as f:
             f.write(json.dumps(case) + "\n")
         cases.append(case)
         if on_case:
-            on_case({"presets": presets, "seeds": seeds, "scenarios": scenarios, "cases": cases,
-                     "failures": failures, "partial": True})
-        log(f"{preset} {scenario} seed {seed}: " + ", ".join(
-            f"{m} {r['summary']['pos_avg']:.4f} m / {r['summary']['rot_avg']:.3f} deg"
-            for m, r in case["relative"].items()))
+            on_case(
+                {
+                    "presets": presets,
+                    "seeds": seeds,
+                    "scenarios": scenarios,
+                    "cases": cases,
+                    "failures": failures,
+                    "partial": True,
+                }
+            )
+        log(
+            f"{preset} {scenario} seed {seed}: "
+            + ", ".join(
+                f"{m} {r['summary']['pos_avg']:.4f} m / {r['summary']['rot_avg']:.3f} deg"
+                for m, r in case["relative"].items()
+            )
+        )
         if full:
             f = case["full"]
-            log(f"  full: registration {f['registration']['YOWO']['pos_avg']:.3f} m / "
+            log(
+                f"  full: registration {f['registration']['YOWO']['pos_avg']:.3f} m / "
                 f"{f['registration']['YOWO']['rot_avg']:.3f} deg, ATE {f['ate'].get('joint', float('nan')):.3f} m, "
                 f"IoU {f['layout_iou']:.3f}, real-time factor {f['realtime_factor']:.2f}, "
-                f"peak memory {case['peak_memory_mb']:.0f} MB")
+                f"peak memory {case['peak_memory_mb']:.0f} MB"
+            )
     return {"presets": presets, "seeds": seeds, "scenarios": scenarios, "cases": cases, "failures": failures}

@@ -1,5 +1,6 @@
 """The limit in `yowo bench`: the Cramer-Rao bound of each CMC's pose in its group
 given the simulated detector noise, and its record in a bench case."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -57,7 +58,8 @@ def relative_pose_bound(bag: Path, groups: dict[str, list[str]], preset) -> dict
         if topic == GT_AGENT_KEYPOINTS:
             # The cameras' ground truth is in YOWO's map frame, the agent's in the simulator's.
             agent[stamp_to_ns(msg.header.stamp)] = transform_points(
-                truth.T_map_sim, points_to_array([p.position for p in msg.poses]))
+                truth.T_map_sim, points_to_array([p.position for p in msg.poses])
+            )
         elif kinds[topic] == "agent_keypoints":
             # On the ego clock, as the agent's ground truth is (a synchronised efficient estimator).
             stamp = truth.true_time_ns(msg.camera_name, stamp_to_ns(msg.header.stamp))
@@ -81,9 +83,15 @@ def relative_pose_bound(bag: Path, groups: dict[str, list[str]], preset) -> dict
             values.insert(L(key), gtsam.Point3(*views[0][2]))  # shared point: the grid slot's first sample
             for i, n, _, kp in views:
                 sigma = spec.sigma_px.get(kp, spec.sigma_body_px)
-                graph.add(gtsam.GenericProjectionFactorCal3_S2(
-                    gtsam.Point2(*cams[n].project_world(gt[n], views[0][2][None])[0][0]),
-                    gtsam.noiseModel.Isotropic.Sigma(2, max(sigma, 0.1)), X(i), L(key), cal3(cams[n])))
+                graph.add(
+                    gtsam.GenericProjectionFactorCal3_S2(
+                        gtsam.Point2(*cams[n].project_world(gt[n], views[0][2][None])[0][0]),
+                        gtsam.noiseModel.Isotropic.Sigma(2, max(sigma, 0.1)),
+                        X(i),
+                        L(key),
+                        cal3(cams[n]),
+                    )
+                )
         # Gauge priors tight against the cm-level bounds yet loose enough for a stable Cholesky.
         graph.add(gtsam.PriorFactorPose3(X(0), pose3(gt[names[0]]), gtsam.noiseModel.Isotropic.Sigma(6, 1e-5)))
         base = float(np.linalg.norm(gt[names[1]][:3, 3] - gt[names[0]][:3, 3]))
@@ -98,7 +106,7 @@ def relative_pose_bound(bag: Path, groups: dict[str, list[str]], preset) -> dict
         for delta in rng.multivariate_normal(np.zeros(len(cov)), cov, size=200):
             est = {names[0]: gt[names[0]]}
             for i, n in enumerate(names[1:]):
-                est[n] = pose3(gt[n]).retract(delta[6 * i: 6 * i + 6]).matrix()
+                est[n] = pose3(gt[n]).retract(delta[6 * i : 6 * i + 6]).matrix()
             for e in relative_pose_errors(est, gt, {"g": names})[0]:
                 errors[e.name].append((e.eps_pos_m, e.eps_rot_deg))
         bounds.update({n: (*np.sqrt(np.mean(np.square(v), axis=0)), *np.mean(v, axis=0)) for n, v in errors.items()})
@@ -119,7 +127,7 @@ def _camera_covariance(graph, values, num_cameras: int) -> np.ndarray | None:
     n = 6 * num_cameras
     col = {X(i): 6 * i for i in range(num_cameras)}
     H_cc = np.zeros((n, n))
-    rows: dict[int, tuple[list, list]] = {}   # point key -> (camera rows, point rows)
+    rows: dict[int, tuple[list, list]] = {}  # point key -> (camera rows, point rows)
     linear = graph.linearize(values)
     for k in range(linear.size()):
         f = linear.at(k)
@@ -129,7 +137,7 @@ def _camera_covariance(graph, values, num_cameras: int) -> np.ndarray | None:
         A_c = np.zeros((len(A), n))
         for key in keys:
             if key in col:
-                A_c[:, col[key]:col[key] + 6] = blocks[key]
+                A_c[:, col[key] : col[key] + 6] = blocks[key]
         point = [key for key in keys if key not in col]
         if point:
             entry = rows.setdefault(point[0], ([], []))
@@ -140,7 +148,7 @@ def _camera_covariance(graph, values, num_cameras: int) -> np.ndarray | None:
     for cam_rows, point_rows in rows.values():
         A_c, A_l = np.vstack(cam_rows), np.vstack(point_rows)
         U, sv, _ = np.linalg.svd(A_l, full_matrices=False)
-        Q = U[:, sv > 1e-10 * sv[0]]   # a point seen without parallax is free along its ray
+        Q = U[:, sv > 1e-10 * sv[0]]  # a point seen without parallax is free along its ray
         R = A_c - Q @ (Q.T @ A_c)
         H_cc += R.T @ R
     info = H_cc[6:, 6:] - H_cc[6:, :6] @ np.linalg.solve(H_cc[:6, :6], H_cc[:6, 6:])

@@ -12,6 +12,7 @@ IoU, gravity error and processing speed.
 
     python -m yowo_eval.ego_bench [--no-imu] [--no-relocalisation] BAG [BAG ...]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -64,9 +65,15 @@ def bench_bag(bag, params: EgoParams = EgoParams()) -> dict[str, float]:
     metrics = evaluate(result, read_ground_truth(bag))
     duration = (result.stamps_ns[-1] - result.stamps_ns[0]) * 1e-9
     n = len(result.stamps_ns)
-    metrics.update(frames=n, duration_s=duration, wall_s=wall, cpu_s=cpu, fps=n / wall,
-                   recording_fps=(n - 1) / duration if duration > 0 else float("nan"),
-                   time_ratio=wall / duration if duration > 0 else float("nan"))
+    metrics.update(
+        frames=n,
+        duration_s=duration,
+        wall_s=wall,
+        cpu_s=cpu,
+        fps=n / wall,
+        recording_fps=(n - 1) / duration if duration > 0 else float("nan"),
+        time_ratio=wall / duration if duration > 0 else float("nan"),
+    )
     metrics.update({f"stat_{k}": float(v) for k, v in result.stats.items()})
     return metrics
 
@@ -76,8 +83,11 @@ def main(argv=None) -> int:
     parser.add_argument("bags", nargs="+")
     parser.add_argument("--json", help="write all metrics to this file")
     parser.add_argument("--no-imu", action="store_true", help="track without the recording's IMU (ablation)")
-    parser.add_argument("--no-relocalisation", action="store_true",
-                        help="no place recognition: segments after a break joined as before (ablation)")
+    parser.add_argument(
+        "--no-relocalisation",
+        action="store_true",
+        help="no place recognition: segments after a break joined as before (ablation)",
+    )
     args = parser.parse_args(argv)
     params = EgoParams()
     if args.no_imu:
@@ -88,11 +98,14 @@ def main(argv=None) -> int:
     for bag in args.bags:
         m = bench_bag(bag, params)
         rows[bag] = m
-        print(f"{bag}: ATE odometry {m['ate_odometry_m']:.3f} m, multiway {m['ate_multiway_m']:.3f} m, "
-              f"BA {m.get('ate_bundle_m', float('nan')):.3f} m; breaks {m['stat_breaks']:.0f}, relocalised "
-              f"{m['stat_relocalised']:.0f}, loops by appearance {m['stat_loops_retrieved']:.0f}; layout IoU {m['layout_iou']:.3f}; gravity "
-              f"{m['gravity_error_deg']:.3f} deg; {m['fps']:.1f} frames/s ({m['time_ratio']:.2f} x real time, "
-              f"cpu {m['cpu_s']:.0f} s)", flush=True)
+        print(
+            f"{bag}: ATE odometry {m['ate_odometry_m']:.3f} m, multiway {m['ate_multiway_m']:.3f} m, "
+            f"BA {m.get('ate_bundle_m', float('nan')):.3f} m; breaks {m['stat_breaks']:.0f}, relocalised "
+            f"{m['stat_relocalised']:.0f}, loops by appearance {m['stat_loops_retrieved']:.0f}; layout IoU {m['layout_iou']:.3f}; gravity "
+            f"{m['gravity_error_deg']:.3f} deg; {m['fps']:.1f} frames/s ({m['time_ratio']:.2f} x real time, "
+            f"cpu {m['cpu_s']:.0f} s)",
+            flush=True,
+        )
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1)

@@ -2,6 +2,7 @@
 each node's CPU seconds, lifetime and peak memory (run_log.yaml: the supervisor samples
 /proc), processing time / recording time. Its table lives in BENCHMARKS.md between
 markers, so `yowo bench` re-rendering the rest keeps it."""
+
 from __future__ import annotations
 
 import json
@@ -17,7 +18,7 @@ from .bench import bag_for
 from .bench_report import markers
 
 BEGIN, END = markers("graph-speed")
-NOTES_BEGIN, NOTES_END = markers("graph-speed-notes")   # hand-written notes inside, kept when rendered again
+NOTES_BEGIN, NOTES_END = markers("graph-speed-notes")  # hand-written notes inside, kept when rendered again
 
 
 def recording_seconds(bag: Path) -> float:
@@ -28,8 +29,23 @@ def recording_seconds(bag: Path) -> float:
 
 
 def graph_case(bag: Path, out: Path, source: str, extra: list[str], timeout_s: float = 7200.0) -> dict:
-    cmd = [sys.executable, "-m", "yowo_bringup.cli", "run", str(bag), "-o", str(out), "--replace", "--rate", "0",
-           "--cmc-source", source, "--timeout", str(timeout_s), *extra]
+    cmd = [
+        sys.executable,
+        "-m",
+        "yowo_bringup.cli",
+        "run",
+        str(bag),
+        "-o",
+        str(out),
+        "--replace",
+        "--rate",
+        "0",
+        "--cmc-source",
+        source,
+        "--timeout",
+        str(timeout_s),
+        *extra,
+    ]
     t0 = time.monotonic()
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s + 120)
     wall = time.monotonic() - t0
@@ -38,14 +54,22 @@ def graph_case(bag: Path, out: Path, source: str, extra: list[str], timeout_s: f
     recording = recording_seconds(bag)
     metrics = json.loads((out / "metrics.json").read_text()) if (out / "metrics.json").exists() else {}
     reg = metrics.get("registration", {}).get("summary", {})
-    return {"bag": bag.name, "source": source, "exit": r.returncode, "recording_s": recording, "wall_s": wall,
-            "ratio": wall / recording if recording > 0 else float("nan"), "resources": log.get("resources", {}),
-            "peak_memory_mb": log.get("peak_memory_mb"),
-            "peak_memory_by_process_mb": log.get("peak_memory_by_process_mb", {}),
-            "timing": log.get("timing", {}),
-            "registration_pos_avg_m": reg.get("pos_avg"), "registration_rot_avg_deg": reg.get("rot_avg"),
-            "ego_ate_m": metrics.get("ego", {}).get("ate_rmse_m"),
-            "error": "" if r.returncode == 0 else (r.stderr or r.stdout)[-500:]}
+    return {
+        "bag": bag.name,
+        "source": source,
+        "exit": r.returncode,
+        "recording_s": recording,
+        "wall_s": wall,
+        "ratio": wall / recording if recording > 0 else float("nan"),
+        "resources": log.get("resources", {}),
+        "peak_memory_mb": log.get("peak_memory_mb"),
+        "peak_memory_by_process_mb": log.get("peak_memory_by_process_mb", {}),
+        "timing": log.get("timing", {}),
+        "registration_pos_avg_m": reg.get("pos_avg"),
+        "registration_rot_avg_deg": reg.get("rot_avg"),
+        "ego_ate_m": metrics.get("ego", {}).get("ate_rmse_m"),
+        "error": "" if r.returncode == 0 else (r.stderr or r.stdout)[-500:],
+    }
 
 
 def _is_tracker(name: str) -> bool:
@@ -58,16 +82,27 @@ def _stage(name: str) -> str:
 
 
 def speed_markdown(cases: list[dict], command: str) -> str:
-    lines = [BEGIN, "## Speed of the real graph (`yowo run --rate 0`)", "", "Produced by:", "", "```", command, "```",
-             "", "Wall time of the whole `yowo run` (start-up, replay, every stage, results) over the recording's "
-             "length; per stage the CPU seconds, the process lifetime and the peak RSS (sampled from /proc once a "
-             "second; trackers: the mean and the largest peak over their processes). Graph memory: the largest sum of every "
-             "process's proportional set size at one sample (shared libraries counted once), the machine's memory "
-             "the run held at its peak, and below it the stages that held most of it then. Registration and ATE "
-             "as `yowo eval` computes them.", "",
-             "| recording | source | processing / recording | wall [s] | recording [s] | registration avg [m / deg] "
-             "| ego ATE [m] | graph memory [MB] | stage: CPU s / wall s / peak MB |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        BEGIN,
+        "## Speed of the real graph (`yowo run --rate 0`)",
+        "",
+        "Produced by:",
+        "",
+        "```",
+        command,
+        "```",
+        "",
+        "Wall time of the whole `yowo run` (start-up, replay, every stage, results) over the recording's "
+        "length; per stage the CPU seconds, the process lifetime and the peak RSS (sampled from /proc once a "
+        "second; trackers: the mean and the largest peak over their processes). Graph memory: the largest sum of every "
+        "process's proportional set size at one sample (shared libraries counted once), the machine's memory "
+        "the run held at its peak, and below it the stages that held most of it then. Registration and ATE "
+        "as `yowo eval` computes them.",
+        "",
+        "| recording | source | processing / recording | wall [s] | recording [s] | registration avg [m / deg] "
+        "| ego ATE [m] | graph memory [MB] | stage: CPU s / wall s / peak MB |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for c in cases:
         stages: dict[str, list[dict]] = {}
         for name, r in c["resources"].items():
@@ -77,19 +112,24 @@ def speed_markdown(cases: list[dict], command: str) -> str:
             cpu = sum(r["cpu_s"] for r in rs) / len(rs)
             wall = sum(r["wall_s"] for r in rs) / len(rs)
             cells.append(f"{name}: {cpu:.1f} / {wall:.0f} / {max(r['peak_rss_mb'] for r in rs):.0f}")
-        reg = (f"{c['registration_pos_avg_m']:.4f} / {c['registration_rot_avg_deg']:.3f}"
-               if c.get("registration_pos_avg_m") is not None else "-")
+        reg = (
+            f"{c['registration_pos_avg_m']:.4f} / {c['registration_rot_avg_deg']:.3f}"
+            if c.get("registration_pos_avg_m") is not None
+            else "-"
+        )
         ate = f"{c['ego_ate_m']:.4f}" if c.get("ego_ate_m") is not None else "-"
         status = f"{c['ratio']:.2f}" if c["exit"] == 0 else f"failed (exit {c['exit']})"
         memory = f"{c['peak_memory_mb']:.0f}" if c.get("peak_memory_mb") is not None else "-"
         held: dict[str, float] = {}
-        for name, mb in c.get("peak_memory_by_process_mb", {}).items():   # the trackers' processes summed
+        for name, mb in c.get("peak_memory_by_process_mb", {}).items():  # the trackers' processes summed
             stage = "keypoint_trackers" if _is_tracker(name) else name
             held[stage] = held.get(stage, 0.0) + mb
         if held:
             memory += "<br>" + "<br>".join(f"{n} {mb:.0f}" for n, mb in sorted(held.items(), key=lambda x: -x[1])[:3])
-        lines.append(f"| {c['bag']} | {c['source']} | {status} | {c['wall_s']:.0f} | {c['recording_s']:.0f} | {reg} "
-                     f"| {ate} | {memory} | {'<br>'.join(cells)} |")
+        lines.append(
+            f"| {c['bag']} | {c['source']} | {status} | {c['wall_s']:.0f} | {c['recording_s']:.0f} | {reg} "
+            f"| {ate} | {memory} | {'<br>'.join(cells)} |"
+        )
     return "\n".join(lines + [""] + timeline_markdown(cases) + [END, ""])
 
 
@@ -108,9 +148,13 @@ def timeline_markdown(cases: list[dict]) -> list[str]:
     seconds in its input callbacks; for the replay when every stage had announced itself (its
     status: imports and discovery done), its start of playing (subscribers matched), end, and the seconds it
     was held back by flow control (unacknowledged messages: a stage behind)."""
-    lines = ["Where the wall time goes (seconds since `yowo run` started the graph; run_log.yaml `timing`):", "",
-             "| recording | source | stage | started / created | inputs from / to | finalize [s] | finished "
-             "| queue wait p95 [ms] | in callbacks [s] |", "|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "Where the wall time goes (seconds since `yowo run` started the graph; run_log.yaml `timing`):",
+        "",
+        "| recording | source | stage | started / created | inputs from / to | finalize [s] | finished "
+        "| queue wait p95 [ms] | in callbacks [s] |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for c in cases:
         stages: dict[str, list[dict]] = {}
         for name, t in c.get("timing", {}).items():
@@ -120,16 +164,19 @@ def timeline_markdown(cases: list[dict]) -> list[str]:
             created = f"{_max(t.get('spawned_s') for t in ts):.1f} / {_max(t.get('created_s') for t in ts):.1f}"
             if name == "replay":
                 held = sum(v for t in ts for k, v in t.get("seconds", {}).items() if k.startswith("ack_wait"))
-                lines.append(f"| {c['bag']} | {c['source']} | replay | {created} | stages announced "
-                             f"{_max(t.get('announced_s') for t in ts):.1f}, playing {_max(t.get('playing_s') for t in ts):.1f}"
-                             f" / done {_max(t.get('played_s') for t in ts):.1f} | - | - | held back {held:.1f} s | - |")
+                lines.append(
+                    f"| {c['bag']} | {c['source']} | replay | {created} | stages announced "
+                    f"{_max(t.get('announced_s') for t in ts):.1f}, playing {_max(t.get('playing_s') for t in ts):.1f}"
+                    f" / done {_max(t.get('played_s') for t in ts):.1f} | - | - | held back {held:.1f} s | - |"
+                )
                 continue
             fin = _max((t.get("finalize_end_s") or 0) - (t.get("finalize_start_s") or 0) for t in ts)
             lines.append(
                 f"| {c['bag']} | {c['source']} | {name} | {created} | {_min(s['first_s'] for s in topics):.1f} / "
                 f"{_max(s['last_s'] for s in topics):.1f} | {fin:.1f} | {_max(t.get('finalize_end_s') for t in ts):.1f} "
                 f"| {_max(s['queue_wait_ms']['p95'] for s in topics):.0f} "
-                f"| {_max(sum(s['handling_s'] for s in t['topics'].values()) for t in ts):.1f} |")
+                f"| {_max(sum(s['handling_s'] for s in t['topics'].values()) for t in ts):.1f} |"
+            )
     return lines + [""]
 
 
@@ -157,8 +204,14 @@ def keep_section(old_text: str, new_text: str) -> str:
     return keep_sections(old_text, new_text, ("graph-speed",))
 
 
-def write_cases(out_dir: Path, files: tuple[str, str], cases: list[dict], section: str, markdown_path: Path | None,
-                name: str = "graph-speed") -> None:
+def write_cases(
+    out_dir: Path,
+    files: tuple[str, str],
+    cases: list[dict],
+    section: str,
+    markdown_path: Path | None,
+    name: str = "graph-speed",
+) -> None:
     """A bench's cases and its markdown section into `files` (JSON, markdown) of `out_dir`
     and, when asked, the section in place in `markdown_path`."""
     (out_dir / files[0]).write_text(json.dumps(cases, indent=1))
@@ -167,17 +220,32 @@ def write_cases(out_dir: Path, files: tuple[str, str], cases: list[dict], sectio
         replace_section(markdown_path, section, name)
 
 
-def run_graph_bench(presets: list[str], seeds: list[int], sources: list[str], out_dir: Path,
-                    markdown_path: Path | None, extra: list[str], log=print) -> list[dict]:
+def run_graph_bench(
+    presets: list[str],
+    seeds: list[int],
+    sources: list[str],
+    out_dir: Path,
+    markdown_path: Path | None,
+    extra: list[str],
+    log=print,
+) -> list[dict]:
     command = "yowo " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     cases = []
     for preset in presets:
         for seed in seeds:
             for source in sources:
-                bag = bag_for(preset, "normal", seed, out_dir / "bags", log)   # keypoints and images recorded
+                bag = bag_for(preset, "normal", seed, out_dir / "bags", log)  # keypoints and images recorded
                 case = graph_case(bag, out_dir / "runs" / f"{bag.name}_{source}", source, extra)
-                log(f"{bag.name} ({source}): {case['wall_s']:.0f} s for {case['recording_s']:.0f} s of recording "
-                    f"({case['ratio']:.2f}), exit {case['exit']}")
+                log(
+                    f"{bag.name} ({source}): {case['wall_s']:.0f} s for {case['recording_s']:.0f} s of recording "
+                    f"({case['ratio']:.2f}), exit {case['exit']}"
+                )
                 cases.append(case)
-                write_cases(out_dir, ("graph_cases.json", "GRAPH_SPEED.md"), cases, speed_markdown(cases, command), markdown_path)
+                write_cases(
+                    out_dir,
+                    ("graph_cases.json", "GRAPH_SPEED.md"),
+                    cases,
+                    speed_markdown(cases, command),
+                    markdown_path,
+                )
     return cases

@@ -1,5 +1,6 @@
 """The ground truth of a recording (/gt/... topics, written by the simulator), in
 YOWO's map frame. Only evaluation reads it; the pipeline never does."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field

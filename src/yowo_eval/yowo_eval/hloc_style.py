@@ -21,6 +21,7 @@ whose depth-lifted keypoints fall most into the prior camera's view, and step 2 
 accepts a match whose 3D point projects through the prior within a gate of the CMC
 keypoint.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -40,41 +41,41 @@ RANSAC_SEED = 0  # OpenCV's RANSAC and k-means draw from a global RNG: seeded fo
 @dataclass(frozen=True)
 class HlocParams:
     max_features: int = 4000
-    ratio: float = 0.8                  # Lowe's ratio test
-    vocabulary_size: int = 64           # VLAD clusters
-    vocabulary_samples: int = 50000     # descriptors the k-means vocabulary is trained on
-    num_retrieved: int = 5              # top-k keyframes (Hloc's retrieval pairs)
-    depth_edge_ratio: float = 0.03      # keyframe keypoints on depth edges are not lifted
-    pnp_px: float = 8.0                 # RANSAC threshold (ideal pixels)
+    ratio: float = 0.8  # Lowe's ratio test
+    vocabulary_size: int = 64  # VLAD clusters
+    vocabulary_samples: int = 50000  # descriptors the k-means vocabulary is trained on
+    num_retrieved: int = 5  # top-k keyframes (Hloc's retrieval pairs)
+    depth_edge_ratio: float = 0.03  # keyframe keypoints on depth edges are not lifted
+    pnp_px: float = 8.0  # RANSAC threshold (ideal pixels)
     pnp_iterations: int = 10000
     min_inliers: int = 15
     # Prior mode
-    prior_min_overlap: float = 0.05     # fraction of a keyframe's 3D keypoints in the prior's view
-    prior_gate_px: float = 40.0         # match accepted only this close to its prior projection
-    prior_cell_px: int = 32             # z-buffer cell for the visibility of keyframe points
+    prior_min_overlap: float = 0.05  # fraction of a keyframe's 3D keypoints in the prior's view
+    prior_gate_px: float = 40.0  # match accepted only this close to its prior projection
+    prior_cell_px: int = 32  # z-buffer cell for the visibility of keyframe points
     prior_depth_tolerance: float = 0.1  # relative depth beyond a cell's nearest point: hidden
 
 
 @dataclass
 class KeyframeImage:
-    rgb: np.ndarray                     # H x W x 3 uint8
-    depth: np.ndarray                   # H x W float metres (NaN / 0: missing)
+    rgb: np.ndarray  # H x W x 3 uint8
+    depth: np.ndarray  # H x W float metres (NaN / 0: missing)
 
 
 @dataclass
 class LocalizationResult:
     name: str
     T_world_cam: np.ndarray | None
-    reason: str                         # why it failed, or "" on success
+    reason: str  # why it failed, or "" on success
     num_inliers: int = 0
     num_matches: int = 0
-    retrieved: list[int] = field(default_factory=list)   # keyframe indices used
+    retrieved: list[int] = field(default_factory=list)  # keyframe indices used
 
 
 @dataclass
 class Features:
-    uv: np.ndarray                      # (N, 2) raw image pixels
-    descriptors: np.ndarray             # (N, 128) float32 RootSIFT
+    uv: np.ndarray  # (N, 2) raw image pixels
+    descriptors: np.ndarray  # (N, 128) float32 RootSIFT
 
 
 @dataclass
@@ -82,11 +83,11 @@ class KeyframeDatabase:
     """The map side, built once per ego map: each keyframe's features, their 3D points
     in the map frame (NaN without depth) and VLAD descriptors."""
 
-    indices: list[int]                  # keyframe index (into EgoMapResult.T_world_kf) per entry
+    indices: list[int]  # keyframe index (into EgoMapResult.T_world_kf) per entry
     features: list[Features]
-    points: list[np.ndarray]            # (N, 3) per entry
-    vocabulary: np.ndarray              # (V, 128)
-    vlad: np.ndarray                    # (E, V * 128)
+    points: list[np.ndarray]  # (N, 3) per entry
+    vocabulary: np.ndarray  # (V, 128)
+    vlad: np.ndarray  # (E, V * 128)
 
 
 def read_keyframe_images(bag, ego, tolerance_ns: int = 5_000_000) -> dict[int, KeyframeImage]:
@@ -110,7 +111,7 @@ def read_keyframe_images(bag, ego, tolerance_ns: int = 5_000_000) -> dict[int, K
                 colors[index[stamp]] = decode_color(msg)
             continue
         j = np.searchsorted(wanted, stamp)
-        near = wanted[max(j - 1, 0):j + 1]
+        near = wanted[max(j - 1, 0) : j + 1]
         kf = int(near[np.argmin(np.abs(near - stamp))])
         gap = abs(kf - stamp)
         if gap <= tolerance_ns and gap < depths.get(index[kf], (gap + 1,))[0]:
@@ -128,8 +129,9 @@ def extract(rgb: np.ndarray, max_features: int) -> Features:
     return Features(np.array([k.pt for k in kps], dtype=float), desc)
 
 
-def lift(camera: CameraModel, T_world_kf: np.ndarray, uv: np.ndarray, depth: np.ndarray, edge_ratio: float
-         ) -> np.ndarray:
+def lift(
+    camera: CameraModel, T_world_kf: np.ndarray, uv: np.ndarray, depth: np.ndarray, edge_ratio: float
+) -> np.ndarray:
     """Raw keyframe pixels -> map points through the z-depth image (NaN rows: no depth)."""
     z = sample_depth(np.where(depth > 0, depth, np.nan).astype(np.float32), uv, edge_ratio)
     rays = camera.bearings(uv)
@@ -149,8 +151,12 @@ def vlad(descriptors: np.ndarray, vocabulary: np.ndarray) -> np.ndarray:
     return v / max(np.linalg.norm(v), 1e-12)
 
 
-def build_database(camera: CameraModel, T_world_kf: np.ndarray, keyframe_images: dict[int, KeyframeImage],
-                   params: HlocParams = HlocParams()) -> KeyframeDatabase:
+def build_database(
+    camera: CameraModel,
+    T_world_kf: np.ndarray,
+    keyframe_images: dict[int, KeyframeImage],
+    params: HlocParams = HlocParams(),
+) -> KeyframeDatabase:
     """``camera``: the ego camera (raw, with distortion); ``T_world_kf``: keyframe poses
     indexed like ``keyframe_images``."""
     indices = sorted(keyframe_images)
@@ -166,15 +172,20 @@ def build_database(camera: CameraModel, T_world_kf: np.ndarray, keyframe_images:
     rng = np.random.default_rng(RANSAC_SEED)
     sample = pooled[rng.choice(len(pooled), min(len(pooled), params.vocabulary_samples), replace=False)]
     cv2.setRNGSeed(RANSAC_SEED)
-    _, _, vocabulary = cv2.kmeans(sample, params.vocabulary_size, None,
-                                  (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4), 3,
-                                  cv2.KMEANS_PP_CENTERS)
-    return KeyframeDatabase(indices, feats, points, vocabulary,
-                            np.array([vlad(f.descriptors, vocabulary) for f in feats]))
+    _, _, vocabulary = cv2.kmeans(
+        sample,
+        params.vocabulary_size,
+        None,
+        (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4),
+        3,
+        cv2.KMEANS_PP_CENTERS,
+    )
+    return KeyframeDatabase(
+        indices, feats, points, vocabulary, np.array([vlad(f.descriptors, vocabulary) for f in feats])
+    )
 
 
-def mutual_ratio_matches(da: np.ndarray, db: np.ndarray, ratio: float, allowed: np.ndarray | None = None
-                         ) -> np.ndarray:
+def mutual_ratio_matches(da: np.ndarray, db: np.ndarray, ratio: float, allowed: np.ndarray | None = None) -> np.ndarray:
     """(M, 2) index pairs (i in a, j in b): mutual nearest neighbours passing Lowe's ratio
     test both ways, among the pairs ``allowed`` (bool (Na, Nb); None: all)."""
     if len(da) < 2 or len(db) < 2:
@@ -187,13 +198,16 @@ def mutual_ratio_matches(da: np.ndarray, db: np.ndarray, ratio: float, allowed: 
     nn_ab, nn_ba = d2.argmin(axis=1), d2.argmin(axis=0)
     i = np.arange(len(da))
     r2 = ratio * ratio
-    ok = ((nn_ba[nn_ab] == i) & np.isfinite(two_ab[:, 0]) & (two_ab[:, 0] < r2 * two_ab[:, 1])
-          & (two_ba[0, nn_ab] < r2 * two_ba[1, nn_ab]))
+    ok = (
+        (nn_ba[nn_ab] == i)
+        & np.isfinite(two_ab[:, 0])
+        & (two_ab[:, 0] < r2 * two_ab[:, 1])
+        & (two_ba[0, nn_ab] < r2 * two_ba[1, nn_ab])
+    )
     return np.column_stack([i[ok], nn_ab[ok]]).astype(int)
 
 
-def _prior_candidates(db: KeyframeDatabase, camera: CameraModel, T_prior: np.ndarray, params: HlocParams
-                      ) -> list[int]:
+def _prior_candidates(db: KeyframeDatabase, camera: CameraModel, T_prior: np.ndarray, params: HlocParams) -> list[int]:
     """Database entries with the most lifted keypoints visible in the prior camera: inside
     its image and not behind the nearest map point of their image cell (a coarse z-buffer
     of every keyframe's points, so keyframes of the room behind a wall do not count)."""
@@ -215,18 +229,24 @@ def _prior_candidates(db: KeyframeDatabase, camera: CameraModel, T_prior: np.nda
         visible = ok & (z <= nearest[np.maximum(c, 0)] * (1 + params.prior_depth_tolerance))
         if visible.sum() >= params.prior_min_overlap * np.isfinite(db.points[e]).all(axis=1).sum():
             scores.append((int(visible.sum()), e))
-    return [e for _, e in sorted(scores, reverse=True)[:params.num_retrieved]]
+    return [e for _, e in sorted(scores, reverse=True)[: params.num_retrieved]]
 
 
-def localize(db: KeyframeDatabase, name: str, background: np.ndarray, camera: CameraModel,
-             prior: np.ndarray | None = None, params: HlocParams = HlocParams()) -> LocalizationResult:
+def localize(
+    db: KeyframeDatabase,
+    name: str,
+    background: np.ndarray,
+    camera: CameraModel,
+    prior: np.ndarray | None = None,
+    params: HlocParams = HlocParams(),
+) -> LocalizationResult:
     """T_world_cam of one CMC from its background image (RGB), with or without a prior pose."""
     query = extract(background, params.max_features)
     if len(query.uv) < params.min_inliers:
         return LocalizationResult(name, None, f"only {len(query.uv)} SIFT keypoints in its image")
     if prior is None:
         sims = db.vlad @ vlad(query.descriptors, db.vocabulary)
-        entries = [int(e) for e in np.argsort(-sims, kind="stable")[:params.num_retrieved]]
+        entries = [int(e) for e in np.argsort(-sims, kind="stable")[: params.num_retrieved]]
     else:
         entries = _prior_candidates(db, camera, prior, params)
         if not entries:
@@ -248,14 +268,27 @@ def localize(db: KeyframeDatabase, name: str, background: np.ndarray, camera: Ca
     retrieved = [db.indices[e] for e in entries]
     obj, img = np.vstack(obj), camera.undistort_pixels(np.vstack(img))
     if len(obj) < params.min_inliers:
-        return LocalizationResult(name, None, f"only {len(obj)} 2D-3D matches with {len(entries)} keyframes "
-                                  f"(needs {params.min_inliers})", 0, len(obj), retrieved)
-    rvec, tvec, idx = sqpnp_ransac(obj, img, camera.K, params.pnp_px, iterations=params.pnp_iterations,
-                                   confidence=0.9999, seed=RANSAC_SEED)
+        return LocalizationResult(
+            name,
+            None,
+            f"only {len(obj)} 2D-3D matches with {len(entries)} keyframes (needs {params.min_inliers})",
+            0,
+            len(obj),
+            retrieved,
+        )
+    rvec, tvec, idx = sqpnp_ransac(
+        obj, img, camera.K, params.pnp_px, iterations=params.pnp_iterations, confidence=0.9999, seed=RANSAC_SEED
+    )
     n = len(idx)
     if n < params.min_inliers:
-        return LocalizationResult(name, None, f"PnP RANSAC found {n} inliers among {len(obj)} matches "
-                                  f"(needs {params.min_inliers})", n, len(obj), retrieved)
+        return LocalizationResult(
+            name,
+            None,
+            f"PnP RANSAC found {n} inliers among {len(obj)} matches (needs {params.min_inliers})",
+            n,
+            len(obj),
+            retrieved,
+        )
     rvec, tvec = cv2.solvePnPRefineLM(obj[idx], img[idx], camera.K, None, rvec, tvec)
     T = inv_se3(se3(cv2.Rodrigues(rvec)[0], tvec.ravel()))
     return LocalizationResult(name, T, "", n, len(obj), retrieved)

@@ -1,6 +1,7 @@
 """`yowo bench-layouts`: one generated recording in YOWO's layout, in each driver's layout and
 with its ceiling cameras as video files, each through a plain `yowo run`: the same recording
 should give the same result whatever names its topics have."""
+
 from __future__ import annotations
 
 import shlex
@@ -37,8 +38,7 @@ def layout_cases(preset: str, seed: int, out_dir: Path, source: str, extra: list
     cases = []
     for layout, (bag, options) in bags.items():
         # Video frames carry no keypoints: every layout's cameras run the same source.
-        case = graph_case(bag, out_dir / "runs" / f"{own.name}_{layout.split()[0]}_{source}", source,
-                          extra + options)
+        case = graph_case(bag, out_dir / "runs" / f"{own.name}_{layout.split()[0]}_{source}", source, extra + options)
         case["layout"] = layout
         log(f"{layout}: exit {case['exit']}, registration {case['registration_pos_avg_m']}")
         cases.append(case)
@@ -46,27 +46,43 @@ def layout_cases(preset: str, seed: int, out_dir: Path, source: str, extra: list
 
 
 def layouts_markdown(cases: list[dict], command: str) -> str:
-    lines = [BEGIN, "## One recording in each input layout (`yowo bench-layouts`)", "", "Produced by:", "", "```",
-             command, "```", "",
-             "The same generated recording in YOWO's own layout, as realsense2_camera (split gyro/accelerometer "
-             "streams, extrinsics on /tf_static), realsense2_camera with a united IMU, the Azure Kinect / Orbbec "
-             "driver and the ZED wrapper write it (ceiling cameras under /cctv/<name>/, PNG-compressed), and with "
-             "the ceiling cameras as OpenCV-written video files whose start is 3 s off; each through a plain "
-             "`yowo run` (the videos with `--cmc-videos`). The drivers' layouts use the IMU with the /tf_static "
-             "extrinsics and the documented default noise, YOWO's its recorded calibration.", "",
-             "| layout | exit | registration avg [m / deg] | ego ATE [m] | processing / recording |",
-             "|---|---|---|---|---|"]
+    lines = [
+        BEGIN,
+        "## One recording in each input layout (`yowo bench-layouts`)",
+        "",
+        "Produced by:",
+        "",
+        "```",
+        command,
+        "```",
+        "",
+        "The same generated recording in YOWO's own layout, as realsense2_camera (split gyro/accelerometer "
+        "streams, extrinsics on /tf_static), realsense2_camera with a united IMU, the Azure Kinect / Orbbec "
+        "driver and the ZED wrapper write it (ceiling cameras under /cctv/<name>/, PNG-compressed), and with "
+        "the ceiling cameras as OpenCV-written video files whose start is 3 s off; each through a plain "
+        "`yowo run` (the videos with `--cmc-videos`). The drivers' layouts use the IMU with the /tf_static "
+        "extrinsics and the documented default noise, YOWO's its recorded calibration.",
+        "",
+        "| layout | exit | registration avg [m / deg] | ego ATE [m] | processing / recording |",
+        "|---|---|---|---|---|",
+    ]
     for c in cases:
-        reg = (f"{c['registration_pos_avg_m']:.4f} / {c['registration_rot_avg_deg']:.3f}"
-               if c.get("registration_pos_avg_m") is not None else "-")
+        reg = (
+            f"{c['registration_pos_avg_m']:.4f} / {c['registration_rot_avg_deg']:.3f}"
+            if c.get("registration_pos_avg_m") is not None
+            else "-"
+        )
         ate = f"{c['ego_ate_m']:.4f}" if c.get("ego_ate_m") is not None else "-"
         lines.append(f"| {c['layout']} | {c['exit']} | {reg} | {ate} | {c['ratio']:.2f} |")
     return "\n".join(lines + [END, ""])
 
 
-def run_layout_bench(preset: str, seed: int, source: str, out_dir: Path, markdown_path: Path | None,
-                     extra: list[str], log=print) -> list[dict]:
+def run_layout_bench(
+    preset: str, seed: int, source: str, out_dir: Path, markdown_path: Path | None, extra: list[str], log=print
+) -> list[dict]:
     command = "yowo " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     cases = layout_cases(preset, seed, out_dir, source, extra, log)
-    write_cases(out_dir, ("layout_cases.json", "LAYOUTS.md"), cases, layouts_markdown(cases, command), markdown_path, SECTION)
+    write_cases(
+        out_dir, ("layout_cases.json", "LAYOUTS.md"), cases, layouts_markdown(cases, command), markdown_path, SECTION
+    )
     return cases

@@ -1,5 +1,6 @@
 """Evaluation metrics of the paper's "Metrics" paragraph and docs/design.md §6
 (pure numpy + shapely; `yowo eval` and the benchmark call these)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -44,8 +45,9 @@ class ErrorSummary:
 
 def pose_error(name: str, T_est: np.ndarray, T_gt: np.ndarray) -> PoseError:
     """eps_pos = ||X - X_gt|| (m), eps_rot = arccos((tr(R^T R_gt) - 1) / 2) (deg)."""
-    return PoseError(name, float(np.linalg.norm(T_est[:3, 3] - T_gt[:3, 3])),
-                     rotation_angle_deg(T_est[:3, :3], T_gt[:3, :3]))
+    return PoseError(
+        name, float(np.linalg.norm(T_est[:3, 3] - T_gt[:3, 3])), rotation_angle_deg(T_est[:3, :3], T_gt[:3, :3])
+    )
 
 
 def registration_errors(est: dict[str, np.ndarray], gt: dict[str, np.ndarray]) -> list[PoseError]:
@@ -62,8 +64,9 @@ def _alignment_points(poses: list[np.ndarray]) -> np.ndarray:
     return np.vstack([centres, axes])
 
 
-def relative_pose_errors(est: dict[str, np.ndarray], gt: dict[str, np.ndarray],
-                         groups: dict[str, list[str]]) -> tuple[list[PoseError], dict[str, Sim3]]:
+def relative_pose_errors(
+    est: dict[str, np.ndarray], gt: dict[str, np.ndarray], groups: dict[str, list[str]]
+) -> tuple[list[PoseError], dict[str, Sim3]]:
     """CMC relative pose: errors after a KU (Umeyama, with scale) alignment of
     each group to ground truth. Returns the errors and each group's alignment."""
     errors, alignments = [], {}
@@ -84,8 +87,9 @@ def mean_baseline_m(poses: list[np.ndarray]) -> float:
     return float(d.mean()) if len(d) else float("nan")
 
 
-def relative_errors_of_baseline(errors: list[PoseError], gt: dict[str, np.ndarray],
-                                groups: dict[str, list[str]]) -> list[PoseError]:
+def relative_errors_of_baseline(
+    errors: list[PoseError], gt: dict[str, np.ndarray], groups: dict[str, list[str]]
+) -> list[PoseError]:
     """relative_pose_errors' position errors as a percentage of the mean baseline of the
     camera's group in ground truth (the scale-free measure real recordings are compared
     by: their rigs span 2-20 m); rotations as they are."""
@@ -145,6 +149,7 @@ def ate(est: Trajectory, ref: Trajectory, max_diff_s: float = 0.01, align: bool 
 # --- layout ---------------------------------------------------------------------
 def layout_iou(est_polygons: list[np.ndarray], gt_polygons: list[np.ndarray]) -> float:
     """Top-view floor polygon IoU (each polygon an (N, 2) array of x, y in metres)."""
+
     def union(polys):
         shapes = [Polygon(p).buffer(0) for p in polys if len(p) >= 3]
         return unary_union(shapes) if shapes else Polygon()

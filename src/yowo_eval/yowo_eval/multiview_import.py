@@ -46,30 +46,92 @@ from pathlib import Path
 
 import numpy as np
 
-START_NS = 1_000_000_000_000_000_000     # the recording's first frame (any fixed instant)
-GT_FRAME = "map"                         # the reference calibration's world frame, as it came
+START_NS = 1_000_000_000_000_000_000  # the recording's first frame (any fixed instant)
+GT_FRAME = "map"  # the reference calibration's world frame, as it came
 
-COCO_17 = ("nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder",
-           "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip",
-           "left_knee", "right_knee", "left_ankle", "right_ankle")
+COCO_17 = (
+    "nose",
+    "left_eye",
+    "right_eye",
+    "left_ear",
+    "right_ear",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+    "left_hip",
+    "right_hip",
+    "left_knee",
+    "right_knee",
+    "left_ankle",
+    "right_ankle",
+)
 _FEET = ("left_big_toe", "left_small_toe", "left_heel", "right_big_toe", "right_small_toe", "right_heel")
 # Each detector's joints in its own output order (OpenPose's output docs; Pose2Sim's skeletons.py).
 FORMATS = {
     "BODY_25B": COCO_17 + ("neck", "head_top") + _FEET,
-    "BODY_25": ("nose", "neck", "right_shoulder", "right_elbow", "right_wrist", "left_shoulder", "left_elbow",
-                "left_wrist", "mid_hip", "right_hip", "right_knee", "right_ankle", "left_hip", "left_knee",
-                "left_ankle", "right_eye", "left_eye", "right_ear", "left_ear") + _FEET,
-    "COCO_18": ("nose", "neck", "right_shoulder", "right_elbow", "right_wrist", "left_shoulder", "left_elbow",
-                "left_wrist", "right_hip", "right_knee", "right_ankle", "left_hip", "left_knee", "left_ankle",
-                "right_eye", "left_eye", "right_ear", "left_ear"),
+    "BODY_25": (
+        "nose",
+        "neck",
+        "right_shoulder",
+        "right_elbow",
+        "right_wrist",
+        "left_shoulder",
+        "left_elbow",
+        "left_wrist",
+        "mid_hip",
+        "right_hip",
+        "right_knee",
+        "right_ankle",
+        "left_hip",
+        "left_knee",
+        "left_ankle",
+        "right_eye",
+        "left_eye",
+        "right_ear",
+        "left_ear",
+    )
+    + _FEET,
+    "COCO_18": (
+        "nose",
+        "neck",
+        "right_shoulder",
+        "right_elbow",
+        "right_wrist",
+        "left_shoulder",
+        "left_elbow",
+        "left_wrist",
+        "right_hip",
+        "right_knee",
+        "right_ankle",
+        "left_hip",
+        "left_knee",
+        "left_ankle",
+        "right_eye",
+        "left_eye",
+        "right_ear",
+        "left_ear",
+    ),
     "COCO_17": COCO_17,
-    "HALPE_26": COCO_17 + ("head_top", "neck", "mid_hip", "left_big_toe", "right_big_toe", "left_small_toe",
-                           "right_small_toe", "left_heel", "right_heel"),
+    "HALPE_26": COCO_17
+    + (
+        "head_top",
+        "neck",
+        "mid_hip",
+        "left_big_toe",
+        "right_big_toe",
+        "left_small_toe",
+        "right_small_toe",
+        "left_heel",
+        "right_heel",
+    ),
 }
 # Joints beyond COCO's 17, after them (the COCO 17 take MoveNet's ids 2-18, so a recording's
 # ids mean what the pose model's do).
 EXTRA_JOINTS = ("neck", "head_top", "mid_hip") + _FEET
-BLAZEPOSE = "BLAZEPOSE"     # mediapipe's 33 landmarks: the pose model's own BlazePose ids
+BLAZEPOSE = "BLAZEPOSE"  # mediapipe's 33 landmarks: the pose model's own BlazePose ids
 
 
 def joint_ids(fmt: str) -> dict[str, int]:
@@ -94,7 +156,7 @@ class MultiviewImportError(ValueError):
 @dataclass
 class ReferenceCamera:
     name: str
-    camera: object               # yowo_common.camera.CameraModel
+    camera: object  # yowo_common.camera.CameraModel
     T_world_cam: np.ndarray
 
 
@@ -142,8 +204,10 @@ def read_pose2sim_calibration(path) -> list[ReferenceCamera]:
         name = re.sub(r"[^A-Za-z0-9_]", "_", str(table.get("name", key)))
         out.append(ReferenceCamera(name, cam, inv_se3(se3(cv2.Rodrigues(rvec)[0], tvec))))
     if len(out) < 2:
-        raise MultiviewImportError(f"{path}: holds {len(out)} camera table(s) (name, size, matrix, distortions, "
-                                   "rotation, translation); a multi-camera calibration needs two or more")
+        raise MultiviewImportError(
+            f"{path}: holds {len(out)} camera table(s) (name, size, matrix, distortions, "
+            "rotation, translation); a multi-camera calibration needs two or more"
+        )
     return out
 
 
@@ -166,8 +230,11 @@ def read_caliscope_calibration(path) -> dict[int, ReferenceCamera]:
 
     path = Path(path)
     doc = _read_toml(path)
-    tables = [(f"cameras.{k}", t) for k, t in doc.get("cameras", {}).items()] if isinstance(doc.get("cameras"), dict) \
+    tables = (
+        [(f"cameras.{k}", t) for k, t in doc.get("cameras", {}).items()]
+        if isinstance(doc.get("cameras"), dict)
         else [(k, t) for k, t in doc.items() if k.startswith("cam_")]
+    )
     out = {}
     for key, table in tables:
         if not isinstance(table, dict) or table.get("ignore") is True or "rotation" not in table:
@@ -179,8 +246,9 @@ def read_caliscope_calibration(path) -> dict[int, ReferenceCamera]:
             raise MultiviewImportError(f"{where}: missing {', '.join(missing) or 'port / cam_id'}")
         w, h = _matrix(table["size"], (2,), f"{where} size")
         D = _matrix(table["distortions"], (len(table["distortions"]),), f"{where} distortions")
-        cam = CameraModel(int(round(w)), int(round(h)), _matrix(table["matrix"], (3, 3), f"{where} matrix"), D,
-                          PLUMB_BOB)
+        cam = CameraModel(
+            int(round(w)), int(round(h)), _matrix(table["matrix"], (3, 3), f"{where} matrix"), D, PLUMB_BOB
+        )
         R = _matrix(table["rotation"], (3, 3), f"{where} rotation (a 3x3 matrix)")
         if abs(np.linalg.det(R) - 1.0) > 1e-3 or not np.allclose(R @ R.T, np.eye(3), atol=1e-3):
             raise MultiviewImportError(f"{where}: rotation is not a rotation matrix")
@@ -190,9 +258,11 @@ def read_caliscope_calibration(path) -> dict[int, ReferenceCamera]:
         T = inv_se3(se3(R, _matrix(table["translation"], (3,), f"{where} translation")))
         out[cam_id] = ReferenceCamera(f"cam_{cam_id}", cam, T)
     if len(out) < 2:
-        raise MultiviewImportError(f"{path}: holds {len(out)} posed camera table(s) ([cam_N] or [cameras.N] with "
-                                   "size, matrix, distortions, rotation, translation); a multi-camera calibration "
-                                   "needs two or more")
+        raise MultiviewImportError(
+            f"{path}: holds {len(out)} posed camera table(s) ([cam_N] or [cameras.N] with "
+            "size, matrix, distortions, rotation, translation); a multi-camera calibration "
+            "needs two or more"
+        )
     return out
 
 
@@ -234,11 +304,13 @@ def read_people(path: Path, fmt: str) -> list[tuple[np.ndarray, np.ndarray]]:
             a = np.asarray(flat, dtype=float).reshape(-1, 3)
         except (TypeError, ValueError):
             raise MultiviewImportError(f"{path}: person {k}: pose_keypoints_2d is not a list of x, y, c") from None
-        if len(a) == 0:         # OpenPose writes a person whose body was not estimated with no joints
+        if len(a) == 0:  # OpenPose writes a person whose body was not estimated with no joints
             continue
         if len(a) != n:
-            raise MultiviewImportError(f"{path}: person {k} has {len(a)} joints; {fmt} has {n} "
-                                       f"(choose the format with --keypoint-format: {', '.join(all_formats())})")
+            raise MultiviewImportError(
+                f"{path}: person {k} has {len(a)} joints; {fmt} has {n} "
+                f"(choose the format with --keypoint-format: {', '.join(all_formats())})"
+            )
         conf = np.where(np.isfinite(a).all(axis=1), np.clip(a[:, 2], 0.0, 1.0), 0.0)
         out.append((a[:, :2], conf))
     return out
@@ -342,18 +414,23 @@ def read_session(folder, calibration=None, videos: bool = False, fps: float | No
     calib = Path(calibration) if calibration else _find_calibration(folder)
     cams = read_pose2sim_calibration(calib)
     kp_dirs = sorted(d for d in (folder / "pose").glob("*_json") if d.is_dir()) if (folder / "pose").is_dir() else []
-    vids = sorted(p for p in (folder / "videos").iterdir() if p.suffix.lower() in (".mp4", ".avi", ".mov", ".mkv")) \
-        if (folder / "videos").is_dir() else []
+    vids = (
+        sorted(p for p in (folder / "videos").iterdir() if p.suffix.lower() in (".mp4", ".avi", ".mov", ".mkv"))
+        if (folder / "videos").is_dir()
+        else []
+    )
     rate = fps or _frame_rate(folder) or (_Video(vids[0]).fps if vids else None)
     vids = vids if videos else []
     if not kp_dirs and not vids:
-        raise MultiviewImportError(f"{folder}: no keypoints (pose/<camera>_json/ folders)"
-                                   + (" and no videos (videos/*.mp4)" if videos else "; add --videos to import "
-                                      "the videos/ instead"))
+        raise MultiviewImportError(
+            f"{folder}: no keypoints (pose/<camera>_json/ folders)"
+            + (" and no videos (videos/*.mp4)" if videos else "; add --videos to import the videos/ instead")
+        )
     for what, items in (("keypoint folders in pose/", kp_dirs), ("videos in videos/", vids)):
         if items and len(items) != len(cams):
-            raise MultiviewImportError(f"{folder}: {len(items)} {what} but {len(cams)} cameras in {calib} "
-                                       "(they are paired in sorted order)")
+            raise MultiviewImportError(
+                f"{folder}: {len(items)} {what} but {len(cams)} cameras in {calib} (they are paired in sorted order)"
+            )
     if videos and not vids:
         raise MultiviewImportError(f"{folder}: --videos, but no videos/*.mp4 (or .avi, .mov, .mkv)")
     return Session(calib, cams, kp_dirs, vids, rate)
@@ -424,8 +501,12 @@ def _recording(bag: Path, cameras: list[ReferenceCamera]):
         with BagWriter(bag) as out:
             header0 = Header(stamp=ns_to_time(START_NS), frame_id=GT_FRAME)
             for ref in cameras:
-                out.write(topics.gt_cmc_pose_topic(ref.name), PoseStamped(header=header0,
-                          pose=matrix_to_pose(ref.T_world_cam)), START_NS, latched=True)
+                out.write(
+                    topics.gt_cmc_pose_topic(ref.name),
+                    PoseStamped(header=header0, pose=matrix_to_pose(ref.T_world_cam)),
+                    START_NS,
+                    latched=True,
+                )
             yield out
     except BagError as exc:
         shutil.rmtree(bag, ignore_errors=True)
@@ -441,16 +522,30 @@ def _write_keypoints(out, name: str, header, ids, uv, confidence) -> int:
     from yowo_common.rosconv import stamp_to_ns
     from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
-    kps = [Keypoint2D(id=int(i), x=float(u), y=float(v), confidence=float(c))
-           for i, (u, v), c in zip(ids, uv, confidence) if c > 0]
-    out.write(topics.cmc_keypoints_topic(name), AgentKeypoints(header=header, camera_name=name, keypoints=kps),
-              stamp_to_ns(header.stamp))
+    kps = [
+        Keypoint2D(id=int(i), x=float(u), y=float(v), confidence=float(c))
+        for i, (u, v), c in zip(ids, uv, confidence)
+        if c > 0
+    ]
+    out.write(
+        topics.cmc_keypoints_topic(name),
+        AgentKeypoints(header=header, camera_name=name, keypoints=kps),
+        stamp_to_ns(header.stamp),
+    )
     return len(kps)
 
 
-def import_multiview(folder, bag, calibration=None, keypoint_format: str = "BODY_25B", videos: bool = False,
-                     fps: float | None = None, max_frames: int | None = None, jpeg_quality: int = 90,
-                     progress=None) -> ImportSummary:
+def import_multiview(
+    folder,
+    bag,
+    calibration=None,
+    keypoint_format: str = "BODY_25B",
+    videos: bool = False,
+    fps: float | None = None,
+    max_frames: int | None = None,
+    jpeg_quality: int = 90,
+    progress=None,
+) -> ImportSummary:
     """Write the session as a recording. Frame i of every camera is stamped START_NS + i / fps
     (the cameras of these recordings are synchronised; the frame numbers say which images
     belong together). CameraInfo per frame (with --videos at the video's size, which may
@@ -468,9 +563,9 @@ def import_multiview(folder, bag, calibration=None, keypoint_format: str = "BODY
     streams = [_Video(v) for v in s.videos]
     rate = s.fps
     if not rate:
-        raise MultiviewImportError(f"{folder}: no frame rate (Config.toml [project] frame_rate, or the "
-                                   "videos'); "
-                                   "give --fps")
+        raise MultiviewImportError(
+            f"{folder}: no frame rate (Config.toml [project] frame_rate, or the videos'); give --fps"
+        )
     bag = Path(bag)
     summaries = []
     try:
@@ -478,8 +573,7 @@ def import_multiview(folder, bag, calibration=None, keypoint_format: str = "BODY
             for k, ref in enumerate(s.cameras):
                 kp_dir = s.keypoint_dirs[k] if s.keypoint_dirs else None
                 video = streams[k] if streams else None
-                summary = CameraSummary(ref.name, kp_dir.name if kp_dir else None,
-                                        video.path.name if video else None)
+                summary = CameraSummary(ref.name, kp_dir.name if kp_dir else None, video.path.name if video else None)
                 files = dict(frame_files(kp_dir)) if kp_dir else {}
                 indices = sorted(files) if files else list(range(video.count))
                 if video:
@@ -494,21 +588,33 @@ def import_multiview(folder, bag, calibration=None, keypoint_format: str = "BODY
                         rgb = video.frame(i)
                         if rgb is None:
                             if i in files:
-                                raise MultiviewImportError(f"{video.path}: ends before frame {i}, which "
-                                                           f"{files[i]} has keypoints for")
+                                raise MultiviewImportError(
+                                    f"{video.path}: ends before frame {i}, which {files[i]} has keypoints for"
+                                )
                             continue
                         if (rgb.shape[1], rgb.shape[0]) != (cam.width, cam.height):
                             cam = CameraModel(rgb.shape[1], rgb.shape[0], cam.K, cam.D, cam.distortion_model)
-                        out.write(topics.cmc_image_topics(ref.name)[1], encode_color_jpeg(rgb, header, jpeg_quality),
-                                  stamp)
+                        out.write(
+                            topics.cmc_image_topics(ref.name)[1], encode_color_jpeg(rgb, header, jpeg_quality), stamp
+                        )
                     out.write(topics.cmc_info_topic(ref.name), model_to_camera_info(cam, header), stamp)
                     summary.frames += 1
                     if i in files:
-                        people = [person_pose(uv, c, keypoint_format, cam.width, cam.height)
-                                  for uv, c in read_people(files[i], keypoint_format)]
+                        people = [
+                            person_pose(uv, c, keypoint_format, cam.width, cam.height)
+                            for uv, c in read_people(files[i], keypoint_format)
+                        ]
                         agent = tracker.pick(people)
-                        summary.with_agent += int(bool(_write_keypoints(
-                            out, ref.name, header, *((agent.ids, agent.uv, agent.confidence) if agent else ([],) * 3))))
+                        summary.with_agent += int(
+                            bool(
+                                _write_keypoints(
+                                    out,
+                                    ref.name,
+                                    header,
+                                    *((agent.ids, agent.uv, agent.confidence) if agent else ([],) * 3),
+                                )
+                            )
+                        )
                     if progress:
                         progress(k + n / max(len(indices), 1), len(s.cameras))
                 summary.others = tracker.others
@@ -517,6 +623,7 @@ def import_multiview(folder, bag, calibration=None, keypoint_format: str = "BODY
         for v in streams:
             v.close()
     return ImportSummary(bag, rate, summaries)
+
 
 def read_caliscope_keypoints(path) -> dict[int, list[tuple[float, np.ndarray, np.ndarray]]]:
     """caliscope's xy_<TRACKER>.csv: {camera id: [(frame_time s, point ids, uv (N, 2)) per
@@ -533,8 +640,10 @@ def read_caliscope_keypoints(path) -> dict[int, list[tuple[float, np.ndarray, np
         need = [cam_col, "frame_index", "frame_time", "point_id", "img_loc_x", "img_loc_y"]
         missing = [c for c in need if c not in head]
         if missing:
-            raise MultiviewImportError(f"{path}: no column {', '.join(missing)} (not a caliscope xy_*.csv table; "
-                                       f"its header: {', '.join(head) or 'empty'})")
+            raise MultiviewImportError(
+                f"{path}: no column {', '.join(missing)} (not a caliscope xy_*.csv table; "
+                f"its header: {', '.join(head) or 'empty'})"
+            )
         col = [head.index(c) for c in need]
         try:
             table = np.array([[float(r[c]) for c in col] for r in rows if r], dtype=float).reshape(-1, len(need))
@@ -543,7 +652,7 @@ def read_caliscope_keypoints(path) -> dict[int, list[tuple[float, np.ndarray, np
     if not np.isfinite(table).all():
         raise MultiviewImportError(f"{path}: a row with a missing or non-finite value")
     out: dict[int, list] = {}
-    table = table[np.lexsort((table[:, 1], table[:, 0]))]        # by camera, then frame
+    table = table[np.lexsort((table[:, 1], table[:, 0]))]  # by camera, then frame
     starts = np.flatnonzero(np.r_[True, np.any(np.diff(table[:, :2], axis=0) != 0, axis=1)])
     for rows in np.split(table, starts[1:]):
         out.setdefault(int(rows[0, 0]), []).append((float(rows[0, 2]), rows[:, 3].astype(int), rows[:, 4:6]))
@@ -556,8 +665,9 @@ def _caliscope_calibration(xy_csv: Path) -> Path:
         for name in ("camera_array.toml", "config.toml"):
             if (folder / name).is_file():
                 return folder / name
-    raise MultiviewImportError(f"{xy_csv}: no config.toml or camera_array.toml in its folder or above "
-                               "(give --calibration)")
+    raise MultiviewImportError(
+        f"{xy_csv}: no config.toml or camera_array.toml in its folder or above (give --calibration)"
+    )
 
 
 def import_caliscope(xy_csv, bag, calibration=None, progress=None) -> ImportSummary:
@@ -589,13 +699,22 @@ def import_caliscope(xy_csv, bag, calibration=None, progress=None) -> ImportSumm
                 out.write(topics.cmc_info_topic(ref.name), model_to_camera_info(cam, header), stamp)
                 body = (ids >= 0) & (ids < n_pose)
                 pose_uv, pose_conf = np.zeros((n_pose, 2)), np.zeros(n_pose)
-                pose_uv[ids[body]], pose_conf[ids[body]] = uv[body], 1.0      # caliscope keeps no confidence
+                pose_uv[ids[body]], pose_conf[ids[body]] = uv[body], 1.0  # caliscope keeps no confidence
                 person = person_pose(pose_uv, pose_conf, BLAZEPOSE, cam.width, cam.height)
                 extra = ids >= n_pose
                 summary.frames += 1
-                summary.with_agent += int(bool(_write_keypoints(
-                    out, ref.name, header, np.concatenate([person.ids, ids[extra] + ID_OFFSET]),
-                    np.vstack([person.uv, uv[extra]]), np.concatenate([person.confidence, np.ones(extra.sum())]))))
+                summary.with_agent += int(
+                    bool(
+                        _write_keypoints(
+                            out,
+                            ref.name,
+                            header,
+                            np.concatenate([person.ids, ids[extra] + ID_OFFSET]),
+                            np.vstack([person.uv, uv[extra]]),
+                            np.concatenate([person.confidence, np.ones(extra.sum())]),
+                        )
+                    )
+                )
                 if progress:
                     progress(k + n / max(len(frames.get(cam_id, [])), 1), len(refs))
             summaries.append(summary)
@@ -607,36 +726,66 @@ def cmd_import_multiview(args) -> int:
     from .progress import with_progress
 
     if str(args.session).lower().endswith(".csv"):
-        s = with_progress(lambda progress: import_caliscope(args.session, args.output, args.calibration,
-                                                            progress=progress))
+        s = with_progress(
+            lambda progress: import_caliscope(args.session, args.output, args.calibration, progress=progress)
+        )
     else:
-        s = with_progress(lambda progress: import_multiview(args.session, args.output, args.calibration,
-                                                            args.keypoint_format, args.videos, args.fps,
-                                                            args.max_frames, progress=progress))
+        s = with_progress(
+            lambda progress: import_multiview(
+                args.session,
+                args.output,
+                args.calibration,
+                args.keypoint_format,
+                args.videos,
+                args.fps,
+                args.max_frames,
+                progress=progress,
+            )
+        )
     print(f"wrote {s.bag}: {len(s.cameras)} cameras at {s.fps:g} frames/s, reference poses on /gt/cmc/<name>/pose")
     for c in s.cameras:
-        src = ", ".join(x for x in (c.keypoints_from and f"keypoints {c.keypoints_from}",
-                                    c.video_from and f"video {c.video_from}") if x)
-        print(f"  {c.name}: {src}; {c.frames} frames"
-              + (f", the agent in {c.with_agent}" if c.keypoints_from else "")
-              + (f", {c.others} other people ignored" if c.others else ""))
-    print(f"next: yowo calibrate-cmc {s.bag} -o RESULTS" + ("  (--cmc-source pose: the pose model on the video)"
-                                                           if args.videos else "")
-          + f", then yowo eval RESULTS --bag {s.bag}")
+        src = ", ".join(
+            x
+            for x in (c.keypoints_from and f"keypoints {c.keypoints_from}", c.video_from and f"video {c.video_from}")
+            if x
+        )
+        print(
+            f"  {c.name}: {src}; {c.frames} frames"
+            + (f", the agent in {c.with_agent}" if c.keypoints_from else "")
+            + (f", {c.others} other people ignored" if c.others else "")
+        )
+    print(
+        f"next: yowo calibrate-cmc {s.bag} -o RESULTS"
+        + ("  (--cmc-source pose: the pose model on the video)" if args.videos else "")
+        + f", then yowo eval RESULTS --bag {s.bag}"
+    )
     return 0
 
 
 def add_verbs(verbs) -> None:
-    p = verbs.add_parser("import-multiview", help="convert a multi-camera recording of a person (OpenPose JSON "
-                                                  "keypoints, Pose2Sim calibration TOML, videos; or a caliscope "
-                                                  "xy_*.csv with its config.toml) into a recording")
-    p.add_argument("session", help="the folder: pose/<camera>_json/*.json, Calib*.toml (or calibration/), videos/; "
-                                   "or caliscope's xy_<TRACKER>.csv")
+    p = verbs.add_parser(
+        "import-multiview",
+        help="convert a multi-camera recording of a person (OpenPose JSON "
+        "keypoints, Pose2Sim calibration TOML, videos; or a caliscope "
+        "xy_*.csv with its config.toml) into a recording",
+    )
+    p.add_argument(
+        "session",
+        help="the folder: pose/<camera>_json/*.json, Calib*.toml (or calibration/), videos/; "
+        "or caliscope's xy_<TRACKER>.csv",
+    )
     p.add_argument("-o", "--output", required=True, help="the rosbag2 (MCAP) recording to write")
-    p.add_argument("--calibration", help="the reference calibration TOML (default: Calib*.toml in the folder; "
-                                         "caliscope: camera_array.toml or config.toml beside the table or above)")
-    p.add_argument("--keypoint-format", default="BODY_25B", choices=all_formats(),
-                   help="the joints of pose_keypoints_2d (Pose2Sim's pose_model)")
+    p.add_argument(
+        "--calibration",
+        help="the reference calibration TOML (default: Calib*.toml in the folder; "
+        "caliscope: camera_array.toml or config.toml beside the table or above)",
+    )
+    p.add_argument(
+        "--keypoint-format",
+        default="BODY_25B",
+        choices=all_formats(),
+        help="the joints of pose_keypoints_2d (Pose2Sim's pose_model)",
+    )
     p.add_argument("--videos", action="store_true", help="also import videos/* as the CMC images (JPEG)")
     p.add_argument("--fps", type=float, help="frame rate (default: Config.toml's frame_rate, else the videos')")
     p.add_argument("--max-frames", type=int, help="import only the first N frames of each camera")

@@ -26,6 +26,7 @@ two required keypoints (plus any others present) instead of a full skeleton with
 length factors; no temporal smoothness factors; the height prior replaces their
 scale-by-person-size assumption.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -68,9 +69,9 @@ class OmeccParams:
     # An average adult: the method knows a typical height, not the agent's.
     person_height_m: float = 1.70
     person_height_sigma_m: float = 0.10
-    sigma_px: float = 1.5                # projection factor noise (Huber inlier scale)
+    sigma_px: float = 1.5  # projection factor noise (Huber inlier scale)
     huber_k: float = 1.345
-    min_height_pairs: int = 5            # head/ground instants a group needs to get a scale
+    min_height_pairs: int = 5  # head/ground instants a group needs to get a scale
     max_rotation_disagreement_deg: float = 15.0  # pair rotation vs the spanning tree's
     max_direction_disagreement_deg: float = 20.0  # pair baseline direction vs the averaged centres
     max_iterations: int = 200
@@ -97,8 +98,9 @@ def pair_pose(obs: GridObservations, pair: PairGeometry, params: OmeccParams) ->
     return sfm.poses[pair.b]
 
 
-def initial_poses(obs: GridObservations, members: list[int], pairs: list[PairGeometry], params: OmeccParams
-                  ) -> tuple[int | None, dict[int, np.ndarray], dict[int, str]]:
+def initial_poses(
+    obs: GridObservations, members: list[int], pairs: list[PairGeometry], params: OmeccParams
+) -> tuple[int | None, dict[int, np.ndarray], dict[int, str]]:
     """Root camera and T_root_cam (arbitrary scale) of the members reachable over pairs
     with a usable essential matrix: rotations chained along the maximum spanning tree of
     the pairs (weight = inliers), centres by linear translation averaging of every pair's
@@ -114,13 +116,15 @@ def initial_poses(obs: GridObservations, members: list[int], pairs: list[PairGeo
                 relative[(p.a, p.b)], relative[(p.b, p.a)] = T, inv_se3(T)
                 G.add_edge(p.a, p.b, weight=p.num_inliers)
     root, poses = consistent_poses(G, relative, params)
-    failed = {c: "no usable, consistent essential matrices to two cameras of its group" for c in members
-              if c not in poses}
+    failed = {
+        c: "no usable, consistent essential matrices to two cameras of its group" for c in members if c not in poses
+    }
     return root, poses, failed
 
 
-def consistent_poses(G: nx.Graph, relative: dict[tuple[int, int], np.ndarray], params: OmeccParams
-                     ) -> tuple[int | None, dict[int, np.ndarray]]:
+def consistent_poses(
+    G: nx.Graph, relative: dict[tuple[int, int], np.ndarray], params: OmeccParams
+) -> tuple[int | None, dict[int, np.ndarray]]:
     """Root and T_root_cam (arbitrary scale) from the pairs of G (edge weight: inliers;
     ``relative[(a, b)]`` = T_a_b with any baseline length). The agent's points lie near
     two planes, where some pairs' E is far off: the pairs that disagree with the rest
@@ -164,22 +168,30 @@ def _average(G: nx.Graph, relative: dict, params: OmeccParams):
         row = np.zeros((3, 3 * len(cams)))
         for c, sign in ((j, 1.0), (i, -1.0)):
             if c != root:
-                row[:, col[c]:col[c] + 3] = sign * skew(d)
+                row[:, col[c] : col[c] + 3] = sign * skew(d)
         rows.append(row)
         dirs[(i, j)] = d
     x = np.linalg.svd(np.vstack(rows))[2][-1]
-    centre = {root: np.zeros(3)} | {c: x[col[c]:col[c] + 3] for c in cams}
+    centre = {root: np.zeros(3)} | {c: x[col[c] : col[c] + 3] for c in cams}
     if sum(d @ (centre[j] - centre[i]) for (i, j), d in dirs.items()) < 0:
         centre = {c: -v for c, v in centre.items()}
-    dir_err = {e: np.degrees(np.arccos(np.clip(d @ (centre[e[1]] - centre[e[0]])
-                                               / max(np.linalg.norm(centre[e[1]] - centre[e[0]]), 1e-12), -1, 1)))
-               for e, d in dirs.items()}
+    dir_err = {
+        e: np.degrees(
+            np.arccos(
+                np.clip(
+                    d @ (centre[e[1]] - centre[e[0]]) / max(np.linalg.norm(centre[e[1]] - centre[e[0]]), 1e-12), -1, 1
+                )
+            )
+        )
+        for e, d in dirs.items()
+    }
     worst = max(dir_err, key=dir_err.get)
     return root, R, centre, worst if dir_err[worst] > params.max_direction_disagreement_deg else None
 
 
-def calibrate_group(obs: GridObservations, members: list[int], pairs: list[PairGeometry], group_id: str,
-                    params: OmeccParams) -> tuple[CameraGroupResult | None, dict[int, str]]:
+def calibrate_group(
+    obs: GridObservations, members: list[int], pairs: list[PairGeometry], group_id: str, params: OmeccParams
+) -> tuple[CameraGroupResult | None, dict[int, str]]:
     root, init, failed = initial_poses(obs, members, pairs, params)
     if root is None:
         return None, failed
@@ -203,12 +215,17 @@ def calibrate_group(obs: GridObservations, members: list[int], pairs: list[PairG
     kidx = {int(k): i for i, k in enumerate(keys)}
     heads, grounds = head_ground_pairs(keys)
     if len(heads) < params.min_height_pairs:
-        return None, {c: (f"its group's cameras see the agent's head top and ground point together at only "
-                          f"{len(heads)} instants (needs {params.min_height_pairs} for the height scale)")
-                      for c in members}
+        return None, {
+            c: (
+                f"its group's cameras see the agent's head top and ground point together at only "
+                f"{len(heads)} instants (needs {params.min_height_pairs} for the height scale)"
+            )
+            for c in members
+        }
     # Metric initialisation: the median head-top to ground distance = the prior height.
-    scale = params.person_height_m / np.median(np.linalg.norm(
-        points[[kidx[int(h)] for h in heads]] - points[[kidx[int(g)] for g in grounds]], axis=1))
+    scale = params.person_height_m / np.median(
+        np.linalg.norm(points[[kidx[int(h)] for h in heads]] - points[[kidx[int(g)] for g in grounds]], axis=1)
+    )
     points *= scale
     for T in init.values():
         T[:3, 3] *= scale
@@ -219,13 +236,19 @@ def calibrate_group(obs: GridObservations, members: list[int], pairs: list[PairG
                 cam_i.append(index[c])
                 pt_i.append(kidx[k])
                 uv.append(p)
-    o = Observations(np.array(cam_i, dtype=int), np.array(pt_i, dtype=int), np.array(uv).reshape(-1, 2),
-                     np.full(len(cam_i), params.sigma_px))
+    o = Observations(
+        np.array(cam_i, dtype=int),
+        np.array(pt_i, dtype=int),
+        np.array(uv).reshape(-1, 2),
+        np.full(len(cam_i), params.sigma_px),
+    )
 
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     for c in cams:
         values.insert(X(index[c]), pose3(init[c]))
-    graph.add(gtsam.PriorFactorPose3(X(index[root]), pose3(np.eye(4)), gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)))
+    graph.add(
+        gtsam.PriorFactorPose3(X(index[root]), pose3(np.eye(4)), gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA))
+    )
     for j, P in enumerate(points):
         values.insert(L(j), gtsam.Point3(*P))
     add_projection_factors(graph, o, [obs.cameras[c] for c in cams], X, L, params.huber_k)
@@ -246,13 +269,27 @@ def calibrate_group(obs: GridObservations, members: list[int], pairs: list[PairG
     kp_ids = keys[o.point] % MAX_IDS
     sigma_by_id = {int(i): robust_sigma(res[kp_ids == i]) for i in np.unique(kp_ids) if np.sum(kp_ids == i) >= 10}
     stamps, ids = obs.stamp_and_id(keys)
-    neighbour = max((p for p in pairs if root in (p.a, p.b) and (p.b if p.a == root else p.a) in init),
-                    key=lambda p: p.num_inliers)
+    neighbour = max(
+        (p for p in pairs if root in (p.a, p.b) and (p.b if p.a == root else p.a) in init), key=lambda p: p.num_inliers
+    )
     other = neighbour.b if neighbour.a == root else neighbour.a
     names = [obs.names[c] for c in cams]
-    return (CameraGroupResult(group_id, obs.names[root], names, {obs.names[c]: T[index[c]] for c in cams},
-                              stamps, ids, points, rmse, counts, sigma_by_id, (obs.names[root], obs.names[other])),
-            failed)
+    return (
+        CameraGroupResult(
+            group_id,
+            obs.names[root],
+            names,
+            {obs.names[c]: T[index[c]] for c in cams},
+            stamps,
+            ids,
+            points,
+            rmse,
+            counts,
+            sigma_by_id,
+            (obs.names[root], obs.names[other]),
+        ),
+        failed,
+    )
 
 
 def calibrate_groups_omecc(cams: list[CameraTracks], params: OmeccParams = OmeccParams()) -> GroupingResult:

@@ -1,6 +1,7 @@
 """What yowo_eval adds to the `yowo` command line and to a run (entry points in its
 setup.py; yowo_bringup.plugins finds them): the `eval` and `bench` verbs, and the
 metrics of a run whose recording has ground truth."""
+
 from __future__ import annotations
 
 import json
@@ -13,6 +14,7 @@ def __getattr__(name: str):
     (Open3D: 1 s of the 1.5 s `yowo --version` took)."""
     if name in ("print_tables", "write_metrics"):
         from . import results_eval as evaluation
+
         return getattr(evaluation, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
@@ -24,7 +26,7 @@ def evaluate_run(out_dir, bag) -> tuple[dict, dict] | None:
     from .results_eval import evaluate
 
     try:
-        gt = read_ground_truth(bag)          # read once: a second reading of a recording costs ~1 s
+        gt = read_ground_truth(bag)  # read once: a second reading of a recording costs ~1 s
         return evaluate(out_dir, bag, gt), gt.cameras
     except ValueError:
         return None
@@ -46,7 +48,7 @@ def cmd_eval(args) -> int:
 
         from .ground_truth import read_ground_truth
 
-        gt = read_ground_truth(args.bag)      # in the map frame already (evaluation compares there)
+        gt = read_ground_truth(args.bag)  # in the map frame already (evaluation compares there)
         if gt.ego is None:
             raise ValueError(f"{args.bag}: no ground-truth ego trajectory (/gt/ego/pose) to write")
         write_tum(Path(args.gt_tum), gt.ego)
@@ -70,10 +72,17 @@ def cmd_bench(args) -> int:
         write_outputs(json.loads((out / "results.json").read_text()), out, markdown)
         print(f"re-rendered {out / 'BENCHMARKS.md'} from {out / 'results.json'}")
         return 0
-    results = run_bench(args.preset, args.seeds, args.scenarios, out, full=not args.cmc_only,
-                        sweep_preset=args.sweep_preset, resume=args.resume,
-                        on_case=lambda partial: write_outputs(partial, out, markdown),   # tables so far
-                        config=config_from_args(args))
+    results = run_bench(
+        args.preset,
+        args.seeds,
+        args.scenarios,
+        out,
+        full=not args.cmc_only,
+        sweep_preset=args.sweep_preset,
+        resume=args.resume,
+        on_case=lambda partial: write_outputs(partial, out, markdown),  # tables so far
+        config=config_from_args(args),
+    )
     write_outputs(results, out, markdown)
     print(f"wrote {out / 'BENCHMARKS.md'} and {out / 'results.json'}" + (f" and {markdown}" if markdown else ""))
     return 0
@@ -89,8 +98,9 @@ def cmd_bench_graph(args) -> int:
     from .graph_bench import run_graph_bench
 
     extra = _config_arguments(args)
-    cases = run_graph_bench(args.preset, args.seeds, args.sources, Path(args.output),
-                            Path(args.markdown) if args.markdown else None, extra)
+    cases = run_graph_bench(
+        args.preset, args.seeds, args.sources, Path(args.output), Path(args.markdown) if args.markdown else None, extra
+    )
     return 0 if all(c["exit"] == 0 for c in cases) else 1
 
 
@@ -98,8 +108,14 @@ def cmd_bench_layouts(args) -> int:
     """One generated recording in every input layout through a plain `yowo run`."""
     from .layout_bench import run_layout_bench
 
-    cases = run_layout_bench(args.preset, args.seed, args.cmc_source, Path(args.output),
-                             Path(args.markdown) if args.markdown else None, _config_arguments(args))
+    cases = run_layout_bench(
+        args.preset,
+        args.seed,
+        args.cmc_source,
+        Path(args.output),
+        Path(args.markdown) if args.markdown else None,
+        _config_arguments(args),
+    )
     return 0 if all(c["exit"] == 0 for c in cases) else 1
 
 
@@ -111,8 +127,9 @@ def cmd_bench_tum(args) -> int:
     if missing:
         raise ValueError(f"no such sequence folder: {', '.join(missing)}")
     extra = _config_arguments(args)
-    cases = run_tum_bench([Path(f) for f in args.sequences], Path(args.output),
-                          Path(args.markdown) if args.markdown else None, extra)
+    cases = run_tum_bench(
+        [Path(f) for f in args.sequences], Path(args.output), Path(args.markdown) if args.markdown else None, extra
+    )
     return 0 if all(c["exit"] == 0 for c in cases) else 1
 
 
@@ -123,29 +140,49 @@ def add_verbs(verbs) -> None:
     from .tum_import import add_verbs as add_import_verbs
 
     p = verbs.add_parser("bench", help="YOWO and baselines on generated recordings -> BENCHMARKS.md")
-    p.add_argument("--preset", nargs="+", default=["small"],
-                   help="one or more of tiny, small, standard, large, floor50 (several: the scale table; "
-                   "large and floor50 run the first seed only, keypoints only)")
+    p.add_argument(
+        "--preset",
+        nargs="+",
+        default=["small"],
+        help="one or more of tiny, small, standard, large, floor50 (several: the scale table; "
+        "large and floor50 run the first seed only, keypoints only)",
+    )
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--scenarios", nargs="+", default=["normal"], help="normal, texture_poor, symmetric, "
-                   "dim_light, stationary, kp_noise_{0.5,1.0,2.0,5.0}px, kp_outliers_5pct, clock_offsets")
+    p.add_argument(
+        "--scenarios",
+        nargs="+",
+        default=["normal"],
+        help="normal, texture_poor, symmetric, "
+        "dim_light, stationary, kp_noise_{0.5,1.0,2.0,5.0}px, kp_outliers_5pct, clock_offsets",
+    )
     p.add_argument("-o", "--output", default="bench", help="directory for bags, results.json, BENCHMARKS.md")
     p.add_argument("--markdown", help="also write the tables here (e.g. BENCHMARKS.md at the repo root)")
     p.add_argument("--cmc-only", action="store_true", help="only the CMC relative calibration tables (fast)")
-    p.add_argument("--sweep-preset", help="run the scenarios other than 'normal' (and kp_outliers_5pct) on this "
-                                          "preset only")
+    p.add_argument(
+        "--sweep-preset", help="run the scenarios other than 'normal' (and kp_outliers_5pct) on this preset only"
+    )
     p.add_argument("--resume", action="store_true", help="reuse the cases already finished in OUTPUT/cases.jsonl")
     add_config_options(p)
-    p.add_argument("--from-results", action="store_true",
-                   help="run nothing: render the tables again from OUTPUT/results.json (e.g. after a report change)")
+    p.add_argument(
+        "--from-results",
+        action="store_true",
+        help="run nothing: render the tables again from OUTPUT/results.json (e.g. after a report change)",
+    )
     p.set_defaults(func=cmd_bench)
 
-    p = verbs.add_parser("bench-layouts", help="one generated recording in YOWO's, the RGB-D drivers' and a video "
-                                               "layout through a plain yowo run -> BENCHMARKS.md")
+    p = verbs.add_parser(
+        "bench-layouts",
+        help="one generated recording in YOWO's, the RGB-D drivers' and a video "
+        "layout through a plain yowo run -> BENCHMARKS.md",
+    )
     p.add_argument("--preset", default="small")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--cmc-source", default="pose", choices=("pose", "images"),
-                   help="CMC keypoints for every layout (video files carry none): the pose model or the detector")
+    p.add_argument(
+        "--cmc-source",
+        default="pose",
+        choices=("pose", "images"),
+        help="CMC keypoints for every layout (video files carry none): the pose model or the detector",
+    )
     p.add_argument("-o", "--output", default="bench/layouts", help="directory for the recordings and runs")
     p.add_argument("--markdown", help="put the table into this file (e.g. BENCHMARKS.md), replacing an earlier one")
     add_config_options(p)
@@ -154,17 +191,27 @@ def add_verbs(verbs) -> None:
     p = verbs.add_parser("bench-graph", help="the real graph's speed (yowo run --rate 0) per stage -> BENCHMARKS.md")
     p.add_argument("--preset", nargs="+", default=["small"])
     p.add_argument("--seeds", type=int, nargs="+", default=[0])
-    p.add_argument("--sources", nargs="+", default=["keypoints", "images"], choices=("keypoints", "pose", "images"),
-                   help="CMC keypoint sources to time")
+    p.add_argument(
+        "--sources",
+        nargs="+",
+        default=["keypoints", "images"],
+        choices=("keypoints", "pose", "images"),
+        help="CMC keypoint sources to time",
+    )
     p.add_argument("-o", "--output", default="bench", help="directory for bags (shared with yowo bench) and runs")
     p.add_argument("--markdown", help="put the table into this file (e.g. BENCHMARKS.md), replacing an earlier one")
     add_config_options(p)
     p.set_defaults(func=cmd_bench_graph)
 
-    p = verbs.add_parser("bench-tum", help="real TUM RGB-D sequences through the graph with no CMCs: ATE beside "
-                                          "published numbers -> BENCHMARKS.md")
-    p.add_argument("sequences", nargs="+", help="TUM RGB-D sequence folders (rgb/, depth/, rgb.txt, depth.txt, "
-                                                "groundtruth.txt), named as TUM names them")
+    p = verbs.add_parser(
+        "bench-tum",
+        help="real TUM RGB-D sequences through the graph with no CMCs: ATE beside published numbers -> BENCHMARKS.md",
+    )
+    p.add_argument(
+        "sequences",
+        nargs="+",
+        help="TUM RGB-D sequence folders (rgb/, depth/, rgb.txt, depth.txt, groundtruth.txt), named as TUM names them",
+    )
     p.add_argument("-o", "--output", default="bench/tum", help="directory for the imported recordings and runs")
     p.add_argument("--markdown", help="put the table into this file (e.g. BENCHMARKS.md), replacing an earlier one")
     add_config_options(p)
@@ -174,10 +221,14 @@ def add_verbs(verbs) -> None:
     p.add_argument("results", help="results directory of yowo run / calibrate-cmc")
     p.add_argument("--bag", required=True, help="the recording, with /gt topics")
     p.add_argument("--metrics", metavar="JSON", help="also write the metrics to this file (e.g. RESULTS/metrics.json)")
-    p.add_argument("--gt-tum", metavar="TUM", help="write the recording's ground-truth ego trajectory in YOWO's map "
-                                                  "frame (origin and heading of the first ego pose, z up, floor at "
-                                                  "z = 0), for evo_ape against ego_trajectory.tum")
+    p.add_argument(
+        "--gt-tum",
+        metavar="TUM",
+        help="write the recording's ground-truth ego trajectory in YOWO's map "
+        "frame (origin and heading of the first ego pose, z up, floor at "
+        "z = 0), for evo_ape against ego_trajectory.tum",
+    )
     p.set_defaults(func=cmd_eval)
 
-    add_import_verbs(verbs)     # import-tum: it writes ground truth, which only evaluation reads
+    add_import_verbs(verbs)  # import-tum: it writes ground truth, which only evaluation reads
     add_multiview_verbs(verbs)  # import-multiview: likewise (the reference calibration)

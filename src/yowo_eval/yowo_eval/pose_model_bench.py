@@ -27,6 +27,7 @@ The true body joints come from rebuilding the recording's walk from its preset a
 (yowo_sim.capture.build_capture); the script checks them against the recording's
 /gt/agent/keypoints first.
 """
+
 import argparse
 import collections
 import dataclasses
@@ -40,16 +41,18 @@ import numpy as np
 
 from yowo_cmc.pose_model import ID_OFFSET, MOVENET_JOINTS, PoseDetector, PoseKeypointSource, PoseModelParams
 
-ROOT = pathlib.Path(__file__).resolve().parents[3]   # the source checkout (the photos are marked in its tests)
+ROOT = pathlib.Path(__file__).resolve().parents[3]  # the source checkout (the photos are marked in its tests)
 
 
 def photos():
     spec = importlib.util.spec_from_file_location("marks", ROOT / "src/yowo_cmc/test/test_pose_model.py")
     marks = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(marks)
-    for model, params in (("movenet", PoseModelParams()),
-                          ("movenet-whole-frame", PoseModelParams(refine_crop=False)),
-                          ("blazepose", PoseModelParams(model="blazepose"))):
+    for model, params in (
+        ("movenet", PoseModelParams()),
+        ("movenet-whole-frame", PoseModelParams(refine_crop=False)),
+        ("blazepose", PoseModelParams(model="blazepose")),
+    ):
         det = PoseDetector(params)
         errors = []
         for image, people in marks.MARKS.items():
@@ -58,13 +61,15 @@ def photos():
             for person in people:
                 best = marks.match(found, person)
                 nose = None if best is None else np.hypot(*(best.uv[2] - person["joints"]["nose"]))
-                if nose is None or nose > 0.2 * person["height"]:   # the nearest is somebody else
+                if nose is None or nose > 0.2 * person["height"]:  # the nearest is somebody else
                     print(f"{model}: {image} {person['who']}: not found")
                     continue
                 for name, err in marks.joint_errors(det, best, person).items():
                     errors.append(err / person["height"])
-                    print(f"{model}: {image:10s} {person['who']:8s} {name:15s} {err:5.1f} px "
-                          f"({100 * err / person['height']:.1f} % of {person['height']} px)")
+                    print(
+                        f"{model}: {image:10s} {person['who']:8s} {name:15s} {err:5.1f} px "
+                        f"({100 * err / person['height']:.1f} % of {person['height']} px)"
+                    )
         e = np.array(errors) * 100
         print(f"{model}: {len(e)} joints, error median {np.median(e):.1f} %, max {e.max():.1f} % of person height")
         frame = cv2.resize(marks.photo("bus")[230:840], (640, 480), interpolation=cv2.INTER_AREA)
@@ -76,15 +81,20 @@ def photos():
             people = det.detect(frame, refine=False)
             det.refine(frame, people[0])
         dt = (time.perf_counter() - t0) / n
-        print(f"{model}: 640x480, 1 thread: {1000 * dt:.1f} ms per frame, {1 / dt:.1f} frames/s "
-              f"({len(det.detect(frame))} persons"
-              + ("; the agent refined on its crop)" if params.refine_crop and params.model == "movenet" else ")"))
+        print(
+            f"{model}: 640x480, 1 thread: {1000 * dt:.1f} ms per frame, {1 / dt:.1f} frames/s "
+            f"({len(det.detect(frame))} persons"
+            + ("; the agent refined on its crop)" if params.refine_crop and params.model == "movenet" else ")")
+        )
 
 
 # --- sim ---------------------------------------------------------------------------------------
-NAMES = ("head_top", "ground") + MOVENET_JOINTS                # by id
-PAIRS = [(i + ID_OFFSET, MOVENET_JOINTS.index("right" + n[4:]) + ID_OFFSET)
-         for i, n in enumerate(MOVENET_JOINTS) if n.startswith("left")]
+NAMES = ("head_top", "ground") + MOVENET_JOINTS  # by id
+PAIRS = [
+    (i + ID_OFFSET, MOVENET_JOINTS.index("right" + n[4:]) + ID_OFFSET)
+    for i, n in enumerate(MOVENET_JOINTS)
+    if n.startswith("left")
+]
 
 
 def truth(bag, preset: str, seed: int):
@@ -126,8 +136,13 @@ def truth(bag, preset: str, seed: int):
             kp = agent_keypoints_3d(xy, heading, walk.height_m, phase)
             pts = np.vstack([kp[0], kp[1], agent_joints_3d(xy, heading, walk.height_m, phase)])
             uv, ok = cam.project_world(poses[name], pts)
-            inside = ok & (uv[:, 0] >= -0.5) & (uv[:, 0] < cam.width - 0.5) & (uv[:, 1] >= -0.5) & \
-                (uv[:, 1] < cam.height - 0.5)
+            inside = (
+                ok
+                & (uv[:, 0] >= -0.5)
+                & (uv[:, 0] < cam.width - 0.5)
+                & (uv[:, 1] >= -0.5)
+                & (uv[:, 1] < cam.height - 0.5)
+            )
             per[s] = (uv, inside)
         out[name] = per
     return out
@@ -149,10 +164,11 @@ def run_source(bag, params: PoseModelParams):
             sources[name] = PoseKeypointSource(name, params)
             detect = sources[name].detector.detect
 
-            def counting(rgb, detect=detect, name=name, **kw):   # records what the model found, unchanged
+            def counting(rgb, detect=detect, name=name, **kw):  # records what the model found, unchanged
                 people = detect(rgb, **kw)
-                persons[name][stamp] = len(people)   # noqa: B023 (the frame being detected: read when called)
+                persons[name][stamp] = len(people)  # noqa: B023 (the frame being detected: read when called)
                 return people
+
             sources[name].detector.detect = counting
         stamp = stamp_to_ns(msg.header.stamp)
         frames, _ = sources[name].push(stamp, decode_color(msg))
@@ -170,14 +186,14 @@ def sim(args):
     changes = _changes(args.set) | ({"lr_resolve": False} if args.model_labels else {})
     emitted, persons, sources, dt = run_source(args.bag, dataclasses.replace(PoseModelParams(), **changes))
     ids = np.arange(len(NAMES))
-    err = collections.defaultdict(list)       # id -> errors [px]
-    rel = collections.defaultdict(list)       # id -> errors / person height in the image
-    either = collections.defaultdict(list)    # id -> error to the nearer of its own and its pair's truth
+    err = collections.defaultdict(list)  # id -> errors [px]
+    rel = collections.defaultdict(list)  # id -> errors / person height in the image
+    either = collections.defaultdict(list)  # id -> error to the nearer of its own and its pair's truth
     other = {a: b for a, b in PAIRS} | {b: a for a, b in PAIRS}
     cams = []
-    swaps = collections.defaultdict(lambda: [0, 0])   # pair -> [swapped, both emitted]
+    swaps = collections.defaultdict(lambda: [0, 0])  # pair -> [swapped, both emitted]
     for name in sorted(gt):
-        visible = {s for s, (_, inside) in gt[name].items() if inside[2:].sum() >= 9}   # most of the body in view
+        visible = {s for s, (_, inside) in gt[name].items() if inside[2:].sum() >= 9}  # most of the body in view
         seen = {s for s in visible if persons[name].get(s, 0) > 0}
         got = {s: f for s, f in emitted[name].items() if s in visible}
         false = len(set(emitted[name]) - visible)
@@ -202,20 +218,34 @@ def sim(args):
                     swaps[a][1] += 1
                     cam_swaps[0] += crossed < kept
                     cam_swaps[1] += 1
-        cams.append(dict(camera=name, images=len(gt[name]), visible=len(visible), model_found=len(seen),
-                         agent_emitted=len(got), emitted_outside_view=false,
-                         detection_rate=len(got) / max(len(visible), 1),
-                         swap_rate=cam_swaps[0] / max(cam_swaps[1], 1), pairs=cam_swaps[1],
-                         gross_rate=gross[0] / max(gross[1], 1), keypoints=gross[1],
-                         summary=sources[name].summary() if name in sources else "no images"))
+        cams.append(
+            dict(
+                camera=name,
+                images=len(gt[name]),
+                visible=len(visible),
+                model_found=len(seen),
+                agent_emitted=len(got),
+                emitted_outside_view=false,
+                detection_rate=len(got) / max(len(visible), 1),
+                swap_rate=cam_swaps[0] / max(cam_swaps[1], 1),
+                pairs=cam_swaps[1],
+                gross_rate=gross[0] / max(gross[1], 1),
+                keypoints=gross[1],
+                summary=sources[name].summary() if name in sources else "no images",
+            )
+        )
     print(f"{args.bag}: pose model {changes or 'defaults'}: {1000 * dt:.1f} ms per image (model + source)\n")
-    print("| camera | images | agent in view | model found a person | agent emitted (rate) | emitted, agent not in"
-          " view | L/R swapped pairs | keypoints > 15 % of height off |")
+    print(
+        "| camera | images | agent in view | model found a person | agent emitted (rate) | emitted, agent not in"
+        " view | L/R swapped pairs | keypoints > 15 % of height off |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     for c in cams:
-        print(f"| {c['camera']} | {c['images']} | {c['visible']} | {c['model_found']} | {c['agent_emitted']} "
-              f"({100 * c['detection_rate']:.0f} %) | {c['emitted_outside_view']} | {100 * c['swap_rate']:.1f} % of "
-              f"{c['pairs']} | {100 * c['gross_rate']:.1f} % of {c['keypoints']} |")
+        print(
+            f"| {c['camera']} | {c['images']} | {c['visible']} | {c['model_found']} | {c['agent_emitted']} "
+            f"({100 * c['detection_rate']:.0f} %) | {c['emitted_outside_view']} | {100 * c['swap_rate']:.1f} % of "
+            f"{c['pairs']} | {100 * c['gross_rate']:.1f} % of {c['keypoints']} |"
+        )
     print("\n| id | joint | n | median px | p90 px | median % of height | median px, either side | L/R swapped |")
     print("|---|---|---|---|---|---|---|---|")
     joints = []
@@ -224,14 +254,23 @@ def sim(args):
             continue
         sw = swaps.get(int(k))
         e = np.array(err[k])
-        row = dict(id=int(k), joint=NAMES[k], n=len(e), median_px=float(np.median(e)),
-                   p90_px=float(np.percentile(e, 90)), median_rel=float(np.median(rel[k])),
-                   median_either_px=float(np.median(either[k])),
-                   swap_rate=None if sw is None else sw[0] / max(sw[1], 1))
+        row = dict(
+            id=int(k),
+            joint=NAMES[k],
+            n=len(e),
+            median_px=float(np.median(e)),
+            p90_px=float(np.percentile(e, 90)),
+            median_rel=float(np.median(rel[k])),
+            median_either_px=float(np.median(either[k])),
+            swap_rate=None if sw is None else sw[0] / max(sw[1], 1),
+        )
         joints.append(row)
-        print(f"| {k} | {NAMES[k]} | {row['n']} | {row['median_px']:.1f} | {row['p90_px']:.1f} | "
-              f"{100 * row['median_rel']:.1f} | {row['median_either_px']:.1f} | " + ("" if sw is None else f"{100 * row['swap_rate']:.1f} % of {sw[1]}")
-              + " |")
+        print(
+            f"| {k} | {NAMES[k]} | {row['n']} | {row['median_px']:.1f} | {row['p90_px']:.1f} | "
+            f"{100 * row['median_rel']:.1f} | {row['median_either_px']:.1f} | "
+            + ("" if sw is None else f"{100 * row['swap_rate']:.1f} % of {sw[1]}")
+            + " |"
+        )
     if args.json:
         pathlib.Path(args.json).write_text(json.dumps(dict(bag=str(args.bag), cameras=cams, joints=joints), indent=1))
 
@@ -274,11 +313,11 @@ def multiview(args):
         for f in source.flush():
             frames[name][f.stamp_ns] = f
     names = sorted(frames)
-    P = {n: models[n].K @ np.linalg.inv(poses[n])[:3] for n in names}   # ideal pinhole projections
-    res = collections.defaultdict(list)          # camera -> residuals [px]
+    P = {n: models[n].K @ np.linalg.inv(poses[n])[:3] for n in names}  # ideal pinhole projections
+    res = collections.defaultdict(list)  # camera -> residuals [px]
     per_id = collections.defaultdict(list)
     for stamp in sorted(set().union(*(frames[n] for n in names))):
-        obs = collections.defaultdict(dict)      # id -> camera -> raw uv
+        obs = collections.defaultdict(dict)  # id -> camera -> raw uv
         for n in names:
             f = frames[n].get(stamp)
             if f is not None:
@@ -309,8 +348,10 @@ def multiview(args):
         for s0, s1, s2 in zip(stamps, stamps[1:], stamps[2:]):
             if abs(s2 - s0 - 2 * period) > 0.5 * period:
                 continue
-            at = [{int(k): uv for k, uv, c in zip(f.ids, f.uv, f.confidence) if c >= params.min_keypoint_score}
-                  for f in (frames[n][s0], frames[n][s1], frames[n][s2])]
+            at = [
+                {int(k): uv for k, uv, c in zip(f.ids, f.uv, f.confidence) if c >= params.min_keypoint_score}
+                for f in (frames[n][s0], frames[n][s1], frames[n][s2])
+            ]
             for k in set(at[0]) & set(at[1]) & set(at[2]):
                 jitter[n].append(float(np.hypot(*(at[0][k] - 2 * at[1][k] + at[2][k]))) / np.sqrt(6))
     what = "recorded keypoints" if args.recorded else f"pose model {changes or 'defaults'}"
@@ -321,8 +362,10 @@ def multiview(args):
     for n in names + ["all"]:
         e = np.array(sum(res.values(), []) if n == "all" else res[n])
         j = np.array(sum(jitter.values(), []) if n == "all" else jitter[n])
-        print(f"| {n} | {len(e)} | {np.median(e):.1f} | {np.percentile(e, 75):.1f} | {np.percentile(e, 90):.1f} | "
-              f"{np.median(j):.2f} |")
+        print(
+            f"| {n} | {len(e)} | {np.median(e):.1f} | {np.percentile(e, 75):.1f} | {np.percentile(e, 90):.1f} | "
+            f"{np.median(j):.2f} |"
+        )
     print("per id, median px: " + ", ".join(f"{k}: {np.median(v):.1f}" for k, v in sorted(per_id.items())))
 
 

@@ -1,4 +1,5 @@
 """A transient rich progress bar around a long call that reports (done, total)."""
+
 from __future__ import annotations
 
 from collections.abc import Callable

@@ -1,5 +1,6 @@
 """`yowo eval`: the metric tables of docs/design.md §6 for a results directory
 against the ground truth recorded in a bag."""
+
 from __future__ import annotations
 
 import json
@@ -31,8 +32,10 @@ def evaluate(results_dir, bag, gt: GroundTruth | None = None) -> dict:
     if not results_dir.is_dir():
         raise ValueError(f"{results_dir}: no such results directory")
     if not any((results_dir / f).exists() for f in RESULT_FILES):
-        raise ValueError(f"{results_dir}: holds none of {', '.join(RESULT_FILES)}; nothing to evaluate "
-                         "(did the run fail? see its run_log.yaml)")
+        raise ValueError(
+            f"{results_dir}: holds none of {', '.join(RESULT_FILES)}; nothing to evaluate "
+            "(did the run fail? see its run_log.yaml)"
+        )
     gt = gt if gt is not None else read_ground_truth(bag)
     if not gt.cameras and gt.ego is None:
         raise ValueError(f"{bag}: no ground truth (/gt/...) in the recording; nothing to evaluate against")
@@ -50,8 +53,11 @@ def evaluate(results_dir, bag, gt: GroundTruth | None = None) -> dict:
                 groups.setdefault(c["group"], []).append(c["name"])
         if "frame" in doc:  # world-registered cameras (full run)
             errs = registration_errors(est, gt.cameras)
-            out["registration"] = {"summary": asdict(ErrorSummary.of(errs)), "cameras": [asdict(e) for e in errs],
-                                   "not_registered": sorted(set(gt.cameras) - set(est))}
+            out["registration"] = {
+                "summary": asdict(ErrorSummary.of(errs)),
+                "cameras": [asdict(e) for e in errs],
+                "not_registered": sorted(set(gt.cameras) - set(est)),
+            }
         rel, _ = relative_pose_errors(est, gt.cameras, groups)
         if rel:  # no group of two or more cameras: no relative pose to measure (not a table of NaN)
             out["relative"] = {"summary": asdict(ErrorSummary.of(rel)), "cameras": [asdict(e) for e in rel]}
@@ -75,8 +81,10 @@ def print_tables(metrics: dict, console) -> None:
     from rich.markup import escape
     from rich.table import Table
 
-    for key, title in (("registration", "CMC registration (world frame, no alignment)"),
-                       ("relative", "CMC relative pose (KU-aligned per group)")):
+    for key, title in (
+        ("registration", "CMC registration (world frame, no alignment)"),
+        ("relative", "CMC relative pose (KU-aligned per group)"),
+    ):
         if key not in metrics:
             continue
         s = metrics[key]["summary"]
@@ -87,15 +95,19 @@ def print_tables(metrics: dict, console) -> None:
         t.add_row(escape("eps_pos [m]"), *(f"{s[f'pos_{k}']:.4f}" for k in ("avg", "min", "max")))
         t.add_row(escape("eps_rot [deg]"), *(f"{s[f'rot_{k}']:.3f}" for k in ("avg", "min", "max")))
         if "pos_pct_of_mean_baseline" in metrics[key]:
-            t.add_row("eps_pos, % of mean baseline", *(f"{metrics[key]['pos_pct_of_mean_baseline'][k]:.2f}"
-                                                       for k in ("avg", "min", "max")))
+            t.add_row(
+                "eps_pos, % of mean baseline",
+                *(f"{metrics[key]['pos_pct_of_mean_baseline'][k]:.2f}" for k in ("avg", "min", "max")),
+            )
         console.print(t)
         if metrics[key].get("not_registered"):
             console.print(f"not registered: {', '.join(metrics[key]['not_registered'])}")
     if "relative_note" in metrics:
         console.print(metrics["relative_note"])
     if "cameras" in metrics:
-        console.print(f"{metrics['cameras']['note']}; with ground truth: {', '.join(metrics['cameras']['not_registered'])}")
+        console.print(
+            f"{metrics['cameras']['note']}; with ground truth: {', '.join(metrics['cameras']['not_registered'])}"
+        )
     if "ego" in metrics:
         console.print(f"ego ATE RMSE: {metrics['ego']['ate_rmse_m']:.4f} m over {metrics['ego']['matched']} poses")
     if "layout" in metrics:

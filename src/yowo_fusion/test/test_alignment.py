@@ -11,8 +11,11 @@ S_TRUE = Sim3(2.3, Rotation.from_euler("xyz", [10, -5, 70], degrees=True).as_mat
 def walk_with_stop(stop_s=60.0, walk_s=20.0, rate=15.0):
     """World head positions: a stop at one spot, then a walk (stamps in ns)."""
     t = np.arange(0, stop_s + walk_s, 1 / rate)
-    xy = np.where((t < stop_s)[:, None], [[1.0, 1.0]],
-                  np.column_stack([1 + 3 * np.sin((t - stop_s) / 4), 1 + 2 * (1 - np.cos((t - stop_s) / 3))]))
+    xy = np.where(
+        (t < stop_s)[:, None],
+        [[1.0, 1.0]],
+        np.column_stack([1 + 3 * np.sin((t - stop_s) / 4), 1 + 2 * (1 - np.cos((t - stop_s) / 3))]),
+    )
     return (t * 1e9).astype(np.int64), np.column_stack([xy, np.full(len(t), 1.7)])
 
 
@@ -30,8 +33,8 @@ def test_clusters_and_weights():
     stamps, world = walk_with_stop(stop_s=10, walk_s=10)
     labels = spatiotemporal_clusters(world, stamps, AlignParams())
     stop = stamps < 10e9
-    assert len(np.unique(labels[stop])) == 1            # the stop is one cluster
-    assert len(np.unique(labels[~stop])) > 5            # the walk splits into many
+    assert len(np.unique(labels[stop])) == 1  # the stop is one cluster
+    assert len(np.unique(labels[~stop])) > 5  # the walk splits into many
     w = rebalanced_weights(labels)
     assert w[labels == labels[0]].sum() == pytest.approx(1 / len(np.unique(labels)))
     # Revisiting a place much later is a different cluster (temporal condition).
@@ -54,8 +57,8 @@ def test_long_stationary_segment_biases_plain_ku_but_not_rebalanced():
     for rebalance in (False, True):
         al = align_group(stamps, local, stamps, world_obs, AlignParams(rebalance=rebalance))
         err[rebalance] = np.abs(al.sim3_world_local.apply(test_points) - truth).max()
-    assert err[False] > 0.08                  # plain KU is dragged by the stop
-    assert err[True] < 0.5 * err[False]       # the rebalanced version is not
+    assert err[False] > 0.08  # plain KU is dragged by the stop
+    assert err[True] < 0.5 * err[False]  # the rebalanced version is not
 
 
 def test_too_few_overlapping_stamps_is_an_error():
@@ -79,6 +82,7 @@ def test_ground_points_fix_the_roll_of_a_straight_walk():
 
     def roll_error(fit):
         return np.degrees(Rotation.from_matrix(fit.sim3_world_local.R @ S.R.T).magnitude())
+
     head_only = align_group(stamps, local_heads, stamps, heads)
     both = align_group(stamps, local_heads, stamps, heads, AlignParams(), stamps, local_grounds)
     assert roll_error(both) < 0.3 < 2.0 < roll_error(head_only)

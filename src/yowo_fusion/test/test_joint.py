@@ -27,8 +27,12 @@ def drifted(T_true, rng, step_deg=0.03, step_m=0.002, noise_m=0.0005):
     (a few cm over the walk); the first pose exact (the gauge)."""
     out, D = [T_true[0]], np.eye(4)
     for T in T_true[1:]:
-        D = se3(Rotation.from_rotvec(rng.normal(size=3) * np.radians(step_deg)).as_matrix(),
-                rng.normal(size=3) * step_m) @ D
+        D = (
+            se3(
+                Rotation.from_rotvec(rng.normal(size=3) * np.radians(step_deg)).as_matrix(), rng.normal(size=3) * step_m
+            )
+            @ D
+        )
         E = D @ T
         out.append(se3(E[:3, :3], E[:3, 3] + rng.normal(size=3) * noise_m))
     return out
@@ -55,25 +59,46 @@ def make_problem(seed=0, drift_scale=1.0):
     n = 400
     side = rng.integers(4, size=n)
     u, z = rng.uniform(0, 1, n), rng.uniform(0.2, 2.6, n)
-    landmarks = np.column_stack([np.select([side == 0, side == 1, side == 2], [u * 8, u * 8, 0.0], 8.0),
-                                 np.select([side == 0, side == 1, side == 2], [0.0, 6.0, u * 6], u * 6), z])
+    landmarks = np.column_stack(
+        [
+            np.select([side == 0, side == 1, side == 2], [u * 8, u * 8, 0.0], 8.0),
+            np.select([side == 0, side == 1, side == 2], [0.0, 6.0, u * 6], u * 6),
+            z,
+        ]
+    )
     ego_cam = CameraModel.from_fov(640, 480, 70)
     cmc_cams = [CameraModel.from_fov(640, 480, 85) for _ in range(3)]
-    T_cmc = [look_at([0.3, 0.3, 3.0], [4, 3, 0.8]), look_at([7.7, 0.4, 3.2], [4, 3, 0.8]),
-             look_at([4.0, 5.7, 2.9], [4, 2.5, 0.8])]
+    T_cmc = [
+        look_at([0.3, 0.3, 3.0], [4, 3, 0.8]),
+        look_at([7.7, 0.4, 3.2], [4, 3, 0.8]),
+        look_at([4.0, 5.7, 2.9], [4, 2.5, 0.8]),
+    ]
     ego_obs = observe([ego_cam] * len(T_ego), T_ego, landmarks, 0.7, rng)
     scene_obs = observe(cmc_cams, T_cmc, landmarks, 0.7, rng)
     agent_obs = observe(cmc_cams, T_cmc, agent, 1.0, rng)
     truth = dict(T_ego=T_ego, landmarks=landmarks, T_cmc=T_cmc, agent=agent)
 
     def jitter(T, rot_deg, trans_m):
-        return se3(Rotation.from_rotvec(rng.normal(size=3) * np.radians(rot_deg)).as_matrix() @ T[:3, :3],
-                   T[:3, 3] + rng.normal(size=3) * trans_m)
+        return se3(
+            Rotation.from_rotvec(rng.normal(size=3) * np.radians(rot_deg)).as_matrix() @ T[:3, :3],
+            T[:3, 3] + rng.normal(size=3) * trans_m,
+        )
+
     problem = JointProblem(
-        ego_cam, stamps, drifted(T_ego, rng, 0.03 * drift_scale, 0.002 * drift_scale),
-        landmarks + rng.normal(size=landmarks.shape) * 0.02, ego_obs, cmc_cams,
-        [jitter(T, 1.0, 0.08) for T in T_cmc], scene_obs, agent + rng.normal(size=agent.shape) * 0.04,
-        agent_stamps, agent_ids, agent_obs, head_offset=np.zeros(3))  # the paper's "head top = camera"
+        ego_cam,
+        stamps,
+        drifted(T_ego, rng, 0.03 * drift_scale, 0.002 * drift_scale),
+        landmarks + rng.normal(size=landmarks.shape) * 0.02,
+        ego_obs,
+        cmc_cams,
+        [jitter(T, 1.0, 0.08) for T in T_cmc],
+        scene_obs,
+        agent + rng.normal(size=agent.shape) * 0.04,
+        agent_stamps,
+        agent_ids,
+        agent_obs,
+        head_offset=np.zeros(3),
+    )  # the paper's "head top = camera"
     return problem, truth
 
 
@@ -135,11 +160,18 @@ def with_agent_point(problem, P, cameras, stamp_ns):
     k = len(problem.agent_points)
     obs = problem.cmc_agent_obs
     uv = np.vstack([problem.cmc_cameras[i].project_world(problem.T_world_cmc[i], P[None])[0] for i in cameras])
-    return replace(problem, agent_points=np.vstack([problem.agent_points, P]),
-                   agent_stamps_ns=np.append(problem.agent_stamps_ns, stamp_ns),
-                   agent_ids=np.append(problem.agent_ids, 0),
-                   cmc_agent_obs=Observations(np.append(obs.camera, cameras), np.append(obs.point, [k] * len(cameras)),
-                                              np.vstack([obs.uv, uv]), np.append(obs.sigma_px, [1.0] * len(cameras))))
+    return replace(
+        problem,
+        agent_points=np.vstack([problem.agent_points, P]),
+        agent_stamps_ns=np.append(problem.agent_stamps_ns, stamp_ns),
+        agent_ids=np.append(problem.agent_ids, 0),
+        cmc_agent_obs=Observations(
+            np.append(obs.camera, cameras),
+            np.append(obs.point, [k] * len(cameras)),
+            np.vstack([obs.uv, uv]),
+            np.append(obs.sigma_px, [1.0] * len(cameras)),
+        ),
+    )
 
 
 def sigmas(cov):
@@ -167,11 +199,17 @@ def test_a_camera_the_data_cannot_place_is_reported_without_covariance():
     problem, truth = make_problem(seed=3)
     obs = problem.cmc_agent_obs
     two = np.flatnonzero(obs.camera == 0)[[0, 100]]
-    problem = replace(problem, cmc_cameras=problem.cmc_cameras + [problem.cmc_cameras[0]],
-                      T_world_cmc=problem.T_world_cmc + [problem.T_world_cmc[0]],
-                      cmc_agent_obs=Observations(np.append(obs.camera, [3, 3]), np.append(obs.point, obs.point[two]),
-                                                 np.vstack([obs.uv, obs.uv[two]]),
-                                                 np.append(obs.sigma_px, obs.sigma_px[two])))
+    problem = replace(
+        problem,
+        cmc_cameras=problem.cmc_cameras + [problem.cmc_cameras[0]],
+        T_world_cmc=problem.T_world_cmc + [problem.T_world_cmc[0]],
+        cmc_agent_obs=Observations(
+            np.append(obs.camera, [3, 3]),
+            np.append(obs.point, obs.point[two]),
+            np.vstack([obs.uv, obs.uv[two]]),
+            np.append(obs.sigma_px, obs.sigma_px[two]),
+        ),
+    )
     res = solve_joint(problem)
     assert all(np.isnan(c).all() for c in res.cmc_covariances)
     assert "covariance unavailable" in res.covariance_failure and "c3" in res.covariance_failure
@@ -242,8 +280,9 @@ def test_a_weak_step_between_held_attitudes_opens_in_translation_only():
         problem.ego_attitude_held = held
         res = solve_joint(problem)
         assert rms_pos_err(res.T_world_ego[at:], truth["T_ego"][at:]) < 0.01
-        turned.append(max(rotation_angle_deg(res.T_world_ego[f][:3, :3], truth["T_ego"][f][:3, :3])
-                          for f in range(at, n)))
+        turned.append(
+            max(rotation_angle_deg(res.T_world_ego[f][:3, :3], truth["T_ego"][f][:3, :3]) for f in range(at, n))
+        )
     assert turned[1] < 0.6 * turned[0] and turned[1] < 0.35, turned
 
 
@@ -258,6 +297,8 @@ def test_a_gyro_tracked_ego_map_keeps_its_rotation():
         return max(rotation_angle_deg(a[:3, :3], b[:3, :3]) for a, b in zip(res.T_world_ego, truth["T_ego"]))
 
     plain, gyro = solve_joint(problem), solve_joint(replace(problem, ego_imu=True))
-    assert worst_attitude_deg(gyro) < 0.8 * worst_attitude_deg(plain), (worst_attitude_deg(gyro),
-                                                                         worst_attitude_deg(plain))
+    assert worst_attitude_deg(gyro) < 0.8 * worst_attitude_deg(plain), (
+        worst_attitude_deg(gyro),
+        worst_attitude_deg(plain),
+    )
     assert max_pos_err(gyro.T_world_cmc, truth["T_cmc"]) < 0.02

@@ -1,5 +1,6 @@
 """EgoMap -> EgoMapData: how each pose was tracked reaches the fusion, and a producer that
 does not say leaves the fusion to judge by landmarks."""
+
 import numpy as np
 from geometry_msgs.msg import Pose
 from sensor_msgs.msg import CameraInfo
@@ -11,13 +12,21 @@ from yowo_msgs.msg import EgoMap
 
 
 def _msg(tracking, fitness, n: int = 5) -> EgoMap:
-    info = CameraInfo(width=640, height=480, k=[500.0, 0, 320, 0, 500, 240, 0, 0, 1], distortion_model="plumb_bob",
-                      d=[0.0] * 5)
+    info = CameraInfo(
+        width=640, height=480, k=[500.0, 0, 320, 0, 500, 240, 0, 0, 1], distortion_model="plumb_bob", d=[0.0] * 5
+    )
     poses = [Pose() for _ in range(n)]
     for p in poses:
         p.orientation.w = 1.0
-    return EgoMap(camera_info=info, stamps=[], poses=poses, descriptor_type="SIFT", descriptor_size=128,
-                  tracking=tracking, tracking_fitness=fitness)
+    return EgoMap(
+        camera_info=info,
+        stamps=[],
+        poses=poses,
+        descriptor_type="SIFT",
+        descriptor_size=128,
+        tracking=tracking,
+        tracking_fitness=fitness,
+    )
 
 
 def test_tracking_reaches_the_fusion_and_its_absence_is_none():
@@ -38,7 +47,7 @@ def test_held_attitudes_reach_the_fusion_and_their_absence_is_none():
     held.attitude_held = [True, False, True, True, False]
     assert ego_map_from_msg(held).attitude_held.tolist() == [True, False, True, True, False]
     assert ego_map_from_msg(_msg([], [])).attitude_held is None
-    held.attitude_held = [True, False]              # not one per pose: not said
+    held.attitude_held = [True, False]  # not one per pose: not said
     assert ego_map_from_msg(held).attitude_held is None
 
 

@@ -1,5 +1,6 @@
 """Collaborative processing on a synthetic two-room world: a 3-camera group in room A,
 an isolated camera in room B; ego map from noisy ground truth."""
+
 from dataclasses import replace
 
 import numpy as np
@@ -52,18 +53,40 @@ def ego_trajectory(rng, noise_m):
 
 def world(seed=0):
     rng = np.random.default_rng(seed)
-    cams = {"a1": ceiling_camera(0.3, 0.3, (3.0, 2.5)), "a2": ceiling_camera(5.7, 0.3, (3.0, 2.5), z=3.3),
-            "a3": ceiling_camera(3.0, 4.7, (3.0, 2.3), D=[-0.1, 0.02, 0, 0, 0]),
-            "b1": ceiling_camera(10.3, 0.3, (13.0, 2.5))}
+    cams = {
+        "a1": ceiling_camera(0.3, 0.3, (3.0, 2.5)),
+        "a2": ceiling_camera(5.7, 0.3, (3.0, 2.5), z=3.3),
+        "a3": ceiling_camera(3.0, 4.7, (3.0, 2.3), D=[-0.1, 0.02, 0, 0, 0]),
+        "b1": ceiling_camera(10.3, 0.3, (13.0, 2.5)),
+    }
     in_room = {"a": lambda x: x < 6, "b": lambda x: x > 10}
-    tracks = observe(cams, walk, 50.0, sigma_px=0.7, visible=lambda n, xy: in_room[n[0]](xy[0]), seed=seed,
-                     offsets_s=[0.0, 0.02, 0.05, 0.03], start_ns=10**18)
+    tracks = observe(
+        cams,
+        walk,
+        50.0,
+        sigma_px=0.7,
+        visible=lambda n, xy: in_room[n[0]](xy[0]),
+        seed=seed,
+        offsets_s=[0.0, 0.02, 0.05, 0.03],
+        start_ns=10**18,
+    )
     stamps, T_ego = ego_trajectory(rng, 0.005)
     ego_cam = CameraModel.from_fov(640, 480, 70)
     cloud = np.column_stack([rng.uniform(0, 16, 2000), rng.uniform(0, 5, 2000), rng.uniform(0, 2.5, 2000)])
-    ego = EgoMapData(ego_cam, stamps, T_ego, np.zeros((0, 3)), "SIFT", np.zeros((0, 128), np.uint8),
-                     np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)), cloud, np.full((2000, 3), 0.5),
-                     Layout([ROOM_A, ROOM_B], 0.0, float("nan")))
+    ego = EgoMapData(
+        ego_cam,
+        stamps,
+        T_ego,
+        np.zeros((0, 3)),
+        "SIFT",
+        np.zeros((0, 128), np.uint8),
+        np.zeros(0, int),
+        np.zeros(0, int),
+        np.zeros((0, 2)),
+        cloud,
+        np.full((2000, 3), 0.5),
+        Layout([ROOM_A, ROOM_B], 0.0, float("nan")),
+    )
     return cams, tracks, ego
 
 
@@ -72,13 +95,22 @@ def test_fuse_registers_group_and_isolated_camera(joint):
     cams, tracks, ego = world()
     grouping = calibrate_groups(tracks)
     assert [sorted(g.names) for g in grouping.groups] == [["a1", "a2", "a3"]] and "b1" in grouping.ungrouped
-    result = fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks},
-                  FusionParams(joint_optimisation=joint))
+    result = fuse(
+        ego,
+        grouping.groups,
+        grouping.ungrouped,
+        {t.name: CmcInput(t) for t in tracks},
+        FusionParams(joint_optimisation=joint),
+    )
     by_name = {c.name: c for c in result.cameras}
     assert [by_name[n].method for n in ("a1", "a2", "a3", "b1")] == [GROUP_SFM] * 3 + [ISOLATED_PNP]
     assert all(c.status == OK for c in result.cameras), [(c.name, c.reason) for c in result.cameras]
-    errs = {e.name: e for e in registration_errors({n: c.T_world_cam for n, c in by_name.items()},
-                                                   {n: T for n, (_, T) in cams.items()})}
+    errs = {
+        e.name: e
+        for e in registration_errors(
+            {n: c.T_world_cam for n, c in by_name.items()}, {n: T for n, (_, T) in cams.items()}
+        )
+    }
     for n in ("a1", "a2", "a3"):
         assert errs[n].eps_pos_m < 0.03 and errs[n].eps_rot_deg < 0.5, errs[n]
     assert errs["b1"].eps_pos_m < 0.08 and errs["b1"].eps_rot_deg < 1.0, errs["b1"]
@@ -116,6 +148,7 @@ def test_each_camera_observes_each_agent_point_once(monkeypatch):
     once per keypoint id triangulated at its stamp: 6x the information, covariances
     sqrt(6) too small), and a camera of the group observes most of the group's points."""
     import yowo_fusion.pipeline as pipeline
+
     problems, solve = [], pipeline.solve_joint
     monkeypatch.setattr(pipeline, "solve_joint", lambda p, params: problems.append(p) or solve(p, params))
     _, tracks, ego = world()
@@ -133,6 +166,7 @@ def _fuse_with_gtsam_failure(monkeypatch, function: str, symbol: str, params=Fus
 
     def indeterminate(*_):
         raise RuntimeError(f"\nIndeterminate linear system detected while working near variable\n1 (Symbol: {symbol}).")
+
     monkeypatch.setattr(pipeline, function, indeterminate)
     _, tracks, ego = world()
     grouping = calibrate_groups(tracks)
@@ -144,14 +178,16 @@ def test_failed_joint_optimisation_keeps_the_aligned_poses(monkeypatch):
     result = _fuse_with_gtsam_failure(monkeypatch, "solve_joint", "a58")
     by_name = {c.name: c for c in result.cameras}
     for n in ("a1", "a2", "a3"):
-        assert by_name[n].status == WEAK and "joint optimisation failed (indeterminate system near variable a58)" \
-            in by_name[n].reason
+        assert (
+            by_name[n].status == WEAK
+            and "joint optimisation failed (indeterminate system near variable a58)" in by_name[n].reason
+        )
         assert by_name[n].T_world_cam is not None and by_name[n].covariance is not None
 
 
 def test_unknown_covariance_is_a_weak_verdict_with_the_reason(monkeypatch):
     result = _fuse_with_gtsam_failure(monkeypatch, "pose_covariance", "x0", FusionParams(joint_optimisation=False))
-    for c in result.cameras:   # the group's cameras and the isolated one
+    for c in result.cameras:  # the group's cameras and the isolated one
         assert c.status == WEAK and "covariance unavailable (indeterminate system near variable x0)" in c.reason
         assert c.T_world_cam is not None and np.isnan(c.covariance).all()
 
@@ -161,7 +197,7 @@ def test_a_group_whose_clock_runs_ahead_of_the_ego_camera_is_put_on_the_ego_cloc
     offset from its agent track against the ego trajectory, and registers it as well as
     on synchronised clocks."""
     cams, tracks, ego = world()
-    ahead = [t.shifted(-0.4) for t in tracks]          # stamps 0.4 s later than the ego's of the same instant
+    ahead = [t.shifted(-0.4) for t in tracks]  # stamps 0.4 s later than the ego's of the same instant
     grouping = calibrate_groups(ahead)
     result = fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in ahead}, FusionParams())
     by_name = {c.name: c for c in result.cameras}
@@ -169,15 +205,25 @@ def test_a_group_whose_clock_runs_ahead_of_the_ego_camera_is_put_on_the_ego_cloc
         c = by_name[n]
         assert c.method == GROUP_SFM and c.status == OK, (n, c.reason)
         assert abs(c.clock_offset_s - 0.4) < 0.01 and 0 < c.clock_sigma_s < 0.01, (n, c.clock_offset_s, c.clock_sigma_s)
-    errs = {e.name: e for e in registration_errors({n: c.T_world_cam for n, c in by_name.items()},
-                                                   {n: T for n, (_, T) in cams.items()})}
+    errs = {
+        e.name: e
+        for e in registration_errors(
+            {n: c.T_world_cam for n, c in by_name.items()}, {n: T for n, (_, T) in cams.items()}
+        )
+    }
     for n in ("a1", "a2", "a3"):
         assert errs[n].eps_pos_m < 0.03 and errs[n].eps_rot_deg < 0.5, errs[n]
     # Off: the track is matched to the wrong ego poses.
-    off = fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in ahead},
-               FusionParams(align=AlignParams(estimate_clock_offset=False)))
-    off_errs = registration_errors({c.name: c.T_world_cam for c in off.cameras if c.name.startswith("a")},
-                                   {n: T for n, (_, T) in cams.items()})
+    off = fuse(
+        ego,
+        grouping.groups,
+        grouping.ungrouped,
+        {t.name: CmcInput(t) for t in ahead},
+        FusionParams(align=AlignParams(estimate_clock_offset=False)),
+    )
+    off_errs = registration_errors(
+        {c.name: c.T_world_cam for c in off.cameras if c.name.startswith("a")}, {n: T for n, (_, T) in cams.items()}
+    )
     assert not off_errs or max(e.eps_pos_m for e in off_errs) > 0.1, off_errs
     assert all(c.clock_offset_s is None for c in off.cameras)
 
@@ -195,16 +241,28 @@ def test_a_group_that_rarely_sees_the_head_top_gets_its_clock_from_the_ground_po
     keep[top[8:]] = False
     few = replace(g, point_stamps_ns=g.point_stamps_ns[keep], point_ids=g.point_ids[keep], points=g.points[keep])
     result = fuse(ego, [few], grouping.ungrouped, {t.name: CmcInput(t) for t in ahead}, FusionParams())
-    errs = {e.name: e for e in registration_errors({c.name: c.T_world_cam for c in result.cameras},
-                                                   {n: T for n, (_, T) in cams.items()})}
+    errs = {
+        e.name: e
+        for e in registration_errors(
+            {c.name: c.T_world_cam for c in result.cameras}, {n: T for n, (_, T) in cams.items()}
+        )
+    }
     for c in result.cameras:
         if c.name in g.names:
             assert abs(c.clock_offset_s - 0.4) < 0.01, (c.name, c.clock_offset_s, c.clock_note)
             assert errs[c.name].eps_pos_m < 0.05, errs[c.name]
-    no_ground = fuse(ego, [few], grouping.ungrouped, {t.name: CmcInput(t) for t in ahead},
-                     FusionParams(align=AlignParams(use_ground_points=False)))
-    assert all(c.clock_offset_s is None and "only 8 head-top and 0 ground points (needs 10)" in c.clock_note
-               for c in no_ground.cameras if c.name in g.names)
+    no_ground = fuse(
+        ego,
+        [few],
+        grouping.ungrouped,
+        {t.name: CmcInput(t) for t in ahead},
+        FusionParams(align=AlignParams(use_ground_points=False)),
+    )
+    assert all(
+        c.clock_offset_s is None and "only 8 head-top and 0 ground points (needs 10)" in c.clock_note
+        for c in no_ground.cameras
+        if c.name in g.names
+    )
 
 
 def test_a_group_track_too_short_for_its_clock_offset_says_so():
@@ -212,8 +270,9 @@ def test_a_group_track_too_short_for_its_clock_offset_says_so():
     stamps = ego.stamps_ns[:9]
     fit = estimate_clock_offset(stamps, ego.T_world_ego[:9, :3, 3], ego.stamps_ns, ego.T_world_ego)
     assert fit.offset_s is None and fit.reason == "only 9 head-top and 0 ground points (needs 10)"
-    far = estimate_clock_offset(ego.stamps_ns[:50] + 10**11, ego.T_world_ego[:50, :3, 3], ego.stamps_ns,
-                                ego.T_world_ego)
+    far = estimate_clock_offset(
+        ego.stamps_ns[:50] + 10**11, ego.T_world_ego[:50, :3, 3], ego.stamps_ns, ego.T_world_ego
+    )
     assert far.offset_s is None and "overlaps the ego recording at no shift" in far.reason
 
 
@@ -226,8 +285,20 @@ def broken_ego(ego: EgoMapData, t_break_s: float, lost_s: float, jump: np.ndarra
     pivot = se3(np.eye(3), ego.T_world_ego[at][:3, 3])
     J = pivot @ jump @ np.linalg.inv(pivot)
     T = np.array([P if tt < t_break_s else J @ P for tt, P in zip(t, ego.T_world_ego)])
-    return EgoMapData(ego.camera, ego.stamps_ns[keep], T[keep], ego.landmarks, ego.descriptor_type, ego.descriptors,
-                      ego.obs_pose, ego.obs_landmark, ego.obs_uv, ego.cloud_points, ego.cloud_colors, ego.layout)
+    return EgoMapData(
+        ego.camera,
+        ego.stamps_ns[keep],
+        T[keep],
+        ego.landmarks,
+        ego.descriptor_type,
+        ego.descriptors,
+        ego.obs_pose,
+        ego.obs_landmark,
+        ego.obs_uv,
+        ego.cloud_points,
+        ego.cloud_colors,
+        ego.layout,
+    )
 
 
 @pytest.mark.parametrize("jump_m, jump_deg", [(0.3, 6.0), (1.5, 40.0)])
@@ -240,13 +311,15 @@ def test_broken_ego_map_is_repaired_and_never_ok(jump_m, jump_deg):
     aligned, and the reason blames the ego map's gap, not the self-consistent group."""
     cams, tracks, ego = world()
     truth = ego
-    ego = broken_ego(ego, 10.0, 0.6, se3(Rotation.from_euler("z", jump_deg, degrees=True).as_matrix(),
-                                         [jump_m, 0.0, 0.0]))
+    ego = broken_ego(
+        ego, 10.0, 0.6, se3(Rotation.from_euler("z", jump_deg, degrees=True).as_matrix(), [jump_m, 0.0, 0.0])
+    )
     grouping = calibrate_groups(tracks)
     result = fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks})
     by_name = {c.name: c for c in result.cameras}
-    assert all(c.status != OK and "1 break(s)" in c.reason for c in result.cameras), \
-        [(c.name, c.status, c.reason) for c in result.cameras]
+    assert all(c.status != OK and "1 break(s)" in c.reason for c in result.cameras), [
+        (c.name, c.status, c.reason) for c in result.cameras
+    ]
     assert all(by_name[n].method == GROUP_SFM for n in ("a1", "a2", "a3"))
     errs = registration_errors({n: c.T_world_cam for n, c in by_name.items()}, {n: T for n, (_, T) in cams.items()})
     assert all(e.eps_pos_m < 0.05 and e.eps_rot_deg < 0.5 for e in errs), [(e.name, e.eps_pos_m) for e in errs]
@@ -254,13 +327,21 @@ def test_broken_ego_map_is_repaired_and_never_ok(jump_m, jump_deg):
     err = np.linalg.norm(result.T_world_ego[:, :3, 3] - truth.T_world_ego[kept, :3, 3], axis=1)
     assert err.max() < 0.05, err.max()
     if jump_m > 1:
-        result = fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks},
-                      FusionParams(rescue_window_s=0.0))
+        result = fuse(
+            ego,
+            grouping.groups,
+            grouping.ungrouped,
+            {t.name: CmcInput(t) for t in tracks},
+            FusionParams(rescue_window_s=0.0),
+        )
         for c in result.cameras:
             assert c.status != OK, (c.name, c.reason)
             if c.name != "b1":
-                assert c.method == ISOLATED_PNP and "does not fit the ego trajectory" in c.reason \
-                    and "the ego map is at fault (1 break(s)" in c.reason, c.reason
+                assert (
+                    c.method == ISOLATED_PNP
+                    and "does not fit the ego trajectory" in c.reason
+                    and "the ego map is at fault (1 break(s)" in c.reason
+                ), c.reason
 
 
 def test_unseen_break_in_the_ego_map_is_repaired_and_never_ok():
@@ -284,8 +365,13 @@ def test_unseen_break_in_the_ego_map_is_repaired_and_never_ok():
     t = (ego.stamps_ns - ego.stamps_ns[0]) / 1e9
     err = np.linalg.norm(result.T_world_ego[:, :3, 3] - truth.T_world_ego[:, :3, 3], axis=1)
     assert err[t >= 10.0].max() < 0.05 and err[t < 6.0].max() < 0.05, (err[t >= 10.0].max(), err[t < 6.0].max())
-    alone = fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks},
-                 FusionParams(rescue_window_s=0.0))
+    alone = fuse(
+        ego,
+        grouping.groups,
+        grouping.ungrouped,
+        {t.name: CmcInput(t) for t in tracks},
+        FusionParams(rescue_window_s=0.0),
+    )
     for c in alone.cameras:
         if c.name != "b1":
             assert c.method == ISOLATED_PNP and c.status == WEAK and "undecided" in c.reason, (c.name, c.reason)
@@ -300,23 +386,44 @@ def test_a_group_the_joint_solution_cannot_reconcile_is_left_out_of_it():
     reason saying why."""
     cams, _, ego = world()
     cams = {**cams, "b2": ceiling_camera(15.7, 0.3, (13.0, 2.5), z=3.3), "b3": ceiling_camera(13.0, 4.7, (13.0, 2.3))}
-    tracks = observe(cams, walk, 50.0, sigma_px=0.7, visible=lambda n, xy: (xy[0] < 6) == (n[0] == "a"), seed=0,
-                     offsets_s=[0.0, 0.02, 0.05, 0.03, 0.0, 0.0], start_ns=10**18)
+    tracks = observe(
+        cams,
+        walk,
+        50.0,
+        sigma_px=0.7,
+        visible=lambda n, xy: (xy[0] < 6) == (n[0] == "a"),
+        seed=0,
+        offsets_s=[0.0, 0.02, 0.05, 0.03, 0.0, 0.0],
+        start_ns=10**18,
+    )
     tracks = [t.shifted(0.15) if t.name[0] == "b" else t for t in tracks]
     grouping = calibrate_groups(tracks)
     assert [sorted(g.names) for g in grouping.groups] == [["a1", "a2", "a3"], ["b1", "b2", "b3"]]
-    result = fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks},
-                  FusionParams(align=AlignParams(estimate_clock_offset=False)))
+    result = fuse(
+        ego,
+        grouping.groups,
+        grouping.ungrouped,
+        {t.name: CmcInput(t) for t in tracks},
+        FusionParams(align=AlignParams(estimate_clock_offset=False)),
+    )
     by_name = {c.name: c for c in result.cameras}
-    errs = {e.name: e for e in registration_errors({n: c.T_world_cam for n, c in by_name.items()},
-                                                   {n: T for n, (_, T) in cams.items()})}
+    errs = {
+        e.name: e
+        for e in registration_errors(
+            {n: c.T_world_cam for n, c in by_name.items()}, {n: T for n, (_, T) in cams.items()}
+        )
+    }
     for n in ("a1", "a2", "a3"):
-        assert by_name[n].status == OK and errs[n].eps_pos_m < 0.008 and errs[n].eps_rot_deg < 0.1, \
-            (n, by_name[n].reason, errs[n])
+        assert by_name[n].status == OK and errs[n].eps_pos_m < 0.008 and errs[n].eps_rot_deg < 0.1, (
+            n,
+            by_name[n].reason,
+            errs[n],
+        )
     for n in ("b1", "b2", "b3"):
         assert by_name[n].status == WEAK and by_name[n].method == GROUP_SFM, (n, by_name[n].reason)
-        assert "group g1 left out of the joint optimisation: group g1's head-top track does not fit" \
-            in by_name[n].reason, by_name[n].reason
+        assert (
+            "group g1 left out of the joint optimisation: group g1's head-top track does not fit" in by_name[n].reason
+        ), by_name[n].reason
         assert errs[n].eps_pos_m < 0.6
 
 
@@ -326,24 +433,42 @@ def test_weak_ego_frames_from_landmark_support_and_gaps():
     its gaps alone."""
     _, _, ego = world()
     stamps = ego.stamps_ns[:40].copy()
-    stamps[30:] += 10**9                                  # 1 s without frames before frame 30
-    obs_pose = np.repeat([0, 10, 20], [50, 5, 30])        # keyframes 0 and 20 well supported, 10 not
-    sparse = EgoMapData(ego.camera, stamps, ego.T_world_ego[:40], np.zeros((85, 3)), "SIFT",
-                        np.zeros((85, 128), np.uint8), obs_pose, np.arange(85), np.zeros((85, 2)))
+    stamps[30:] += 10**9  # 1 s without frames before frame 30
+    obs_pose = np.repeat([0, 10, 20], [50, 5, 30])  # keyframes 0 and 20 well supported, 10 not
+    sparse = EgoMapData(
+        ego.camera,
+        stamps,
+        ego.T_world_ego[:40],
+        np.zeros((85, 3)),
+        "SIFT",
+        np.zeros((85, 128), np.uint8),
+        obs_pose,
+        np.arange(85),
+        np.zeros((85, 2)),
+    )
     weak, gap = weak_ego_frames(sparse, FusionParams())
     assert np.flatnonzero(weak).tolist() == list(range(10, 20)) + [30]
     assert np.flatnonzero(gap).tolist() == [30]
-    bare = EgoMapData(ego.camera, stamps, ego.T_world_ego[:40], np.zeros((0, 3)), "SIFT", np.zeros((0, 128), np.uint8),
-                      np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)))
+    bare = EgoMapData(
+        ego.camera,
+        stamps,
+        ego.T_world_ego[:40],
+        np.zeros((0, 3)),
+        "SIFT",
+        np.zeros((0, 128), np.uint8),
+        np.zeros(0, int),
+        np.zeros(0, int),
+        np.zeros((0, 2)),
+    )
     assert np.flatnonzero(weak_ego_frames(bare, FusionParams())[0]).tolist() == [30]
     # Where the ego stage says how it tracked: a landmark-poor keyframe's frames tracked with
     # good overlap (depth on a bare wall) are not weak, those with little are, and a frame
     # vision did not track (a guess, a gyro bridge) is weak whatever its landmarks.
     fitness = np.full(40, 0.8)
-    fitness[[12, 15]] = 0.4                               # landmark-poor keyframe 10, little overlap
-    fitness[25] = 0.3                                     # landmark-rich keyframe 20: overlap does not matter
+    fitness[[12, 15]] = 0.4  # landmark-poor keyframe 10, little overlap
+    fitness[25] = 0.3  # landmark-rich keyframe 20: overlap does not matter
     measured = np.ones(40, bool)
-    measured[5] = False                                   # keyframe 0's stretch: bridged by the gyro
+    measured[5] = False  # keyframe 0's stretch: bridged by the gyro
     told = replace(sparse, tracking_measured=measured, tracking_fitness=fitness)
     weak, gap = weak_ego_frames(told, FusionParams())
     assert np.flatnonzero(weak).tolist() == [5, 12, 15, 30]
@@ -369,15 +494,21 @@ def test_head_tops_one_camera_saw_anchor_a_broken_ego_map():
                 tr.tracks[kp] = replace(k, stamps_ns=k.stamps_ns[keep], uv=k.uv[keep], confidence=k.confidence[keep])
     ego = broken_ego(ego, 10.0, 0.6, se3(np.eye(3), [0.3, 0.0, 0.0]))
     grouping = calibrate_groups(tracks)
-    after = (ego.stamps_ns - t0 > 10.6e9)
+    after = ego.stamps_ns - t0 > 10.6e9
     kept = np.isin(truth.stamps_ns, ego.stamps_ns)
     out = {}
     for single in (True, False):
-        result = fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks},
-                      FusionParams(single_view_head_tops=single))
+        result = fuse(
+            ego,
+            grouping.groups,
+            grouping.ungrouped,
+            {t.name: CmcInput(t) for t in tracks},
+            FusionParams(single_view_head_tops=single),
+        )
         err = np.linalg.norm(result.T_world_ego[after, :3, 3] - truth.T_world_ego[kept][after, :3, 3], axis=1)
-        b1 = registration_errors({c.name: c.T_world_cam for c in result.cameras if c.name == "b1"},
-                                 {"b1": cams["b1"][1]})[0]
+        b1 = registration_errors(
+            {c.name: c.T_world_cam for c in result.cameras if c.name == "b1"}, {"b1": cams["b1"][1]}
+        )[0]
         out[single] = (err.max(), b1.eps_pos_m)
     assert out[True][0] < 0.03 and out[True][1] < 0.05, out
     assert out[False][0] > 0.25 and out[False][1] > 0.25, out
@@ -404,10 +535,13 @@ def test_a_group_that_disagreed_with_the_ego_map_before_the_joint_optimisation_i
     result = fuse(bowed, grouping.groups, grouping.ungrouped, inputs, FusionParams(ok_map_moved_m=np.inf))
     for c in result.cameras:
         if c.name != "b1":
-            assert c.status == WEAK and "as the ego stage made it disagreed (head-top RMS" in c.reason, \
-                (c.name, c.reason)
-    lax = fuse(bowed, grouping.groups, grouping.ungrouped, inputs, FusionParams(ok_map_moved_m=np.inf,
-                                                                                 ok_track_rms_m=0.2))
+            assert c.status == WEAK and "as the ego stage made it disagreed (head-top RMS" in c.reason, (
+                c.name,
+                c.reason,
+            )
+    lax = fuse(
+        bowed, grouping.groups, grouping.ungrouped, inputs, FusionParams(ok_map_moved_m=np.inf, ok_track_rms_m=0.2)
+    )
     assert all(c.status == OK for c in lax.cameras), [(c.name, c.reason) for c in lax.cameras]
 
 
@@ -432,9 +566,13 @@ def test_an_isolated_camera_without_intrinsics_is_failed_with_the_reason():
     placing it by its nominal focal length would be garbage, so it is failed and says why."""
     cams, tracks, ego = world()
     grouping = calibrate_groups(tracks)
-    result = fuse(ego, grouping.groups, grouping.ungrouped,
-                  {t.name: CmcInput(t, intrinsics_known=t.name != "b1") for t in tracks},
-                  FusionParams(joint_optimisation=False))
+    result = fuse(
+        ego,
+        grouping.groups,
+        grouping.ungrouped,
+        {t.name: CmcInput(t, intrinsics_known=t.name != "b1") for t in tracks},
+        FusionParams(joint_optimisation=False),
+    )
     by_name = {c.name: c for c in result.cameras}
     assert by_name["b1"].status == FAILED and by_name["b1"].T_world_cam is None
     assert "--intrinsics" in by_name["b1"].reason, by_name["b1"].reason
@@ -473,15 +611,24 @@ def test_an_isolated_camera_whose_clock_is_seconds_off_is_registered_at_its_offs
     tracks = [t.shifted(-3.0) for t in tracks]
     grouping = calibrate_groups(tracks)
     params = FusionParams(joint_optimisation=False)
-    videos = replace(params, align=replace(params.align, max_clock_offset_s=3.5),
-                     isolated=replace(params.isolated, clock_search_s=3.5))
-    by_name = {c.name: c for c in fuse(ego, grouping.groups, grouping.ungrouped,
-                                       {t.name: CmcInput(t) for t in tracks}, videos).cameras}
+    videos = replace(
+        params,
+        align=replace(params.align, max_clock_offset_s=3.5),
+        isolated=replace(params.isolated, clock_search_s=3.5),
+    )
+    by_name = {
+        c.name: c
+        for c in fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks}, videos).cameras
+    }
     b1 = by_name["b1"]
     assert abs(b1.clock_offset_s - 3.0) < 0.03 and abs(by_name["a1"].clock_offset_s - 3.0) < 0.03, b1.clock_offset_s
     err = registration_errors({"b1": b1.T_world_cam}, {"b1": cams["b1"][1]})[0]
     assert err.eps_pos_m < 0.08 and err.eps_rot_deg < 1.0, err
-    unsearched = {c.name: c for c in fuse(ego, grouping.groups, grouping.ungrouped,
-                                          {t.name: CmcInput(t) for t in tracks}, params).cameras}["b1"]
-    assert unsearched.T_world_cam is None or registration_errors(
-        {"b1": unsearched.T_world_cam}, {"b1": cams["b1"][1]})[0].eps_pos_m > 0.2
+    unsearched = {
+        c.name: c
+        for c in fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks}, params).cameras
+    }["b1"]
+    assert (
+        unsearched.T_world_cam is None
+        or registration_errors({"b1": unsearched.T_world_cam}, {"b1": cams["b1"][1]})[0].eps_pos_m > 0.2
+    )

@@ -1,4 +1,5 @@
 """The refined cloud and layout follow the refined ego poses."""
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 from shapely.geometry import Polygon
@@ -21,8 +22,13 @@ def room_cloud(rng, spacing=0.04, height=2.6):
 
 def views():
     centres = [(1.5, 1.0), (4.5, 1.0), (4.5, 3.0), (1.5, 3.0), (3.0, 2.0)]
-    return np.array([look_at([x, y, 1.6], [x + dx, y + dy, 0.8]) for x, y in centres
-                     for dx, dy in ((2, 0), (0, 2), (-2, 0), (0, -2))])
+    return np.array(
+        [
+            look_at([x, y, 1.6], [x + dx, y + dy, 0.8])
+            for x, y in centres
+            for dx, dy in ((2, 0), (0, 2), (-2, 0), (0, -2))
+        ]
+    )
 
 
 def test_cloud_and_layout_follow_a_known_pose_correction():
@@ -44,4 +50,5 @@ def test_cloud_and_layout_follow_a_known_pose_correction():
 
     def iou(a, b):
         return a.intersection(b).area / a.union(b).area
+
     assert iou(floor, truth_moved) > 0.95 and iou(floor, truth_moved) > iou(floor, truth_before) + 0.05

@@ -3,6 +3,7 @@ spatiotemporal clustering of the co-visible ego positions (eq. clustering), the
 rebalanced weights alpha_f = 1 / (N_clus * N_phi_k), and the weighted
 Kabsch-Umeyama (eq. reblanced_matching) from the group's head-top track to the
 ego trajectory, matched by timestamp."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -20,11 +21,11 @@ class AlignParams:
     # eq. clustering. Single linkage chains consecutive frames, so the spatial threshold
     # sits below the per-frame displacement of walking (~7 cm at 1 m/s, 15 Hz) and above
     # the jitter of a standing head: a stop becomes one cluster, a walk many.
-    spatial_threshold_m: float = 0.025   # ||X_f_i - X_f_j|| <= spatialThreshold
-    temporal_threshold_s: float = 1.0    # |f_i - f_j| <= temporalThreshold (seconds; rates differ)
-    max_time_gap_s: float = 0.15         # ego poses further than this from a track stamp are not matched
-    rebalance: bool = True               # False: the original (unweighted) KU, for ablation
-    use_ground_points: bool = True       # ground points matched to the floor as well (see align_group)
+    spatial_threshold_m: float = 0.025  # ||X_f_i - X_f_j|| <= spatialThreshold
+    temporal_threshold_s: float = 1.0  # |f_i - f_j| <= temporalThreshold (seconds; rates differ)
+    max_time_gap_s: float = 0.15  # ego poses further than this from a track stamp are not matched
+    rebalance: bool = True  # False: the original (unweighted) KU, for ablation
+    use_ground_points: bool = True  # ground points matched to the floor as well (see align_group)
     # A group whose track misses the ego trajectory by more than this (weighted RMS, before the
     # head offset is known: ~0.1 m when it fits) has a broken reconstruction, not a bad fit.
     max_rms_m: float = 0.5
@@ -45,8 +46,8 @@ class Alignment:
     sim3_world_local: Sim3
     num_pairs: int
     num_clusters: int
-    weights: np.ndarray                   # alpha_f per matched pair (sums to one)
-    residuals_m: np.ndarray               # ||X_world - S(X_local)|| per pair
+    weights: np.ndarray  # alpha_f per matched pair (sums to one)
+    residuals_m: np.ndarray  # ||X_world - S(X_local)|| per pair
 
     @property
     def rms_m(self) -> float:
@@ -82,8 +83,9 @@ def rebalanced_weights(labels: np.ndarray) -> np.ndarray:
     return 1.0 / (len(counts) * counts[inverse])
 
 
-def interpolate_positions(stamps_ns: np.ndarray, positions: np.ndarray, query_ns: np.ndarray,
-                          max_gap_ns: int) -> tuple[np.ndarray, np.ndarray]:
+def interpolate_positions(
+    stamps_ns: np.ndarray, positions: np.ndarray, query_ns: np.ndarray, max_gap_ns: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Linear interpolation of a trajectory at query stamps; valid only between two
     samples at most max_gap_ns apart."""
     right = np.clip(np.searchsorted(stamps_ns, query_ns), 1, len(stamps_ns) - 1)
@@ -94,9 +96,15 @@ def interpolate_positions(stamps_ns: np.ndarray, positions: np.ndarray, query_ns
     return (1 - a) * positions[left] + a * positions[right], ok
 
 
-def align_group(track_stamps_ns: np.ndarray, track_local: np.ndarray, ego_stamps_ns: np.ndarray,
-                ego_positions: np.ndarray, params: AlignParams = AlignParams(),
-                ground_stamps_ns: np.ndarray | None = None, ground_local: np.ndarray | None = None) -> Alignment:
+def align_group(
+    track_stamps_ns: np.ndarray,
+    track_local: np.ndarray,
+    ego_stamps_ns: np.ndarray,
+    ego_positions: np.ndarray,
+    params: AlignParams = AlignParams(),
+    ground_stamps_ns: np.ndarray | None = None,
+    ground_local: np.ndarray | None = None,
+) -> Alignment:
     """Sim(3) taking the group's local frame to the world, from the head-top track
     (local, pseudo-scale) and the ego camera positions (world, metric).
 
@@ -107,8 +115,10 @@ def align_group(track_stamps_ns: np.ndarray, track_local: np.ndarray, ego_stamps
     gap = int(params.max_time_gap_s * 1e9)
     world, ok = interpolate_positions(ego_stamps_ns, ego_positions, track_stamps_ns, gap)
     if ok.sum() < 3:
-        raise ValueError(f"only {int(ok.sum())} head-top points of the group fall within the ego recording; "
-                         "needs at least 3 to align")
+        raise ValueError(
+            f"only {int(ok.sum())} head-top points of the group fall within the ego recording; "
+            "needs at least 3 to align"
+        )
     world, local, stamps = world[ok], track_local[ok], track_stamps_ns[ok]
     labels = spatiotemporal_clusters(world, stamps, params)
     if ground_local is not None and len(ground_local):
@@ -124,20 +134,25 @@ def align_group(track_stamps_ns: np.ndarray, track_local: np.ndarray, ego_stamps
     return Alignment(S, len(world), int(labels.max()) + 1, weights, np.linalg.norm(S.apply(local) - world, axis=1))
 
 
-MIN_CLOCK_POINTS = 10   # head-top and ground points a group's clock offset needs (beside the 10 unknowns)
+MIN_CLOCK_POINTS = 10  # head-top and ground points a group's clock offset needs (beside the 10 unknowns)
 
 
 @dataclass
 class ClockFit:
-    offset_s: float | None      # the group's clock - the ego clock (None: not estimated)
+    offset_s: float | None  # the group's clock - the ego clock (None: not estimated)
     sigma_s: float | None
-    reason: str = ""            # why not estimated
+    reason: str = ""  # why not estimated
 
 
-def estimate_clock_offset(track_stamps_ns: np.ndarray, track_local: np.ndarray, ego_stamps_ns: np.ndarray,
-                          T_world_ego: np.ndarray, params: AlignParams = AlignParams(),
-                          ground_stamps_ns: np.ndarray | None = None, ground_local: np.ndarray | None = None
-                          ) -> ClockFit:
+def estimate_clock_offset(
+    track_stamps_ns: np.ndarray,
+    track_local: np.ndarray,
+    ego_stamps_ns: np.ndarray,
+    T_world_ego: np.ndarray,
+    params: AlignParams = AlignParams(),
+    ground_stamps_ns: np.ndarray | None = None,
+    ground_local: np.ndarray | None = None,
+) -> ClockFit:
     """The shift of the agent track's clock against the ego clock at which the track
     fits the ego trajectory best under one similarity and one head offset (the head top
     sits behind the ego camera: at walking speed a constant offset along the path looks
@@ -156,8 +171,12 @@ def estimate_clock_offset(track_stamps_ns: np.ndarray, track_local: np.ndarray, 
     local_all = np.vstack([track_local.reshape(-1, 3), ground_local.reshape(-1, 3)])
     on_floor = np.r_[np.zeros(len(track_stamps_ns), bool), np.ones(len(ground_stamps_ns), bool)]
     if len(stamps) < MIN_CLOCK_POINTS:
-        return ClockFit(None, None, f"only {len(track_stamps_ns)} head-top and {len(ground_stamps_ns)} ground "
-                                    f"points (needs {MIN_CLOCK_POINTS})")
+        return ClockFit(
+            None,
+            None,
+            f"only {len(track_stamps_ns)} head-top and {len(ground_stamps_ns)} ground "
+            f"points (needs {MIN_CLOCK_POINTS})",
+        )
     ego_t = (ego_stamps_ns - ego_stamps_ns[0]) / 1e9
     orientations = Slerp(ego_t, Rotation.from_matrix(T_world_ego[:, :3, :3]))
 
@@ -179,12 +198,12 @@ def estimate_clock_offset(track_stamps_ns: np.ndarray, track_local: np.ndarray, 
         rows = np.ones((len(P), 3), bool)
         rows[floor, 2] = False
 
-        def targets(offset: np.ndarray) -> np.ndarray:   # head tops, and ground points on the floor
+        def targets(offset: np.ndarray) -> np.ndarray:  # head tops, and ground points on the floor
             return np.where(rows, P + R @ offset, 0.0)
 
         offset = np.zeros(3)
         try:
-            for _ in range(4):   # the similarity and the head offset in turn
+            for _ in range(4):  # the similarity and the head offset in turn
                 S = umeyama(local, targets(offset))
                 offset = np.linalg.lstsq(R[rows], (S.apply(local) - P)[rows], rcond=None)[0]
         except ValueError:
@@ -195,7 +214,7 @@ def estimate_clock_offset(track_stamps_ns: np.ndarray, track_local: np.ndarray, 
     if not np.isfinite(costs).any():
         return ClockFit(None, None, "the agent track overlaps the ego recording at no shift")
     k = int(np.argmin(costs))
-    if k in (0, len(shifts) - 1) or not np.isfinite(costs[k - 1:k + 2]).all():
+    if k in (0, len(shifts) - 1) or not np.isfinite(costs[k - 1 : k + 2]).all():
         return ClockFit(None, None, f"the best shift is at the edge of +-{params.max_clock_offset_s:g} s")
     # The fine fit on one point set (the points the ego trajectory covers over the whole
     # bracket) and slerped orientations, so the cost moves smoothly with the shift; nine
@@ -214,6 +233,10 @@ def estimate_clock_offset(track_stamps_ns: np.ndarray, track_local: np.ndarray, 
     c_best, n = cost(best, use)
     sigma = float(np.sqrt(2.0 * (c_best / max(3 * n - 10, 1)) / curvature))
     if sigma > params.max_clock_sigma_s:
-        return ClockFit(None, sigma, f"not observable from this walk (sigma {sigma:.2f} s > "
-                                     f"{params.max_clock_sigma_s:g} s): clocks assumed equal")
+        return ClockFit(
+            None,
+            sigma,
+            f"not observable from this walk (sigma {sigma:.2f} s > "
+            f"{params.max_clock_sigma_s:g} s): clocks assumed equal",
+        )
     return ClockFit(float(best), sigma)

@@ -5,6 +5,7 @@ camera), the ego map's cloud and layout at the jointly optimised ego poses
 (/yowo/fusion/map/points, /yowo/fusion/layout), the trajectory at those poses
 (/yowo/fusion/path) and /yowo/layout/markers (that layout's floor), all latched for
 late joiners."""
+
 from __future__ import annotations
 
 from nav_msgs.msg import Path
@@ -40,8 +41,12 @@ class FusionNode(StageNode):
         self.estimated = {c for c in self.declare_parameter("estimate_intrinsics", [""]).value if c}
         self.params = self.section(FusionParams, "fusion")
         defaults = UpstreamParams()
-        self.upstream = UpstreamParams(**{field: self.section(type(getattr(defaults, field)), home, field)
-                                          for field, home in UPSTREAM_HOMES.items()})
+        self.upstream = UpstreamParams(
+            **{
+                field: self.section(type(getattr(defaults, field)), home, field)
+                for field, home in UPSTREAM_HOMES.items()
+            }
+        )
         self.acc = {c: TrackAccumulator(c) for c in cameras}
         self.backgrounds = {}
         self.ego_map = self.groups = self.layout = self.cloud = None
@@ -54,16 +59,31 @@ class FusionNode(StageNode):
         self.pub_fits = self.output(CameraAgentFitArray, topics.AGENT_FIT, LATCHED)
         self.stream_input(EgoMap, topics.EGO_MAP, lambda m: setattr(self, "ego_map", m), upstream=topics.EGO_STAGE)
         self.stream_input(SceneLayout, topics.LAYOUT, lambda m: setattr(self, "layout", m), upstream=topics.EGO_STAGE)
-        self.stream_input(PointCloud2, topics.MAP_POINTS, lambda m: setattr(self, "cloud", m), upstream=topics.EGO_STAGE)
-        self.stream_input(CameraGroupArray, topics.GROUPS, lambda m: setattr(self, "groups", m),
-                          upstream=topics.GROUP_SFM_STAGE)
+        self.stream_input(
+            PointCloud2, topics.MAP_POINTS, lambda m: setattr(self, "cloud", m), upstream=topics.EGO_STAGE
+        )
+        self.stream_input(
+            CameraGroupArray, topics.GROUPS, lambda m: setattr(self, "groups", m), upstream=topics.GROUP_SFM_STAGE
+        )
         for cam in cameras:
-            self.stream_input(CameraInfo, topics.tracker_camera_info(cam), self.acc[cam].take_camera_info,
-                              upstream=topics.tracker_stage(cam))
-            self.stream_input(AgentKeypoints, topics.tracker_keypoints(cam),
-                              lambda m, c=cam: self.acc[c].add(frame_from_msg(m)), upstream=topics.tracker_stage(cam))
-            self.stream_input(Image, topics.tracker_background(cam),
-                              lambda m, c=cam: self.backgrounds.__setitem__(c, m), upstream=topics.tracker_stage(cam))
+            self.stream_input(
+                CameraInfo,
+                topics.tracker_camera_info(cam),
+                self.acc[cam].take_camera_info,
+                upstream=topics.tracker_stage(cam),
+            )
+            self.stream_input(
+                AgentKeypoints,
+                topics.tracker_keypoints(cam),
+                lambda m, c=cam: self.acc[c].add(frame_from_msg(m)),
+                upstream=topics.tracker_stage(cam),
+            )
+            self.stream_input(
+                Image,
+                topics.tracker_background(cam),
+                lambda m, c=cam: self.backgrounds.__setitem__(c, m),
+                upstream=topics.tracker_stage(cam),
+            )
 
     def finalize(self) -> str:
         if self.ego_map is None:
@@ -71,9 +91,15 @@ class FusionNode(StageNode):
         if self.groups is None:
             raise ValueError("no CMC groups arrived (the group SfM failed)")
         groups, ungrouped = groups_from_msg(self.groups)
-        cmcs = {n: CmcInput(a.tracks(), decode_color(self.backgrounds[n]) if n in self.backgrounds else None,
-                            n not in self.estimated)
-                for n, a in self.acc.items() if a.camera is not None}
+        cmcs = {
+            n: CmcInput(
+                a.tracks(),
+                decode_color(self.backgrounds[n]) if n in self.backgrounds else None,
+                n not in self.estimated,
+            )
+            for n, a in self.acc.items()
+            if a.camera is not None
+        }
         ungrouped.update({n: a.unusable_reason() for n, a in self.acc.items() if a.camera is None})
         ego = ego_map_from_msg(self.ego_map, self.cloud, self.layout)
         result = fuse(ego, groups, ungrouped, cmcs, self.params, self.upstream)
@@ -88,10 +114,12 @@ class FusionNode(StageNode):
             self.pub_layout.publish(scene_layout_msg(result.layout, stamp))
         floors = result.layout.floor_polygons if result.layout is not None else []
         self.pub_markers.publish(layout_markers(result.cameras, floors, stamp))
-        self.pub_fits.publish(agent_fits_to_msg(result.agent_fits, {n: c.tracks.camera for n, c in cmcs.items()},
-                                                self.backgrounds, stamp))
-        return "; ".join(f"{c.name}: {c.method} {c.status}" + (f" ({c.reason})" if c.reason else "")
-                         for c in result.cameras)
+        self.pub_fits.publish(
+            agent_fits_to_msg(result.agent_fits, {n: c.tracks.camera for n, c in cmcs.items()}, self.backgrounds, stamp)
+        )
+        return "; ".join(
+            f"{c.name}: {c.method} {c.status}" + (f" ({c.reason})" if c.reason else "") for c in result.cameras
+        )
 
 
 def main(args=None):

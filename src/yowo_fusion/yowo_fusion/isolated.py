@@ -1,6 +1,7 @@
 """Register a CMC that belongs to no group (paper "Register 6-DoF Poses for Isolated
 CMCs"): 2D-3D matches between its agent keypoints and the optimised world agent
 track by timestamp, PnP + RANSAC, then (optionally) refinement with scene keypoints."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -18,8 +19,8 @@ from yowo_common.pnp import sqpnp_all, sqpnp_ransac
 class IsolatedParams:
     min_matches: int = 8
     pnp_px: float = 4.0
-    min_spread_m: float = 0.05       # RMS spread of the 3D points below which no pose is attempted
-    max_gap_s: float = 0.25          # the world track is interpolated only between samples this close
+    min_spread_m: float = 0.05  # RMS spread of the 3D points below which no pose is attempted
+    max_gap_s: float = 0.25  # the world track is interpolated only between samples this close
     # The camera's clock offset to the ego clock is searched within +- this [s] (0: its stamps are on
     # the ego clock; `yowo run` sets it for CCTV video files, whose start can be seconds off), on a
     # grid of clock_step_s, then around the best shift at a tenth of it. Where groups found their
@@ -42,13 +43,14 @@ class AgentTrack:
 @dataclass
 class PnpResult:
     T_world_cam: np.ndarray
-    points: np.ndarray               # (M, 3) inlier 3D points
-    uv: np.ndarray                   # (M, 2) ideal pixels
-    camera: CameraModel              # ideal (undistorted) intrinsics
+    points: np.ndarray  # (M, 3) inlier 3D points
+    uv: np.ndarray  # (M, 2) ideal pixels
+    camera: CameraModel  # ideal (undistorted) intrinsics
 
 
-def agent_correspondences(cam: CameraTracks, track: AgentTrack, params: IsolatedParams, tracks: TrackParams
-                          ) -> tuple[CameraModel, np.ndarray, np.ndarray]:
+def agent_correspondences(
+    cam: CameraTracks, track: AgentTrack, params: IsolatedParams, tracks: TrackParams
+) -> tuple[CameraModel, np.ndarray, np.ndarray]:
     """(ideal camera, 3D points, 2D ideal pixels) pairing the camera's keypoints with
     the world track interpolated at the camera's own stamps."""
     pts, uvs = [], []
@@ -70,17 +72,21 @@ def agent_correspondences(cam: CameraTracks, track: AgentTrack, params: Isolated
     return ideal, np.vstack(pts or [np.zeros((0, 3))]), np.vstack(uvs or [np.zeros((0, 2))])
 
 
-def register_by_agent(cam: CameraTracks, track: AgentTrack, params: IsolatedParams = IsolatedParams(),
-                      tracks: TrackParams = TrackParams()) -> tuple[PnpResult | None, str]:
+def register_by_agent(
+    cam: CameraTracks, track: AgentTrack, params: IsolatedParams = IsolatedParams(), tracks: TrackParams = TrackParams()
+) -> tuple[PnpResult | None, str]:
     """tracks: the cleaning of the camera's keypoint tracks (cmc.sfm.tracks)."""
     ideal, P, uv = agent_correspondences(cam, track, params, tracks)
     if len(P) < params.min_matches:
-        return None, (f"only {len(P)} of its agent keypoints fall on the optimised agent track "
-                      f"(needs {params.min_matches})")
+        return None, (
+            f"only {len(P)} of its agent keypoints fall on the optimised agent track (needs {params.min_matches})"
+        )
     spread_m = float(np.sqrt(np.var(P, axis=0).sum()))
     if spread_m < params.min_spread_m:
-        return None, (f"its {len(P)} agent correspondences lie within {spread_m:.3f} m RMS of each other "
-                      f"(needs {params.min_spread_m} m: the agent stood still in its view)")
+        return None, (
+            f"its {len(P)} agent correspondences lie within {spread_m:.3f} m RMS of each other "
+            f"(needs {params.min_spread_m} m: the agent stood still in its view)"
+        )
     rvec, tvec, inliers = sqpnp_ransac(P, uv, ideal.K, params.pnp_px)
     candidates = []
     if len(inliers) >= params.min_matches:
@@ -96,17 +102,22 @@ def register_by_agent(cam: CameraTracks, track: AgentTrack, params: IsolatedPara
     return PnpResult(T, P[idx], uv[idx], ideal), ""
 
 
-def register_over_clock(cam: CameraTracks, track: AgentTrack, params: IsolatedParams = IsolatedParams(),
-                        tracks: TrackParams = TrackParams(), groups_offset_s: float | None = None
-                        ) -> tuple[PnpResult | None, str, float]:
+def register_over_clock(
+    cam: CameraTracks,
+    track: AgentTrack,
+    params: IsolatedParams = IsolatedParams(),
+    tracks: TrackParams = TrackParams(),
+    groups_offset_s: float | None = None,
+) -> tuple[PnpResult | None, str, float]:
     """register_by_agent at the clock offset (camera's clock - the ego clock) whose pose has the
     most agent inliers, then the lowest reprojection error: within params.clock_search_s, or
     within clock_near_groups_s of `groups_offset_s` (the groups' offset to the ego clock) where
     known; a best offset at the edge of the search is none. (result, why not, offset [s])."""
     if params.clock_search_s <= 0:
         return (*register_by_agent(cam, track, params, tracks), 0.0)
-    centre, half = ((0.0, params.clock_search_s) if groups_offset_s is None
-                    else (groups_offset_s, params.clock_near_groups_s))
+    centre, half = (
+        (0.0, params.clock_search_s) if groups_offset_s is None else (groups_offset_s, params.clock_near_groups_s)
+    )
 
     def best_of(shifts):
         found = []
@@ -143,6 +154,7 @@ def _score(P, uv, camera: CameraModel, rvec, tvec, params: IsolatedParams):
 def refine_pose(camera: CameraModel, T_world_cam: np.ndarray, points: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Levenberg-Marquardt on all 2D-3D matches (agent and scene) from a prior pose."""
     T_cw = inv_se3(T_world_cam)
-    rvec, tvec = cv2.solvePnPRefineLM(points, uv, camera.K, None, cv2.Rodrigues(T_cw[:3, :3])[0],
-                                      T_cw[:3, 3].reshape(3, 1).copy())
+    rvec, tvec = cv2.solvePnPRefineLM(
+        points, uv, camera.K, None, cv2.Rodrigues(T_cw[:3, :3])[0], T_cw[:3, 3].reshape(3, 1).copy()
+    )
     return inv_se3(se3(cv2.Rodrigues(rvec)[0], tvec.ravel()))

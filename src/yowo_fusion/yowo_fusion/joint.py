@@ -31,6 +31,7 @@ relative, so a piece of the map moves with its landmarks). No prior holds an anc
 the ego map's absolute estimate: that would hold a broken piece where the ego map put
 it. The agent's ground points get a prior on the floor plane z = 0 (the ego map's
 floor), which also observes the vertical part of the head offset."""
+
 from __future__ import annotations
 
 import re
@@ -52,7 +53,7 @@ from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3
 
 TOP, BOTTOM = 0, 1
-UNKNOWN_COVARIANCE = np.full((6, 6), np.nan)   # a pose whose covariance could not be computed
+UNKNOWN_COVARIANCE = np.full((6, 6), np.nan)  # a pose whose covariance could not be computed
 UNKNOWN_COVARIANCE.setflags(write=False)
 
 
@@ -60,7 +61,7 @@ UNKNOWN_COVARIANCE.setflags(write=False)
 class JointParams:
     huber_k: float = 1.345
     ego_sigma_px: float = 1.0
-    landmark_prior_sigma_m: float = 0.05     # depth-derived position of each ego landmark
+    landmark_prior_sigma_m: float = 0.05  # depth-derived position of each ego landmark
     ego_between_sigma: tuple[float, float] = (0.001, 0.002)  # (rad, m) its motion between consecutive anchors
     # The same for an ego map tracked with the gyro (JointProblem.ego_imu): its rotation between anchors is what
     # the ego stage measures best, with gyro factors and walls-and-floor attitudes the JO does not carry. At 1 mrad
@@ -85,15 +86,15 @@ class JointParams:
     # A chain step the solution leaves this many sigmas off the ego map's is a break the ego
     # map did not flag: solved again with it weak (and reported in JointResult.ego_breaks).
     ego_break_sigmas: float = 20.0
-    floor_sigma_m: float = 0.03              # the agent's ground point lies on the floor z = 0
-    a2e_sigma_m: float = 0.05                # head-top vs predicted head top (offset model residual)
-    kin_accel_sigma_m: float = 0.05          # per grid step, second difference of the head top
-    kin_body_sigma_m: float = 0.05           # change of the top-to-bottom vector per grid step
-    upright_sigma_m: float = 0.05            # horizontal offset of the ground point from under the head top
-    max_a2e_gap_s: float = 0.2               # ego poses further apart than this are not interpolated
-    max_anchor_gap_s: float = 0.5            # frames without ego observations: an anchor at least this often
-    estimate_head_offset: bool = True        # False: the paper's model, head top = ego camera centre
-    iterations: int = 200                    # at most; a broken ego map put back takes ~50
+    floor_sigma_m: float = 0.03  # the agent's ground point lies on the floor z = 0
+    a2e_sigma_m: float = 0.05  # head-top vs predicted head top (offset model residual)
+    kin_accel_sigma_m: float = 0.05  # per grid step, second difference of the head top
+    kin_body_sigma_m: float = 0.05  # change of the top-to-bottom vector per grid step
+    upright_sigma_m: float = 0.05  # horizontal offset of the ground point from under the head top
+    max_a2e_gap_s: float = 0.2  # ego poses further apart than this are not interpolated
+    max_anchor_gap_s: float = 0.5  # frames without ego observations: an anchor at least this often
+    estimate_head_offset: bool = True  # False: the paper's model, head top = ego camera centre
+    iterations: int = 200  # at most; a broken ego map put back takes ~50
     # LM stops once an iteration lowers the error by less than this share (Ceres' default
     # function tolerance). Past it the Huber weights creep for up to 200 iterations that move
     # no result: on the 20 small hard/normal runs (with and without IMU) registration and JO ATE
@@ -110,24 +111,24 @@ class JointParams:
 @dataclass
 class JointProblem:
     ego_camera: CameraModel
-    ego_stamps_ns: np.ndarray                # (F,) sorted
-    T_world_ego: list[np.ndarray]            # (F) initial
-    landmarks: np.ndarray                    # (P, 3) initial (also the depth prior)
-    ego_obs: Observations                    # camera = ego frame index, point = landmark index
-    cmc_cameras: list[CameraModel]           # ideal (undistorted) intrinsics
-    T_world_cmc: list[np.ndarray]            # initial
-    cmc_scene_obs: Observations              # camera = CMC index, point = landmark index
-    agent_points: np.ndarray                 # (K, 3) initial, world
-    agent_stamps_ns: np.ndarray              # (K,)
-    agent_ids: np.ndarray                    # (K,)
-    cmc_agent_obs: Observations              # camera = CMC index, point = agent point index
+    ego_stamps_ns: np.ndarray  # (F,) sorted
+    T_world_ego: list[np.ndarray]  # (F) initial
+    landmarks: np.ndarray  # (P, 3) initial (also the depth prior)
+    ego_obs: Observations  # camera = ego frame index, point = landmark index
+    cmc_cameras: list[CameraModel]  # ideal (undistorted) intrinsics
+    T_world_cmc: list[np.ndarray]  # initial
+    cmc_scene_obs: Observations  # camera = CMC index, point = landmark index
+    agent_points: np.ndarray  # (K, 3) initial, world
+    agent_stamps_ns: np.ndarray  # (K,)
+    agent_ids: np.ndarray  # (K,)
+    cmc_agent_obs: Observations  # camera = CMC index, point = agent point index
     head_offset: np.ndarray = field(default_factory=lambda: np.array([0.0, -0.1, -0.05]))  # o, ego frame
-    agent_chain: np.ndarray | None = None    # (K,) track id (CMC group) of each agent point; None: one track
+    agent_chain: np.ndarray | None = None  # (K,) track id (CMC group) of each agent point; None: one track
     # (F,) True where the ego map's motion from the previous frame is unreliable; None: nowhere
     ego_weak_frames: np.ndarray | None = None
     # (F,) True where the ego map held the frame's attitude to the building; None: nowhere
     ego_attitude_held: np.ndarray | None = None
-    ego_imu: bool = False                    # the ego map was tracked with the gyro (ego_between_sigma_imu)
+    ego_imu: bool = False  # the ego map was tracked with the gyro (ego_between_sigma_imu)
 
 
 @dataclass
@@ -137,15 +138,15 @@ class JointResult:
     T_world_cmc: list[np.ndarray]
     agent_points: np.ndarray
     head_offset: np.ndarray
-    cmc_covariances: list[np.ndarray]        # 6x6 per CMC, ROS order (x, y, z, rx, ry, rz), world frame
-    cmc_agent_residuals: np.ndarray          # (M, 2) px
+    cmc_covariances: list[np.ndarray]  # 6x6 per CMC, ROS order (x, y, z, rx, ry, rz), world frame
+    cmc_agent_residuals: np.ndarray  # (M, 2) px
     cmc_scene_residuals: np.ndarray
     initial_error: float
     final_error: float
-    anchors: np.ndarray                      # frame indices optimised (the rest followed them)
-    covariance_failure: str = ""             # why cmc_covariances are NaN (unknown): an indeterminate system
+    anchors: np.ndarray  # frame indices optimised (the rest followed them)
+    covariance_failure: str = ""  # why cmc_covariances are NaN (unknown): an indeterminate system
     ego_breaks: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # frames of unflagged breaks found
-    held_points: list[str] = field(default_factory=list)   # indeterminate points held for the covariances
+    held_points: list[str] = field(default_factory=list)  # indeterminate points held for the covariances
 
 
 def interpolation_pairs(ego_ns: np.ndarray, query_ns: np.ndarray, max_gap_ns: int):
@@ -161,8 +162,8 @@ def interpolation_pairs(ego_ns: np.ndarray, query_ns: np.ndarray, max_gap_ns: in
 def ros_covariance(cov_gtsam: np.ndarray, R_world_cam: np.ndarray) -> np.ndarray:
     """GTSAM Pose3 marginal (body tangent [w, v]) -> ROS order (x, y, z, rx, ry, rz) in the world."""
     J = np.zeros((6, 6))
-    J[:3, 3:] = R_world_cam      # position perturbation = R v
-    J[3:, :3] = R_world_cam      # rotation perturbation (left, world) = R w
+    J[:3, 3:] = R_world_cam  # position perturbation = R v
+    J[3:, :3] = R_world_cam  # rotation perturbation (left, world) = R w
     return J @ cov_gtsam @ J.T
 
 
@@ -187,8 +188,9 @@ def nearest_anchor(stamps_ns: np.ndarray, anchors: np.ndarray) -> np.ndarray:
     return anchors[np.where(closer_before, before, after)]
 
 
-def propagate_corrections(T_old: np.ndarray, stamps_ns: np.ndarray, anchors: np.ndarray,
-                          T_anchor_new: list[np.ndarray]) -> np.ndarray:
+def propagate_corrections(
+    T_old: np.ndarray, stamps_ns: np.ndarray, anchors: np.ndarray, T_anchor_new: list[np.ndarray]
+) -> np.ndarray:
     """Every frame moved by its anchors' corrections T_new T_old^-1, interpolated in time
     between the two anchors around it (anchors keep their own pose exactly)."""
     C = [gtsam.Pose3(Tn @ inv_se3(T_old[a])) for a, Tn in zip(anchors, T_anchor_new)]
@@ -204,8 +206,9 @@ def propagate_corrections(T_old: np.ndarray, stamps_ns: np.ndarray, anchors: np.
 
 def _linear(keys_and_blocks, b, sigma, values) -> gtsam.LinearContainerFactor:
     dim = len(b)
-    jf = gtsam.JacobianFactor(*[x for kb in keys_and_blocks for x in kb], np.asarray(b, float),
-                              gtsam.noiseModel.Isotropic.Sigma(dim, sigma))
+    jf = gtsam.JacobianFactor(
+        *[x for kb in keys_and_blocks for x in kb], np.asarray(b, float), gtsam.noiseModel.Isotropic.Sigma(dim, sigma)
+    )
     return gtsam.LinearContainerFactor(jf, values)
 
 
@@ -230,11 +233,13 @@ def _broken_steps(p: JointProblem, params: JointParams, anchors: np.ndarray, res
     sigma = np.repeat(_between_sigma(p, params), 3)
     out = []
     for f0, f1 in zip(anchors[:-1], anchors[1:]):
-        if weak[f0 + 1:f1 + 1].any():
+        if weak[f0 + 1 : f1 + 1].any():
             continue
         step = result.atPose3(X(int(f0))).between(result.atPose3(X(int(f1))))
-        if np.linalg.norm(gtsam.Pose3.Logmap(pose3(inv_se3(T[f0]) @ T[f1]).between(step)) / sigma) \
-                > params.ego_break_sigmas:
+        if (
+            np.linalg.norm(gtsam.Pose3.Logmap(pose3(inv_se3(T[f0]) @ T[f1]).between(step)) / sigma)
+            > params.ego_break_sigmas
+        ):
             out += range(f0 + 1, f1 + 1)
     return np.array(out, int)
 
@@ -245,14 +250,18 @@ def _solve(p: JointProblem, params: JointParams) -> JointResult:
     # Both ends of a weak step are anchors: the frames beside it must not take a share of
     # the other side's correction.
     weak = np.flatnonzero(p.ego_weak_frames) if p.ego_weak_frames is not None else np.zeros(0, int)
-    anchors = anchor_frames(p.ego_stamps_ns, np.concatenate([p.ego_obs.camera, weak, weak - 1]),
-                            params.max_anchor_gap_s)
+    anchors = anchor_frames(
+        p.ego_stamps_ns, np.concatenate([p.ego_obs.camera, weak, weak - 1]), params.max_anchor_gap_s
+    )
     T_ego0 = np.asarray(p.T_world_ego)
     for f in anchors:
         values.insert(X(f), pose3(T_ego0[f]))
     _add_ego_chain(graph, p, params, anchors)
-    graph.add(gtsam.PriorFactorPose3(X(int(anchors[0])), pose3(p.T_world_ego[anchors[0]]),
-                                     gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)))
+    graph.add(
+        gtsam.PriorFactorPose3(
+            X(int(anchors[0])), pose3(p.T_world_ego[anchors[0]]), gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)
+        )
+    )
     lm_used = np.union1d(p.ego_obs.point, p.cmc_scene_obs.point).astype(int)
     for j in lm_used:
         values.insert(L(j), gtsam.Point3(*p.landmarks[j]))
@@ -263,7 +272,9 @@ def _solve(p: JointProblem, params: JointParams) -> JointResult:
         values.insert(A(k), gtsam.Point3(*P))
     values.insert(O(0), gtsam.Point3(*p.head_offset))
     if not params.estimate_head_offset:
-        graph.add(gtsam.PriorFactorPoint3(O(0), gtsam.Point3(0, 0, 0), gtsam.noiseModel.Isotropic.Sigma(3, FIXED_SIGMA)))
+        graph.add(
+            gtsam.PriorFactorPoint3(O(0), gtsam.Point3(0, 0, 0), gtsam.noiseModel.Isotropic.Sigma(3, FIXED_SIGMA))
+        )
 
     add_projection_factors(graph, p.ego_obs, [p.ego_camera] * len(p.T_world_ego), X, L, params.huber_k)
     add_projection_factors(graph, p.cmc_scene_obs, p.cmc_cameras, C, L, params.huber_k)
@@ -271,13 +282,15 @@ def _solve(p: JointProblem, params: JointParams) -> JointResult:
     _add_a2e(graph, values, p, params, anchors)
     for k in np.flatnonzero(p.agent_ids == BOTTOM):
         # z of the ground point is 0 (the ego map's floor): linear in the point, exact.
-        graph.add(_linear([(A(int(k)), np.array([[0.0, 0.0, 1.0]]))], [-p.agent_points[k][2]],
-                          params.floor_sigma_m, values))
+        graph.add(
+            _linear([(A(int(k)), np.array([[0.0, 0.0, 1.0]]))], [-p.agent_points[k][2]], params.floor_sigma_m, values)
+        )
     _add_kinematics(graph, values, p, params)
 
     result, initial_error, final_error, _ = optimize(graph, values, params.iterations, params.relative_error_tol)
-    T_ego = list(propagate_corrections(T_ego0, p.ego_stamps_ns, anchors,
-                                       [result.atPose3(X(int(f))).matrix() for f in anchors]))
+    T_ego = list(
+        propagate_corrections(T_ego0, p.ego_stamps_ns, anchors, [result.atPose3(X(int(f))).matrix() for f in anchors])
+    )
     landmarks = p.landmarks.copy()
     for j in lm_used:
         landmarks[j] = result.atPoint3(L(j))
@@ -291,10 +304,22 @@ def _solve(p: JointProblem, params: JointParams) -> JointResult:
         # The optimiser damps a (nearly) indeterminate system, the marginals cannot: the poses
         # stand, their covariance is unknown.
         failure = covariance_unavailable(exc)
-    return JointResult(T_ego, landmarks, T_cmc, agent, np.asarray(result.atPoint3(O(0))), covs,
-                       reprojection_residuals(p.cmc_cameras, T_cmc, agent, p.cmc_agent_obs),
-                       reprojection_residuals(p.cmc_cameras, T_cmc, landmarks, p.cmc_scene_obs),
-                       initial_error, final_error, anchors, failure, _broken_steps(p, params, anchors, result), held)
+    return JointResult(
+        T_ego,
+        landmarks,
+        T_cmc,
+        agent,
+        np.asarray(result.atPoint3(O(0))),
+        covs,
+        reprojection_residuals(p.cmc_cameras, T_cmc, agent, p.cmc_agent_obs),
+        reprojection_residuals(p.cmc_cameras, T_cmc, landmarks, p.cmc_scene_obs),
+        initial_error,
+        final_error,
+        anchors,
+        failure,
+        _broken_steps(p, params, anchors, result),
+        held,
+    )
 
 
 def _marginals(graph, result, params: JointParams) -> tuple[gtsam.Marginals, list[str]]:
@@ -351,11 +376,12 @@ def _add_ego_chain(graph, p: JointProblem, params: JointParams, anchors: np.ndar
     weak = np.zeros(len(T), bool) if p.ego_weak_frames is None else np.asarray(p.ego_weak_frames, bool)
     held = np.zeros(len(T), bool) if p.ego_attitude_held is None else np.asarray(p.ego_attitude_held, bool)
     huber = gtsam.noiseModel.mEstimator.Huber.Create(params.ego_between_huber_k)
-    models = [gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Diagonal.Sigmas(np.repeat(sigma, 3)))
-              for sigma in (_between_sigma(p, params), params.ego_weak_between_sigma,
-                            params.ego_held_weak_between_sigma)]
+    models = [
+        gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Diagonal.Sigmas(np.repeat(sigma, 3)))
+        for sigma in (_between_sigma(p, params), params.ego_weak_between_sigma, params.ego_held_weak_between_sigma)
+    ]
     for f0, f1 in zip(anchors[:-1], anchors[1:]):
-        kind = 0 if not weak[f0 + 1:f1 + 1].any() else 2 if held[f0] and held[f1] else 1
+        kind = 0 if not weak[f0 + 1 : f1 + 1].any() else 2 if held[f0] and held[f1] else 1
         graph.add(gtsam.BetweenFactorPose3(X(int(f0)), X(int(f1)), pose3(inv_se3(T[f0]) @ T[f1]), models[kind]))
 
 
@@ -365,7 +391,7 @@ def _add_landmark_priors(graph, values, p: JointProblem, params: JointParams, la
     piece of the ego map. A landmark only CMCs matched keeps an absolute prior."""
     T = np.asarray(p.T_world_ego)
     first = np.full(len(p.landmarks), -1)
-    order = np.argsort(p.ego_obs.camera, kind="stable")[::-1]   # the earliest frame written last
+    order = np.argsort(p.ego_obs.camera, kind="stable")[::-1]  # the earliest frame written last
     first[p.ego_obs.point[order]] = p.ego_obs.camera[order]
     noise = gtsam.noiseModel.Isotropic.Sigma(3, params.landmark_prior_sigma_m)
     held = gtsam.noiseModel.Isotropic.Sigma(3, FIXED_SIGMA)
@@ -392,23 +418,35 @@ def _add_a2e(graph, values, p: JointProblem, params: JointParams, anchors: np.nd
     tops = set(zip(chain[p.agent_ids == TOP].tolist(), p.agent_stamps_ns[p.agent_ids == TOP].tolist()))
     bottom = np.flatnonzero(p.agent_ids == BOTTOM)
     lone = bottom[[(int(chain[k]), int(p.agent_stamps_ns[k])) not in tops for k in bottom]].astype(int)
-    _add_head_top_factors(graph, values, p, params, anchors, np.flatnonzero(p.agent_ids == TOP), False,
-                          params.a2e_sigma_m)
-    _add_head_top_factors(graph, values, p, params, anchors, lone, True,
-                          float(np.hypot(params.a2e_sigma_m, params.upright_sigma_m)))
+    _add_head_top_factors(
+        graph, values, p, params, anchors, np.flatnonzero(p.agent_ids == TOP), False, params.a2e_sigma_m
+    )
+    _add_head_top_factors(
+        graph, values, p, params, anchors, lone, True, float(np.hypot(params.a2e_sigma_m, params.upright_sigma_m))
+    )
 
 
-def _add_head_top_factors(graph, values, p: JointProblem, params: JointParams, anchors: np.ndarray,
-                          members: np.ndarray, lone: bool, sigma: float) -> None:
+def _add_head_top_factors(
+    graph,
+    values,
+    p: JointProblem,
+    params: JointParams,
+    anchors: np.ndarray,
+    members: np.ndarray,
+    lone: bool,
+    sigma: float,
+) -> None:
     """A_k ~ T_a Q_k (Huber, sigma) for the agent points in members; for lone ground points
     only horizontally, through the predicted head top H_k = T_a Q_k."""
-    left, right, a, ok = interpolation_pairs(p.ego_stamps_ns, p.agent_stamps_ns[members],
-                                             int(params.max_a2e_gap_s * 1e9))
+    left, right, a, ok = interpolation_pairs(
+        p.ego_stamps_ns, p.agent_stamps_ns[members], int(params.max_a2e_gap_s * 1e9)
+    )
     o = p.head_offset
     T = np.asarray(p.T_world_ego)
     nearest = nearest_anchor(p.ego_stamps_ns, anchors)
-    model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(params.huber_k),
-                                           gtsam.noiseModel.Isotropic.Sigma(3, sigma))
+    model = gtsam.noiseModel.Robust.Create(
+        gtsam.noiseModel.mEstimator.Huber.Create(params.huber_k), gtsam.noiseModel.Isotropic.Sigma(3, sigma)
+    )
     I3 = np.eye(3)
     for k, f0, f1, w in zip(members[ok], left[ok], right[ok], a[ok]):
         k, f = int(k), int(f1 if w >= 0.5 else f0)
@@ -426,8 +464,9 @@ def _add_head_top_factors(graph, values, p: JointProblem, params: JointParams, a
         predicted = Ra @ (R_rel @ o + c) + ta
         values.insert(H(k), gtsam.Point3(*predicted))
         graph.add(gtsam.ReferenceFrameFactorPoint3Pose3(Q(k), X(g), H(k), model))
-        graph.add(_linear([(A(k), I3[:2]), (H(k), -I3[:2])], (predicted - p.agent_points[k])[:2],
-                          FIXED_SIGMA * 1e3, values))
+        graph.add(
+            _linear([(A(k), I3[:2]), (H(k), -I3[:2])], (predicted - p.agent_points[k])[:2], FIXED_SIGMA * 1e3, values)
+        )
 
 
 def _add_kinematics(graph, values, p: JointProblem, params: JointParams) -> None:
@@ -465,5 +504,6 @@ def _add_chain_kinematics(graph, values, p: JointProblem, params: JointParams, m
             r = p.agent_points[t2] - 2 * p.agent_points[t1] + p.agent_points[t0]
             graph.add(_linear([(A(t0), I3), (A(t1), -2 * I3), (A(t2), I3)], -r, params.kin_accel_sigma_m, values))
         if s0 in body_keys and s1 in body_keys:
-            graph.add(gtsam.BetweenFactorPoint3(D(body_keys[s0][0]), D(body_keys[s1][0]), gtsam.Point3(0, 0, 0),
-                                                body_noise))
+            graph.add(
+                gtsam.BetweenFactorPoint3(D(body_keys[s0][0]), D(body_keys[s1][0]), gtsam.Point3(0, 0, 0), body_noise)
+            )

@@ -1,6 +1,7 @@
 """Fusion results <-> messages: RegisteredCameraArray, /tf_static, layout markers, the
 agent fits, and EgoMap (+ its cloud and layout) -> EgoMapData (message classes only, no
 rclpy)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -44,9 +45,15 @@ def optical_frame(name: str) -> str:
 
 
 def layout_from_msg(msg: SceneLayout) -> Layout:
-    return Layout([points_to_array(p.points)[:, :2] for p in msg.floor_polygons], msg.floor_height,
-                  msg.ceiling_height, [LayoutPlane(p.kind, np.asarray(p.coefficients, float), points_to_array(p.boundary),
-                                                   p.num_points) for p in msg.planes])
+    return Layout(
+        [points_to_array(p.points)[:, :2] for p in msg.floor_polygons],
+        msg.floor_height,
+        msg.ceiling_height,
+        [
+            LayoutPlane(p.kind, np.asarray(p.coefficients, float), points_to_array(p.boundary), p.num_points)
+            for p in msg.planes
+        ],
+    )
 
 
 def ego_map_from_msg(msg: EgoMap, cloud=None, layout: SceneLayout | None = None) -> EgoMapData:
@@ -59,12 +66,19 @@ def ego_map_from_msg(msg: EgoMap, cloud=None, layout: SceneLayout | None = None)
         camera_info_to_model(msg.camera_info),
         np.array([stamp_to_ns(s) for s in msg.stamps], dtype=np.int64),
         np.array([pose_to_matrix(p) for p in msg.poses]).reshape(-1, 4, 4),
-        points_to_array(msg.landmarks), msg.descriptor_type, desc,
-        np.asarray(msg.obs_pose_index, dtype=int), np.asarray(msg.obs_landmark_index, dtype=int),
+        points_to_array(msg.landmarks),
+        msg.descriptor_type,
+        desc,
+        np.asarray(msg.obs_pose_index, dtype=int),
+        np.asarray(msg.obs_landmark_index, dtype=int),
         np.column_stack([np.asarray(msg.obs_x, float), np.asarray(msg.obs_y, float)]).reshape(-1, 2),
-        xyz, colors, layout_from_msg(layout) if layout is not None else None,
-        *_tracking(msg), bool(msg.imu),
-        np.asarray(msg.attitude_held, dtype=bool) if len(msg.attitude_held) == len(msg.poses) else None)
+        xyz,
+        colors,
+        layout_from_msg(layout) if layout is not None else None,
+        *_tracking(msg),
+        bool(msg.imu),
+        np.asarray(msg.attitude_held, dtype=bool) if len(msg.attitude_held) == len(msg.poses) else None,
+    )
 
 
 def _tracking(msg: EgoMap) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -73,8 +87,10 @@ def _tracking(msg: EgoMap) -> tuple[np.ndarray | None, np.ndarray | None]:
         return None, None
     codes = np.asarray(msg.tracking, dtype=int)
     # An interpolated pose lies between two densely tracked ones (the ego stage's MEASURED).
-    return (np.isin(codes, [EgoMap.TRACKING_DENSE, EgoMap.TRACKING_MAP, EgoMap.TRACKING_INTERPOLATED]),
-            np.asarray(msg.tracking_fitness, dtype=float))
+    return (
+        np.isin(codes, [EgoMap.TRACKING_DENSE, EgoMap.TRACKING_MAP, EgoMap.TRACKING_INTERPOLATED]),
+        np.asarray(msg.tracking_fitness, dtype=float),
+    )
 
 
 def registered_to_msg(cameras: list[RegisteredCmc], stamp_ns: int) -> RegisteredCameraArray:
@@ -84,23 +100,40 @@ def registered_to_msg(cameras: list[RegisteredCmc], stamp_ns: int) -> Registered
         if c.T_world_cam is not None:
             pose.pose = matrix_to_pose(c.T_world_cam)
             pose.covariance = [float(v) for v in np.asarray(c.covariance).reshape(-1)]
-        out.cameras.append(RegisteredCamera(
-            name=c.name, group=c.group, method=c.method, status=_STATUS[c.status], reason=c.reason,
-            pose_world_camera=pose, k=[float(v) for v in np.asarray(c.K).reshape(-1)],
-            camera_info=model_to_camera_info(c.camera) if c.camera is not None else CameraInfo(),
-            reprojection_rmse_px=float(c.rmse_px), num_agent_observations=int(c.num_agent),
-            num_scene_observations=int(c.num_scene),
-            clock_offset_s=float("nan") if c.clock_offset_s is None else float(c.clock_offset_s),
-            clock_sigma_s=float("nan") if c.clock_sigma_s is None else float(c.clock_sigma_s), clock_note=c.clock_note))
+        out.cameras.append(
+            RegisteredCamera(
+                name=c.name,
+                group=c.group,
+                method=c.method,
+                status=_STATUS[c.status],
+                reason=c.reason,
+                pose_world_camera=pose,
+                k=[float(v) for v in np.asarray(c.K).reshape(-1)],
+                camera_info=model_to_camera_info(c.camera) if c.camera is not None else CameraInfo(),
+                reprojection_rmse_px=float(c.rmse_px),
+                num_agent_observations=int(c.num_agent),
+                num_scene_observations=int(c.num_scene),
+                clock_offset_s=float("nan") if c.clock_offset_s is None else float(c.clock_offset_s),
+                clock_sigma_s=float("nan") if c.clock_sigma_s is None else float(c.clock_sigma_s),
+                clock_note=c.clock_note,
+            )
+        )
     return out
 
 
 def tf_static(cameras: list[RegisteredCmc], stamp_ns: int) -> TFMessage:
     """All registered cameras in one TFMessage: map -> <name>_optical_frame."""
-    return TFMessage(transforms=[
-        TransformStamped(header=Header(stamp=ns_to_time(stamp_ns), frame_id=WORLD_FRAME),
-                         child_frame_id=optical_frame(c.name), transform=matrix_to_transform(c.T_world_cam))
-        for c in cameras if c.T_world_cam is not None])
+    return TFMessage(
+        transforms=[
+            TransformStamped(
+                header=Header(stamp=ns_to_time(stamp_ns), frame_id=WORLD_FRAME),
+                child_frame_id=optical_frame(c.name),
+                transform=matrix_to_transform(c.T_world_cam),
+            )
+            for c in cameras
+            if c.T_world_cam is not None
+        ]
+    )
 
 
 def frustum_lines(camera: CameraModel, T_world_cam: np.ndarray, depth_m: float = 0.6) -> np.ndarray:
@@ -120,19 +153,42 @@ def layout_markers(cameras: list[RegisteredCmc], floor_polygons: list[np.ndarray
     out = MarkerArray()
     for i, poly in enumerate(floor_polygons):
         pts = [Point(x=float(x), y=float(y), z=0.0) for x, y in np.vstack([poly, poly[:1]])]
-        out.markers.append(Marker(header=header, ns="floor", id=i, type=Marker.LINE_STRIP, action=Marker.ADD,
-                                  points=pts, color=ColorRGBA(r=0.6, g=0.6, b=0.6, a=1.0), lifetime=Duration()))
+        out.markers.append(
+            Marker(
+                header=header,
+                ns="floor",
+                id=i,
+                type=Marker.LINE_STRIP,
+                action=Marker.ADD,
+                points=pts,
+                color=ColorRGBA(r=0.6, g=0.6, b=0.6, a=1.0),
+                lifetime=Duration(),
+            )
+        )
         out.markers[-1].scale.x = 0.03
         out.markers[-1].pose.orientation.w = 1.0
     for i, c in enumerate(c for c in cameras if c.T_world_cam is not None and c.camera is not None):
-        m = Marker(header=header, ns="cameras", id=i, type=Marker.LINE_LIST, action=Marker.ADD,
-                   points=[Point(x=float(x), y=float(y), z=float(z)) for x, y, z in frustum_lines(c.camera, c.T_world_cam)],
-                   color=colour.get(c.status, colour[WEAK]))
+        m = Marker(
+            header=header,
+            ns="cameras",
+            id=i,
+            type=Marker.LINE_LIST,
+            action=Marker.ADD,
+            points=[Point(x=float(x), y=float(y), z=float(z)) for x, y, z in frustum_lines(c.camera, c.T_world_cam)],
+            color=colour.get(c.status, colour[WEAK]),
+        )
         m.scale.x = 0.02
         m.pose.orientation.w = 1.0
         out.markers.append(m)
-        label = Marker(header=header, ns="labels", id=i, type=Marker.TEXT_VIEW_FACING, action=Marker.ADD,
-                       text=c.name, color=ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0))
+        label = Marker(
+            header=header,
+            ns="labels",
+            id=i,
+            type=Marker.TEXT_VIEW_FACING,
+            action=Marker.ADD,
+            text=c.name,
+            color=ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0),
+        )
         label.pose = matrix_to_pose(c.T_world_cam)
         label.pose.position.z += 0.25
         label.scale.z = 0.2
@@ -140,24 +196,41 @@ def layout_markers(cameras: list[RegisteredCmc], floor_polygons: list[np.ndarray
     return out
 
 
-def agent_fits_to_msg(fits: list[AgentFit], cameras: dict[str, CameraModel], backgrounds: dict[str, Image],
-                      stamp_ns: int) -> CameraAgentFitArray:
+def agent_fits_to_msg(
+    fits: list[AgentFit], cameras: dict[str, CameraModel], backgrounds: dict[str, Image], stamp_ns: int
+) -> CameraAgentFitArray:
     out = CameraAgentFitArray(header=Header(stamp=ns_to_time(stamp_ns), frame_id=WORLD_FRAME))
     for f in fits:
         cam = cameras[f.name]
-        out.cameras.append(CameraAgentFit(
-            name=f.name, width=cam.width, height=cam.height, keypoint_ids=[int(i) for i in f.keypoint_ids],
-            observed_uv=np.asarray(f.observed_uv, np.float32).reshape(-1).tolist(),
-            reprojected_uv=np.asarray(f.reprojected_uv, np.float32).reshape(-1).tolist(),
-            background=backgrounds.get(f.name, Image())))
+        out.cameras.append(
+            CameraAgentFit(
+                name=f.name,
+                width=cam.width,
+                height=cam.height,
+                keypoint_ids=[int(i) for i in f.keypoint_ids],
+                observed_uv=np.asarray(f.observed_uv, np.float32).reshape(-1).tolist(),
+                reprojected_uv=np.asarray(f.reprojected_uv, np.float32).reshape(-1).tolist(),
+                background=backgrounds.get(f.name, Image()),
+            )
+        )
     return out
 
 
 def agent_fits_from_msg(msg: CameraAgentFitArray) -> list[tuple[AgentFit, tuple[int, int], Image | None]]:
     """(fit, (width, height), background image or None) per camera."""
-    return [(AgentFit(c.name, np.asarray(c.keypoint_ids, int), np.asarray(c.observed_uv, float).reshape(-1, 2),
-                      np.asarray(c.reprojected_uv, float).reshape(-1, 2)), (c.width, c.height),
-             c.background if c.background.width else None) for c in msg.cameras]
+    return [
+        (
+            AgentFit(
+                c.name,
+                np.asarray(c.keypoint_ids, int),
+                np.asarray(c.observed_uv, float).reshape(-1, 2),
+                np.asarray(c.reprojected_uv, float).reshape(-1, 2),
+            ),
+            (c.width, c.height),
+            c.background if c.background.width else None,
+        )
+        for c in msg.cameras
+    ]
 
 
 def registered_from_msg(msg: RegisteredCameraArray) -> list[RegisteredCmc]:
@@ -165,12 +238,22 @@ def registered_from_msg(msg: RegisteredCameraArray) -> list[RegisteredCmc]:
     out = []
     for c in msg.cameras:
         failed = c.status == RegisteredCamera.STATUS_FAILED
-        out.append(RegisteredCmc(c.name, c.group, c.method, status[c.status], c.reason,
-                                 None if failed else pose_to_matrix(c.pose_world_camera.pose),
-                                 None if failed else np.asarray(c.pose_world_camera.covariance).reshape(6, 6),
-                                 camera_info_to_model(c.camera_info) if c.camera_info.width else None,
-                                 c.reprojection_rmse_px,
-                                 c.num_agent_observations, c.num_scene_observations,
-                                 float(c.clock_offset_s) if np.isfinite(c.clock_offset_s) else None,
-                                 float(c.clock_sigma_s) if np.isfinite(c.clock_sigma_s) else None, c.clock_note))
+        out.append(
+            RegisteredCmc(
+                c.name,
+                c.group,
+                c.method,
+                status[c.status],
+                c.reason,
+                None if failed else pose_to_matrix(c.pose_world_camera.pose),
+                None if failed else np.asarray(c.pose_world_camera.covariance).reshape(6, 6),
+                camera_info_to_model(c.camera_info) if c.camera_info.width else None,
+                c.reprojection_rmse_px,
+                c.num_agent_observations,
+                c.num_scene_observations,
+                float(c.clock_offset_s) if np.isfinite(c.clock_offset_s) else None,
+                float(c.clock_sigma_s) if np.isfinite(c.clock_sigma_s) else None,
+                c.clock_note,
+            )
+        )
     return out

@@ -3,6 +3,7 @@
 scene keypoints with pose priors, joint optimisation, isolated CMCs, covariances
 and a verdict per camera; the ego map's cloud and layout refined with the jointly
 optimised ego poses."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
@@ -40,32 +41,32 @@ OK, WEAK, FAILED = "ok", "weak", "failed"
 
 @dataclass
 class EgoMapData:
-    camera: CameraModel              # ego intrinsics with distortion
-    stamps_ns: np.ndarray            # (F,)
-    T_world_ego: np.ndarray          # (F, 4, 4)
-    landmarks: np.ndarray            # (P, 3)
+    camera: CameraModel  # ego intrinsics with distortion
+    stamps_ns: np.ndarray  # (F,)
+    T_world_ego: np.ndarray  # (F, 4, 4)
+    landmarks: np.ndarray  # (P, 3)
     descriptor_type: str
-    descriptors: np.ndarray          # (P, D) uint8
-    obs_pose: np.ndarray             # (M,)
-    obs_landmark: np.ndarray         # (M,)
-    obs_uv: np.ndarray               # (M, 2) raw pixels
-    cloud_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))   # (N, 3) world
-    cloud_colors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))   # (N, 3) in [0, 1]
-    layout: Layout | None = None     # the ego stage's layout of that cloud
+    descriptors: np.ndarray  # (P, D) uint8
+    obs_pose: np.ndarray  # (M,)
+    obs_landmark: np.ndarray  # (M,)
+    obs_uv: np.ndarray  # (M, 2) raw pixels
+    cloud_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (N, 3) world
+    cloud_colors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (N, 3) in [0, 1]
+    layout: Layout | None = None  # the ego stage's layout of that cloud
     # (F,) per frame: tracked by vision (dense odometry or placed in the map; not a guess or a
     # gyro bridge), and its overlap; None: the ego stage did not say
     tracking_measured: np.ndarray | None = None
     tracking_fitness: np.ndarray | None = None
-    imu: bool = False                # the ego stage tracked with the gyro's rotation between frames
+    imu: bool = False  # the ego stage tracked with the gyro's rotation between frames
     # (F,) the ego stage held the frame's attitude to the building (its walls and floor); None: not said
     attitude_held: np.ndarray | None = None
 
 
 @dataclass
 class CmcInput:
-    tracks: CameraTracks             # raw keypoints + camera model with distortion
-    background: np.ndarray | None = None   # agent-free RGB image, for scene keypoints
-    intrinsics_known: bool = True    # False: the camera model is a nominal one its group SfM estimates
+    tracks: CameraTracks  # raw keypoints + camera model with distortion
+    background: np.ndarray | None = None  # agent-free RGB image, for scene keypoints
+    intrinsics_known: bool = True  # False: the camera model is a nominal one its group SfM estimates
 
 
 @dataclass
@@ -76,8 +77,8 @@ class RegisteredCmc:
     status: str
     reason: str
     T_world_cam: np.ndarray | None
-    covariance: np.ndarray | None    # 6x6 ROS order (x, y, z, rx, ry, rz), world frame; NaN: unknown
-    camera: CameraModel | None       # the intrinsics (with distortion) used; None: no CameraInfo arrived
+    covariance: np.ndarray | None  # 6x6 ROS order (x, y, z, rx, ry, rz), world frame; NaN: unknown
+    camera: CameraModel | None  # the intrinsics (with distortion) used; None: no CameraInfo arrived
     rmse_px: float
     num_agent: int
     num_scene: int
@@ -97,9 +98,9 @@ class AgentFit:
     (what the report draws over the camera's background)."""
 
     name: str
-    keypoint_ids: np.ndarray       # (M,)
-    observed_uv: np.ndarray        # (M, 2)
-    reprojected_uv: np.ndarray     # (M, 2), NaN behind the camera
+    keypoint_ids: np.ndarray  # (M,)
+    observed_uv: np.ndarray  # (M, 2)
+    reprojected_uv: np.ndarray  # (M, 2), NaN behind the camera
 
 
 @dataclass(frozen=True)
@@ -109,6 +110,7 @@ class UpstreamParams:
     the node gets each in a parameter of the field's name): how the group SfM cleans the
     CMC keypoint tracks (cmc.sfm.tracks) and how the ego stage builds its cloud and layout
     (ego.cloud, ego.layout), which the fusion rebuilds at the jointly optimised poses."""
+
     tracks: TrackParams = TrackParams()
     cloud: CloudParams = CloudParams()
     layout: LayoutParams = LayoutParams()
@@ -125,7 +127,7 @@ class FusionParams:
     scene: SceneMatchParams = SceneMatchParams()
     isolated: IsolatedParams = IsolatedParams()
     use_scene_keypoints: bool = True
-    joint_optimisation: bool = True           # False: ablation "without joint optimisation"
+    joint_optimisation: bool = True  # False: ablation "without joint optimisation"
     ok_rmse_px: float = 3.0
     ok_position_sigma_m: float = 0.10
     # Where the ego map is not to be trusted (weak_ego_frames): frames tracked from a keyframe
@@ -188,9 +190,9 @@ class FusionResult:
     landmarks: np.ndarray
     agent: AgentTrack
     head_offset: np.ndarray
-    point_cloud: np.ndarray                   # (N, 3) the ego map's cloud at the refined ego poses
-    point_colors: np.ndarray                  # (N, 3) in [0, 1]
-    layout: Layout | None                     # rebuilt from point_cloud (the ego stage's without JO)
+    point_cloud: np.ndarray  # (N, 3) the ego map's cloud at the refined ego poses
+    point_colors: np.ndarray  # (N, 3) in [0, 1]
+    layout: Layout | None  # rebuilt from point_cloud (the ego stage's without JO)
     alignments: dict[str, Sim3] = field(default_factory=dict)
     agent_fits: list[AgentFit] = field(default_factory=list)
 
@@ -229,10 +231,12 @@ def head_offset_estimate(group: CameraGroupResult, ego: EgoMapData, params: Alig
     stamps, local, ground = _group_tracks(group, params)
     al = align_group(stamps, local, ego.stamps_ns, ego.T_world_ego[:, :3, 3], params, *ground)
     if al.rms_m > params.max_rms_m:
-        raise ValueError(f"its agent track does not fit the ego trajectory (RMS {al.rms_m:.2f} m > "
-                         f"{params.max_rms_m:g} m)")
-    return _head_offset(_on_floor(al.sim3_world_local, group), stamps, local, ego,
-                        int(params.max_time_gap_s * 1e9)), al.num_clusters
+        raise ValueError(
+            f"its agent track does not fit the ego trajectory (RMS {al.rms_m:.2f} m > {params.max_rms_m:g} m)"
+        )
+    return _head_offset(
+        _on_floor(al.sim3_world_local, group), stamps, local, ego, int(params.max_time_gap_s * 1e9)
+    ), al.num_clusters
 
 
 def head_tops(T_world_ego: np.ndarray, head_offset: np.ndarray) -> np.ndarray:
@@ -245,8 +249,9 @@ def align_to_world(group: CameraGroupResult, ego: EgoMapData, params: AlignParam
     rig's head offset (one for all groups: a group that saw a short stretch of the walk
     estimates it badly on its own)."""
     stamps, local, ground = _group_tracks(group, params)
-    return align_group(stamps, local, ego.stamps_ns, head_tops(ego.T_world_ego, head_offset), params,
-                       *ground).sim3_world_local
+    return align_group(
+        stamps, local, ego.stamps_ns, head_tops(ego.T_world_ego, head_offset), params, *ground
+    ).sim3_world_local
 
 
 def weighted_median(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -280,8 +285,9 @@ def weak_ego_frames(ego: EgoMapData, params: FusionParams) -> tuple[np.ndarray, 
         last = np.searchsorted(keyframes, np.arange(n), side="right") - 1
         few = np.where(last >= 0, counts[keyframes[np.maximum(last, 0)]], 0) < params.weak_keyframe_landmarks
         if ego.tracking_fitness is not None:
-            few &= ego.tracking_fitness < (params.weak_tracking_fitness_imu if ego.imu
-                                           else params.weak_tracking_fitness)
+            few &= ego.tracking_fitness < (
+                params.weak_tracking_fitness_imu if ego.imu else params.weak_tracking_fitness
+            )
         weak |= few
     if ego.tracking_measured is not None:
         weak |= ~ego.tracking_measured
@@ -299,24 +305,37 @@ class EgoStretch:
     frames: int
     weak_share: float
     gaps: int
-    moved_m: float = 0.0    # how far the joint optimisation moved it (RMS)
+    moved_m: float = 0.0  # how far the joint optimisation moved it (RMS)
 
     def broken(self, params: FusionParams) -> bool:
         return self.gaps > 0 or self.weak_share > params.ok_weak_share or self.moved_m > params.ok_map_moved_m
 
     def describe(self) -> str:
-        parts = [f"{100 * self.weak_share:.0f} % of its {self.frames} frames tracked from keyframes with next to "
-                 "no landmarks"] if self.weak_share >= 0.005 else []
+        parts = (
+            [
+                f"{100 * self.weak_share:.0f} % of its {self.frames} frames tracked from keyframes with next to "
+                "no landmarks"
+            ]
+            if self.weak_share >= 0.005
+            else []
+        )
         if self.gaps:
-            parts.append(f"{self.gaps} break(s) up to the stretch's end (gaps in its frames, steps the joint "
-                         "optimisation found broken)")
+            parts.append(
+                f"{self.gaps} break(s) up to the stretch's end (gaps in its frames, steps the joint "
+                "optimisation found broken)"
+            )
         if self.moved_m >= 0.01:
             parts.append(f"the joint optimisation moved it by {self.moved_m:.2f} m RMS")
         return ", ".join(parts) or f"its {self.frames} frames well tracked"
 
 
-def ego_stretch(ego: EgoMapData, weak: tuple[np.ndarray, np.ndarray], stamps_ns: np.ndarray,
-                max_gap_s: float, T_world_ego_joint: np.ndarray | None = None) -> EgoStretch:
+def ego_stretch(
+    ego: EgoMapData,
+    weak: tuple[np.ndarray, np.ndarray],
+    stamps_ns: np.ndarray,
+    max_gap_s: float,
+    T_world_ego_joint: np.ndarray | None = None,
+) -> EgoStretch:
     """The ego frames between the first and last of `stamps_ns` that fall in the recording;
     with the joint optimisation's trajectory, how far it moved them."""
     f = np.clip(np.searchsorted(ego.stamps_ns, stamps_ns), 0, len(ego.stamps_ns) - 1)
@@ -326,10 +345,11 @@ def ego_stretch(ego: EgoMapData, weak: tuple[np.ndarray, np.ndarray], stamps_ns:
     lo, hi = int(f.min()), int(f.max())
     moved = 0.0
     if T_world_ego_joint is not None:
-        d = T_world_ego_joint[lo:hi + 1, :3, 3] - ego.T_world_ego[lo:hi + 1, :3, 3]
-        moved = float(np.sqrt(np.mean(np.sum(d ** 2, axis=1))))
-    return EgoStretch(hi - lo + 1, float(weak[0][lo + 1:hi + 1].mean()) if hi > lo else 0.0,
-                      int(weak[1][:hi + 1].sum()), moved)
+        d = T_world_ego_joint[lo : hi + 1, :3, 3] - ego.T_world_ego[lo : hi + 1, :3, 3]
+        moved = float(np.sqrt(np.mean(np.sum(d**2, axis=1))))
+    return EgoStretch(
+        hi - lo + 1, float(weak[0][lo + 1 : hi + 1].mean()) if hi > lo else 0.0, int(weak[1][: hi + 1].sum()), moved
+    )
 
 
 EGO_MAP, GROUP, UNDECIDED = "ego map", "group", "undecided"
@@ -347,8 +367,10 @@ def blame(group: CameraGroupResult, stretch: EgoStretch, params: FusionParams) -
         return EGO_MAP, f"the ego map is at fault ({stretch.describe()}); {own}"
     # The ego map can break without a sign in what it publishes (a lost track joined by a
     # guessed step): a self-consistent group against it is not to be trusted either way.
-    return UNDECIDED, (f"undecided: {own} and the ego map shows no weak tracking there ({stretch.describe()}), "
-                       "though it may have broken unseen")
+    return UNDECIDED, (
+        f"undecided: {own} and the ego map shows no weak tracking there ({stretch.describe()}), "
+        "though it may have broken unseen"
+    )
 
 
 def window_alignment(group: CameraGroupResult, ego: EgoMapData, params: AlignParams, window_s: float):
@@ -360,8 +382,11 @@ def window_alignment(group: CameraGroupResult, ego: EgoMapData, params: AlignPar
         return None
     for t0 in range(int(stamps.min()), max(int(stamps.max()) - span, int(stamps.min())) + 1, 10**9):
         sel = (stamps >= t0) & (stamps < t0 + span)
-        ground = (None, None) if g_ns is None else (g_ns[(g_ns >= t0) & (g_ns < t0 + span)],
-                                                    g_local[(g_ns >= t0) & (g_ns < t0 + span)])
+        ground = (
+            (None, None)
+            if g_ns is None
+            else (g_ns[(g_ns >= t0) & (g_ns < t0 + span)], g_local[(g_ns >= t0) & (g_ns < t0 + span)])
+        )
         try:
             al = align_group(stamps[sel], local[sel], ego.stamps_ns, ego.T_world_ego[:, :3, 3], params, *ground)
         except ValueError:
@@ -371,15 +396,23 @@ def window_alignment(group: CameraGroupResult, ego: EgoMapData, params: AlignPar
     return best
 
 
-def head_top_rms(agent: AgentTrack, chain: np.ndarray, c: int, ego_stamps_ns: np.ndarray, T_world_ego: np.ndarray,
-                 head_offset: np.ndarray, max_gap_s: float) -> float:
+def head_top_rms(
+    agent: AgentTrack,
+    chain: np.ndarray,
+    c: int,
+    ego_stamps_ns: np.ndarray,
+    T_world_ego: np.ndarray,
+    head_offset: np.ndarray,
+    max_gap_s: float,
+) -> float:
     """RMS distance between a group's head-top points and the head top the ego trajectory
     predicts at their stamps."""
     sel = (chain == c) & (agent.ids == 0)
-    predicted, ok = interpolate_positions(ego_stamps_ns, head_tops(T_world_ego, head_offset), agent.stamps_ns[sel],
-                                          int(max_gap_s * 1e9))
+    predicted, ok = interpolate_positions(
+        ego_stamps_ns, head_tops(T_world_ego, head_offset), agent.stamps_ns[sel], int(max_gap_s * 1e9)
+    )
     d = np.linalg.norm(agent.points[sel][ok] - predicted[ok], axis=1)
-    return float(np.sqrt(np.mean(d ** 2))) if len(d) else float("nan")
+    return float(np.sqrt(np.mean(d**2))) if len(d) else float("nan")
 
 
 def _verdict(rmse: float, cov: np.ndarray, params: FusionParams, cov_failure: str = "") -> tuple[str, str]:
@@ -393,8 +426,9 @@ def _verdict(rmse: float, cov: np.ndarray, params: FusionParams, cov_failure: st
     return (WEAK, "; ".join(reasons)) if reasons else (OK, "")
 
 
-def _covariance(camera: CameraModel, T: np.ndarray, points: np.ndarray, uv: np.ndarray, sigma_px: float
-                ) -> tuple[np.ndarray, str]:
+def _covariance(
+    camera: CameraModel, T: np.ndarray, points: np.ndarray, uv: np.ndarray, sigma_px: float
+) -> tuple[np.ndarray, str]:
     """One camera's pose covariance through fixed points, or unknown and why (degenerate geometry)."""
     try:
         return ros_covariance(pose_covariance(camera, T, points, uv, sigma_px), T[:3, :3]), ""
@@ -413,19 +447,19 @@ class _GroupedCmcs:
     (points: every group's local track moved by its alignment; chain: the group of each)."""
 
     names: list[str]
-    cams: list[CameraModel]              # ideal pinhole (undistorted)
-    T_init: list[np.ndarray]             # T_world_cam from the group's alignment
+    cams: list[CameraModel]  # ideal pinhole (undistorted)
+    T_init: list[np.ndarray]  # T_world_cam from the group's alignment
     group_of: dict[str, str]
     agent: AgentTrack
     agent_obs: Observations
     agent_chain: np.ndarray
-    agent_single: np.ndarray             # (K,) a head top one camera saw (single_view_head_tops)
+    agent_single: np.ndarray  # (K,) a head top one camera saw (single_view_head_tops)
     head_offset: np.ndarray
     alignments: dict[str, Sim3]
-    failed: dict[str, str]               # camera -> why it is not among the grouped ones
-    clocks: dict[str, tuple[float | None, float | None, str]]   # camera -> its clock - the ego's, sigma, note
-    chains: dict[str, tuple[int, CameraGroupResult]]   # group -> its agent_chain value and the group (ego clock)
-    disputed: set[str]                   # cameras of a self-consistent group the ego stage's trajectory contradicts
+    failed: dict[str, str]  # camera -> why it is not among the grouped ones
+    clocks: dict[str, tuple[float | None, float | None, str]]  # camera -> its clock - the ego's, sigma, note
+    chains: dict[str, tuple[int, CameraGroupResult]]  # group -> its agent_chain value and the group (ego clock)
+    disputed: set[str]  # cameras of a self-consistent group the ego stage's trajectory contradicts
 
     @property
     def fit_chain(self) -> np.ndarray:
@@ -434,9 +468,15 @@ class _GroupedCmcs:
         return np.where(self.agent_single, -1, self.agent_chain)
 
 
-def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, str],
-                   cmcs: dict[str, CmcInput], params: FusionParams, weak: tuple[np.ndarray, np.ndarray],
-                   tracks: TrackParams) -> _GroupedCmcs:
+def _gather_groups(
+    ego: EgoMapData,
+    groups: list[CameraGroupResult],
+    ungrouped: dict[str, str],
+    cmcs: dict[str, CmcInput],
+    params: FusionParams,
+    weak: tuple[np.ndarray, np.ndarray],
+    tracks: TrackParams,
+) -> _GroupedCmcs:
     names, cams, T_init, group_of = [], [], [], {}
     agent_pts, agent_ns, agent_ids, agent_chain, agent_single = [], [], [], [], []
     c_idx, p_idx, uv_obs, sig_obs = [], [], [], []
@@ -449,23 +489,33 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
             estimates[g.group_id] = head_offset_estimate(g, ego, params.align)
         except ValueError as exc:
             fault, why = blame(g, ego_stretch(ego, weak, g.point_stamps_ns, params.align.max_time_gap_s), params)
-            al = window_alignment(g, ego, params.align, params.rescue_window_s) \
-                if fault != GROUP and params.rescue_window_s > 0 else None
+            al = (
+                window_alignment(g, ego, params.align, params.rescue_window_s)
+                if fault != GROUP and params.rescue_window_s > 0
+                else None
+            )
             if al is not None and al.rms_m <= params.ok_track_rms_m:
                 rescued[g.group_id] = _on_floor(al.sim3_world_local, g)
                 distrusted.update(g.names)
                 continue
-            failed.update({n: f"group {g.group_id} could not be aligned to the ego trajectory: {exc}: {why}"
-                           for n in g.names})
+            failed.update(
+                {n: f"group {g.group_id} could not be aligned to the ego trajectory: {exc}: {why}" for n in g.names}
+            )
             distrusted.update(g.names if fault != GROUP else [])
-    head_offset = weighted_median(np.array([o for o, _ in estimates.values()]),
-                                  np.array([w for _, w in estimates.values()], float)) if estimates else np.zeros(3)
+    head_offset = (
+        weighted_median(
+            np.array([o for o, _ in estimates.values()]), np.array([w for _, w in estimates.values()], float)
+        )
+        if estimates
+        else np.zeros(3)
+    )
     heads = head_tops(ego.T_world_ego, head_offset)
     for gi, g in enumerate(groups):
         if g.group_id not in estimates and g.group_id not in rescued:
             continue
-        S = alignments[g.group_id] = rescued[g.group_id] if g.group_id in rescued else \
-            align_to_world(g, ego, params.align, head_offset)
+        S = alignments[g.group_id] = (
+            rescued[g.group_id] if g.group_id in rescued else align_to_world(g, ego, params.align, head_offset)
+        )
         chains[g.group_id] = (gi, g)
         base = sum(len(p) for p in agent_pts)
         agent_pts.append(S.apply(g.points))
@@ -475,8 +525,8 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
         agent_single.append(np.zeros(len(g.points), bool))
         key = {(int(s), int(i)): base + k for k, (s, i) in enumerate(zip(g.point_stamps_ns, g.point_ids))}
         stamps = np.unique(g.point_stamps_ns)
-        lone_tops: dict[int, list] = {}          # stamp index -> (camera, uv, sigma) of untriangulated head tops
-        lone_own: list = []                       # (camera, stamp, uv, sigma) where the group has no point
+        lone_tops: dict[int, list] = {}  # stamp index -> (camera, uv, sigma) of untriangulated head tops
+        lone_own: list = []  # (camera, stamp, uv, sigma) where the group has no point
         for n in g.names:
             if n not in cmcs:
                 failed[n] = "no keypoints received for this camera"
@@ -485,8 +535,11 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
             # stamp (point_stamps_ns repeats a stamp for every keypoint id triangulated there).
             shifted = cmcs[n].tracks.shifted(g.clock_offsets_s.get(n, 0.0) + ego_shift[g.group_id])
             # Its own head-top stamps where the group has no point (single_view_head_tops).
-            own = _away_from(shifted.tracks[TOP].stamps_ns, stamps) \
-                if params.single_view_head_tops and TOP in shifted.tracks else np.zeros(0, np.int64)
+            own = (
+                _away_from(shifted.tracks[TOP].stamps_ns, stamps)
+                if params.single_view_head_tops and TOP in shifted.tracks
+                else np.zeros(0, np.int64)
+            )
             ideal, samples = resample(shifted, np.concatenate([stamps, own]), tracks)
             ci = len(names)
             names.append(n)
@@ -496,9 +549,10 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
             sigma = {i: g.sigma_px_by_id.get(i, params.joint.ego_sigma_px * 1.5) for i in samples}
             if len(own):
                 uv, ok = samples[TOP]
-                lone_own += [(ci, int(s), uv[len(stamps) + k], sigma[TOP]) for k, s in enumerate(own)
-                             if ok[len(stamps) + k]]
-            samples = {i: (uv[:len(stamps)], ok[:len(stamps)]) for i, (uv, ok) in samples.items()}
+                lone_own += [
+                    (ci, int(s), uv[len(stamps) + k], sigma[TOP]) for k, s in enumerate(own) if ok[len(stamps) + k]
+                ]
+            samples = {i: (uv[: len(stamps)], ok[: len(stamps)]) for i, (uv, ok) in samples.items()}
             for kp_id, (uv, ok) in samples.items():
                 for k in np.flatnonzero(ok):
                     j = key.get((int(stamps[k]), kp_id))
@@ -511,8 +565,12 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
                         lone_tops.setdefault(int(k), []).append((ci, uv[k], sigma[kp_id]))
         if params.single_view_head_tops:
             # Seen by one member only (two that saw it and were not triangulated disagree).
-            single = [(ci, int(stamps[k]), uv, sigma_px) for k, seen in sorted(lone_tops.items()) if len(seen) == 1
-                      for ci, uv, sigma_px in seen] + lone_own
+            single = [
+                (ci, int(stamps[k]), uv, sigma_px)
+                for k, seen in sorted(lone_tops.items())
+                if len(seen) == 1
+                for ci, uv, sigma_px in seen
+            ] + lone_own
             at = np.array([s for _, s, _, _ in single], np.int64)
             predicted, near = interpolate_positions(ego.stamps_ns, heads, at, int(params.align.max_time_gap_s * 1e9))
             base = sum(len(p) for p in agent_pts)
@@ -526,15 +584,30 @@ def _gather_groups(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: 
             agent_ids.append(np.full(int(near.sum()), TOP))
             agent_chain.append(np.full(int(near.sum()), gi))
             agent_single.append(np.ones(int(near.sum()), bool))
-    agent = AgentTrack(np.concatenate(agent_ns or [np.zeros(0, np.int64)]),
-                       np.concatenate(agent_ids or [np.zeros(0, int)]),
-                       np.vstack(agent_pts or [np.zeros((0, 3))]))
-    agent_obs = Observations(np.array(c_idx, int), np.array(p_idx, int), np.array(uv_obs).reshape(-1, 2),
-                             np.array(sig_obs))
-    return _GroupedCmcs(names, cams, T_init, group_of, agent, agent_obs,
-                        np.concatenate(agent_chain or [np.zeros(0, int)]),
-                        np.concatenate(agent_single or [np.zeros(0, bool)]), head_offset, alignments, failed, clocks,
-                        chains, distrusted)
+    agent = AgentTrack(
+        np.concatenate(agent_ns or [np.zeros(0, np.int64)]),
+        np.concatenate(agent_ids or [np.zeros(0, int)]),
+        np.vstack(agent_pts or [np.zeros((0, 3))]),
+    )
+    agent_obs = Observations(
+        np.array(c_idx, int), np.array(p_idx, int), np.array(uv_obs).reshape(-1, 2), np.array(sig_obs)
+    )
+    return _GroupedCmcs(
+        names,
+        cams,
+        T_init,
+        group_of,
+        agent,
+        agent_obs,
+        np.concatenate(agent_chain or [np.zeros(0, int)]),
+        np.concatenate(agent_single or [np.zeros(0, bool)]),
+        head_offset,
+        alignments,
+        failed,
+        clocks,
+        chains,
+        distrusted,
+    )
 
 
 def _away_from(query_ns: np.ndarray, grid_ns: np.ndarray) -> np.ndarray:
@@ -547,8 +620,9 @@ def _away_from(query_ns: np.ndarray, grid_ns: np.ndarray) -> np.ndarray:
     return query_ns[np.minimum(np.abs(query_ns - grid_ns[i - 1]), np.abs(grid_ns[i] - query_ns)) > half]
 
 
-def _on_ego_clock(groups: list[CameraGroupResult], ego: EgoMapData, params: AlignParams
-                  ) -> tuple[list[CameraGroupResult], dict[str, float], dict[str, tuple[float | None, float | None, str]]]:
+def _on_ego_clock(
+    groups: list[CameraGroupResult], ego: EgoMapData, params: AlignParams
+) -> tuple[list[CameraGroupResult], dict[str, float], dict[str, tuple[float | None, float | None, str]]]:
     """Each group with its track on the ego clock (its reference camera's offset to the
     ego camera estimated from the agent's track against the ego trajectory; 0 where it is
     not observable), that offset per group, and each member's clock against the ego's:
@@ -564,33 +638,53 @@ def _on_ego_clock(groups: list[CameraGroupResult], ego: EgoMapData, params: Alig
         out.append(replace(g, point_stamps_ns=g.point_stamps_ns - round(delta * 1e9)))
         note = f"group {g.group_id}'s track against the ego trajectory (reference {g.reference})"
         if fit.offset_s is not None and not applied:
-            note += (f": {1e3 * fit.offset_s:+.1f} +- {1e3 * fit.sigma_s:.1f} ms is within "
-                     f"{params.min_clock_significance:g} sigma of 0, so the clocks are taken as equal")
+            note += (
+                f": {1e3 * fit.offset_s:+.1f} +- {1e3 * fit.sigma_s:.1f} ms is within "
+                f"{params.min_clock_significance:g} sigma of 0, so the clocks are taken as equal"
+            )
         for n in g.names:
             if fit.offset_s is None:
                 clocks[n] = (None, None, f"group {g.group_id}'s clock against the ego camera: {fit.reason}")
             else:
-                clocks[n] = (g.clock_offsets_s.get(n, 0.0) + delta,
-                             float(np.hypot(g.clock_sigmas_s.get(n, 0.0), fit.sigma_s)), note)
+                clocks[n] = (
+                    g.clock_offsets_s.get(n, 0.0) + delta,
+                    float(np.hypot(g.clock_sigmas_s.get(n, 0.0), fit.sigma_s)),
+                    note,
+                )
     return out, shifts, clocks
 
 
-def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, str], cmcs: dict[str, CmcInput],
-         params: FusionParams = FusionParams(), upstream: UpstreamParams = UpstreamParams()) -> FusionResult:
+def fuse(
+    ego: EgoMapData,
+    groups: list[CameraGroupResult],
+    ungrouped: dict[str, str],
+    cmcs: dict[str, CmcInput],
+    params: FusionParams = FusionParams(),
+    upstream: UpstreamParams = UpstreamParams(),
+) -> FusionResult:
     # A camera without CameraInfo is projected with the intrinsics its group SfM estimated.
     estimated = {n: c for g in groups for n, c in g.cameras.items() if isinstance(c, EstimatedCamera)}
-    cmcs = {n: replace(c, tracks=replace(c.tracks, camera=estimated[n])) if n in estimated else c
-            for n, c in cmcs.items()}
+    cmcs = {
+        n: replace(c, tracks=replace(c.tracks, camera=estimated[n])) if n in estimated else c for n, c in cmcs.items()
+    }
     ideal_ego = CameraModel(ego.camera.width, ego.camera.height, ego.camera.K)
-    ego_obs = Observations(ego.obs_pose.astype(int), ego.obs_landmark.astype(int),
-                           ego.camera.undistort_pixels(ego.obs_uv), np.full(len(ego.obs_pose), params.joint.ego_sigma_px))
+    ego_obs = Observations(
+        ego.obs_pose.astype(int),
+        ego.obs_landmark.astype(int),
+        ego.camera.undistort_pixels(ego.obs_uv),
+        np.full(len(ego.obs_pose), params.joint.ego_sigma_px),
+    )
     weak = weak_ego_frames(ego, params)
     grouped = _gather_groups(ego, groups, ungrouped, cmcs, params, weak, upstream.tracks)
     names, cams, T_init, group_of = grouped.names, grouped.cams, grouped.T_init, grouped.group_of
     agent, agent_obs, head_offset = grouped.agent, grouped.agent_obs, grouped.head_offset
     # Each group's track against the ego map as the ego stage made it (before the joint optimisation).
-    fit_before = {gid: head_top_rms(agent, grouped.fit_chain, c, ego.stamps_ns, ego.T_world_ego, head_offset,
-                                    params.align.max_time_gap_s) for gid, (c, _) in grouped.chains.items()}
+    fit_before = {
+        gid: head_top_rms(
+            agent, grouped.fit_chain, c, ego.stamps_ns, ego.T_world_ego, head_offset, params.align.max_time_gap_s
+        )
+        for gid, (c, _) in grouped.chains.items()
+    }
     scene_obs, scene_count = _scene_observations(names, cams, T_init, cmcs, ego, params)
     registered: list[RegisteredCmc] = []
     fits: list[AgentFit] = []
@@ -621,24 +715,53 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
             covs.append(cov)
             cov_failures.append(failure)
         agent_res = reprojection_residuals(cams, T_final, agent.points, agent_obs)
-        distrust_of: dict[str, list[str]] = {}      # a group's, the same for each of its cameras
+        distrust_of: dict[str, list[str]] = {}  # a group's, the same for each of its cameras
         for i, n in enumerate(names):
             own = agent_obs.camera == i
             raw = cmcs[n].tracks.camera
-            fits.append(AgentFit(n, agent.ids[agent_obs.point[own]], raw.distort_pixels(agent_obs.uv[own]),
-                                 raw.distort_pixels(agent_obs.uv[own] - agent_res[own])))
+            fits.append(
+                AgentFit(
+                    n,
+                    agent.ids[agent_obs.point[own]],
+                    raw.distort_pixels(agent_obs.uv[own]),
+                    raw.distort_pixels(agent_obs.uv[own] - agent_res[own]),
+                )
+            )
             rmse = _rmse(agent_res[own])
             status, reason = _verdict(rmse, covs[i], params, cov_failures[i])
             g = group_of[n]
             if g not in distrust_of:
                 distrust_of[g] = [jo.failure, jo.left_out.get(g, "")] + _group_distrust(
-                    grouped.chains[g], agent, grouped.fit_chain, ego, T_ego, head_offset, weak, params,
-                    n in grouped.disputed, fit_before[g])
+                    grouped.chains[g],
+                    agent,
+                    grouped.fit_chain,
+                    ego,
+                    T_ego,
+                    head_offset,
+                    weak,
+                    params,
+                    n in grouped.disputed,
+                    fit_before[g],
+                )
             distrust = distrust_of[g]
             if any(distrust):
                 status, reason = WEAK, "; ".join(r for r in distrust + [reason] if r)
-            registered.append(RegisteredCmc(n, group_of[n], GROUP_SFM, status, reason, T_final[i], covs[i],
-                                            raw, rmse, int(own.sum()), scene_count.get(n, 0), *grouped.clocks[n]))
+            registered.append(
+                RegisteredCmc(
+                    n,
+                    group_of[n],
+                    GROUP_SFM,
+                    status,
+                    reason,
+                    T_final[i],
+                    covs[i],
+                    raw,
+                    rmse,
+                    int(own.sum()),
+                    scene_count.get(n, 0),
+                    *grouped.clocks[n],
+                )
+            )
     # Isolated CMCs: the optimised agent track where a group saw the agent, and elsewhere the
     # track implied by the ego trajectory (head top = T_world_ego * o, ground point under it
     # on the floor z = 0) -- an extension: the paper needs a group to have seen the agent.
@@ -646,18 +769,43 @@ def fuse(ego: EgoMapData, groups: list[CameraGroupResult], ungrouped: dict[str, 
     known = [c[0] for c in grouped.clocks.values() if c[0] is not None]
     groups_offset = float(np.median(known)) if known else None
     for n, why in sorted(grouped.failed.items()):
-        registered.append(_register_isolated(n, why, cmcs.get(n), track, ego, T_ego, landmarks, params,
-                                             upstream.tracks, weak, n in grouped.disputed, groups_offset))
+        registered.append(
+            _register_isolated(
+                n,
+                why,
+                cmcs.get(n),
+                track,
+                ego,
+                T_ego,
+                landmarks,
+                params,
+                upstream.tracks,
+                weak,
+                n in grouped.disputed,
+                groups_offset,
+            )
+        )
     # The agent points each grouped camera observed (an isolated one's PnP had them in front).
     seen = {n: agent.points[agent_obs.point[agent_obs.camera == i]] for i, n in enumerate(names)}
     ceilings = [p for p in (layout.planes if layout is not None else []) if p.kind == KIND_CEILING]
     registered = [_refuse_absurd(r, seen.get(r.name, np.zeros((0, 3))), params, ceilings) for r in registered]
-    return FusionResult(sorted(registered, key=lambda r: r.name), T_ego, landmarks, agent, head_offset, cloud,
-                        ego.cloud_colors, layout, grouped.alignments, fits)
+    return FusionResult(
+        sorted(registered, key=lambda r: r.name),
+        T_ego,
+        landmarks,
+        agent,
+        head_offset,
+        cloud,
+        ego.cloud_colors,
+        layout,
+        grouped.alignments,
+        fits,
+    )
 
 
-def absurd_pose(T_world_cam: np.ndarray, agent_points: np.ndarray, params: FusionParams,
-                ceilings: list[LayoutPlane] = ()) -> str:
+def absurd_pose(
+    T_world_cam: np.ndarray, agent_points: np.ndarray, params: FusionParams, ceilings: list[LayoutPlane] = ()
+) -> str:
     """Why a camera pose cannot be a ceiling camera's that saw the walker ('' when it can):
     below the floor (z = 0), above a ceiling the map holds right over it, image upside down,
     or with most of the agent points it saw behind it."""
@@ -668,10 +816,10 @@ def absurd_pose(T_world_cam: np.ndarray, agent_points: np.ndarray, params: Fusio
         return f"{-z:.2f} m below the floor"
     over = Point(T_world_cam[:2, 3])
     for c in ceilings:
-        height = -float(c.coefficients[3] / c.coefficients[2])      # the plane n . p + d = 0 at x, y
+        height = -float(c.coefficients[3] / c.coefficients[2])  # the plane n . p + d = 0 at x, y
         if z > height + params.absurd_margin_m and len(c.boundary) >= 3 and Polygon(c.boundary[:, :2]).contains(over):
             return f"{z - height:.2f} m above the ceiling the map holds over it (at {height:.2f} m)"
-    up = -T_world_cam[:3, 1]                  # the image's up direction in the world
+    up = -T_world_cam[:3, 1]  # the image's up direction in the world
     if up[2] < -params.max_upside_down_cos:
         return f"its image is upside down (image up {np.degrees(np.arccos(np.clip(up[2], -1, 1))):.0f} deg from the vertical)"
     if len(agent_points):
@@ -682,8 +830,9 @@ def absurd_pose(T_world_cam: np.ndarray, agent_points: np.ndarray, params: Fusio
     return ""
 
 
-def _refuse_absurd(r: RegisteredCmc, seen: np.ndarray, params: FusionParams,
-                   ceilings: list[LayoutPlane]) -> RegisteredCmc:
+def _refuse_absurd(
+    r: RegisteredCmc, seen: np.ndarray, params: FusionParams, ceilings: list[LayoutPlane]
+) -> RegisteredCmc:
     """A registration no ceiling camera can have is failed with the reason (never published)."""
     if r.T_world_cam is None or r.status == FAILED:
         return r
@@ -691,8 +840,13 @@ def _refuse_absurd(r: RegisteredCmc, seen: np.ndarray, params: FusionParams,
     if not why:
         return r
     where = ", ".join(f"{v:.2f}" for v in r.T_world_cam[:3, 3])
-    return replace(r, status=FAILED, reason=f"rejected: {why} (at {where} m)" + (f"; {r.reason}" if r.reason else ""),
-                   T_world_cam=None, covariance=None)
+    return replace(
+        r,
+        status=FAILED,
+        reason=f"rejected: {why} (at {where} m)" + (f"; {r.reason}" if r.reason else ""),
+        T_world_cam=None,
+        covariance=None,
+    )
 
 
 @dataclass
@@ -700,16 +854,23 @@ class _Joint:
     """The joint optimisation's outcome on _GroupedCmcs' cameras and agent points: each
     camera's pose (its group's alignment where it was not in a kept solution)."""
 
-    result: JointResult | None           # None: no solution kept (failure says why)
-    in_jo: np.ndarray                    # (cameras,) bool: the camera's pose is the solution's
+    result: JointResult | None  # None: no solution kept (failure says why)
+    in_jo: np.ndarray  # (cameras,) bool: the camera's pose is the solution's
     T_world_cmc: list[np.ndarray]
     agent_points: np.ndarray
-    left_out: dict[str, str]             # group -> why it was left out of the solution
+    left_out: dict[str, str]  # group -> why it was left out of the solution
     failure: str = ""
 
 
-def _joint(grouped: _GroupedCmcs, scene_obs: Observations, ego: EgoMapData, ideal_ego: CameraModel,
-           ego_obs: Observations, weak: tuple[np.ndarray, np.ndarray], params: FusionParams) -> _Joint:
+def _joint(
+    grouped: _GroupedCmcs,
+    scene_obs: Observations,
+    ego: EgoMapData,
+    ideal_ego: CameraModel,
+    ego_obs: Observations,
+    weak: tuple[np.ndarray, np.ndarray],
+    params: FusionParams,
+) -> _Joint:
     """The joint optimisation of every group; a solution a group cannot be reconciled with
     (its agent reprojection diverged, or its track does not fit the ego trajectory the
     solution made) is solved again without that group, which keeps its alignment: one wrong group
@@ -722,21 +883,35 @@ def _joint(grouped: _GroupedCmcs, scene_obs: Observations, ego: EgoMapData, idea
         chains = [c for g, (c, _) in grouped.chains.items() if g not in left_out]
         points = np.isin(grouped.agent_chain, chains)
         cam_index, point_index = np.cumsum(cams) - 1, np.cumsum(points) - 1
-        agent_obs = grouped.agent_obs.subset(cams[grouped.agent_obs.camera])   # a camera sees its group's points
+        agent_obs = grouped.agent_obs.subset(cams[grouped.agent_obs.camera])  # a camera sees its group's points
         agent_obs = replace(agent_obs, camera=cam_index[agent_obs.camera], point=point_index[agent_obs.point])
         scene = scene_obs.subset(cams[scene_obs.camera])
         scene = replace(scene, camera=cam_index[scene.camera])
-        problem = JointProblem(ideal_ego, ego.stamps_ns, list(ego.T_world_ego), ego.landmarks, ego_obs,
-                               [c for c, k in zip(grouped.cams, cams) if k],
-                               [T for T, k in zip(grouped.T_init, cams) if k], scene, grouped.agent.points[points],
-                               grouped.agent.stamps_ns[points], grouped.agent.ids[points], agent_obs,
-                               grouped.head_offset, grouped.agent_chain[points], weak[0], ego.attitude_held,
-                               bool(ego.imu))
+        problem = JointProblem(
+            ideal_ego,
+            ego.stamps_ns,
+            list(ego.T_world_ego),
+            ego.landmarks,
+            ego_obs,
+            [c for c, k in zip(grouped.cams, cams) if k],
+            [T for T, k in zip(grouped.T_init, cams) if k],
+            scene,
+            grouped.agent.points[points],
+            grouped.agent.stamps_ns[points],
+            grouped.agent.ids[points],
+            agent_obs,
+            grouped.head_offset,
+            grouped.agent_chain[points],
+            weak[0],
+            ego.attitude_held,
+            bool(ego.imu),
+        )
         try:
             res = solve_joint(problem, params.joint)
         except RuntimeError as exc:  # GTSAM gave up on the system: keep the aligned poses
-            return replace(none, left_out=left_out,
-                           failure=f"joint optimisation failed ({solver_failure(exc)}): pose without JO")
+            return replace(
+                none, left_out=left_out, failure=f"joint optimisation failed ({solver_failure(exc)}): pose without JO"
+            )
         T_world_cmc, agent_points = list(grouped.T_init), grouped.agent.points.copy()
         for i, T in zip(np.flatnonzero(cams), res.T_world_cmc):
             T_world_cmc[i] = T
@@ -764,8 +939,9 @@ def _diverged(grouped: _GroupedCmcs, jo: _Joint, params: FusionParams) -> tuple[
         a, b = _rmse(after[obs.camera == c]), _rmse(before[obs.camera == c])
         if not np.isfinite(a) or (a > params.ok_rmse_px and a > max(2.0 * b, b + 1.0)):
             name = grouped.names[c]
-            return (f"joint optimisation diverged ({name}'s agent reprojection RMSE {a:.1f} px, {b:.1f} px "
-                    "before it)"), grouped.group_of[name]
+            return (
+                f"joint optimisation diverged ({name}'s agent reprojection RMSE {a:.1f} px, {b:.1f} px before it)"
+            ), grouped.group_of[name]
     return "", None
 
 
@@ -778,21 +954,42 @@ def _unreconciled(grouped: _GroupedCmcs, jo: _Joint, ego: EgoMapData, params: Fu
     agent = AgentTrack(grouped.agent.stamps_ns, grouped.agent.ids, jo.agent_points)
     worst, culprit = params.max_unexplained_track_rms_m, None
     for gid, (c, _) in sorted(grouped.chains.items()):
-        rms = head_top_rms(agent, grouped.fit_chain, c, ego.stamps_ns, np.asarray(res.T_world_ego), res.head_offset,
-                           params.align.max_time_gap_s) if gid not in jo.left_out else float("nan")
+        rms = (
+            head_top_rms(
+                agent,
+                grouped.fit_chain,
+                c,
+                ego.stamps_ns,
+                np.asarray(res.T_world_ego),
+                res.head_offset,
+                params.align.max_time_gap_s,
+            )
+            if gid not in jo.left_out
+            else float("nan")
+        )
         if np.isfinite(rms) and rms > worst:
             worst, culprit = rms, gid
     if culprit is None:
         return "", None
     breaks = f" (it found {len(res.ego_breaks)} unflagged break step(s) in the ego map)" if len(res.ego_breaks) else ""
-    return (f"group {culprit}'s head-top track does not fit the ego trajectory of the joint solution{breaks}: RMS "
-            f"{worst:.2f} m > {params.max_unexplained_track_rms_m:g} m"), culprit
+    return (
+        f"group {culprit}'s head-top track does not fit the ego trajectory of the joint solution{breaks}: RMS "
+        f"{worst:.2f} m > {params.max_unexplained_track_rms_m:g} m"
+    ), culprit
 
 
-def _group_distrust(chain: tuple[int, CameraGroupResult], agent: AgentTrack, agent_chain: np.ndarray,
-                    ego: EgoMapData, T_world_ego: np.ndarray, head_offset: np.ndarray,
-                    weak: tuple[np.ndarray, np.ndarray], params: FusionParams, rescued: bool,
-                    rms_before: float) -> list[str]:
+def _group_distrust(
+    chain: tuple[int, CameraGroupResult],
+    agent: AgentTrack,
+    agent_chain: np.ndarray,
+    ego: EgoMapData,
+    T_world_ego: np.ndarray,
+    head_offset: np.ndarray,
+    weak: tuple[np.ndarray, np.ndarray],
+    params: FusionParams,
+    rescued: bool,
+    rms_before: float,
+) -> list[str]:
     """Why a grouped camera is not ok whatever its residuals: its group's track still
     disagrees with the (optimised) ego trajectory, the ego map along the stretch the group
     saw is known to be weak, or it broke there (rescued: the group fitted the ego map as
@@ -803,27 +1000,36 @@ def _group_distrust(chain: tuple[int, CameraGroupResult], agent: AgentTrack, age
     rms = head_top_rms(agent, agent_chain, c, ego.stamps_ns, T_world_ego, head_offset, params.align.max_time_gap_s)
     out = []
     if np.isfinite(rms) and rms > params.ok_track_rms_m:
-        out.append(f"group {group.group_id}'s agent track and the ego trajectory disagree (head-top RMS {rms:.2f} m > "
-                   f"{params.ok_track_rms_m:g} m): {blame(group, stretch, params)[1]}")
+        out.append(
+            f"group {group.group_id}'s agent track and the ego trajectory disagree (head-top RMS {rms:.2f} m > "
+            f"{params.ok_track_rms_m:g} m): {blame(group, stretch, params)[1]}"
+        )
     elif stretch.broken(params):
-        out.append(f"the ego map along the stretch group {group.group_id} saw is weak ({stretch.describe()}); "
-                   f"the agent track holds it (head-top RMS {rms:.2f} m)")
+        out.append(
+            f"the ego map along the stretch group {group.group_id} saw is weak ({stretch.describe()}); "
+            f"the agent track holds it (head-top RMS {rms:.2f} m)"
+        )
     elif rescued:
-        out.append(f"the ego map broke along the stretch group {group.group_id} saw (the self-consistent group fitted "
-                   f"it on its best {params.rescue_window_s:g} s only); the joint optimisation re-fitted the ego map to "
-                   f"the agent track (head-top RMS {rms:.2f} m)")
+        out.append(
+            f"the ego map broke along the stretch group {group.group_id} saw (the self-consistent group fitted "
+            f"it on its best {params.rescue_window_s:g} s only); the joint optimisation re-fitted the ego map to "
+            f"the agent track (head-top RMS {rms:.2f} m)"
+        )
     elif np.isfinite(rms_before) and rms_before > params.ok_track_rms_m:
-        out.append(f"group {group.group_id}'s agent track and the ego map as the ego stage made it disagreed "
-                   f"(head-top RMS {rms_before:.2f} m > {params.ok_track_rms_m:g} m); the joint optimisation "
-                   f"reconciled them (head-top RMS {rms:.2f} m), bending the one or the other")
+        out.append(
+            f"group {group.group_id}'s agent track and the ego map as the ego stage made it disagreed "
+            f"(head-top RMS {rms_before:.2f} m > {params.ok_track_rms_m:g} m); the joint optimisation "
+            f"reconciled them (head-top RMS {rms:.2f} m), bending the one or the other"
+        )
     return out
 
 
 def ego_agent_track(T_world_ego: np.ndarray, stamps_ns: np.ndarray, head_offset: np.ndarray) -> AgentTrack:
     top = head_tops(T_world_ego, head_offset)
     bottom = top * [1.0, 1.0, 0.0]
-    return AgentTrack(np.concatenate([stamps_ns, stamps_ns]), np.repeat([0, 1], len(stamps_ns)),
-                      np.vstack([top, bottom]))
+    return AgentTrack(
+        np.concatenate([stamps_ns, stamps_ns]), np.repeat([0, 1], len(stamps_ns)), np.vstack([top, bottom])
+    )
 
 
 def merge_tracks(primary: AgentTrack, secondary: AgentTrack, gap_s: float) -> AgentTrack:
@@ -833,8 +1039,10 @@ def merge_tracks(primary: AgentTrack, secondary: AgentTrack, gap_s: float) -> Ag
         t = np.sort(primary.stamps_ns[primary.ids == i])
         sel = np.flatnonzero(secondary.ids == i)
         pos = np.clip(np.searchsorted(t, secondary.stamps_ns[sel]), 1, max(len(t) - 1, 1))
-        near = np.minimum(np.abs(t[pos - 1] - secondary.stamps_ns[sel]), np.abs(t[np.minimum(pos, len(t) - 1)]
-                                                                                  - secondary.stamps_ns[sel]))
+        near = np.minimum(
+            np.abs(t[pos - 1] - secondary.stamps_ns[sel]),
+            np.abs(t[np.minimum(pos, len(t) - 1)] - secondary.stamps_ns[sel]),
+        )
         keep[sel[near <= gap_s * 1e9]] = False
     stamps = np.concatenate([primary.stamps_ns, secondary.stamps_ns[keep]])
     ids = np.concatenate([primary.ids, secondary.ids[keep]])
@@ -848,43 +1056,91 @@ def _scene_observations(names, cams, T_init, cmcs, ego: EgoMapData, params: Fusi
     count = {}
     if params.use_scene_keypoints and len(ego.landmarks):
         for i, n in enumerate(names):
-            m = match_scene(cmcs[n].background, cmcs[n].tracks.camera, T_init[i], ego.landmarks, ego.descriptors,
-                            ego.descriptor_type, params.scene)
+            m = match_scene(
+                cmcs[n].background,
+                cmcs[n].tracks.camera,
+                T_init[i],
+                ego.landmarks,
+                ego.descriptors,
+                ego.descriptor_type,
+                params.scene,
+            )
             if m is None:
                 continue
             c_idx += [i] * len(m.landmark)
             p_idx += m.landmark.tolist()
             uv.append(m.uv)
             count[n] = len(m.landmark)
-    obs = Observations(np.array(c_idx, int), np.array(p_idx, int), np.vstack(uv or [np.zeros((0, 2))]),
-                       np.full(len(c_idx), 1.5))
+    obs = Observations(
+        np.array(c_idx, int), np.array(p_idx, int), np.vstack(uv or [np.zeros((0, 2))]), np.full(len(c_idx), 1.5)
+    )
     return obs, count
 
 
-def _register_isolated(name: str, why: str, cmc: CmcInput | None, agent: AgentTrack, ego: EgoMapData,
-                       T_world_ego: np.ndarray, landmarks: np.ndarray, params: FusionParams, tracks: TrackParams,
-                       weak: tuple[np.ndarray, np.ndarray], disputed: bool = False,
-                       groups_offset_s: float | None = None) -> RegisteredCmc:
+def _register_isolated(
+    name: str,
+    why: str,
+    cmc: CmcInput | None,
+    agent: AgentTrack,
+    ego: EgoMapData,
+    T_world_ego: np.ndarray,
+    landmarks: np.ndarray,
+    params: FusionParams,
+    tracks: TrackParams,
+    weak: tuple[np.ndarray, np.ndarray],
+    disputed: bool = False,
+    groups_offset_s: float | None = None,
+) -> RegisteredCmc:
     """disputed: the camera's self-consistent group contradicts the ego trajectory its
     registration now rests on (never ok); groups_offset_s: the groups' clock offset to the ego
     clock, where the clock search (params.isolated.clock_search_s) looks first."""
     if cmc is None:
         return RegisteredCmc(name, "", NONE, FAILED, why, None, None, None, float("nan"), 0, 0)
-    if not cmc.intrinsics_known:     # its nominal model would place it wherever its focal length says
-        return RegisteredCmc(name, "", NONE, FAILED, f"{why}; without CameraInfo or an intrinsics file it is "
-                             "calibrated only within a group (give them with --intrinsics)", None, None, None,
-                             float("nan"), 0, 0)
+    if not cmc.intrinsics_known:  # its nominal model would place it wherever its focal length says
+        return RegisteredCmc(
+            name,
+            "",
+            NONE,
+            FAILED,
+            f"{why}; without CameraInfo or an intrinsics file it is "
+            "calibrated only within a group (give them with --intrinsics)",
+            None,
+            None,
+            None,
+            float("nan"),
+            0,
+            0,
+        )
     pnp, reason, offset = register_over_clock(cmc.tracks, agent, params.isolated, tracks, groups_offset_s)
     if pnp is None:
-        return RegisteredCmc(name, "", NONE, FAILED, f"{why}; isolated registration failed: {reason}", None, None,
-                             cmc.tracks.camera, float("nan"), 0, 0)
-    clock = ((offset, params.isolated.clock_step_s / 10, "this camera's clock minus the ego camera's, the offset "
-              "its isolated registration fits best") if params.isolated.clock_search_s > 0 else (None, None, ""))
+        return RegisteredCmc(
+            name,
+            "",
+            NONE,
+            FAILED,
+            f"{why}; isolated registration failed: {reason}",
+            None,
+            None,
+            cmc.tracks.camera,
+            float("nan"),
+            0,
+            0,
+        )
+    clock = (
+        (
+            offset,
+            params.isolated.clock_step_s / 10,
+            "this camera's clock minus the ego camera's, the offset its isolated registration fits best",
+        )
+        if params.isolated.clock_search_s > 0
+        else (None, None, "")
+    )
     P, uv, T = pnp.points, pnp.uv, pnp.T_world_cam
     n_agent, n_scene = len(P), 0
     if params.use_scene_keypoints:
-        m = match_scene(cmc.background, cmc.tracks.camera, T, landmarks, ego.descriptors, ego.descriptor_type,
-                        params.scene)
+        m = match_scene(
+            cmc.background, cmc.tracks.camera, T, landmarks, ego.descriptors, ego.descriptor_type, params.scene
+        )
         if m is not None:
             P, uv = np.vstack([P, landmarks[m.landmark]]), np.vstack([uv, m.uv])
             n_scene = len(m.landmark)
@@ -897,9 +1153,23 @@ def _register_isolated(name: str, why: str, cmc: CmcInput | None, agent: AgentTr
     stamps = np.concatenate([t.stamps_ns for t in cmc.tracks.tracks.values()] or [np.zeros(0, np.int64)])
     stretch = ego_stretch(ego, weak, stamps, params.isolated.max_gap_s, T_world_ego)
     if stretch.broken(params):
-        status, reason = WEAK, "; ".join(r for r in (f"the ego map along the stretch it saw is weak "
-                                                      f"({stretch.describe()})", reason) if r)
+        status, reason = (
+            WEAK,
+            "; ".join(r for r in (f"the ego map along the stretch it saw is weak ({stretch.describe()})", reason) if r),
+        )
     elif disputed:
         status = WEAK
-    return RegisteredCmc(name, "", ISOLATED_PNP, status, "; ".join(r for r in (f"isolated: {why}", reason) if r),
-                         T, cov, cmc.tracks.camera, rmse, n_agent, n_scene, *clock)
+    return RegisteredCmc(
+        name,
+        "",
+        ISOLATED_PNP,
+        status,
+        "; ".join(r for r in (f"isolated: {why}", reason) if r),
+        T,
+        cov,
+        cmc.tracks.camera,
+        rmse,
+        n_agent,
+        n_scene,
+        *clock,
+    )

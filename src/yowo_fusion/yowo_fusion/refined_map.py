@@ -5,6 +5,7 @@ which keyframes fused each point, so each point takes the mean correction
 what re-fusing the keyframes at their refined poses would give for corrections this
 small, without the RGB-D images. The layout is rebuilt from the moved cloud with the ego
 stage's own functions; the world frame (floor z = 0) stays the ego map's."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -16,8 +17,14 @@ from yowo_ego.layout import Layout, LayoutParams, build_layout
 from yowo_ego.scene import CloudParams, planar_patches
 
 
-def move_cloud(points: np.ndarray, camera: CameraModel, T_old: np.ndarray, T_new: np.ndarray,
-               depth_max_m: float, cell_m: float = 0.2) -> np.ndarray:
+def move_cloud(
+    points: np.ndarray,
+    camera: CameraModel,
+    T_old: np.ndarray,
+    T_new: np.ndarray,
+    depth_max_m: float,
+    cell_m: float = 0.2,
+) -> np.ndarray:
     """points (N, 3) moved by the mean correction of the views (T_old -> T_new, (V, 4, 4))
     that see them; a point no view sees takes its nearest view's correction. Visibility is
     decided per cell of cell_m (at the centroid of its points): the corrections vary over
@@ -40,12 +47,16 @@ def move_cloud(points: np.ndarray, camera: CameraModel, T_old: np.ndarray, T_new
         nearest = cKDTree(T_old[:, :3, 3]).query(centres[unseen])[1]
         total[unseen] = np.einsum("nij,njk->nik", T_new[nearest], np.linalg.inv(T_old[nearest]))[:, :3]
         count[unseen] = 1
-    mean = total / count[:, None, None]     # the mean of C_k p is the mean C_k applied to p
+    mean = total / count[:, None, None]  # the mean of C_k p is the mean C_k applied to p
     return np.einsum("nij,nj->ni", mean[index, :, :3], points) + mean[index, :, 3]
 
 
-def rebuild_layout(points: np.ndarray, camera_centres: np.ndarray, cloud: CloudParams = CloudParams(),
-                   layout: LayoutParams = LayoutParams()) -> Layout:
+def rebuild_layout(
+    points: np.ndarray,
+    camera_centres: np.ndarray,
+    cloud: CloudParams = CloudParams(),
+    layout: LayoutParams = LayoutParams(),
+) -> Layout:
     """The ego stage's layout steps (planar patches, walls, ceiling, floor outline) on a cloud
     already in the world frame."""
     patches, sampled, normals = planar_patches(points, camera_centres, cloud)

@@ -3,6 +3,7 @@
 keypoints"): features on the CMC's agent-free background image, candidates near each
 landmark's projection, descriptor ratio test, then PnP RANSAC verification; kept only where
 the prior predicts the verified matches."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -18,8 +19,8 @@ from yowo_ego.features import create_sift
 
 @dataclass(frozen=True)
 class SceneMatchParams:
-    radius_px: float = 40.0          # search radius around a landmark's predicted pixel
-    ratio: float = 0.8               # Lowe's ratio between best and second-best candidate
+    radius_px: float = 40.0  # search radius around a landmark's predicted pixel
+    ratio: float = 0.8  # Lowe's ratio between best and second-best candidate
     max_range_m: float = 15.0
     pnp_px: float = 4.0
     min_inliers: int = 12
@@ -34,9 +35,9 @@ class SceneMatchParams:
 
 @dataclass
 class SceneMatches:
-    landmark: np.ndarray             # (M,) landmark index
-    uv: np.ndarray                   # (M, 2) ideal (undistorted) pixels
-    T_world_cam: np.ndarray          # the PnP-verified pose
+    landmark: np.ndarray  # (M,) landmark index
+    uv: np.ndarray  # (M, 2) ideal (undistorted) pixels
+    T_world_cam: np.ndarray  # the PnP-verified pose
 
 
 def detect_features(rgb: np.ndarray, kind: str, max_features: int):
@@ -53,9 +54,15 @@ def _distances(desc_a: np.ndarray, desc_b: np.ndarray, kind: str) -> np.ndarray:
     return np.unpackbits(np.bitwise_xor(desc_a, desc_b), axis=-1).sum(-1).astype(float)
 
 
-def match_scene(rgb: np.ndarray, camera: CameraModel, T_world_cam_prior: np.ndarray, landmarks: np.ndarray,
-                descriptors: np.ndarray, kind: str, params: SceneMatchParams = SceneMatchParams()
-                ) -> SceneMatches | None:
+def match_scene(
+    rgb: np.ndarray,
+    camera: CameraModel,
+    T_world_cam_prior: np.ndarray,
+    landmarks: np.ndarray,
+    descriptors: np.ndarray,
+    kind: str,
+    params: SceneMatchParams = SceneMatchParams(),
+) -> SceneMatches | None:
     """None when too few verified matches, or the prior does not predict them (the caller
     keeps the prior)."""
     if len(landmarks) == 0 or rgb is None:
@@ -84,16 +91,25 @@ def match_scene(rgb: np.ndarray, camera: CameraModel, T_world_cam_prior: np.ndar
     # One feature serves one landmark: keep the first claim.
     _, first = np.unique(feat_idx, return_index=True)
     lm_idx, feat_idx = lm_idx[first], feat_idx[first]
-    if len(lm_idx) < params.min_inliers:   # counted after the one-to-one rule (PnP needs 4 or more)
+    if len(lm_idx) < params.min_inliers:  # counted after the one-to-one rule (PnP needs 4 or more)
         return None
     T_cam_world = inv_se3(T_world_cam_prior)
     rvec0, _ = cv2.Rodrigues(T_cam_world[:3, :3])
     cv2.setRNGSeed(0)  # deterministic RANSAC: the same recording gives the same cameras
     # The guess as (3, 1): OpenCV takes a (3,) translation guess as given and returns nonsense poses.
     ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-        landmarks[lm_idx], uv_feat[feat_idx], camera.K, None, rvec0.copy(), T_cam_world[:3, 3].reshape(3, 1).copy(),
-        useExtrinsicGuess=True, iterationsCount=1000, reprojectionError=params.pnp_px, confidence=0.999,
-        flags=cv2.SOLVEPNP_ITERATIVE)
+        landmarks[lm_idx],
+        uv_feat[feat_idx],
+        camera.K,
+        None,
+        rvec0.copy(),
+        T_cam_world[:3, 3].reshape(3, 1).copy(),
+        useExtrinsicGuess=True,
+        iterationsCount=1000,
+        reprojectionError=params.pnp_px,
+        confidence=0.999,
+        flags=cv2.SOLVEPNP_ITERATIVE,
+    )
     if not ok or inliers is None or len(inliers) < params.min_inliers:
         return None
     keep = inliers.ravel()

@@ -1,6 +1,7 @@
 """The simulated agent is a person to a real pose model (MoveNet, never mocked) in a
 ceiling camera's view: found, its joints near the true projections of the body's joints
 (yowo_sim.body.agent_joints_3d), seen from the front and from behind."""
+
 import numpy as np
 import pytest
 
@@ -36,8 +37,13 @@ def test_the_model_finds_the_agent_at_its_joints(view, heading):
         k = ID_OFFSET + i
         if agent.confidence[k] < 0.3:
             continue
-        j = BODY_JOINTS.index(name.replace("left", "right")) if name.startswith("left") else \
-            BODY_JOINTS.index(name.replace("right", "left")) if name.startswith("right") else i
+        j = (
+            BODY_JOINTS.index(name.replace("left", "right"))
+            if name.startswith("left")
+            else BODY_JOINTS.index(name.replace("right", "left"))
+            if name.startswith("right")
+            else i
+        )
         errs.append(min(np.linalg.norm(agent.uv[k] - truth[i]), np.linalg.norm(agent.uv[k] - truth[j])))
     assert len(errs) >= 12, len(errs)
     # ~8 % of the person's image height at most for most joints: the previous capsule-and-box

@@ -1,4 +1,5 @@
 """The generated recording follows docs/design.md §3 and its ground truth is exact."""
+
 from collections import defaultdict
 from dataclasses import replace
 from pathlib import Path
@@ -25,16 +26,22 @@ from yowo_sim.presets import get_preset
 def test_contract_topics_and_types(tiny_bag):
     path, summary = tiny_bag
     topics = {t.name: t for t in list_topics(path)}
-    expected = {"/ego/color/image_raw/compressed": "sensor_msgs/msg/CompressedImage",
-                "/ego/depth/image_raw/compressedDepth": "sensor_msgs/msg/CompressedImage",
-                "/ego/color/camera_info": "sensor_msgs/msg/CameraInfo",
-                "/gt/ego/pose": "geometry_msgs/msg/PoseStamped",
-                "/gt/layout/floor": "geometry_msgs/msg/PolygonStamped"}
+    expected = {
+        "/ego/color/image_raw/compressed": "sensor_msgs/msg/CompressedImage",
+        "/ego/depth/image_raw/compressedDepth": "sensor_msgs/msg/CompressedImage",
+        "/ego/color/camera_info": "sensor_msgs/msg/CameraInfo",
+        "/gt/ego/pose": "geometry_msgs/msg/PoseStamped",
+        "/gt/layout/floor": "geometry_msgs/msg/PolygonStamped",
+    }
     for c in summary.cmcs:
-        expected.update({f"/cmc/{c.name}/image_raw/compressed": "sensor_msgs/msg/CompressedImage",
-                         f"/cmc/{c.name}/camera_info": "sensor_msgs/msg/CameraInfo",
-                         f"/cmc/{c.name}/agent_keypoints": "yowo_msgs/msg/AgentKeypoints",
-                         f"/gt/cmc/{c.name}/pose": "geometry_msgs/msg/PoseStamped"})
+        expected.update(
+            {
+                f"/cmc/{c.name}/image_raw/compressed": "sensor_msgs/msg/CompressedImage",
+                f"/cmc/{c.name}/camera_info": "sensor_msgs/msg/CameraInfo",
+                f"/cmc/{c.name}/agent_keypoints": "yowo_msgs/msg/AgentKeypoints",
+                f"/gt/cmc/{c.name}/pose": "geometry_msgs/msg/PoseStamped",
+            }
+        )
     for name, msgtype in expected.items():
         assert topics[name].msgtype == msgtype and topics[name].count > 0, name
     assert topics["/gt/ego/pose"].count == summary.ego_frames == topics["/ego/color/camera_info"].count

@@ -1,5 +1,6 @@
 """Unsynchronised CMC clocks (preset option cmc_clock_offset_s): a CMC's messages carry its
 own clock, the ground truth names the offsets, and nothing else of the recording changes."""
+
 from collections import defaultdict
 from dataclasses import replace
 from pathlib import Path
@@ -38,7 +39,7 @@ def test_cmc_messages_carry_their_own_clock(synced_and_offset):
     truth = {c.name: b[gt_cmc_clock_offset_topic(c.name)][0][1].data for c in summary.cmcs}
     assert all(abs(d) <= 1.0 for d in truth.values())
     assert min(abs(d) for d in truth.values()) > 0.01 and len(set(truth.values())) == len(truth)
-    assert not any(t.startswith("/gt/cmc/") and t.endswith("/clock_offset") for t in a)   # synchronised: no topic
+    assert not any(t.startswith("/gt/cmc/") and t.endswith("/clock_offset") for t in a)  # synchronised: no topic
     assert set(b) - set(a) == {gt_cmc_clock_offset_topic(c.name) for c in summary.cmcs}
     for topic, msgs in a.items():
         assert len(b[topic]) == len(msgs), topic
@@ -60,7 +61,7 @@ def test_offset_recording_is_a_valid_bag(synced_and_offset):
     for topic, log_ns, _ in read_messages(offset):
         log_times.append(log_ns)
         per_topic[topic].append(log_ns)
-    assert log_times == sorted(log_times)               # the reader merges the out-of-order writes
+    assert log_times == sorted(log_times)  # the reader merges the out-of-order writes
     for topic, stamps in per_topic.items():
         assert len(stamps) == 1 or all(x < y for x, y in zip(stamps, stamps[1:])), topic
     counts = {t.name: t.count for t in list_topics(offset)}

@@ -1,6 +1,7 @@
 """Recordings in real drivers' layouts (yowo_sim.driver_layout): the drivers' default names,
 the same messages and payloads as the YOWO-layout source, a /tf_static tree that puts the
 IMU where the source's T_cam_imu does, and ceiling cameras as image_transport writes them."""
+
 import numpy as np
 import pytest
 from std_msgs.msg import Header
@@ -23,38 +24,85 @@ from yowo_sim.driver_layout import LAYOUTS, write_driver_layout
 from yowo_sim.presets import get_preset
 from yowo_sim.verbs import LAYOUT_HELP
 
-IMAGE, COMPRESSED, INFO, IMU = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage",
-                                "sensor_msgs/msg/CameraInfo", "sensor_msgs/msg/Imu")
+IMAGE, COMPRESSED, INFO, IMU = (
+    "sensor_msgs/msg/Image",
+    "sensor_msgs/msg/CompressedImage",
+    "sensor_msgs/msg/CameraInfo",
+    "sensor_msgs/msg/Imu",
+)
 NO_INFO_CAMERA = "cam01"
 # The drivers' default names (written out here on purpose: the module's table is what is
 # tested) for a raw source: the ego camera's (colour, its camera_info, depth, depth's
 # camera_info) and the IMU topics, and the frames their messages carry.
 EGO_STREAMS = {
-    "realsense": ("/camera/camera/color/image_raw", "/camera/camera/color/camera_info",
-                  "/camera/camera/aligned_depth_to_color/image_raw", "/camera/camera/aligned_depth_to_color/camera_info"),
+    "realsense": (
+        "/camera/camera/color/image_raw",
+        "/camera/camera/color/camera_info",
+        "/camera/camera/aligned_depth_to_color/image_raw",
+        "/camera/camera/aligned_depth_to_color/camera_info",
+    ),
     "azure": ("/rgb/image_raw", "/rgb/camera_info", "/depth_to_rgb/image_raw", "/depth_to_rgb/camera_info"),
-    "zed": ("/zed/zed_node/rgb/image_rect_color", "/zed/zed_node/rgb/camera_info",
-            "/zed/zed_node/depth/depth_registered", "/zed/zed_node/depth/camera_info"),
+    "zed": (
+        "/zed/zed_node/rgb/image_rect_color",
+        "/zed/zed_node/rgb/camera_info",
+        "/zed/zed_node/depth/depth_registered",
+        "/zed/zed_node/depth/camera_info",
+    ),
 }
 EGO_STREAMS["realsense_united"] = EGO_STREAMS["realsense"]
-IMU_TOPICS = {"realsense": ("/camera/camera/gyro/sample", "/camera/camera/accel/sample"),
-              "realsense_united": ("/camera/camera/imu",), "azure": ("/imu",), "zed": ("/zed/zed_node/imu/data",)}
-CAMERA_FRAME = {"realsense": "camera_color_optical_frame", "realsense_united": "camera_color_optical_frame",
-                "azure": "rgb_camera_link", "zed": "zed_left_camera_optical_frame"}
-IMU_FRAMES = {"realsense": ("camera_gyro_optical_frame", "camera_accel_optical_frame"),
-              "realsense_united": ("camera_imu_optical_frame",), "azure": ("imu_link",), "zed": ("zed_imu_link",)}
+IMU_TOPICS = {
+    "realsense": ("/camera/camera/gyro/sample", "/camera/camera/accel/sample"),
+    "realsense_united": ("/camera/camera/imu",),
+    "azure": ("/imu",),
+    "zed": ("/zed/zed_node/imu/data",),
+}
+CAMERA_FRAME = {
+    "realsense": "camera_color_optical_frame",
+    "realsense_united": "camera_color_optical_frame",
+    "azure": "rgb_camera_link",
+    "zed": "zed_left_camera_optical_frame",
+}
+IMU_FRAMES = {
+    "realsense": ("camera_gyro_optical_frame", "camera_accel_optical_frame"),
+    "realsense_united": ("camera_imu_optical_frame",),
+    "azure": ("imu_link",),
+    "zed": ("zed_imu_link",),
+}
 
 
 def _tree_frames(layout: str) -> set[str]:
-    return {"realsense": {"camera_link", "camera_color_frame", "camera_color_optical_frame", "camera_depth_frame",
-                          "camera_depth_optical_frame", "camera_gyro_frame", "camera_gyro_optical_frame",
-                          "camera_accel_frame", "camera_accel_optical_frame"},
-            "realsense_united": {"camera_link", "camera_color_frame", "camera_color_optical_frame",
-                                 "camera_depth_frame", "camera_depth_optical_frame", "camera_imu_frame",
-                                 "camera_imu_optical_frame"},
-            "azure": {"camera_base", "rgb_camera_link", "depth_camera_link", "imu_link"},
-            "zed": {"zed_camera_link", "zed_camera_center", "zed_left_camera_frame", "zed_left_camera_optical_frame",
-                    "zed_right_camera_frame", "zed_right_camera_optical_frame", "zed_imu_link"}}[layout]
+    return {
+        "realsense": {
+            "camera_link",
+            "camera_color_frame",
+            "camera_color_optical_frame",
+            "camera_depth_frame",
+            "camera_depth_optical_frame",
+            "camera_gyro_frame",
+            "camera_gyro_optical_frame",
+            "camera_accel_frame",
+            "camera_accel_optical_frame",
+        },
+        "realsense_united": {
+            "camera_link",
+            "camera_color_frame",
+            "camera_color_optical_frame",
+            "camera_depth_frame",
+            "camera_depth_optical_frame",
+            "camera_imu_frame",
+            "camera_imu_optical_frame",
+        },
+        "azure": {"camera_base", "rgb_camera_link", "depth_camera_link", "imu_link"},
+        "zed": {
+            "zed_camera_link",
+            "zed_camera_center",
+            "zed_left_camera_frame",
+            "zed_left_camera_optical_frame",
+            "zed_right_camera_frame",
+            "zed_right_camera_optical_frame",
+            "zed_imu_link",
+        },
+    }[layout]
 
 
 @pytest.fixture(scope="module")
@@ -111,17 +159,21 @@ def test_topics_and_counts(raw_source, raw_layouts, layout):
     written = {t.name: t for t in list_topics(raw_layouts[layout])}
     cams = ("cam00", "cam01", "cam02")
     ground_truth = {t.name: t.msgtype for t in source.values() if t.name.startswith(topics.GT_PREFIX)}
-    expected = dict(zip(EGO_STREAMS[layout], (IMAGE, INFO, IMAGE, INFO)), **{t: IMU for t in IMU_TOPICS[layout]},
-                    **{f"/cctv/{c}/image_raw/compressed": COMPRESSED for c in cams},
-                    **{f"/cctv/{c}/agent_keypoints": "yowo_msgs/msg/AgentKeypoints" for c in cams},
-                    **{f"/cctv/{c}/camera_info": INFO for c in cams if c != NO_INFO_CAMERA},
-                    **ground_truth, **{topics.TF_STATIC: "tf2_msgs/msg/TFMessage"})
+    expected = dict(
+        zip(EGO_STREAMS[layout], (IMAGE, INFO, IMAGE, INFO)),
+        **{t: IMU for t in IMU_TOPICS[layout]},
+        **{f"/cctv/{c}/image_raw/compressed": COMPRESSED for c in cams},
+        **{f"/cctv/{c}/agent_keypoints": "yowo_msgs/msg/AgentKeypoints" for c in cams},
+        **{f"/cctv/{c}/camera_info": INFO for c in cams if c != NO_INFO_CAMERA},
+        **ground_truth,
+        **{topics.TF_STATIC: "tf2_msgs/msg/TFMessage"},
+    )
     assert {t: w.msgtype for t, w in written.items()} == expected
     assert written[topics.TF_STATIC].latched and written[topics.TF_STATIC].count == 1
 
     ego_frames, imu_samples = source[topics.EGO_COLOR[0]].count, source[topics.EGO_IMU].count
     assert all(written[t].count == ego_frames for t in EGO_STREAMS[layout])
-    for topic in IMU_TOPICS[layout]:      # split accelerometer: every k-th sample, k = round(source rate / ACCEL_HZ)
+    for topic in IMU_TOPICS[layout]:  # split accelerometer: every k-th sample, k = round(source rate / ACCEL_HZ)
         assert written[topic].count == (len(range(0, imu_samples, 3)) if "accel" in topic else imu_samples)
     for name, topic in written.items():
         if name.startswith("/cctv/"):
@@ -138,11 +190,13 @@ def test_ego_payloads_and_stamps(raw_source, raw_layouts, layout):
     src = _messages(raw_source, [topics.EGO_COLOR[0], topics.EGO_INFO, topics.EGO_DEPTH[0]])
     out = _messages(raw_layouts[layout], EGO_STREAMS[layout])
     frame = CAMERA_FRAME[layout]
-    for (src_topic, out_topic) in ((topics.EGO_COLOR[0], color), (topics.EGO_INFO, info),
-                                   (topics.EGO_INFO, depth_info)):
+    for src_topic, out_topic in ((topics.EGO_COLOR[0], color), (topics.EGO_INFO, info), (topics.EGO_INFO, depth_info)):
         for (src_ns, a), (out_ns, b) in zip(src[src_topic], out[out_topic], strict=True):
-            assert (out_ns, stamp_to_ns(b.header.stamp), b.header.frame_id) == (src_ns, stamp_to_ns(a.header.stamp),
-                                                                                frame)
+            assert (out_ns, stamp_to_ns(b.header.stamp), b.header.frame_id) == (
+                src_ns,
+                stamp_to_ns(a.header.stamp),
+                frame,
+            )
             a.header.frame_id = frame
             assert message_fields(a) == message_fields(b)
     for (src_ns, a), (out_ns, b) in zip(src[topics.EGO_DEPTH[0]], out[depth], strict=True):
@@ -164,11 +218,12 @@ def test_tf_static_places_the_imu_as_the_source(raw_source, raw_layouts, layout)
     T_cam_imu = _source_T_cam_imu(raw_source)
     for imu_frame in IMU_FRAMES[layout]:
         np.testing.assert_allclose(_T_in_tree(tree, CAMERA_FRAME[layout], imu_frame), T_cam_imu, rtol=0, atol=1e-9)
-    if layout.startswith("realsense"):     # optical frames under their body frames, as the driver has them
+    if layout.startswith("realsense"):  # optical frames under their body frames, as the driver has them
         for tf in tree.transforms:
             if tf.child_frame_id.endswith("_optical_frame"):
-                np.testing.assert_allclose(transform_to_matrix(tf.transform)[:3, :3],
-                                           [[0, 0, 1], [-1, 0, 0], [0, -1, 0]], atol=1e-12)
+                np.testing.assert_allclose(
+                    transform_to_matrix(tf.transform)[:3, :3], [[0, 0, 1], [-1, 0, 0], [0, -1, 0]], atol=1e-12
+                )
 
 
 @pytest.mark.parametrize("layout", list(LAYOUTS))
@@ -179,8 +234,11 @@ def test_imu_samples(raw_source, raw_layouts, layout):
         accel_only = topic.endswith("accel/sample")
         expected = source[::3] if accel_only else source
         for (src_ns, a), (out_ns, b) in zip(expected, written[topic], strict=True):
-            assert (out_ns, stamp_to_ns(b.header.stamp), b.header.frame_id) == (src_ns, stamp_to_ns(a.header.stamp),
-                                                                                frame)
+            assert (out_ns, stamp_to_ns(b.header.stamp), b.header.frame_id) == (
+                src_ns,
+                stamp_to_ns(a.header.stamp),
+                frame,
+            )
             assert b.orientation_covariance[0] == -1
             gyro, accel = message_fields(b.angular_velocity), message_fields(b.linear_acceleration)
             if topic.endswith("gyro/sample"):
@@ -211,12 +269,16 @@ def test_compressed_source_is_copied(tiny_bag, tmp_path):
     source, _ = tiny_bag
     src = _messages(source, [topics.EGO_COLOR[1], topics.EGO_DEPTH[1], topics.cmc_image_topics("cam02")[1]])
     for layout, color, depth in (
-            ("azure", "/rgb/image_raw/compressed", "/depth_to_rgb/image_raw/compressedDepth"),
-            ("zed", "/zed/zed_node/rgb/image_rect_color/compressed", "/zed/zed_node/depth/depth_registered")):
+        ("azure", "/rgb/image_raw/compressed", "/depth_to_rgb/image_raw/compressedDepth"),
+        ("zed", "/zed/zed_node/rgb/image_rect_color/compressed", "/zed/zed_node/depth/depth_registered"),
+    ):
         write_driver_layout(source, tmp_path / layout, layout)
         out = _messages(tmp_path / layout, [color, depth, "/cctv/cam02/image_raw/compressed"])
-        for src_topic, out_topic in ((topics.EGO_COLOR[1], color), (topics.EGO_DEPTH[1], depth),
-                                     (topics.cmc_image_topics("cam02")[1], "/cctv/cam02/image_raw/compressed")):
+        for src_topic, out_topic in (
+            (topics.EGO_COLOR[1], color),
+            (topics.EGO_DEPTH[1], depth),
+            (topics.cmc_image_topics("cam02")[1], "/cctv/cam02/image_raw/compressed"),
+        ):
             for (src_ns, a), (out_ns, b) in zip(src[src_topic], out[out_topic], strict=True):
                 assert out_ns == src_ns
                 if out_topic.endswith("depth_registered"):
@@ -242,7 +304,9 @@ def test_metric_depth_source_without_imu(tmp_path):
     for layout in ("azure", "zed"):
         write_driver_layout(source, tmp_path / layout, layout)
         (tree,) = [(log_ns, msg) for _, log_ns, msg in read_messages(tmp_path / layout, [topics.TF_STATIC])]
-        assert tree[0] == stamps_ns[0] and not {tf.child_frame_id for tf in tree[1].transforms} & set(IMU_FRAMES[layout])
+        assert tree[0] == stamps_ns[0] and not {tf.child_frame_id for tf in tree[1].transforms} & set(
+            IMU_FRAMES[layout]
+        )
         depths = [msg for _, _, msg in read_messages(tmp_path / layout, [EGO_STREAMS[layout][2]])]
         assert [stamp_to_ns(m.header.stamp) for m in depths] == list(stamps_ns)
         if layout == "zed":
@@ -261,11 +325,30 @@ def test_unknown_camera_is_refused(tiny_bag, tmp_path):
 
 def test_simulate_verb_writes_a_driver_layout(tmp_path):
     out = tmp_path / "rs"
-    args = build_parser().parse_args(["simulate", "--preset", "tiny", "--seed", "1", "-o", str(out), "--raw",
-                                      "--ego-hz", "2", "--cmc-hz", "1", "--no-cmc-images", "--layout", "realsense",
-                                      "--no-camera-info", "cam00", "cam02"])
+    args = build_parser().parse_args(
+        [
+            "simulate",
+            "--preset",
+            "tiny",
+            "--seed",
+            "1",
+            "-o",
+            str(out),
+            "--raw",
+            "--ego-hz",
+            "2",
+            "--cmc-hz",
+            "1",
+            "--no-cmc-images",
+            "--layout",
+            "realsense",
+            "--no-camera-info",
+            "cam00",
+            "cam02",
+        ]
+    )
     assert args.func(args) == 0
     names = {t.name for t in list_topics(out)}
     assert {*EGO_STREAMS["realsense"], *IMU_TOPICS["realsense"]} <= names and "/cctv/cam01/camera_info" in names
     assert not {"/cctv/cam00/camera_info", "/cctv/cam02/camera_info"} & names
-    assert [p.name for p in tmp_path.iterdir()] == ["rs"]     # the YOWO-layout recording is removed
+    assert [p.name for p in tmp_path.iterdir()] == ["rs"]  # the YOWO-layout recording is removed

@@ -1,5 +1,6 @@
 """The simulated IMU (/ego/imu): consistent with the rendered ego trajectory, with the
 noise its parameters state, and recorded with a calibration a consumer can read."""
+
 from dataclasses import replace
 
 import gtsam
@@ -36,16 +37,17 @@ def _preintegrate(gyro, accel, dt, params: ImuParams, substeps: int):
     pim = gtsam.PreintegratedCombinedMeasurements(pp, gtsam.imuBias.ConstantBias())
     for k in range(len(gyro) - 1):
         for u in (np.arange(substeps) + 0.5) / substeps:
-            pim.integrateMeasurement((1 - u) * accel[k] + u * accel[k + 1], (1 - u) * gyro[k] + u * gyro[k + 1],
-                                     dt / substeps)
+            pim.integrateMeasurement(
+                (1 - u) * accel[k] + u * accel[k + 1], (1 - u) * gyro[k] + u * gyro[k + 1], dt / substeps
+            )
     return pim
 
 
 def test_extrinsics_default_is_not_identity():
     T = ImuParams().T_cam_imu
     np.testing.assert_allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-12)
-    assert 0.01 < np.linalg.norm(T[:3, 3]) < 0.05             # a D435i-size lever arm
-    assert _rot_deg(np.eye(3), T[:3, :3]) > 90.0                # IMU axes are not the optical frame's
+    assert 0.01 < np.linalg.norm(T[:3, 3]) < 0.05  # a D435i-size lever arm
+    assert _rot_deg(np.eye(3), T[:3, :3]) > 90.0  # IMU axes are not the optical frame's
     # ... and a sub-degree mounting tilt off camera_link's axes (x forward = optical z).
     assert 0.1 < np.degrees(np.arccos(T[2, 0])) < 1.5
 
@@ -62,9 +64,8 @@ def test_rates_are_the_derivatives_of_the_rendered_pose(walk):
         A, B, C = (walk.ego_pose_at(s) @ T_ci for s in (t - h, t, t + h))
         W = B[:3, :3].T @ (C[:3, :3] - A[:3, :3]) / (2 * h)
         np.testing.assert_allclose([W[2, 1], W[0, 2], W[1, 0]], kin.omega[i], atol=1e-4)
-        acc = (C[:3, 3] - 2 * B[:3, 3] + A[:3, 3]) / h ** 2
-        np.testing.assert_allclose(B[:3, :3].T @ (acc + [0, 0, params.gravity_mps2]), kin.specific_force[i],
-                                   atol=1e-3)
+        acc = (C[:3, 3] - 2 * B[:3, 3] + A[:3, 3]) / h**2
+        np.testing.assert_allclose(B[:3, :3].T @ (acc + [0, 0, params.gravity_mps2]), kin.specific_force[i], atol=1e-3)
         np.testing.assert_allclose(kin.R_world_imu[i], B[:3, :3], atol=1e-12)
         np.testing.assert_allclose(kin.p[i], B[:3, 3], atol=1e-12)
         np.testing.assert_allclose(kin.v[i], (C[:3, 3] - A[:3, 3]) / (2 * h), atol=1e-6)
@@ -83,24 +84,30 @@ def test_noise_free_imu_integrates_back_to_the_ground_truth(walk):
     for i0 in range(0, len(data.stamps_ns) - n, n // 2):
         tr = data.truth
         start = gtsam.NavState(gtsam.Rot3(tr.R_world_imu[i0]), tr.p[i0], tr.v[i0])
-        pim = _preintegrate(data.gyro[i0:i0 + n + 1], data.accel[i0:i0 + n + 1], dt, params, substeps=8)
+        pim = _preintegrate(data.gyro[i0 : i0 + n + 1], data.accel[i0 : i0 + n + 1], dt, params, substeps=8)
         end = pim.predict(start, gtsam.imuBias.ConstantBias())
         T = walk.ego_pose_at((i0 + n) * dt) @ params.T_cam_imu
-        errors.append((_rot_deg(end.pose().rotation().matrix(), T[:3, :3]),
-                       np.linalg.norm(end.pose().translation() - T[:3, 3]),
-                       np.linalg.norm(end.velocity() - tr.v[i0 + n])))
+        errors.append(
+            (
+                _rot_deg(end.pose().rotation().matrix(), T[:3, :3]),
+                np.linalg.norm(end.pose().translation() - T[:3, 3]),
+                np.linalg.norm(end.velocity() - tr.v[i0 + n]),
+            )
+        )
     errors = np.array(errors)
     assert len(errors) >= 4
-    assert errors[:, 0].max() < 0.01      # deg
-    assert errors[:, 1].max() < 0.002     # m
-    assert errors[:, 2].max() < 0.003     # m/s
+    assert errors[:, 0].max() < 0.01  # deg
+    assert errors[:, 1].max() < 0.002  # m
+    assert errors[:, 2].max() < 0.003  # m/s
     # What is left is gtsam's step (first order in it), not the data: 4x finer, ~4x smaller.
     worst = int(np.argmax(errors[:, 1])) * (n // 2)
     start = gtsam.NavState(gtsam.Rot3(data.truth.R_world_imu[worst]), data.truth.p[worst], data.truth.v[worst])
     T = walk.ego_pose_at((worst + n) * dt) @ params.T_cam_imu
-    fine = _preintegrate(data.gyro[worst:worst + n + 1], data.accel[worst:worst + n + 1], dt, params, substeps=32)
-    assert np.linalg.norm(fine.predict(start, gtsam.imuBias.ConstantBias()).pose().translation() - T[:3, 3]) \
+    fine = _preintegrate(data.gyro[worst : worst + n + 1], data.accel[worst : worst + n + 1], dt, params, substeps=32)
+    assert (
+        np.linalg.norm(fine.predict(start, gtsam.imuBias.ConstantBias()).pose().translation() - T[:3, 3])
         < 0.4 * errors[:, 1].max()
+    )
 
 
 def test_noise_and_bias_statistics_match_the_parameters(walk):
@@ -112,13 +119,19 @@ def test_noise_and_bias_statistics_match_the_parameters(walk):
     np.testing.assert_allclose(np.std(data.accel - data.truth.specific_force - data.accel_bias, axis=0), sa, rtol=0.1)
     # Bias random walk: increments with std density * sqrt(dt).
     dt = 1.0 / params.rate_hz
-    np.testing.assert_allclose(np.std(np.diff(data.gyro_bias, axis=0), axis=0),
-                               params.gyro_random_walk * np.sqrt(dt), rtol=0.1)
-    np.testing.assert_allclose(np.std(np.diff(data.accel_bias, axis=0), axis=0),
-                               params.accel_random_walk * np.sqrt(dt), rtol=0.1)
+    np.testing.assert_allclose(
+        np.std(np.diff(data.gyro_bias, axis=0), axis=0), params.gyro_random_walk * np.sqrt(dt), rtol=0.1
+    )
+    np.testing.assert_allclose(
+        np.std(np.diff(data.accel_bias, axis=0), axis=0), params.accel_random_walk * np.sqrt(dt), rtol=0.1
+    )
     # Turn-on bias: one draw per recording, so over many seeds.
-    first = np.array([(d.gyro_bias[0], d.accel_bias[0]) for d in
-                      (simulate_imu(walk, params, seed=s, start_ns=0) for s in range(150))])
+    first = np.array(
+        [
+            (d.gyro_bias[0], d.accel_bias[0])
+            for d in (simulate_imu(walk, params, seed=s, start_ns=0) for s in range(150))
+        ]
+    )
     assert np.std(first[:, 0]) == pytest.approx(params.gyro_bias_std, rel=0.1)
     assert np.std(first[:, 1]) == pytest.approx(params.accel_bias_std, rel=0.1)
     # Same seed, same samples; another seed, other noise.
@@ -134,8 +147,7 @@ def test_recording_carries_imu_bias_and_calibration(tiny_bag):
     assert info[topics.EGO_IMU].msgtype == "sensor_msgs/msg/Imu"
     assert info[topics.EGO_IMU_CALIBRATION].latched and info[topics.TF_STATIC].latched
     imu, bias, poses, tf, calib = [], [], {}, None, None
-    wanted = [topics.EGO_IMU, topics.GT_EGO_IMU_BIAS, topics.GT_EGO_POSE, topics.TF_STATIC,
-              topics.EGO_IMU_CALIBRATION]
+    wanted = [topics.EGO_IMU, topics.GT_EGO_IMU_BIAS, topics.GT_EGO_POSE, topics.TF_STATIC, topics.EGO_IMU_CALIBRATION]
     for topic, log_ns, msg in read_messages(path, wanted):
         if topic == topics.EGO_IMU:
             assert stamp_to_ns(msg.header.stamp) == log_ns and msg.header.frame_id == params.frame_id
@@ -151,12 +163,12 @@ def test_recording_carries_imu_bias_and_calibration(tiny_bag):
     stamps = np.array([stamp_to_ns(m.header.stamp) for m in imu])
     assert len(imu) == summary.imu_samples == info[topics.GT_EGO_IMU_BIAS].count
     assert np.all(np.diff(stamps) > 0)
-    np.testing.assert_array_equal(np.diff(stamps), 5_000_000)                   # 200 Hz
+    np.testing.assert_array_equal(np.diff(stamps), 5_000_000)  # 200 Hz
     assert stamps[0] == START_NS and (stamps[-1] - START_NS) / 1e9 == pytest.approx(summary.duration_s, abs=0.005)
     np.testing.assert_array_equal([stamp_to_ns(m.header.stamp) for m in bias], stamps)
     sg, _ = params.white_sigma()
     assert imu[0].orientation_covariance[0] == -1.0
-    assert imu[0].angular_velocity_covariance[0] == pytest.approx(sg ** 2)
+    assert imu[0].angular_velocity_covariance[0] == pytest.approx(sg**2)
     # Calibration: the transform on /tf_static and the Kalibr-style YAML agree with the parameters.
     (t,) = tf.transforms
     assert (t.header.frame_id, t.child_frame_id) == (EGO_FRAME, params.frame_id)
@@ -175,7 +187,7 @@ def test_recording_carries_imu_bias_and_calibration(tiny_bag):
     checked = 0
     for a, b in zip(frames[::15], frames[15::15]):
         i, j = np.searchsorted(stamps, [a, b])
-        assert stamps[i] == a and stamps[j] == b                               # frames fall on IMU samples
+        assert stamps[i] == a and stamps[j] == b  # frames fall on IMU samples
         R = np.eye(3)
         for k in range(i, j):
             R = R @ Rotation.from_rotvec(0.5 * (gyro[k] + gyro[k + 1]) * 0.005).as_matrix()
@@ -192,6 +204,8 @@ def test_recording_without_imu_differs_only_by_the_imu(tmp_path):
     imu_topics = {topics.EGO_IMU, topics.GT_EGO_IMU_BIAS, topics.EGO_IMU_CALIBRATION, topics.TF_STATIC}
     names = {t.name for t in list_topics(tmp_path / "without")}
     assert not names & imu_topics and topics.EGO_INFO in names
-    rest = [[(t, s, message_fields(m)) for t, s, m in read_messages(tmp_path / run) if t not in imu_topics]
-            for run in ("with", "without")]
+    rest = [
+        [(t, s, message_fields(m)) for t, s, m in read_messages(tmp_path / run) if t not in imu_topics]
+        for run in ("with", "without")
+    ]
     assert len(rest[0]) > 500 and rest[0] == rest[1]

@@ -1,4 +1,5 @@
 """Scene builder, agent body and renderer: geometry and pixel conventions."""
+
 from __future__ import annotations
 
 import cv2
@@ -31,8 +32,14 @@ def _quads_scene(quads: list[np.ndarray], texture: np.ndarray, uvs: list[np.ndar
             tri_uvs.append(uv[list(tri)])
         vertices.extend(quad)
     n = len(triangles)
-    return Scene(np.array(vertices, np.float32), np.array(triangles, np.int32), np.array(tri_uvs, np.float32),
-                 np.zeros(n, np.int32), [texture], ambient=1.0)
+    return Scene(
+        np.array(vertices, np.float32),
+        np.array(triangles, np.int32),
+        np.array(tri_uvs, np.float32),
+        np.zeros(n, np.int32),
+        [texture],
+        ambient=1.0,
+    )
 
 
 def _wall_x(x: float, y0: float, y1: float, z0: float = -10.0, z1: float = 10.0) -> np.ndarray:
@@ -111,8 +118,14 @@ def test_textured_marker_corners_project_to_their_pixels(camera):
     # Board on the wall x = 3, centred in front of the camera, texture top-left at (y = +w/2, z = 1.5 + h/2).
     top_left = np.array([3.0, size_m[0] / 2, 1.5 + size_m[1] / 2])
     right, down = np.array([0.0, -1.0, 0.0]), np.array([0.0, 0.0, -1.0])
-    quad = np.array([top_left, top_left + size_m[0] * right, top_left + size_m[0] * right + size_m[1] * down,
-                     top_left + size_m[1] * down])
+    quad = np.array(
+        [
+            top_left,
+            top_left + size_m[0] * right,
+            top_left + size_m[0] * right + size_m[1] * down,
+            top_left + size_m[1] * down,
+        ]
+    )
     frame = Renderer(_quads_scene([quad], texture)).render(camera, T_WORLD_CAM)
     grey = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
     found, corners = cv2.findChessboardCornersSB(grey, (squares[0] - 1, squares[1] - 1), flags=cv2.CALIB_CB_ACCURACY)
@@ -211,7 +224,7 @@ def test_agent_is_composited_by_depth_and_keypoints_project_onto_it():
     kp = agent_keypoints_3d(xy, heading, height, phase)
     uv, _ = PINHOLE.project_world(T, np.array([kp[HEAD_TOP], kp[PELVIS]]))
     for u, v in np.round(uv).astype(int):
-        assert frame.agent_mask[v - 2:v + 3, u - 2:u + 3].any()
+        assert frame.agent_mask[v - 2 : v + 3, u - 2 : u + 3].any()
     # The head top is the mask's point nearest the image top along its column.
     rows = np.flatnonzero(frame.agent_mask[:, int(round(uv[0, 0]))])
     assert abs(rows.min() - uv[0, 1]) < 2.0

@@ -19,14 +19,15 @@ def test_walk_visits_targets_inside_free_space_with_pauses():
     for t in targets:
         assert np.min(np.linalg.norm(walk.xy - t, axis=1)) < 1e-6
     step = np.linalg.norm(np.diff(walk.xy, axis=0), axis=1) * 100.0
-    assert step.max() < 1.0 * 1.05                       # never faster than the walking speed
+    assert step.max() < 1.0 * 1.05  # never faster than the walking speed
     standing_s = np.sum(step < 1e-9) / 100.0
     assert standing_s == pytest.approx(3 * 2.0 + 5.0, abs=0.2)  # the pauses and one long stop
 
 
 def test_ego_pose_is_at_the_head():
-    walk = plan_walk(L_SHAPE.buffer(-0.3), (0.5, 0.5), [(7, 1.5)], WalkSpec(agent_height_m=1.8),
-                     np.random.default_rng(1))
+    walk = plan_walk(
+        L_SHAPE.buffer(-0.3), (0.5, 0.5), [(7, 1.5)], WalkSpec(agent_height_m=1.8), np.random.default_rng(1)
+    )
     for t in np.linspace(0, walk.duration_s, 17):
         T = walk.ego_pose_at(t)
         xy, _, _ = walk.state_at(t)
@@ -43,13 +44,13 @@ def test_detector_noise_free_matches_projection_and_occlusion():
     quiet = DetectorSpec(sigma_px={0: 0.0, 1: 0.0}, sigma_body_px=0.0, miss_rate=0.0, outlier_rate=0.0)
     far = np.full((480, 640), 100.0, np.float32)
     det = detect(cam, T, kps, far, quiet, np.random.default_rng(0))
-    assert det.ids.tolist() == [0, 1]                 # id 2 is behind the camera
+    assert det.ids.tolist() == [0, 1]  # id 2 is behind the camera
     expected, _ = cam.project_world(T, np.array([kps[0], kps[1]]))
     np.testing.assert_allclose(det.uv, expected, atol=1e-9)
     # A wall between camera and ground point hides it.
     wall = far.copy()
     u, v = np.round(expected[1]).astype(int)
-    wall[v - 2:v + 3, u - 2:u + 3] = 1.0
+    wall[v - 2 : v + 3, u - 2 : u + 3] = 1.0
     assert detect(cam, T, kps, wall, quiet, np.random.default_rng(0)).ids.tolist() == [0]
 
 

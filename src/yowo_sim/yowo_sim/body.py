@@ -8,6 +8,7 @@ Proportions follow standard anthropometric fractions of the body height H
 exactly (x, y, H) and the body stands on the floor z = 0, so keypoint 0 (head top)
 and keypoint 1 (ground point under the head) are exact.
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -101,8 +102,19 @@ def _pose(position_xy, heading_rad: float, H: float, phase: float) -> _Pose:
         shoulders.append(shoulder)
         elbows.append(elbow)
         hands.append(hand)
-    return _Pose(forward, left, centre, tuple(hips), tuple(feet), tuple(shoulders), tuple(hands),
-                 centre + 0.845 * H * up, tuple(elbows), tuple(knees), tuple(ankles))
+    return _Pose(
+        forward,
+        left,
+        centre,
+        tuple(hips),
+        tuple(feet),
+        tuple(shoulders),
+        tuple(hands),
+        centre + 0.845 * H * up,
+        tuple(elbows),
+        tuple(knees),
+        tuple(ankles),
+    )
 
 
 def _capsule(a: np.ndarray, b: np.ndarray, radius: float, n_around: int = 10, n_cap: int = 3):
@@ -148,8 +160,9 @@ def _ellipsoid(centre: np.ndarray, axes, radii, n_around: int = 16, n_lat: int =
     lats = -np.pi / 2 + np.pi * np.arange(1, n_lat) / n_lat
     local = [np.array([0.0, 0.0, -1.0])]
     for lat in lats:
-        local.extend(np.column_stack([np.cos(lat) * np.cos(theta), np.cos(lat) * np.sin(theta),
-                                      np.full(n_around, np.sin(lat))]))
+        local.extend(
+            np.column_stack([np.cos(lat) * np.cos(theta), np.cos(lat) * np.sin(theta), np.full(n_around, np.sin(lat))])
+        )
     local.append(np.array([0.0, 0.0, 1.0]))
     A = np.column_stack(axes) * np.asarray(radii, float)
     return centre + np.array(local) @ A.T, _ring_triangles(len(lats), n_around)
@@ -189,15 +202,20 @@ def _head_points(p: _Pose, H: float) -> dict[str, np.ndarray]:
     c = p.centre + (1.0 - HEAD_RADII[2]) * H * up
     a, b, r = (x * H for x in HEAD_RADII)
 
-    def front(z, side=0.0):     # the head's surface point at height z, side offset along left
+    def front(z, side=0.0):  # the head's surface point at height z, side offset along left
         dz, dy = z * H - c[2], side * H
         x = a * np.sqrt(max(1.0 - (dz / r) ** 2 - (dy / b) ** 2, 0.0))
         return c + x * p.forward + dy * p.left + dz * up
 
-    return {"centre": c, "nose": front(NOSE_Z) + 0.012 * H * p.forward,
-            "left_eye": front(EYE_Z, EYE_SIDE), "right_eye": front(EYE_Z, -EYE_SIDE),
-            "left_ear": c + (EAR_Z * H - c[2]) * up + b * p.left, "right_ear": c + (EAR_Z * H - c[2]) * up - b * p.left,
-            "mouth": front(MOUTH_Z)}
+    return {
+        "centre": c,
+        "nose": front(NOSE_Z) + 0.012 * H * p.forward,
+        "left_eye": front(EYE_Z, EYE_SIDE),
+        "right_eye": front(EYE_Z, -EYE_SIDE),
+        "left_ear": c + (EAR_Z * H - c[2]) * up + b * p.left,
+        "right_ear": c + (EAR_Z * H - c[2]) * up - b * p.left,
+        "mouth": front(MOUTH_Z),
+    }
 
 
 def agent_mesh(position_xy, heading_rad: float, height_m: float, phase: float) -> AgentMesh:
@@ -230,33 +248,42 @@ def agent_mesh(position_xy, heading_rad: float, height_m: float, phase: float) -
 
     add(*_ellipsoid(hc, (f, lf, up), [x * H for x in HEAD_RADII]), head_colour)
     for side in ("left_eye", "right_eye"):
-        add(*_ellipsoid(head[side] - 0.004 * H * f, (f, lf, up), (0.007 * H, 0.011 * H, 0.006 * H), 8, 4),
-            solid(EYES))
+        add(*_ellipsoid(head[side] - 0.004 * H * f, (f, lf, up), (0.007 * H, 0.011 * H, 0.006 * H), 8, 4), solid(EYES))
         brow = head[side] + 0.016 * H * up - 0.004 * H * f
         add(*_ellipsoid(brow, (f, lf, up), (0.006 * H, 0.014 * H, 0.003 * H), 8, 4), solid(HAIR))
-    add(*_ellipsoid(head["nose"] - 0.01 * H * f + 0.008 * H * up, (f, lf, up), (0.013 * H, 0.009 * H, 0.016 * H), 8, 4),
-        solid(SKIN_SHADE))
+    add(
+        *_ellipsoid(head["nose"] - 0.01 * H * f + 0.008 * H * up, (f, lf, up), (0.013 * H, 0.009 * H, 0.016 * H), 8, 4),
+        solid(SKIN_SHADE),
+    )
     add(*_ellipsoid(head["mouth"] - 0.004 * H * f, (f, lf, up), (0.006 * H, 0.016 * H, 0.004 * H), 8, 4), solid(LIPS))
     for side in ("left_ear", "right_ear"):
         add(*_ellipsoid(head[side], (f, lf, up), (0.014 * H, 0.006 * H, 0.02 * H), 8, 4), solid(SKIN_SHADE))
     add(*_capsule(p.centre + 0.80 * H * up, p.centre + 0.885 * H * up, 0.026 * H), solid(SKIN))
     # Torso: hips to shoulders in elliptical sections (half width, half depth; Winter).
-    sections = [(0.49, 0.082, 0.058), (0.53, 0.090, 0.062), (0.58, 0.085, 0.058), (0.64, 0.076, 0.054),
-                (0.70, 0.084, 0.058), (0.75, 0.094, 0.060), (0.79, 0.104, 0.056), (0.815, 0.098, 0.050),
-                (0.835, 0.060, 0.040), (0.845, 0.030, 0.028)]
+    sections = [
+        (0.49, 0.082, 0.058),
+        (0.53, 0.090, 0.062),
+        (0.58, 0.085, 0.058),
+        (0.64, 0.076, 0.054),
+        (0.70, 0.084, 0.058),
+        (0.75, 0.094, 0.060),
+        (0.79, 0.104, 0.056),
+        (0.815, 0.098, 0.050),
+        (0.835, 0.060, 0.040),
+        (0.845, 0.030, 0.028),
+    ]
     v, t = _loft([(p.centre + z * H * up, hw * H, hd * H) for z, hw, hd in sections], f, lf)
     belt = 0.585 * H
     add(v, t, lambda v, t: np.where((v[t][:, :, 2].mean(axis=1) > belt)[:, None], SHIRT, TROUSERS).astype(np.uint8))
     for i in range(2):
         s, e, w = p.shoulders[i], p.elbows[i], p.hands[i]
         sleeve = s + 0.6 * (e - s)
-        add(*_capsule(s, sleeve, 0.034 * H), solid(SHIRT))        # short sleeve over the upper arm
+        add(*_capsule(s, sleeve, 0.034 * H), solid(SHIRT))  # short sleeve over the upper arm
         add(*_capsule(sleeve, e, 0.026 * H), solid(SKIN))
         add(*_capsule(e, w, 0.021 * H), solid(SKIN))
         # Hand: a flat mitten from the wrist on along the forearm.
         d = (w - e) / np.linalg.norm(w - e)
-        add(*_ellipsoid(w + 0.5 * HAND * H * d, (f, lf, d), (0.016 * H, 0.028 * H, 0.5 * HAND * H), 8, 4),
-            solid(SKIN))
+        add(*_ellipsoid(w + 0.5 * HAND * H * d, (f, lf, d), (0.016 * H, 0.028 * H, 0.5 * HAND * H), 8, 4), solid(SKIN))
         add(*_capsule(p.hips[i], p.knees[i], 0.043 * H), solid(TROUSERS))
         add(*_capsule(p.knees[i], p.ankles[i], 0.032 * H), solid(TROUSERS))
         # Shoe: a box whose flat sole is exactly at the foot keypoint's height.
@@ -268,8 +295,11 @@ def agent_mesh(position_xy, heading_rad: float, height_m: float, phase: float) -
         tris.append(t + offset)
         cols.append(colour(v, t))
         offset += len(v)
-    return AgentMesh(np.concatenate(verts).astype(np.float32), np.concatenate(tris).astype(np.int32),
-                     np.concatenate(cols).astype(np.uint8))
+    return AgentMesh(
+        np.concatenate(verts).astype(np.float32),
+        np.concatenate(tris).astype(np.int32),
+        np.concatenate(cols).astype(np.uint8),
+    )
 
 
 def agent_keypoints_3d(position_xy, heading_rad: float, height_m: float, phase: float) -> dict[int, np.ndarray]:
@@ -287,9 +317,25 @@ def agent_keypoints_3d(position_xy, heading_rad: float, height_m: float, phase: 
 
 
 # COCO-17 body joints (the order of yowo_cmc.pose_model.MOVENET_JOINTS); person's left / right.
-BODY_JOINTS = ("nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder",
-               "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip",
-               "left_knee", "right_knee", "left_ankle", "right_ankle")
+BODY_JOINTS = (
+    "nose",
+    "left_eye",
+    "right_eye",
+    "left_ear",
+    "right_ear",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+    "left_hip",
+    "right_hip",
+    "left_knee",
+    "right_knee",
+    "left_ankle",
+    "right_ankle",
+)
 
 
 def agent_joints_3d(position_xy, heading_rad: float, height_m: float, phase: float) -> np.ndarray:

@@ -1,6 +1,7 @@
 """Generate a synthetic YOWO recording: scene, CMCs, the agent's walk, rendered
 ego RGB-D and CMC images, simulated keypoints and ground truth, as an MCAP
 rosbag2 that follows docs/design.md §3."""
+
 from __future__ import annotations
 
 import time
@@ -36,7 +37,7 @@ from .rig import Cmc, place_cmc
 from .scene import Scene, build_scene
 from .walk import Walk, plan_walk
 
-START_NS = 1_700_000_000 * 10**9   # recordings start at a fixed epoch: deterministic stamps
+START_NS = 1_700_000_000 * 10**9  # recordings start at a fixed epoch: deterministic stamps
 EGO_FRAME = "ego_optical_frame"
 
 
@@ -55,8 +56,10 @@ class CaptureSummary:
 
 def place_cmcs(scene: Scene, preset: CapturePreset, rng: np.random.Generator) -> list[Cmc]:
     if len(preset.cmcs_per_room) > len(scene.rooms):
-        raise ValueError(f"preset '{preset.name}' wants cameras in {len(preset.cmcs_per_room)} rooms; "
-                         f"the scene has {len(scene.rooms)}")
+        raise ValueError(
+            f"preset '{preset.name}' wants cameras in {len(preset.cmcs_per_room)} rooms; "
+            f"the scene has {len(scene.rooms)}"
+        )
     cmcs = []
     for room, count in zip(scene.rooms, preset.cmcs_per_room):
         for _ in range(count):
@@ -87,8 +90,15 @@ class _Recorder:
     def __init__(self, bag: BagWriter, preset: CapturePreset):
         self.bag, self.preset = bag, preset
 
-    def color(self, image_topics: tuple[str, str], info_topic: str, rgb: np.ndarray, cam: CameraModel,
-              header: Header, stamp: int):
+    def color(
+        self,
+        image_topics: tuple[str, str],
+        info_topic: str,
+        rgb: np.ndarray,
+        cam: CameraModel,
+        header: Header,
+        stamp: int,
+    ):
         """`image_topics`: (raw, compressed) as yowo_common.topics names them."""
         if self.preset.raw_images:
             self.bag.write(image_topics[0], encode_raw(rgb, "rgb8", header), stamp)
@@ -109,8 +119,9 @@ def _schedule(duration_s: float, preset: CapturePreset, n_cmc: int, rng) -> list
     events = [(START_NS + int(round(t * 1e9)), "ego", 0) for t in np.arange(0.0, duration_s, 1.0 / preset.ego_hz)]
     for c in range(n_cmc):
         offset = rng.uniform(0, 1.0 / preset.cmc_hz)
-        events += [(START_NS + int(round(t * 1e9)), "cmc", c)
-                   for t in np.arange(offset, duration_s, 1.0 / preset.cmc_hz)]
+        events += [
+            (START_NS + int(round(t * 1e9)), "cmc", c) for t in np.arange(offset, duration_s, 1.0 / preset.cmc_hz)
+        ]
     return sorted(events)
 
 
@@ -130,7 +141,7 @@ class CaptureSetup:
     walk: Walk
     ego_camera: CameraModel
     rng: np.random.Generator
-    clock_offsets_ns: dict[str, int] = field(default_factory=dict)   # CMC clock - ego clock (preset's option)
+    clock_offsets_ns: dict[str, int] = field(default_factory=dict)  # CMC clock - ego clock (preset's option)
 
 
 def clock_offsets(preset: CapturePreset, seed: int, cmcs: list[Cmc]) -> dict[str, int]:
@@ -146,14 +157,16 @@ def build_capture(preset: CapturePreset, seed: int) -> CaptureSetup:
     rng = np.random.default_rng(seed)
     scene = build_scene(replace(preset.scene, seed=seed))
     cmcs = place_cmcs(scene, preset, rng)
-    walk = plan_walk(scene.free_space_polygon(), scene.rooms[0].center_xy(), [c.target_xy for c in cmcs],
-                     preset.walk, rng)
+    walk = plan_walk(
+        scene.free_space_polygon(), scene.rooms[0].center_xy(), [c.target_xy for c in cmcs], preset.walk, rng
+    )
     ego_cam = CameraModel.from_fov(preset.ego_width, preset.ego_height, preset.ego_hfov_deg)
     return CaptureSetup(preset, scene, cmcs, walk, ego_cam, rng, clock_offsets(preset, seed, cmcs))
 
 
-def generate(preset: CapturePreset, seed: int, out_path, progress: Callable[[int, int], None] | None = None
-             ) -> CaptureSummary:
+def generate(
+    preset: CapturePreset, seed: int, out_path, progress: Callable[[int, int], None] | None = None
+) -> CaptureSummary:
     setup = build_capture(preset, seed)
     scene, cmcs, walk, ego_cam, rng = setup.scene, setup.cmcs, setup.walk, setup.ego_camera, setup.rng
     renderer = Renderer(scene)
@@ -185,42 +198,82 @@ def generate(preset: CapturePreset, seed: int, out_path, progress: Callable[[int
                 T = walk.ego_pose_at(t)
                 rgb, depth, _ = render(ego_cam, T)
                 header = Header(stamp=ns_to_time(stamp), frame_id=EGO_FRAME)
-                rec.color(topics.EGO_COLOR, topics.EGO_INFO, add_image_noise(rgb, preset.image_noise, rng), ego_cam,
-                          header, stamp)
+                rec.color(
+                    topics.EGO_COLOR,
+                    topics.EGO_INFO,
+                    add_image_noise(rgb, preset.image_noise, rng),
+                    ego_cam,
+                    header,
+                    stamp,
+                )
                 rec.depth(apply_depth_noise(depth, preset.depth, rng), header, stamp)
-                bag.write(topics.GT_EGO_POSE, PoseStamped(header=Header(stamp=header.stamp, frame_id="map"),
-                                                      pose=matrix_to_pose(T)), stamp)
+                bag.write(
+                    topics.GT_EGO_POSE,
+                    PoseStamped(header=Header(stamp=header.stamp, frame_id="map"), pose=matrix_to_pose(T)),
+                    stamp,
+                )
                 counts["ego"] += 1
             else:
                 cmc = cmcs[idx]
                 kps = agent_keypoints_3d(xy, heading, walk.height_m, phase)
-                truth_stamp, stamp = stamp, stamp + setup.clock_offsets_ns.get(cmc.name, 0)   # the CMC's clock
+                truth_stamp, stamp = stamp, stamp + setup.clock_offsets_ns.get(cmc.name, 0)  # the CMC's clock
                 header = Header(stamp=ns_to_time(stamp), frame_id=f"{cmc.name}_optical_frame")
                 visible = agent_in_view(cmc, kps)
                 if preset.cmc_images:
-                    rgb = render(cmc.camera, cmc.T_world_cam, agent_mesh(xy, heading, walk.height_m, phase))[0] \
-                        if visible else backgrounds[idx][0]
-                    rec.color(topics.cmc_image_topics(cmc.name), topics.cmc_info_topic(cmc.name),
-                              add_image_noise(rgb, preset.image_noise, rng), cmc.camera, header, stamp)
+                    rgb = (
+                        render(cmc.camera, cmc.T_world_cam, agent_mesh(xy, heading, walk.height_m, phase))[0]
+                        if visible
+                        else backgrounds[idx][0]
+                    )
+                    rec.color(
+                        topics.cmc_image_topics(cmc.name),
+                        topics.cmc_info_topic(cmc.name),
+                        add_image_noise(rgb, preset.image_noise, rng),
+                        cmc.camera,
+                        header,
+                        stamp,
+                    )
                 else:
                     bag.write(topics.cmc_info_topic(cmc.name), model_to_camera_info(cmc.camera, header), stamp)
                 det = detect(cmc.camera, cmc.T_world_cam, kps, backgrounds[idx][1], preset.detector, rng)
                 if preset.cmc_keypoints:
-                    bag.write(topics.cmc_keypoints_topic(cmc.name), AgentKeypoints(
-                        header=header, camera_name=cmc.name,
-                        keypoints=[Keypoint2D(id=int(i), x=float(u), y=float(v), confidence=float(c))
-                                   for i, (u, v), c in zip(det.ids, det.uv, det.confidence)]), stamp)
-                bag.write(topics.GT_AGENT_KEYPOINTS, PoseArray(
-                    header=Header(stamp=ns_to_time(truth_stamp), frame_id="map"),
-                    poses=[Pose(position=p) for p in array_to_points([kps[k] for k in sorted(kps)])]), truth_stamp)
+                    bag.write(
+                        topics.cmc_keypoints_topic(cmc.name),
+                        AgentKeypoints(
+                            header=header,
+                            camera_name=cmc.name,
+                            keypoints=[
+                                Keypoint2D(id=int(i), x=float(u), y=float(v), confidence=float(c))
+                                for i, (u, v), c in zip(det.ids, det.uv, det.confidence)
+                            ],
+                        ),
+                        stamp,
+                    )
+                bag.write(
+                    topics.GT_AGENT_KEYPOINTS,
+                    PoseArray(
+                        header=Header(stamp=ns_to_time(truth_stamp), frame_id="map"),
+                        poses=[Pose(position=p) for p in array_to_points([kps[k] for k in sorted(kps)])],
+                    ),
+                    truth_stamp,
+                )
                 counts["cmc"] += 1
                 counts["agent"] += int(len(det.ids) > 0)
             if progress:
                 progress(n + 1, len(events))
         if imu_writer:
             imu_writer.until(None)
-    return CaptureSummary(out_path, walk.duration_s, counts["ego"], counts["cmc"], counts["agent"], cmcs,
-                          render_s, rendered, 0 if imu is None else len(imu.stamps_ns))
+    return CaptureSummary(
+        out_path,
+        walk.duration_s,
+        counts["ego"],
+        counts["cmc"],
+        counts["agent"],
+        cmcs,
+        render_s,
+        rendered,
+        0 if imu is None else len(imu.stamps_ns),
+    )
 
 
 class _ImuWriter:
@@ -242,16 +295,20 @@ class _ImuWriter:
         self.next = max(self.next, end)
 
 
-def _write_static_ground_truth(bag: BagWriter, scene: Scene, cmcs: list[Cmc], clock_offsets_ns: dict[str, int]
-                               ) -> None:
+def _write_static_ground_truth(bag: BagWriter, scene: Scene, cmcs: list[Cmc], clock_offsets_ns: dict[str, int]) -> None:
     header = Header(stamp=ns_to_time(START_NS), frame_id="map")
     for cmc in cmcs:
-        bag.write(topics.gt_cmc_pose_topic(cmc.name), PoseStamped(header=header, pose=matrix_to_pose(cmc.T_world_cam)),
-                  START_NS, latched=True)
+        bag.write(
+            topics.gt_cmc_pose_topic(cmc.name),
+            PoseStamped(header=header, pose=matrix_to_pose(cmc.T_world_cam)),
+            START_NS,
+            latched=True,
+        )
     # Only with the option: a synchronised recording stays as it was (no offset topic = 0).
     for name, offset in clock_offsets_ns.items():
         bag.write(topics.gt_cmc_clock_offset_topic(name), Float64(data=offset / 1e9), START_NS, latched=True)
     for poly in scene.floor_polygons:
-        msg = PolygonStamped(header=header, polygon=Polygon(
-            points=[Point32(x=float(x), y=float(y), z=0.0) for x, y in poly]))
+        msg = PolygonStamped(
+            header=header, polygon=Polygon(points=[Point32(x=float(x), y=float(y), z=0.0) for x, y in poly])
+        )
         bag.write(topics.GT_FLOOR, msg, START_NS, latched=True)

@@ -7,6 +7,7 @@ Every message keeps its log time and header stamps; payloads change only where a
 publishes differently (frame ids, the split IMU, ZED's metric depth, PNG-compressed CCTV
 images). Ground truth (/gt/...) is copied unchanged: evaluation reads it by its own names.
 """
+
 from __future__ import annotations
 
 import copy
@@ -39,7 +40,7 @@ T_BODY_OPTICAL = se3(np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.
 ACCEL_HZ = 63.0
 # The default of image_transport's compressed plugin's png_level parameter.
 PNG_LEVEL = 3
-NO_COVARIANCE = [-1.0] + [0.0] * 8    # REP 145: the field is not measured
+NO_COVARIANCE = [-1.0] + [0.0] * 8  # REP 145: the field is not measured
 
 
 def _offset(x: float, y: float, z: float, optical: bool = False) -> np.ndarray:
@@ -66,55 +67,81 @@ class DriverLayout:
     color_info: str
     depth: str
     depth_info: str
-    camera_frame: str                   # colour, aligned depth and their CameraInfo
+    camera_frame: str  # colour, aligned depth and their CameraInfo
     # The driver's static tree as (parent, child, T_parent_child), parents listed first;
     # it holds camera_frame. The IMU frames are solved from the source's T_cam_imu.
     tree: tuple[tuple[str, str, np.ndarray], ...]
-    imu: str = ""                       # one Imu topic with both rates ...
-    gyro: str = ""                      # ... or the driver's separate streams
+    imu: str = ""  # one Imu topic with both rates ...
+    gyro: str = ""  # ... or the driver's separate streams
     accel: str = ""
-    imu_mounts: tuple[ImuMount, ...] = ()   # united: one; split: gyro's, then accel's
-    depth_in_metres: bool = False       # 32FC1 [m], NaN invalid (else 16UC1 [mm])
+    imu_mounts: tuple[ImuMount, ...] = ()  # united: one; split: gyro's, then accel's
+    depth_in_metres: bool = False  # 32FC1 [m], NaN invalid (else 16UC1 [mm])
 
 
 _RS = "/camera/camera"
-_RS_TREE = (("camera_link", "camera_color_frame", _offset(0.0, 0.015, 0.0)),
-            ("camera_color_frame", "camera_color_optical_frame", T_BODY_OPTICAL),
-            ("camera_link", "camera_depth_frame", _offset(0.0, 0.0, 0.0)),
-            ("camera_depth_frame", "camera_depth_optical_frame", T_BODY_OPTICAL))
-_RS_CAMERA = dict(color=f"{_RS}/color/image_raw", color_info=f"{_RS}/color/camera_info",
-                  depth=f"{_RS}/aligned_depth_to_color/image_raw",
-                  depth_info=f"{_RS}/aligned_depth_to_color/camera_info",
-                  camera_frame="camera_color_optical_frame", tree=_RS_TREE)
+_RS_TREE = (
+    ("camera_link", "camera_color_frame", _offset(0.0, 0.015, 0.0)),
+    ("camera_color_frame", "camera_color_optical_frame", T_BODY_OPTICAL),
+    ("camera_link", "camera_depth_frame", _offset(0.0, 0.0, 0.0)),
+    ("camera_depth_frame", "camera_depth_optical_frame", T_BODY_OPTICAL),
+)
+_RS_CAMERA = dict(
+    color=f"{_RS}/color/image_raw",
+    color_info=f"{_RS}/color/camera_info",
+    depth=f"{_RS}/aligned_depth_to_color/image_raw",
+    depth_info=f"{_RS}/aligned_depth_to_color/camera_info",
+    camera_frame="camera_color_optical_frame",
+    tree=_RS_TREE,
+)
 LAYOUTS: dict[str, DriverLayout] = {
     # realsense2_camera 4.x: camera_namespace and camera_name 'camera', align_depth, unite_imu_method 0.
     "realsense": DriverLayout(
-        **_RS_CAMERA, gyro=f"{_RS}/gyro/sample", accel=f"{_RS}/accel/sample",
-        imu_mounts=(ImuMount("camera_link", "camera_gyro_frame", "camera_gyro_optical_frame"),
-                    ImuMount("camera_link", "camera_accel_frame", "camera_accel_optical_frame"))),
+        **_RS_CAMERA,
+        gyro=f"{_RS}/gyro/sample",
+        accel=f"{_RS}/accel/sample",
+        imu_mounts=(
+            ImuMount("camera_link", "camera_gyro_frame", "camera_gyro_optical_frame"),
+            ImuMount("camera_link", "camera_accel_frame", "camera_accel_optical_frame"),
+        ),
+    ),
     # The same with unite_imu_method 2 (linear interpolation): one Imu topic.
     "realsense_united": DriverLayout(
-        **_RS_CAMERA, imu=f"{_RS}/imu",
-        imu_mounts=(ImuMount("camera_link", "camera_imu_frame", "camera_imu_optical_frame"),)),
+        **_RS_CAMERA,
+        imu=f"{_RS}/imu",
+        imu_mounts=(ImuMount("camera_link", "camera_imu_frame", "camera_imu_optical_frame"),),
+    ),
     # Azure Kinect ROS driver (and Orbbec's Femto wrapper): rgb_camera_link is an optical frame.
     "azure": DriverLayout(
-        color="/rgb/image_raw", color_info="/rgb/camera_info", depth="/depth_to_rgb/image_raw",
-        depth_info="/depth_to_rgb/camera_info", camera_frame="rgb_camera_link",
-        tree=(("camera_base", "rgb_camera_link", _offset(0.0, 0.032, 0.0, optical=True)),
-              ("camera_base", "depth_camera_link", _offset(0.0, 0.0, 0.0, optical=True))),
-        imu="/imu", imu_mounts=(ImuMount("camera_base", "imu_link"),)),
+        color="/rgb/image_raw",
+        color_info="/rgb/camera_info",
+        depth="/depth_to_rgb/image_raw",
+        depth_info="/depth_to_rgb/camera_info",
+        camera_frame="rgb_camera_link",
+        tree=(
+            ("camera_base", "rgb_camera_link", _offset(0.0, 0.032, 0.0, optical=True)),
+            ("camera_base", "depth_camera_link", _offset(0.0, 0.0, 0.0, optical=True)),
+        ),
+        imu="/imu",
+        imu_mounts=(ImuMount("camera_base", "imu_link"),),
+    ),
     # zed-ros2-wrapper, camera_name 'zed': registered depth in metres, the IMU under the left camera.
     "zed": DriverLayout(
-        color="/zed/zed_node/rgb/image_rect_color", color_info="/zed/zed_node/rgb/camera_info",
-        depth="/zed/zed_node/depth/depth_registered", depth_info="/zed/zed_node/depth/camera_info",
+        color="/zed/zed_node/rgb/image_rect_color",
+        color_info="/zed/zed_node/rgb/camera_info",
+        depth="/zed/zed_node/depth/depth_registered",
+        depth_info="/zed/zed_node/depth/camera_info",
         camera_frame="zed_left_camera_optical_frame",
-        tree=(("zed_camera_link", "zed_camera_center", _offset(0.0, 0.0, 0.015)),
-              ("zed_camera_center", "zed_left_camera_frame", _offset(0.0, 0.06, 0.0)),
-              ("zed_left_camera_frame", "zed_left_camera_optical_frame", T_BODY_OPTICAL),
-              ("zed_camera_center", "zed_right_camera_frame", _offset(0.0, -0.06, 0.0)),
-              ("zed_right_camera_frame", "zed_right_camera_optical_frame", T_BODY_OPTICAL)),
-        imu="/zed/zed_node/imu/data", imu_mounts=(ImuMount("zed_left_camera_frame", "zed_imu_link"),),
-        depth_in_metres=True),
+        tree=(
+            ("zed_camera_link", "zed_camera_center", _offset(0.0, 0.0, 0.015)),
+            ("zed_camera_center", "zed_left_camera_frame", _offset(0.0, 0.06, 0.0)),
+            ("zed_left_camera_frame", "zed_left_camera_optical_frame", T_BODY_OPTICAL),
+            ("zed_camera_center", "zed_right_camera_frame", _offset(0.0, -0.06, 0.0)),
+            ("zed_right_camera_frame", "zed_right_camera_optical_frame", T_BODY_OPTICAL),
+        ),
+        imu="/zed/zed_node/imu/data",
+        imu_mounts=(ImuMount("zed_left_camera_frame", "zed_imu_link"),),
+        depth_in_metres=True,
+    ),
 }
 CCTV_PREFIX = "/cctv"
 
@@ -151,8 +178,9 @@ def _source_T_cam_imu(src, camera_frame: str, imu_frame: str) -> np.ndarray:
                 return T
             if (tf.header.frame_id, tf.child_frame_id) == (imu_frame, camera_frame):
                 return inv_se3(T)
-    raise ValueError(f"{src}: {topics.EGO_IMU} is recorded but /tf_static has no transform "
-                     f"{camera_frame} -> {imu_frame} (T_cam_imu)")
+    raise ValueError(
+        f"{src}: {topics.EGO_IMU} is recorded but /tf_static has no transform {camera_frame} -> {imu_frame} (T_cam_imu)"
+    )
 
 
 def _first(src, topic_names: Sequence[str]):
@@ -181,12 +209,16 @@ def _split_imu(msg: Imu, frame_id: str, gyro: bool) -> Imu:
 def png_compressed(msg: Image, frame_id: str) -> CompressedImage:
     """A colour Image as image_transport's compressed plugin writes it with format png:
     lossless, the PNG holding bgr8."""
-    ok, png = cv2.imencode(".png", cv2.cvtColor(decode_color(msg), cv2.COLOR_RGB2BGR),
-                           [cv2.IMWRITE_PNG_COMPRESSION, PNG_LEVEL])
+    ok, png = cv2.imencode(
+        ".png", cv2.cvtColor(decode_color(msg), cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, PNG_LEVEL]
+    )
     if not ok:
         raise ValueError("PNG encoding failed")
-    return CompressedImage(header=Header(stamp=msg.header.stamp, frame_id=frame_id),
-                           format=f"{msg.encoding}; png compressed bgr8", data=png.tobytes())
+    return CompressedImage(
+        header=Header(stamp=msg.header.stamp, frame_id=frame_id),
+        format=f"{msg.encoding}; png compressed bgr8",
+        data=png.tobytes(),
+    )
 
 
 def _depth_image(msg, layout: DriverLayout):
@@ -210,7 +242,7 @@ class _Converter:
     def __call__(self, topic: str, msg) -> list[tuple[str, object]]:
         driver, frame = self.driver, self.driver.camera_frame
         if topic in (topics.TF_STATIC, topics.EGO_IMU_CALIBRATION):
-            return []                   # the driver's tree replaces them; drivers publish no calibration text
+            return []  # the driver's tree replaces them; drivers publish no calibration text
         if topic == topics.EGO_COLOR[0]:
             return [(driver.color, _with_frame(msg, frame))]
         if topic == topics.EGO_COLOR[1]:
@@ -230,8 +262,11 @@ class _Converter:
         if kind == "image_raw":
             return [(cctv_topic(name, "image_raw/compressed"), png_compressed(msg, f"{name}_optical_frame"))]
         if kind == "camera_info":
-            return [] if name in self.no_camera_info else [
-                (cctv_topic(name, kind), _with_frame(msg, f"{name}_optical_frame"))]
+            return (
+                []
+                if name in self.no_camera_info
+                else [(cctv_topic(name, kind), _with_frame(msg, f"{name}_optical_frame"))]
+            )
         return [(cctv_topic(name, kind), msg)]
 
     def _imu(self, msg: Imu) -> list[tuple[str, object]]:
@@ -280,11 +315,19 @@ def write_driver_layout(src, dst, layout: str, no_camera_info: Sequence[str] = (
     if first is None:
         raise ValueError(f"{src}: the recording holds no messages")
     tf_log_ns, first_msg = first
-    tf_stamp = first_msg.transforms[0].header.stamp if isinstance(first_msg, TFMessage) and first_msg.transforms \
+    tf_stamp = (
+        first_msg.transforms[0].header.stamp
+        if isinstance(first_msg, TFMessage) and first_msg.transforms
         else ns_to_time(tf_log_ns)
-    tree = TFMessage(transforms=[
-        TransformStamped(header=Header(stamp=tf_stamp, frame_id=parent), child_frame_id=child,
-                         transform=matrix_to_transform(T)) for parent, child, T in driver_tree(driver, T_cam_imu)])
+    )
+    tree = TFMessage(
+        transforms=[
+            TransformStamped(
+                header=Header(stamp=tf_stamp, frame_id=parent), child_frame_id=child, transform=matrix_to_transform(T)
+            )
+            for parent, child, T in driver_tree(driver, T_cam_imu)
+        ]
+    )
 
     convert = _Converter(driver, accel_every, no_camera_info)
     with BagWriter(dst) as bag:

@@ -1,4 +1,5 @@
 """Capture presets: scene, cameras, walk and sensor settings of a synthetic recording."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
@@ -16,17 +17,17 @@ class DepthNoise:
 
     min_m: float = 0.3
     max_m: float = 6.0
-    sigma_a_m: float = 0.0012       # sigma(z) = a + b (z - 0.4)^2  (Kinect-like)
+    sigma_a_m: float = 0.0012  # sigma(z) = a + b (z - 0.4)^2  (Kinect-like)
     sigma_b: float = 0.0019
-    dropout: float = 0.01           # isolated missing pixels
-    edge_dropout_m: float = 0.10    # depth jumps larger than this lose their pixels
+    dropout: float = 0.01  # isolated missing pixels
+    edge_dropout_m: float = 0.10  # depth jumps larger than this lose their pixels
 
 
 @dataclass(frozen=True)
 class CapturePreset:
     name: str
     scene: SceneSpec
-    cmcs_per_room: tuple[int, ...]          # cameras in rooms 0, 1, ... (a room with 1 camera: isolated)
+    cmcs_per_room: tuple[int, ...]  # cameras in rooms 0, 1, ... (a room with 1 camera: isolated)
     walk: WalkSpec = field(default_factory=WalkSpec)
     cmc: CmcSpec = field(default_factory=CmcSpec)
     detector: DetectorSpec = field(default_factory=DetectorSpec)
@@ -36,11 +37,11 @@ class CapturePreset:
     ego_hfov_deg: float = 70.0
     ego_hz: float = 15.0
     cmc_hz: float = 10.0
-    cmc_images: bool = True                 # render and record CMC images (else keypoints only)
-    cmc_keypoints: bool = True              # record the simulated detector's keypoints
-    image_noise: float = 2.0                # sensor noise, grey levels (std)
+    cmc_images: bool = True  # render and record CMC images (else keypoints only)
+    cmc_keypoints: bool = True  # record the simulated detector's keypoints
+    image_noise: float = 2.0  # sensor noise, grey levels (std)
     jpeg_quality: int = 90
-    raw_images: bool = False                # sensor_msgs/Image instead of compressed
+    raw_images: bool = False  # sensor_msgs/Image instead of compressed
     # Unsynchronised CMC clocks: each CMC's clock runs this far at most (s) ahead of or
     # behind the ego camera's (the reference), drawn uniformly in [-max, +max] from the
     # seed; its messages carry its own clock (header stamps and log times). 0: synchronised.
@@ -53,18 +54,29 @@ class CapturePreset:
 
 PRESETS = {
     "tiny": CapturePreset(
-        "tiny", SceneSpec(layout="room_4x4", num_furniture=2), (3,),
-        walk=WalkSpec(pause_s=1.0), cmc=CmcSpec(width=320, height=240),
-        ego_width=320, ego_height=240),
+        "tiny",
+        SceneSpec(layout="room_4x4", num_furniture=2),
+        (3,),
+        walk=WalkSpec(pause_s=1.0),
+        cmc=CmcSpec(width=320, height=240),
+        ego_width=320,
+        ego_height=240,
+    ),
     "small": CapturePreset("small", SceneSpec(layout="two_rooms"), (3, 2), walk=WalkSpec(pause_s=2.0)),
-    "standard": CapturePreset("standard", SceneSpec(layout="office"), (3, 3, 2, 1, 1),
-                              walk=WalkSpec(pause_s=4.0, long_pause_s=12.0)),
-    "large": CapturePreset("large", SceneSpec(layout="floor_40x20"), (3,) * 14,
-                           walk=WalkSpec(speed_mps=0.8, pause_s=30.0)),
+    "standard": CapturePreset(
+        "standard", SceneSpec(layout="office"), (3, 3, 2, 1, 1), walk=WalkSpec(pause_s=4.0, long_pause_s=12.0)
+    ),
+    "large": CapturePreset(
+        "large", SceneSpec(layout="floor_40x20"), (3,) * 14, walk=WalkSpec(speed_mps=0.8, pause_s=30.0)
+    ),
     # The scale case of issue #19: 50 CMCs (4 in the corridor, 2-3 per room over 20 rooms)
     # and a walk of about 30 minutes over the whole floor.
-    "floor50": CapturePreset("floor50", SceneSpec(layout="floor_40x20"), (4,) + (3, 2, 2) * 6 + (2, 2),
-                             walk=WalkSpec(speed_mps=0.8, pause_s=27.0)),
+    "floor50": CapturePreset(
+        "floor50",
+        SceneSpec(layout="floor_40x20"),
+        (4,) + (3, 2, 2) * 6 + (2, 2),
+        walk=WalkSpec(speed_mps=0.8, pause_s=27.0),
+    ),
 }
 
 

@@ -1,5 +1,6 @@
 """A picture of a capture: one ego frame, one CMC frame with the agent, and the
 top view of the floor plan with the walk and every CMC's frustum footprint."""
+
 from __future__ import annotations
 
 import matplotlib
@@ -20,10 +21,14 @@ def floor_footprint(camera: CameraModel, T_world_cam: np.ndarray, max_range_m: f
     """Where the image border's rays meet the floor (z = 0), clipped to a range: (N, 2);
     walls are not considered (the caller clips to the camera's room)."""
     w, h = camera.width, camera.height
-    border = np.vstack([np.column_stack([np.linspace(0, w - 1, 20), np.zeros(20)]),
-                        np.column_stack([np.full(20, w - 1), np.linspace(0, h - 1, 20)]),
-                        np.column_stack([np.linspace(w - 1, 0, 20), np.full(20, h - 1)]),
-                        np.column_stack([np.zeros(20), np.linspace(h - 1, 0, 20)])])
+    border = np.vstack(
+        [
+            np.column_stack([np.linspace(0, w - 1, 20), np.zeros(20)]),
+            np.column_stack([np.full(20, w - 1), np.linspace(0, h - 1, 20)]),
+            np.column_stack([np.linspace(w - 1, 0, 20), np.full(20, h - 1)]),
+            np.column_stack([np.zeros(20), np.linspace(h - 1, 0, 20)]),
+        ]
+    )
     rays = camera.bearings(border) @ T_world_cam[:3, :3].T
     C = T_world_cam[:3, 3]
     t = np.where(rays[:, 2] < -1e-6, -C[2] / np.minimum(rays[:, 2], -1e-6), np.inf)

@@ -13,6 +13,7 @@ lighting never changes, so it is baked once into a two-sided light map (one
 texel per ``LIGHTMAP_TEXEL`` metres on every triangle) and looked up like a
 texture; only the agent is shaded per pixel.
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -111,7 +112,7 @@ def _build_atlas(textures: list[np.ndarray]) -> _Atlas:
     levels = np.zeros((_MIP_LEVELS * n, 4), np.float32)
     for k, ((x, y), img) in enumerate(zip(corners, images)):
         ti, level = divmod(k, _MIP_LEVELS)
-        canvas[y:y + img.shape[0], x:x + img.shape[1]] = img
+        canvas[y : y + img.shape[0], x : x + img.shape[1]] = img
         # Texel (0, 0) of the unpadded texture sits at (x + 1, y + 1); cv2.remap
         # samples texel centres at integer coordinates, hence the -0.5.
         levels[level * n + ti] = (x + 0.5, y + 0.5, img.shape[1] - 2, img.shape[0] - 2)
@@ -178,8 +179,8 @@ def _triangle_table(scene: Scene, lightmap_rects: np.ndarray) -> np.ndarray:
     v = scene.vertices[scene.triangles].astype(np.float64)
     area_3d = 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
     table[:T, _C_DENSITY] = np.sqrt(area_uv / np.maximum(area_3d, 1e-12))
-    table[:T, _C_LIGHTMAP:_C_LIGHTMAP + 4] = lightmap_rects
-    table[:T, _C_NORMAL:_C_NORMAL + 3] = _triangle_normals(scene)
+    table[:T, _C_LIGHTMAP : _C_LIGHTMAP + 4] = lightmap_rects
+    table[:T, _C_NORMAL : _C_NORMAL + 3] = _triangle_normals(scene)
     return table
 
 
@@ -188,14 +189,16 @@ class Renderer:
 
     def __init__(self, scene: Scene):
         if len(scene.triangles) and not 0 <= scene.triangle_texture.min() <= scene.triangle_texture.max() < len(
-                scene.textures):
+            scene.textures
+        ):
             raise ValueError(f"triangle_texture indexes textures outside the {len(scene.textures)} given")
         self.scene = scene
         self._raycaster = o3d.t.geometry.RaycastingScene()
         if len(scene.triangles):
             self._raycaster.add_triangles(
                 o3d.core.Tensor(np.ascontiguousarray(scene.vertices, dtype=np.float32)),
-                o3d.core.Tensor(np.ascontiguousarray(scene.triangles, dtype=np.uint32)))
+                o3d.core.Tensor(np.ascontiguousarray(scene.triangles, dtype=np.uint32)),
+            )
         self._no_hit = len(scene.triangles)  # index of the table's all-zero row
         self._lightmap, lightmap_rects = _bake_lightmap(scene)
         # Column-major so each per-pixel quantity gathered from it is contiguous.
@@ -213,9 +216,14 @@ class Renderer:
             if (bearings[:, 2] < 1e-6).any():
                 raise ValueError("camera has pixels looking 90 degrees or more off-axis; not supported")
             dirs = (bearings / bearings[:, 2:3]).astype(np.float32)
-            grid = _RayGrid(camera.height, camera.width, np.ascontiguousarray(dirs.T),
-                            np.linalg.norm(dirs, axis=1).astype(np.float32),
-                            float(0.5 * (camera.K[0, 0] + camera.K[1, 1])), np.empty((len(dirs), 6), np.float32))
+            grid = _RayGrid(
+                camera.height,
+                camera.width,
+                np.ascontiguousarray(dirs.T),
+                np.linalg.norm(dirs, axis=1).astype(np.float32),
+                float(0.5 * (camera.K[0, 0] + camera.K[1, 1])),
+                np.empty((len(dirs), 6), np.float32),
+            )
             self._grids[key] = grid
         return grid
 
@@ -240,15 +248,21 @@ class Renderer:
         miss = tri == self._no_hit
 
         # n . d in the camera frame, where the ray directions are cached per axis.
-        n = cols[_C_NORMAL:_C_NORMAL + 3]
+        n = cols[_C_NORMAL : _C_NORMAL + 3]
         n_dot_d = sum((R[0, j] * n[0] + R[1, j] * n[1] + R[2, j] * n[2]) * d[j] for j in range(3))
         albedo = self._albedo(cols, b1, b2, n_dot_d, depth, grid, miss)
         # Light map: texel (x + b1 n1, y + b2 n2); channel 0 lights the +normal side.
         lm_x = cols[_C_LIGHTMAP] + b1 * cols[_C_LIGHTMAP + 2]
         lm_x[miss] = -10.0
         lm_y = cols[_C_LIGHTMAP + 1] + b2 * cols[_C_LIGHTMAP + 3]
-        both_sides = cv2.remap(self._lightmap, lm_x.reshape(shape), lm_y.reshape(shape), cv2.INTER_LINEAR,
-                               borderMode=cv2.BORDER_CONSTANT, borderValue=0).reshape(-1, 2)
+        both_sides = cv2.remap(
+            self._lightmap,
+            lm_x.reshape(shape),
+            lm_y.reshape(shape),
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=0,
+        ).reshape(-1, 2)
         shade = np.where(n_dot_d < 0, both_sides[:, 0], both_sides[:, 1])
         rgb = albedo * shade[:, None]
         agent_mask = np.zeros(len(depth), bool)
@@ -274,8 +288,14 @@ class Renderer:
         map_x[miss] = -10.0  # outside the atlas: black
         map_y = info[1] + (v - np.floor(v)) * info[3]
         shape = (grid.height, grid.width)
-        out = cv2.remap(self._atlas.image, map_x.reshape(shape), map_y.reshape(shape), cv2.INTER_LINEAR,
-                        borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        out = cv2.remap(
+            self._atlas.image,
+            map_x.reshape(shape),
+            map_y.reshape(shape),
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=0,
+        )
         return out.reshape(-1, 3).astype(np.float32)
 
     def _compose_agent(self, agent: AgentMesh, T_world_cam, grid: _RayGrid, depth, rgb, agent_mask) -> None:
@@ -296,8 +316,10 @@ class Renderer:
         if len(candidates) == 0:
             return
         caster = o3d.t.geometry.RaycastingScene()
-        caster.add_triangles(o3d.core.Tensor(np.ascontiguousarray(agent.vertices, dtype=np.float32)),
-                             o3d.core.Tensor(np.ascontiguousarray(agent.triangles, dtype=np.uint32)))
+        caster.add_triangles(
+            o3d.core.Tensor(np.ascontiguousarray(agent.vertices, dtype=np.float32)),
+            o3d.core.Tensor(np.ascontiguousarray(agent.triangles, dtype=np.uint32)),
+        )
         rays = np.ascontiguousarray(grid.rays[candidates])
         hits = caster.cast_rays(o3d.core.Tensor.from_numpy(rays))
         t_agent = hits["t_hit"].numpy()

@@ -1,4 +1,5 @@
 """Ceiling-mounted cameras (CMCs): placement on walls/ceilings looking down, intrinsics."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -16,8 +17,8 @@ class CmcSpec:
     height: int = 480
     hfov_deg: tuple[float, float] = (70.0, 95.0)
     mount_height_m: tuple[float, float] = (2.4, 4.0)
-    tilt_down_deg: tuple[float, float] = (35.0, 65.0)   # below the horizon (30-80 allowed)
-    max_roll_deg: float = 4.0                            # mounting is never perfectly level
+    tilt_down_deg: tuple[float, float] = (35.0, 65.0)  # below the horizon (30-80 allowed)
+    max_roll_deg: float = 4.0  # mounting is never perfectly level
     distortion: bool = True
 
 
@@ -27,7 +28,7 @@ class Cmc:
     room: str
     camera: CameraModel
     T_world_cam: np.ndarray
-    target_xy: np.ndarray    # floor point the camera looks at (the walk visits it)
+    target_xy: np.ndarray  # floor point the camera looks at (the walk visits it)
 
 
 def make_intrinsics(spec: CmcSpec, rng: np.random.Generator) -> CameraModel:
@@ -40,8 +41,9 @@ def make_intrinsics(spec: CmcSpec, rng: np.random.Generator) -> CameraModel:
     return cam
 
 
-def place_cmc(name: str, room, ceiling_height: float, spec: CmcSpec, rng: np.random.Generator,
-              margin: float = 0.25) -> Cmc:
+def place_cmc(
+    name: str, room, ceiling_height: float, spec: CmcSpec, rng: np.random.Generator, margin: float = 0.25
+) -> Cmc:
     """A camera near a wall or corner of `room` (bounds x0, y0, x1, y1), looking
     down across the room at a floor point inside it."""
     x0, y0, x1, y1 = room.bounds
@@ -51,8 +53,12 @@ def place_cmc(name: str, room, ceiling_height: float, spec: CmcSpec, rng: np.ran
     # Mount point: a random spot on the room's boundary, pulled in by the margin.
     side = rng.integers(4)
     u = rng.uniform(0.1, 0.9)
-    mount = {0: (x0 + margin, y0 + u * (y1 - y0)), 1: (x1 - margin, y0 + u * (y1 - y0)),
-             2: (x0 + u * (x1 - x0), y0 + margin), 3: (x0 + u * (x1 - x0), y1 - margin)}[int(side)]
+    mount = {
+        0: (x0 + margin, y0 + u * (y1 - y0)),
+        1: (x1 - margin, y0 + u * (y1 - y0)),
+        2: (x0 + u * (x1 - x0), y0 + margin),
+        3: (x0 + u * (x1 - x0), y1 - margin),
+    }[int(side)]
     mount = np.array(mount)
     # Look towards the room's central area at a downward tilt from the spec.
     direction = centre + rng.uniform(-0.25, 0.25, 2) * [x1 - x0, y1 - y0] - mount

@@ -11,6 +11,7 @@ the top-left corner of the texture image and (1, 1) at its bottom-right corner;
 values outside [0, 1] repeat (tiling), so large surfaces keep a constant texel
 density of ``TEXELS_PER_METRE``.
 """
+
 from __future__ import annotations
 
 import math
@@ -376,8 +377,9 @@ def _random_shapes(rng, img: np.ndarray, count: int, size: tuple[int, int], wrap
             elif kind == 3:
                 cv2.ellipse(img, c, (s, max(2, s // 3)), angle, 0, 360, col, thick, cv2.LINE_AA)
             else:
-                cv2.putText(img, text, (c[0] - s, c[1]), cv2.FONT_HERSHEY_SIMPLEX, scale, col, max(1, s // 12),
-                            cv2.LINE_AA)
+                cv2.putText(
+                    img, text, (c[0] - s, c[1]), cv2.FONT_HERSHEY_SIMPLEX, scale, col, max(1, s // 12), cv2.LINE_AA
+                )
 
         if wrap:
             _wrapped(img, draw)
@@ -391,20 +393,24 @@ def _tex_flat(rng, size: int, colour: np.ndarray, amplitude: float) -> np.ndarra
 
 
 def _tex_plaster(rng, h: int, w: int) -> np.ndarray:
-    img = _shade(_colour(rng, sat=(10, 70), val=(170, 225)),
-                 1.0 + 0.05 * _noise(rng, h, w, 3.0) + 0.03 * _noise(rng, h, w, 1.0))
+    img = _shade(
+        _colour(rng, sat=(10, 70), val=(170, 225)), 1.0 + 0.05 * _noise(rng, h, w, 3.0) + 0.03 * _noise(rng, h, w, 1.0)
+    )
     for _ in range(h * w // 15000):  # stains and scuffs
         col = tuple(int(c) for c in _colour(rng, sat=(0, 90), val=(60, 200)))
         c = rng.integers(0, (w, h))
         ax = tuple(int(a) for a in rng.integers(3, 25, 2))
         ang = float(rng.uniform(0, 180))
-        _wrapped(img, lambda dx, dy: cv2.ellipse(img, (int(c[0]) + dx, int(c[1]) + dy), ax, ang, 0, 360, col, -1,
-                                                  cv2.LINE_AA))
+        _wrapped(
+            img,
+            lambda dx, dy: cv2.ellipse(img, (int(c[0]) + dx, int(c[1]) + dy), ax, ang, 0, 360, col, -1, cv2.LINE_AA),
+        )
     for _ in range(h * w // 30000):  # cracks and scribbles
         pts = np.cumsum(rng.normal(0, 12, (int(rng.integers(4, 12)), 2)), axis=0) + rng.integers(0, (w, h))
         col = tuple(int(c) for c in _colour(rng, val=(30, 120)))
-        _wrapped(img, lambda dx, dy: cv2.polylines(img, [(pts + [dx, dy]).astype(np.int32)], False, col, 1,
-                                                    cv2.LINE_AA))
+        _wrapped(
+            img, lambda dx, dy: cv2.polylines(img, [(pts + [dx, dy]).astype(np.int32)], False, col, 1, cv2.LINE_AA)
+        )
     return img
 
 
@@ -456,8 +462,12 @@ def _tex_planks(rng, h: int, w: int, plank_px: int, vertical: bool) -> np.ndarra
         c = rng.integers(0, (w, h))
         ax = (int(rng.integers(3, 8)), int(rng.integers(6, 14)))
         angle = 0.0 if vertical else 90.0
-        _wrapped(img, lambda dx, dy: cv2.ellipse(img, (int(c[0]) + dx, int(c[1]) + dy), ax, angle, 0, 360,
-                                                  (70, 45, 25), -1, cv2.LINE_AA))
+        _wrapped(
+            img,
+            lambda dx, dy: cv2.ellipse(
+                img, (int(c[0]) + dx, int(c[1]) + dy), ax, angle, 0, 360, (70, 45, 25), -1, cv2.LINE_AA
+            ),
+        )
     return img
 
 
@@ -472,15 +482,16 @@ def _tex_tiles(rng, h: int, w: int, cell: int, decorated: bool) -> np.ndarray:
     if decorated:  # some tiles carry a motif
         for tile in rng.choice(ny * nx, ny * nx // 4, replace=False):
             ty, tx = divmod(int(tile), nx)
-            sub = img[ty * cell + 3:(ty + 1) * cell, tx * cell + 3:(tx + 1) * cell]
+            sub = img[ty * cell + 3 : (ty + 1) * cell, tx * cell + 3 : (tx + 1) * cell]
             _random_shapes(rng, sub, 3, (3, max(4, cell // 4)), wrap=False)
     return img
 
 
 def _tex_concrete(rng, h: int, w: int) -> np.ndarray:
     grey = float(rng.uniform(120, 175))
-    img = _shade(np.array([grey, grey * 0.98, grey * 0.95]),
-                 1.0 + 0.10 * _noise(rng, h, w, 2.2) + 0.05 * _noise(rng, h, w, 0.8))
+    img = _shade(
+        np.array([grey, grey * 0.98, grey * 0.95]), 1.0 + 0.10 * _noise(rng, h, w, 2.2) + 0.05 * _noise(rng, h, w, 0.8)
+    )
     step = 128  # form-tie holes every 0.5 m
     for y in range(step // 2, h, step):
         for x in range(step // 2, w, step):
@@ -519,8 +530,8 @@ def _tex_books(rng, size: int) -> np.ndarray:
     gap = size // shelves
     for s in range(shelves):
         top = s * gap
-        img[top:top + gap] = (wood[top:top + gap] * 0.35).astype(np.uint8)  # dark shelf interior
-        img[top + gap - 10:top + gap] = wood[top + gap - 10:top + gap]  # the board
+        img[top : top + gap] = (wood[top : top + gap] * 0.35).astype(np.uint8)  # dark shelf interior
+        img[top + gap - 10 : top + gap] = wood[top + gap - 10 : top + gap]  # the board
         x = 0
         while x < size:
             bw = int(rng.integers(6, 22))
@@ -539,7 +550,7 @@ def _tex_books(rng, size: int) -> np.ndarray:
 def _tex_cardboard(rng, size: int) -> np.ndarray:
     img = _shade(np.array([170.0, 130.0, 85.0]) * rng.uniform(0.8, 1.1), 1.0 + 0.06 * _noise(rng, size, size, 1.2))
     tape = int(rng.integers(size // 3, 2 * size // 3))
-    img[:, tape - 12:tape + 12] = (200, 180, 140)
+    img[:, tape - 12 : tape + 12] = (200, 180, 140)
     x, y = int(rng.integers(20, size // 2)), int(rng.integers(20, size // 2))
     cv2.rectangle(img, (x, y), (x + size // 3, y + size // 5), (235, 235, 230), -1)
     for k in range(3):
@@ -583,8 +594,9 @@ def _tex_decal(rng, w: int, h: int) -> np.ndarray:
         line_h = max(8, h // int(rng.integers(2, 6)))
         for y in range(line_h, h - 2, line_h):
             text = "".join(rng.choice(_LETTERS, max(2, w // max(6, line_h // 2))))
-            cv2.putText(img, text, (3, y - 2), cv2.FONT_HERSHEY_SIMPLEX, line_h / 40.0, ink, max(1, line_h // 16),
-                        cv2.LINE_AA)
+            cv2.putText(
+                img, text, (3, y - 2), cv2.FONT_HERSHEY_SIMPLEX, line_h / 40.0, ink, max(1, line_h // 16), cv2.LINE_AA
+            )
     cv2.rectangle(img, (0, 0), (w - 1, h - 1), ink, max(1, min(w, h) // 30))
     return img
 
@@ -612,8 +624,20 @@ class _MeshBuilder:
         self.textures.append(img)
         return len(self.textures) - 1
 
-    def rect(self, origin, ax_u, ax_v, a: tuple[float, float], b: tuple[float, float], tex: int, room: int,
-             uv_scale=None, uv_offset=(0.0, 0.0), grow: float = 0.0, patch: float = MAX_PATCH) -> None:
+    def rect(
+        self,
+        origin,
+        ax_u,
+        ax_v,
+        a: tuple[float, float],
+        b: tuple[float, float],
+        tex: int,
+        room: int,
+        uv_scale=None,
+        uv_offset=(0.0, 0.0),
+        grow: float = 0.0,
+        patch: float = MAX_PATCH,
+    ) -> None:
         """Planar rectangle {origin + s ax_u + t ax_v : s in a, t in b}, with the
         texture mapped by u = (s + uv_offset[0]) * uv_scale[0] (same for v), so
         ax_u runs along the image's columns and ax_v down its rows. Cut into
@@ -635,8 +659,18 @@ class _MeshBuilder:
                     self.texture.append(tex)
                     self.room.append(room)
 
-    def box(self, lo, hi, room: int, side_tex: int, top_tex: int, bottom: bool = False,
-            front: tuple[float, float] | None = None, front_tex: int | None = None, rng=None) -> None:
+    def box(
+        self,
+        lo,
+        hi,
+        room: int,
+        side_tex: int,
+        top_tex: int,
+        bottom: bool = False,
+        front: tuple[float, float] | None = None,
+        front_tex: int | None = None,
+        rng=None,
+    ) -> None:
         (x0, y0, z0), (x1, y1, z1) = lo, hi
         centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
         half = np.array([(x1 - x0) / 2, (y1 - y0) / 2])
@@ -647,8 +681,16 @@ class _MeshBuilder:
             corner = centre + n * (np.abs(n) @ half) - u * (np.abs(u) @ half)
             width = 2.0 * (np.abs(u) @ half)
             tex = front_tex if front is not None and np.allclose(n, front) else side_tex
-            self.rect((corner[0], corner[1], z1), (u[0], u[1], 0.0), (0, 0, -1), (0.0, width), (0.0, z1 - z0),
-                      tex, room, uv_offset=offset if tex != front_tex else (0.0, 0.0))
+            self.rect(
+                (corner[0], corner[1], z1),
+                (u[0], u[1], 0.0),
+                (0, 0, -1),
+                (0.0, width),
+                (0.0, z1 - z0),
+                tex,
+                room,
+                uv_offset=offset if tex != front_tex else (0.0, 0.0),
+            )
         self.rect((x0, y0, z1), (1, 0, 0), (0, 1, 0), (0.0, x1 - x0), (0.0, y1 - y0), top_tex, room, uv_offset=offset)
         if bottom:
             self.rect((x0, y0, z0), (1, 0, 0), (0, 1, 0), (0.0, x1 - x0), (0.0, y1 - y0), top_tex, room)
@@ -658,9 +700,13 @@ class _MeshBuilder:
         triangles = np.arange(len(tri_vertices), dtype=np.int32).reshape(-1, 3)
         # Merge shared corners so the mesh is indexed, not a triangle soup.
         unique, inverse = np.unique(tri_vertices, axis=0, return_inverse=True)
-        return (unique.astype(np.float32), inverse.reshape(-1)[triangles].astype(np.int32),
-                np.array(self.uvs, dtype=np.float32).reshape(-1, 3, 2),
-                np.array(self.texture, dtype=np.int32), np.array(self.room, dtype=np.int32))
+        return (
+            unique.astype(np.float32),
+            inverse.reshape(-1)[triangles].astype(np.int32),
+            np.array(self.uvs, dtype=np.float32).reshape(-1, 3, 2),
+            np.array(self.texture, dtype=np.int32),
+            np.array(self.room, dtype=np.int32),
+        )
 
 
 @dataclass
@@ -683,27 +729,57 @@ def _make_palette(mode: str, rng, mb: _MeshBuilder) -> _Palette:
         # Walls tile every 4 m x 3 m and floors every 4 m; unique posters and
         # decals on top keep each wall distinct.
         wh, ww, fs = 768, 1024, 1024
-        walls = [add(_tex_plaster(rng, wh, ww)), add(_tex_brick(rng, wh, ww)), add(_tex_wallpaper(rng, wh, ww)),
-                 add(_tex_planks(rng, wh, ww, 32, vertical=True)), add(_tex_concrete(rng, wh, ww)),
-                 add(_tex_tiles(rng, wh, ww, 64, decorated=True)), add(_tex_wallpaper(rng, wh, ww)),
-                 add(_tex_plaster(rng, wh, ww))]
-        floors = [add(_tex_planks(rng, fs, fs, 64, vertical=False)), add(_tex_tiles(rng, fs, fs, 128, decorated=False)),
-                  add(_tex_carpet(rng, fs, fs)), add(_tex_concrete(rng, fs, fs))]
-        return _Palette(walls, floors, [add(_tex_ceiling(rng, S)), add(_tex_concrete(rng, S, S))],
-                        [add(_tex_planks(rng, 256, 256, 64, vertical=False)),
-                         add(_tex_planks(rng, 256, 256, 64, vertical=True))],
-                        [add(_tex_cardboard(rng, 256)), add(_tex_cardboard(rng, 256))], [add(_tex_books(rng, S))], None)
+        walls = [
+            add(_tex_plaster(rng, wh, ww)),
+            add(_tex_brick(rng, wh, ww)),
+            add(_tex_wallpaper(rng, wh, ww)),
+            add(_tex_planks(rng, wh, ww, 32, vertical=True)),
+            add(_tex_concrete(rng, wh, ww)),
+            add(_tex_tiles(rng, wh, ww, 64, decorated=True)),
+            add(_tex_wallpaper(rng, wh, ww)),
+            add(_tex_plaster(rng, wh, ww)),
+        ]
+        floors = [
+            add(_tex_planks(rng, fs, fs, 64, vertical=False)),
+            add(_tex_tiles(rng, fs, fs, 128, decorated=False)),
+            add(_tex_carpet(rng, fs, fs)),
+            add(_tex_concrete(rng, fs, fs)),
+        ]
+        return _Palette(
+            walls,
+            floors,
+            [add(_tex_ceiling(rng, S)), add(_tex_concrete(rng, S, S))],
+            [add(_tex_planks(rng, 256, 256, 64, vertical=False)), add(_tex_planks(rng, 256, 256, 64, vertical=True))],
+            [add(_tex_cardboard(rng, 256)), add(_tex_cardboard(rng, 256))],
+            [add(_tex_books(rng, S))],
+            None,
+        )
     if mode == "poor":
+
         def flat(colour, amp=0.006):
             return add(_tex_flat(rng, 256, np.asarray(colour, np.float32), amp))
-        return _Palette([flat((200, 198, 192)), flat((192, 196, 200))], [flat((150, 145, 138))],
-                        [flat((225, 225, 225))], [flat((150, 110, 70))], [flat((170, 135, 90))],
-                        [flat((120, 90, 60))], None)
+
+        return _Palette(
+            [flat((200, 198, 192)), flat((192, 196, 200))],
+            [flat((150, 145, 138))],
+            [flat((225, 225, 225))],
+            [flat((150, 110, 70))],
+            [flat((170, 135, 90))],
+            [flat((120, 90, 60))],
+            None,
+        )
     # symmetric: one pattern everywhere, posters identical and centred on each wall.
     wall = add(_tex_motif_tiled(rng, S, 4))
     wood = add(_tex_planks(rng, 256, 256, 64, vertical=False))
-    return _Palette([wall], [add(_tex_tiles(rng, S, S, 128, decorated=False))], [add(_tex_ceiling(rng, S))], [wood],
-                    [add(_tex_cardboard(rng, 256))], [add(_tex_books(rng, S))], add(_tex_poster(rng, 256, 192)))
+    return _Palette(
+        [wall],
+        [add(_tex_tiles(rng, S, S, 128, decorated=False))],
+        [add(_tex_ceiling(rng, S))],
+        [wood],
+        [add(_tex_cardboard(rng, 256))],
+        [add(_tex_books(rng, S))],
+        add(_tex_poster(rng, 256, 192)),
+    )
 
 
 def _place_furniture(rng, room_idx: int, room: Room, doors: list[Door], count: int) -> list[Furniture]:
@@ -745,8 +821,9 @@ def _place_furniture(rng, room_idx: int, room: Room, doors: list[Door], count: i
             else:
                 if x1 - x0 < w + 1.2 or y1 - y0 < d + 1.2:
                     continue
-                centre = np.array([rng.uniform(x0 + 0.6 + w / 2, x1 - 0.6 - w / 2),
-                                   rng.uniform(y0 + 0.6 + d / 2, y1 - 0.6 - d / 2)])
+                centre = np.array(
+                    [rng.uniform(x0 + 0.6 + w / 2, x1 - 0.6 - w / 2), rng.uniform(y0 + 0.6 + d / 2, y1 - 0.6 - d / 2)]
+                )
                 half = np.array([w / 2, d / 2]) if rng.random() < 0.5 else np.array([d / 2, w / 2])
                 front = (0.0, 1.0)
             bounds = tuple(round(float(v), 4) for v in (*(centre - half), *(centre + half)))
@@ -768,8 +845,16 @@ def _furniture_mesh(mb: _MeshBuilder, f: Furniture, pal: _Palette, rng) -> None:
         mb.box((x0, y0, 0.0), (x1, y1, f.height), f.room, tex, tex, rng=rng)
     elif f.kind == "shelf":
         wood = pal.wood[int(rng.integers(len(pal.wood)))]
-        mb.box((x0, y0, 0.0), (x1, y1, f.height), f.room, wood, wood, front=f.front,
-               front_tex=pal.books[int(rng.integers(len(pal.books)))], rng=rng)
+        mb.box(
+            (x0, y0, 0.0),
+            (x1, y1, f.height),
+            f.room,
+            wood,
+            wood,
+            front=f.front,
+            front_tex=pal.books[int(rng.integers(len(pal.books)))],
+            rng=rng,
+        )
     else:
         wood = pal.wood[int(rng.integers(len(pal.wood)))]
         top = 0.04
@@ -799,8 +884,9 @@ def _wall_items(rng, pieces, ceiling: float, symmetric: bool) -> list[tuple[floa
     """(s0, s1, z_top, z_bottom, kind) of posters and decals along one wall;
     "symmetric" walls get one identical poster centred on each long piece."""
     if symmetric:
-        return [(0.5 * (p0 + p1) - 0.4, 0.5 * (p0 + p1) + 0.4, 1.8, 1.2, "poster")
-                for p0, p1 in pieces if p1 - p0 >= 1.4]
+        return [
+            (0.5 * (p0 + p1) - 0.4, 0.5 * (p0 + p1) + 0.4, 1.8, 1.2, "poster") for p0, p1 in pieces if p1 - p0 >= 1.4
+        ]
     out = []
     for p0, p1 in pieces:
         s = p0 + 0.25
@@ -819,8 +905,10 @@ def _wall_items(rng, pieces, ceiling: float, symmetric: bool) -> list[tuple[floa
                 continue
             s0 = rng.uniform(p0 + 0.1, p1 - 0.1 - w)
             bottom = rng.uniform(0.3, ceiling - 0.3 - h)
-            if all(s0 > o[1] + 0.05 or s0 + w < o[0] - 0.05 or bottom > o[2] + 0.05 or bottom + h < o[3] - 0.05
-                   for o in out):
+            if all(
+                s0 > o[1] + 0.05 or s0 + w < o[0] - 0.05 or bottom > o[2] + 0.05 or bottom + h < o[3] - 0.05
+                for o in out
+            ):
                 out.append((s0, s0 + w, bottom + h, bottom, "decal"))
     return out
 
@@ -836,8 +924,11 @@ def _lights(room_idx: int, room: Room, intensity: float, jitter) -> list[Light]:
         nx = 2 if w > 5.0 else 1
         ny = 2 if h > 5.0 else 1
     z = room.ceiling_height - 0.05
-    return [Light(np.array([x0 + (i + 0.5) * w / nx, y0 + (j + 0.5) * h / ny, z]), intensity * jitter(), room_idx)
-            for j in range(ny) for i in range(nx)]
+    return [
+        Light(np.array([x0 + (i + 0.5) * w / nx, y0 + (j + 0.5) * h / ny, z]), intensity * jitter(), room_idx)
+        for j in range(ny)
+        for i in range(nx)
+    ]
 
 
 def build_scene(spec: SceneSpec) -> Scene:
@@ -848,8 +939,12 @@ def build_scene(spec: SceneSpec) -> Scene:
     rooms, pairs = _layout(spec, geo_rng)
     door_h = min(DOOR_HEIGHT, spec.ceiling_height - 0.3)
     doors = [_place_door(rooms, i, j, geo_rng, door_h) for i, j in pairs]
-    furniture = [f for ri, room in enumerate(rooms) if room.kind == "room"
-                 for f in _place_furniture(geo_rng, ri, room, doors, spec.num_furniture)]
+    furniture = [
+        f
+        for ri, room in enumerate(rooms)
+        if room.kind == "room"
+        for f in _place_furniture(geo_rng, ri, room, doors, spec.num_furniture)
+    ]
     li = spec.light_intensity
     symmetric = spec.texture == "symmetric"
     jitter = (lambda: 1.0) if symmetric else (lambda: float(geo_rng.uniform(0.85, 1.15)))
@@ -888,8 +983,17 @@ def build_scene(spec: SceneSpec) -> Scene:
                         make = _tex_poster if kind == "poster" else _tex_decal
                         ptex = mb.add_texture(make(rng, _texels(s1 - s0), _texels(z_top - z_bottom)))
                     p_origin = (start[0] + normal[0] * POSTER_OFFSET, start[1] + normal[1] * POSTER_OFFSET, z_top)
-                    mb.rect(p_origin, ax_u, (0, 0, -1), (s0, s1), (0.0, z_top - z_bottom), ptex, ri,
-                            uv_scale=(1.0 / (s1 - s0), 1.0 / (z_top - z_bottom)), uv_offset=(-s0, 0.0))
+                    mb.rect(
+                        p_origin,
+                        ax_u,
+                        (0, 0, -1),
+                        (s0, s1),
+                        (0.0, z_top - z_bottom),
+                        ptex,
+                        ri,
+                        uv_scale=(1.0 / (s1 - s0), 1.0 / (z_top - z_bottom)),
+                        uv_offset=(-s0, 0.0),
+                    )
     for d in doors:
         _door_mesh(mb, d, pal, door_h)
     for f in furniture:
@@ -898,8 +1002,21 @@ def build_scene(spec: SceneSpec) -> Scene:
     floor = unary_union([r.polygon() for r in rooms] + [d.polygon() for d in doors])
     polys = [floor] if floor.geom_type == "Polygon" else list(floor.geoms)
     floor_polygons = [np.asarray(orient(p, 1.0).exterior.coords)[:-1] for p in polys]
-    return Scene(vertices, triangles, uvs, tex_idx, mb.textures, tri_room, rooms, doors, floor_polygons, lights,
-                 0.35 * li, furniture, spec)
+    return Scene(
+        vertices,
+        triangles,
+        uvs,
+        tex_idx,
+        mb.textures,
+        tri_room,
+        rooms,
+        doors,
+        floor_polygons,
+        lights,
+        0.35 * li,
+        furniture,
+        spec,
+    )
 
 
 def _door_mesh(mb: _MeshBuilder, d: Door, pal: _Palette, door_h: float) -> None:

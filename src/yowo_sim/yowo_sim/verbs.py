@@ -1,5 +1,6 @@
 """What yowo_sim adds to the `yowo` command line (an entry point in its setup.py, found
 by yowo_bringup.plugins): `simulate` and `demo`."""
+
 from __future__ import annotations
 
 import shutil
@@ -34,7 +35,7 @@ def cmd_simulate(args) -> int:
     converted = args.layout != "yowo" or args.cmc_videos
     recording = output.with_name(f".{output.name}.yowo-layout") if converted else output
     if recording != output:
-        shutil.rmtree(recording, ignore_errors=True)     # left by an interrupted run
+        shutil.rmtree(recording, ignore_errors=True)  # left by an interrupted run
 
     overrides = {}
     if args.no_cmc_images:
@@ -53,8 +54,9 @@ def cmd_simulate(args) -> int:
     with Progress() as bar:
         task = bar.add_task(f"simulating '{args.preset}' (seed {args.seed})", total=None)
         try:
-            summary = generate(preset, args.seed, recording,
-                               progress=lambda done, total: bar.update(task, completed=done, total=total))
+            summary = generate(
+                preset, args.seed, recording, progress=lambda done, total: bar.update(task, completed=done, total=total)
+            )
             if args.cmc_videos:
                 from yowo_sim.cmc_video import write_cmc_videos
 
@@ -75,9 +77,11 @@ def cmd_simulate(args) -> int:
         render_preview(build_capture(preset, args.seed), args.preview)
         print(f"preview: {args.preview}")
     fps = summary.rendered_frames / max(summary.render_seconds, 1e-9)
-    print(f"wrote {output} ({args.layout} layout): {summary.duration_s:.1f} s walk, {summary.ego_frames} ego frames, "
-          f"{summary.cmc_frames} CMC frames ({summary.cmc_frames_with_agent} with the agent detected), "
-          f"{len(summary.cmcs)} CMCs, {summary.imu_samples} IMU samples; rendering {fps:.1f} frames/s")
+    print(
+        f"wrote {output} ({args.layout} layout): {summary.duration_s:.1f} s walk, {summary.ego_frames} ego frames, "
+        f"{summary.cmc_frames} CMC frames ({summary.cmc_frames_with_agent} with the agent detected), "
+        f"{len(summary.cmcs)} CMCs, {summary.imu_samples} IMU samples; rendering {fps:.1f} frames/s"
+    )
     return 0
 
 
@@ -109,22 +113,43 @@ def add_verbs(verbs) -> None:
     p.add_argument("--raw", action="store_true", help="raw sensor_msgs/Image instead of compressed")
     p.add_argument("--ego-hz", type=float, help="ego camera rate (default 15)")
     p.add_argument("--cmc-hz", type=float, help="CMC rate (default 10)")
-    p.add_argument("--cmc-clock-offset", type=float, metavar="S",
-                   help="unsynchronised CMC clocks: each off the ego's by up to +-S seconds (default 0)")
+    p.add_argument(
+        "--cmc-clock-offset",
+        type=float,
+        metavar="S",
+        help="unsynchronised CMC clocks: each off the ego's by up to +-S seconds (default 0)",
+    )
     p.add_argument("--no-imu", action="store_true", help="record no /ego/imu (an RGB-D camera without an IMU)")
     p.add_argument("--preview", metavar="PNG", help="also write a picture: ego frame, CMC frame, top view")
-    p.add_argument("--layout", choices=list(LAYOUT_HELP), default="yowo",
-                   help="topic names, frames and encodings as written by: "
-                        + "; ".join(f"{k}: {v}" for k, v in LAYOUT_HELP.items())
-                        + ". Driver layouts put the CMCs under /cctv/<name>/ (image_transport compressed, PNG for "
-                          "--raw) and record no /ego/imu/calibration (default: yowo)")
-    p.add_argument("--no-camera-info", nargs="+", default=[], metavar="CAM",
-                   help="record no camera_info for these CMCs (cam00, ...; needs a driver --layout or --cmc-videos)")
-    p.add_argument("--cmc-videos", metavar="DIR",
-                   help="the CMCs' images as OpenCV-written video files in DIR (<name>.mp4, and videos.yaml with "
-                        "each start as an NVR's clock gives it), the recording without their images and keypoints")
-    p.add_argument("--video-start-error", type=float, default=3.0, metavar="S",
-                   help="how far each video's start in videos.yaml is off the recording's clock (default 3 s)")
+    p.add_argument(
+        "--layout",
+        choices=list(LAYOUT_HELP),
+        default="yowo",
+        help="topic names, frames and encodings as written by: "
+        + "; ".join(f"{k}: {v}" for k, v in LAYOUT_HELP.items())
+        + ". Driver layouts put the CMCs under /cctv/<name>/ (image_transport compressed, PNG for "
+        "--raw) and record no /ego/imu/calibration (default: yowo)",
+    )
+    p.add_argument(
+        "--no-camera-info",
+        nargs="+",
+        default=[],
+        metavar="CAM",
+        help="record no camera_info for these CMCs (cam00, ...; needs a driver --layout or --cmc-videos)",
+    )
+    p.add_argument(
+        "--cmc-videos",
+        metavar="DIR",
+        help="the CMCs' images as OpenCV-written video files in DIR (<name>.mp4, and videos.yaml with "
+        "each start as an NVR's clock gives it), the recording without their images and keypoints",
+    )
+    p.add_argument(
+        "--video-start-error",
+        type=float,
+        default=3.0,
+        metavar="S",
+        help="how far each video's start in videos.yaml is off the recording's clock (default 3 s)",
+    )
     p.set_defaults(func=cmd_simulate)
 
     p = verbs.add_parser("demo", help="generate a sample recording, run the full graph, print the metrics")

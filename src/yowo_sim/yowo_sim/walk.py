@@ -1,5 +1,6 @@
 """The agent's walk: a path through the free floor that visits every CMC's view,
 with pauses (the paper's "stationary for a long time" case) and head motion."""
+
 from __future__ import annotations
 
 import functools
@@ -18,21 +19,21 @@ from yowo_common.geometry import se3
 
 # Optical frame (x right, y down, z forward) expressed in a body frame (x forward, y left, z up).
 R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-STRIDE_M = 1.4          # one gait cycle (two steps)
-SAMPLE_HZ = 100.0       # resolution of the walk timeline
-BOB_M = 0.015           # vertical head bob amplitude at walking speed
+STRIDE_M = 1.4  # one gait cycle (two steps)
+SAMPLE_HZ = 100.0  # resolution of the walk timeline
+BOB_M = 0.015  # vertical head bob amplitude at walking speed
 EYE_BELOW_TOP_M = 0.10  # the ego camera below the head top ...
-EYE_FORWARD_M = 0.10    # ... and in front of it (body x)
+EYE_FORWARD_M = 0.10  # ... and in front of it (body x)
 
 
 @dataclass(frozen=True)
 class WalkSpec:
     speed_mps: float = 1.0
     agent_height_m: float = 1.75
-    pause_s: float = 4.0            # stationary time at each CMC view
-    long_pause_s: float = 0.0       # one extra-long stop (stationary-agent scenario)
-    look_around_deg: float = 25.0   # head yaw amplitude while walking
-    pitch_down_deg: float = 20.0    # mean head pitch, looking slightly down
+    pause_s: float = 4.0  # stationary time at each CMC view
+    long_pause_s: float = 0.0  # one extra-long stop (stationary-agent scenario)
+    look_around_deg: float = 25.0  # head yaw amplitude while walking
+    pitch_down_deg: float = 20.0  # mean head pitch, looking slightly down
     # Time to reach walking speed from standing, and to stop (a smooth speed profile:
     # the IMU sees finite accelerations; 0: start and stop at once).
     ramp_s: float = 0.8
@@ -42,15 +43,15 @@ class WalkSpec:
 class Walk:
     """Dense timeline of the agent: position, heading, gait phase and head angles."""
 
-    t_s: np.ndarray          # (N,) seconds from the start
-    xy: np.ndarray           # (N, 2)
-    heading: np.ndarray      # (N,) rad, walking direction
-    phase: np.ndarray        # (N,) rad, gait phase (constant while standing)
-    head_yaw: np.ndarray     # (N,) rad relative to heading
-    head_pitch: np.ndarray   # (N,) rad, positive = looking down
-    head_roll: np.ndarray    # (N,) rad
+    t_s: np.ndarray  # (N,) seconds from the start
+    xy: np.ndarray  # (N, 2)
+    heading: np.ndarray  # (N,) rad, walking direction
+    phase: np.ndarray  # (N,) rad, gait phase (constant while standing)
+    head_yaw: np.ndarray  # (N,) rad relative to heading
+    head_pitch: np.ndarray  # (N,) rad, positive = looking down
+    head_roll: np.ndarray  # (N,) rad
     height_m: float
-    bob_m: np.ndarray | None = None   # (N,) vertical head bob of the gait [m] (None: none)
+    bob_m: np.ndarray | None = None  # (N,) vertical head bob of the gait [m] (None: none)
 
     @property
     def duration_s(self) -> float:
@@ -61,8 +62,9 @@ class Walk:
         """The timeline between its samples: one C2 cubic spline through every channel, so
         the ego pose has exact velocities and accelerations (what the IMU measures)."""
         bob = np.zeros_like(self.t_s) if self.bob_m is None else self.bob_m
-        channels = np.column_stack([self.xy, self.heading, self.phase, self.heading + self.head_yaw,
-                                    self.head_pitch, self.head_roll, bob])
+        channels = np.column_stack(
+            [self.xy, self.heading, self.phase, self.heading + self.head_yaw, self.head_pitch, self.head_roll, bob]
+        )
         return CubicSpline(self.t_s, channels, axis=0)
 
     def state_at(self, t: float) -> tuple[np.ndarray, float, float]:
@@ -82,27 +84,34 @@ class Walk:
         t = np.clip(np.asarray(t_s, dtype=float), 0.0, self.duration_s)
         v, dv, ddv = (self._spline(t, k) for k in range(3))
         R, dR, ddR = _rotation_z(v[:, 4], dv[:, 4], ddv[:, 4])
-        for rot, k in ((_rotation_y, 5), (_rotation_x, 6)):   # intrinsic ZYX: yaw, pitch, roll
+        for rot, k in ((_rotation_y, 5), (_rotation_x, 6)):  # intrinsic ZYX: yaw, pitch, roll
             R, dR, ddR = _jet_product((R, dR, ddR), rot(v[:, k], dv[:, k], ddv[:, k]))
         eye = np.array([EYE_FORWARD_M, 0.0, 0.0])
         base = np.column_stack([v[:, 0], v[:, 1], self.height_m - EYE_BELOW_TOP_M + v[:, 7]])
         dbase = np.column_stack([dv[:, 0], dv[:, 1], dv[:, 7]])
         ddbase = np.column_stack([ddv[:, 0], ddv[:, 1], ddv[:, 7]])
-        return EgoMotion(t, R @ R_BODY_OPTICAL, dR @ R_BODY_OPTICAL, ddR @ R_BODY_OPTICAL,
-                         base + R @ eye, dbase + dR @ eye, ddbase + ddR @ eye)
+        return EgoMotion(
+            t,
+            R @ R_BODY_OPTICAL,
+            dR @ R_BODY_OPTICAL,
+            ddR @ R_BODY_OPTICAL,
+            base + R @ eye,
+            dbase + dR @ eye,
+            ddbase + ddR @ eye,
+        )
 
 
 @dataclass
 class EgoMotion:
     """T_world_ego (R, p) at times t and its time derivatives, in the world frame."""
 
-    t_s: np.ndarray     # (n,)
-    R: np.ndarray       # (n, 3, 3) R_world_ego
-    dR: np.ndarray      # (n, 3, 3) dR/dt
-    ddR: np.ndarray     # (n, 3, 3) d2R/dt2
-    p: np.ndarray       # (n, 3) camera centre [m]
-    dp: np.ndarray      # (n, 3) velocity [m/s]
-    ddp: np.ndarray     # (n, 3) acceleration [m/s^2]
+    t_s: np.ndarray  # (n,)
+    R: np.ndarray  # (n, 3, 3) R_world_ego
+    dR: np.ndarray  # (n, 3, 3) dR/dt
+    ddR: np.ndarray  # (n, 3, 3) d2R/dt2
+    p: np.ndarray  # (n, 3) camera centre [m]
+    dp: np.ndarray  # (n, 3) velocity [m/s]
+    ddp: np.ndarray  # (n, 3) acceleration [m/s^2]
 
     @property
     def omega_ego(self) -> np.ndarray:
@@ -122,7 +131,7 @@ def _elementary(axis: int, a: np.ndarray, da: np.ndarray, dda: np.ndarray):
     K = np.zeros((3, 3))
     K[i, j], K[j, i] = -1.0, 1.0
     RK = R @ K
-    return R, RK * da[:, None, None], RK @ K * (da ** 2)[:, None, None] + RK * dda[:, None, None]
+    return R, RK * da[:, None, None], RK @ K * (da**2)[:, None, None] + RK * dda[:, None, None]
 
 
 def _rotation_x(a, da, dda):
@@ -153,7 +162,7 @@ class _VisibilityGraph:
         self.free, self.nodes = free, nodes
         ii, jj = np.triu_indices(len(nodes), 1)
         ok = shapely.covers(free, shapely.linestrings(np.stack([nodes[ii], nodes[jj]], axis=1)))
-        self.ii, self.jj = ii[ok] + 2, jj[ok] + 2     # indices among [a, b, *nodes]
+        self.ii, self.jj = ii[ok] + 2, jj[ok] + 2  # indices among [a, b, *nodes]
 
     def path(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         pts = np.vstack([a, b, self.nodes])
@@ -235,13 +244,13 @@ def _rounded(leg: np.ndarray, radius_m: float = 0.35) -> np.ndarray:
 def _speed_ramp(u: np.ndarray) -> np.ndarray:
     """Speed shape 0 -> 1 over u in [0, 1] (smootherstep: zero acceleration and jerk at both ends)."""
     u = np.clip(u, 0.0, 1.0)
-    return u ** 3 * (10.0 - 15.0 * u + 6.0 * u ** 2)
+    return u**3 * (10.0 - 15.0 * u + 6.0 * u**2)
 
 
 def _ramp_distance(u: np.ndarray) -> np.ndarray:
     """Integral of _speed_ramp from 0 to u (1/2 at u = 1)."""
     u = np.clip(u, 0.0, 1.0)
-    return u ** 4 * (2.5 - 3.0 * u + u ** 2)
+    return u**4 * (2.5 - 3.0 * u + u**2)
 
 
 def _leg_profile(length_m: float, spec: WalkSpec, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -256,8 +265,11 @@ def _leg_profile(length_m: float, spec: WalkSpec, dt: float) -> tuple[np.ndarray
     if ramp <= 0.0:
         return v * tau, np.full(n, v)
     up, down = tau / ramp, (total - tau) / ramp
-    s = np.where(tau <= ramp, v * ramp * _ramp_distance(up),
-                 np.where(tau >= total - ramp, length_m - v * ramp * _ramp_distance(down), v * (tau - ramp / 2.0)))
+    s = np.where(
+        tau <= ramp,
+        v * ramp * _ramp_distance(up),
+        np.where(tau >= total - ramp, length_m - v * ramp * _ramp_distance(down), v * (tau - ramp / 2.0)),
+    )
     return s, v * np.minimum(_speed_ramp(up), _speed_ramp(down))
 
 
@@ -268,7 +280,7 @@ def _timeline(corners: np.ndarray, pauses: np.ndarray, spec: WalkSpec, rng: np.r
     xy, moving, speed_frac = [corners[:1]], [np.array([False])], [np.zeros(1)]
     stops = [0] + [i for i in range(1, len(corners)) if pauses[i] > 0 or i == len(corners) - 1]
     for a, b in zip(stops[:-1], stops[1:]):
-        path = _rounded(corners[a:b + 1])
+        path = _rounded(corners[a : b + 1])
         arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
         s, v = _leg_profile(float(arc[-1]), spec, dt)
         walked = np.column_stack([np.interp(s, arc, path[:, k]) for k in range(2)])

@@ -1,6 +1,7 @@
 """rosbag2 (MCAP / sqlite3) reading and writing with rosbags, carrying rosidl
 message objects: payloads are (de)serialised with rclpy, so the same message
 classes flow through bags, nodes and the offline CLI."""
+
 from __future__ import annotations
 
 import functools
@@ -33,10 +34,17 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 _NO_TIME = QosTime(sec=0, nsec=0)
 # Offered QoS of latched topics (/tf_static, maps): reliable + transient-local.
-LATCHED_QOS = Qos(history=QosHistory.KEEP_LAST, depth=1, reliability=QosReliability.RELIABLE,
-                  durability=QosDurability.TRANSIENT_LOCAL, deadline=_NO_TIME, lifespan=_NO_TIME,
-                  liveliness=QosLiveliness.AUTOMATIC, liveliness_lease_duration=_NO_TIME,
-                  avoid_ros_namespace_conventions=False)
+LATCHED_QOS = Qos(
+    history=QosHistory.KEEP_LAST,
+    depth=1,
+    reliability=QosReliability.RELIABLE,
+    durability=QosDurability.TRANSIENT_LOCAL,
+    deadline=_NO_TIME,
+    lifespan=_NO_TIME,
+    liveliness=QosLiveliness.AUTOMATIC,
+    liveliness_lease_duration=_NO_TIME,
+    avoid_ros_namespace_conventions=False,
+)
 
 # Our own interface packages, registered into rosbags' typestore from their .msg text.
 OWN_INTERFACE_PACKAGES = ("yowo_msgs",)
@@ -77,11 +85,28 @@ def msgtype_of(msg) -> str:
 # The interface packages whose message classes a recording's type names may select: the ROS
 # message packages YOWO depends on and its own. A type name is untrusted text from a file;
 # importing whatever module it names would run code planted beside the recording.
-KNOWN_INTERFACE_PACKAGES = frozenset({
-    "builtin_interfaces", "std_msgs", "sensor_msgs", "geometry_msgs", "nav_msgs", "visualization_msgs",
-    "tf2_msgs", "rosgraph_msgs", "diagnostic_msgs", "stereo_msgs", "shape_msgs", "trajectory_msgs",
-    "statistics_msgs", "rcl_interfaces", "unique_identifier_msgs", "action_msgs", "lifecycle_msgs",
-    *OWN_INTERFACE_PACKAGES})
+KNOWN_INTERFACE_PACKAGES = frozenset(
+    {
+        "builtin_interfaces",
+        "std_msgs",
+        "sensor_msgs",
+        "geometry_msgs",
+        "nav_msgs",
+        "visualization_msgs",
+        "tf2_msgs",
+        "rosgraph_msgs",
+        "diagnostic_msgs",
+        "stereo_msgs",
+        "shape_msgs",
+        "trajectory_msgs",
+        "statistics_msgs",
+        "rcl_interfaces",
+        "unique_identifier_msgs",
+        "action_msgs",
+        "lifecycle_msgs",
+        *OWN_INTERFACE_PACKAGES,
+    }
+)
 _MSGTYPE = re.compile(r"^(?P<pkg>[a-z][a-z0-9_]*)/msg/(?P<name>[A-Z][A-Za-z0-9]*)$")
 
 
@@ -112,7 +137,7 @@ class BagTopic:
     name: str
     msgtype: str
     count: int
-    latched: bool = False        # recorded with transient-local durability
+    latched: bool = False  # recorded with transient-local durability
 
 
 class BagWriter:
@@ -205,15 +230,17 @@ def _torn_chunk_records(body: bytes) -> bytes:
     """The records at the start of a chunk cut short: its header, then as much of its
     (decompressed) contents as the file holds."""
     (comp_len,) = struct.unpack_from("<I", body, 28)
-    compression = body[32:32 + comp_len].decode()
-    payload = body[32 + comp_len + 8:]
+    compression = body[32 : 32 + comp_len].decode()
+    payload = body[32 + comp_len + 8 :]
     if compression == "":
         return payload
     if compression == "zstd":
         import zstandard
+
         return zstandard.ZstdDecompressor().decompressobj().decompress(payload)
     if compression == "lz4":
         import lz4.frame
+
         return lz4.frame.LZ4FrameDecompressor().decompress(payload)
     return b""
 
@@ -237,9 +264,9 @@ def _mcap_stream(file: Path):
             if body_end > len(data):
                 if opcode == _OP_CHUNK and len(data) - pos - 9 > 40:
                     try:
-                        for rec in _records_of(_torn_chunk_records(bytes(data[pos + 9:]))):
+                        for rec in _records_of(_torn_chunk_records(bytes(data[pos + 9 :]))):
                             yield rec, chunk
-                    except Exception:       # a torn compressed frame: what decoded is kept
+                    except Exception:  # a torn compressed frame: what decoded is kept
                         pass
                     yield None, f"the file ends inside the chunk at byte {pos}: its complete messages are kept"
                     return
@@ -247,7 +274,7 @@ def _mcap_stream(file: Path):
             try:
                 for rec in _records_of(bytes(data[pos:body_end])):
                     yield rec, chunk
-            except Exception as exc:        # a damaged record (CRC): the stream ends before it
+            except Exception as exc:  # a damaged record (CRC): the stream ends before it
                 yield None, f"a damaged record at byte {pos} ({exc}): the rest is skipped"
                 return
             pos, chunk = body_end, chunk + 1
@@ -292,14 +319,18 @@ class RecoveredMcap:
         for cid, ch in sorted(channels.items()):
             schema = schemas.get(ch.schema_id)
             qos_text = ch.metadata.get("offered_qos_profiles", "")
-            ext = ConnectionExtRosbag2(serialization_format=ch.message_encoding,
-                                       offered_qos_profiles=parse_qos(qos_text) if qos_text else [])
-            self.connections.append(Connection(cid, ch.topic, schema.name if schema else "", "", "",
-                                               counts.get(cid, 0), ext, None))
+            ext = ConnectionExtRosbag2(
+                serialization_format=ch.message_encoding, offered_qos_profiles=parse_qos(qos_text) if qos_text else []
+            )
+            self.connections.append(
+                Connection(cid, ch.topic, schema.name if schema else "", "", "", counts.get(cid, 0), ext, None)
+            )
         total = sum(counts.values())
         span = f" ({(t1 - t0) / 1e9:.1f} s of recording)" if total else ""
-        self.damage = (f"{self.file} ({st.st_size} bytes) is damaged ({open_error.rstrip('.')}); recovered "
-                       f"{total} messages{span}" + (f"; {why}" if why else ""))
+        self.damage = (
+            f"{self.file} ({st.st_size} bytes) is damaged ({open_error.rstrip('.')}); recovered "
+            f"{total} messages{span}" + (f"; {why}" if why else "")
+        )
 
     def messages(self, connections=None):
         from mcap.records import Message

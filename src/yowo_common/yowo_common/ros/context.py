@@ -1,4 +1,5 @@
 """rclpy process lifetime helpers."""
+
 from __future__ import annotations
 
 import contextlib
@@ -77,8 +78,9 @@ def spin_node(node_factory, args=None) -> None:
         except KeyboardInterrupt:
             for node in nodes:
                 if not flush_publishers(node):
-                    node.get_logger().warning(f"stopped with messages not acknowledged by every reader "
-                                              f"after {FLUSH_S:.0f} s")
+                    node.get_logger().warning(
+                        f"stopped with messages not acknowledged by every reader after {FLUSH_S:.0f} s"
+                    )
         finally:
             for node in nodes:
                 node.destroy_node()

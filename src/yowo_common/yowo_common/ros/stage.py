@@ -1,6 +1,7 @@
 """Base class of YOWO's pipeline nodes: counted inputs and outputs, status on
 /yowo/status/<stage>, and finalisation once every upstream finished and every
 message it announced has arrived (so no stage computes on a partial stream)."""
+
 from __future__ import annotations
 
 import time
@@ -26,8 +27,12 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability
 STREAM = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
 # Stage-to-stage streams are also durable: a downstream stage that matches late (its
 # subscription discovered after the first messages) still receives all of them.
-DURABLE_STREAM = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
-                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
+DURABLE_STREAM = QoSProfile(
+    depth=1,
+    history=HistoryPolicy.KEEP_ALL,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
 
 
 # Topics between YOWO's own nodes (statuses, stage outputs and inputs) go without rclpy's
@@ -103,8 +108,9 @@ class StageNode(Node):
         seen: set[int] | None = set() if upstream != REPLAY else None
 
         def counted(msg, info):
-            if upstream == REPLAY and (self._replay_since_ns is None
-                                       or info["source_timestamp"] < self._replay_since_ns):
+            if upstream == REPLAY and (
+                self._replay_since_ns is None or info["source_timestamp"] < self._replay_since_ns
+            ):
                 return
             if seen is not None:
                 # A restarted upstream stage publishes its stream again from the start; its
@@ -120,6 +126,7 @@ class StageNode(Node):
             except Exception as exc:  # a bad message must not kill the stage; it is reported
                 self.get_logger().error(f"{topic}: {exc}\n{traceback.format_exc(limit=3)}")
             self.timing.received(topic, info, started, time.time_ns())
+
         sub = self.create_subscription(msg_type, topic, counted, qos, **({} if upstream == REPLAY else OWN_SUB))
         if upstream == REPLAY:
             self._replay_readers.append(sub)
@@ -136,6 +143,7 @@ class StageNode(Node):
 
             def get_subscription_count(self):
                 return pub.get_subscription_count()
+
         return Counted()
 
     def _watch(self, upstream: str) -> None:
@@ -145,8 +153,13 @@ class StageNode(Node):
         if upstream == REPLAY:
             self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay_status, LATCHED, **OWN_SUB)
         else:
-            self.create_subscription(StageStatus, topics.status(upstream),
-                                     lambda m, up=upstream: self._on_stage_status(up, m), LATCHED, **OWN_SUB)
+            self.create_subscription(
+                StageStatus,
+                topics.status(upstream),
+                lambda m, up=upstream: self._on_stage_status(up, m),
+                LATCHED,
+                **OWN_SUB,
+            )
 
     def _on_replay_status(self, msg: ReplayStatus, info: dict) -> None:
         if not self.runs.accept(msg):
@@ -166,7 +179,7 @@ class StageNode(Node):
 
     # --- lifecycle ----------------------------------------------------------------
     def _check(self) -> None:
-        if not self._announced:     # the first tick: wired (the replay waits for this status)
+        if not self._announced:  # the first tick: wired (the replay waits for this status)
             self._announced = True
             self.publish_status(StageStatus.STATE_RUNNING)
         if self._finalized or not self.completion.inputs or not self.completion.complete:
@@ -198,19 +211,32 @@ class StageNode(Node):
 
     def publish_status(self, state: int, message: str = "") -> None:
         c = self.completion
-        self._status_pub.publish(StageStatus(
-            header=Header(stamp=self.get_clock().now().to_msg()), stage=self.stage, state=state,
-            topics=list(self.published), published_counts=list(self.published.values()),
-            input_topics=list(c.inputs), received_counts=[c.received[t] for t in c.inputs], message=message,
-            run_id=self.run_id, incarnation=self.incarnation, stray_messages=self.runs.strays,
-            replay_reader_gids=self._reader_gids()))
+        self._status_pub.publish(
+            StageStatus(
+                header=Header(stamp=self.get_clock().now().to_msg()),
+                stage=self.stage,
+                state=state,
+                topics=list(self.published),
+                published_counts=list(self.published.values()),
+                input_topics=list(c.inputs),
+                received_counts=[c.received[t] for t in c.inputs],
+                message=message,
+                run_id=self.run_id,
+                incarnation=self.incarnation,
+                stray_messages=self.runs.strays,
+                replay_reader_gids=self._reader_gids(),
+            )
+        )
 
     def _reader_gids(self) -> list[str]:
         """GIDs of this process's subscriptions to replayed topics, as the graph lists them."""
         gids = []
         for sub in self._replay_readers:
-            gids += [bytes(e.endpoint_gid).hex() for e in self.get_subscriptions_info_by_topic(sub.topic_name)
-                     if e.node_name == self.get_name() and e.node_namespace == self.get_namespace()]
+            gids += [
+                bytes(e.endpoint_gid).hex()
+                for e in self.get_subscriptions_info_by_topic(sub.topic_name)
+                if e.node_name == self.get_name() and e.node_namespace == self.get_namespace()
+            ]
         return gids
 
     @property
