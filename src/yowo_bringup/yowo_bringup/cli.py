@@ -347,10 +347,11 @@ def add_config_options(p) -> None:
 
 
 def cmd_config(args) -> int:
-    """Print the resolved configuration tree (defaults, --config, --set) as YAML."""
-    from yowo_common.config import dump
+    """Print the resolved configuration tree (defaults, --config, --set) as YAML, each key
+    with its one-line description and unit as a comment."""
+    from yowo_common.config import dump_described
 
-    print(dump(config_from_args(args)), end="")
+    print(dump_described(config_from_args(args)), end="")
     return 0
 
 

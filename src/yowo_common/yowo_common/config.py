@@ -170,3 +170,123 @@ def describe_changes(obj, where: str = "") -> str:
 
 def dump(obj) -> str:
     return yaml.safe_dump(to_dict(obj), sort_keys=False)
+
+
+# A key's unit from its name's suffix; a number without one states it at the end of its
+# comment in brackets ("[count]", "[share]", "[px]").
+UNIT_SUFFIXES = {
+    "_m": "m",
+    "_m2": "m²",
+    "_mm": "mm",
+    "_s": "s",
+    "_ns": "ns",
+    "_ms": "ms",
+    "_px": "px",
+    "_deg": "deg",
+    "_rad": "rad",
+    "_hz": "Hz",
+    "_mps": "m/s",
+    "_mps2": "m/s²",
+    "_radps": "rad/s",
+    "_mb": "MB",
+    "_percent": "%",
+}
+_BRACKET_UNIT = re.compile(r"\s*\[([^\]]+)\]\s*$")
+# The end of a comment's first sentence (its one-line description); what follows says why.
+_SENTENCE_END = re.compile(r"(?<=[a-z0-9)\]])\.\s+(?=[A-Z(])")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class FieldDoc:
+    description: str  # the first sentence of the field's comment (inline, or the block just above)
+    unit: str  # from the name's suffix or the comment's trailing [unit]; "" when none applies
+
+
+def field_docs(cls) -> dict[str, FieldDoc]:
+    """{field name: FieldDoc} of a configuration dataclass, read from its source's comments:
+    the one on the field's line, else the comment lines right above it."""
+    import inspect
+    import io
+    import tokenize
+
+    try:
+        src = inspect.getsource(cls)
+    except (OSError, TypeError):
+        return {}
+    lines = src.splitlines()
+    comments = {
+        t.start[0]: t.string.lstrip("#").strip()
+        for t in tokenize.generate_tokens(io.StringIO(src).readline)
+        if t.type == tokenize.COMMENT
+    }
+    names = {f.name for f in dataclasses.fields(cls)}
+    docs = {}
+    for number, line in enumerate(lines, 1):
+        name, colon, _ = line.strip().partition(":")
+        if not colon or name not in names or line.strip().startswith("#"):
+            continue
+        if number in comments:
+            text = comments[number]
+        else:
+            block, above = [], number - 1
+            while above in comments and lines[above - 1].strip().startswith("#"):
+                block.insert(0, comments[above])
+                above -= 1
+            text = " ".join(block)
+        if not text:
+            continue
+        unit = next((u for s, u in UNIT_SUFFIXES.items() if name.endswith(s)), "")
+        first = _SENTENCE_END.split(text, maxsplit=1)[0].rstrip(".")
+        bracket = _BRACKET_UNIT.search(first) or _BRACKET_UNIT.search(text)
+        if bracket:
+            unit = bracket.group(1)
+            first = _BRACKET_UNIT.sub("", first).rstrip(".")
+        text = first
+        docs[name] = FieldDoc(description=text, unit=unit)
+    return docs
+
+
+def leaf_docs(obj, where: str = "") -> dict[str, tuple[Any, FieldDoc | None]]:
+    """{dotted key: (value, its FieldDoc or None)} over every leaf of the tree."""
+    out = {}
+    docs = field_docs(type(obj))
+    for f in dataclasses.fields(obj):
+        value, key = getattr(obj, f.name), _key(where, f.name)
+        if dataclasses.is_dataclass(value):
+            out.update(leaf_docs(value, key))
+        else:
+            out[key] = (value, docs.get(f.name))
+    return out
+
+
+def dump_described(obj) -> str:
+    """The tree as YAML (a --config file takes it) with each key's description and unit."""
+    lines: list[str] = []
+
+    def walk(node, depth: int) -> None:
+        docs = field_docs(type(node))
+        for f in dataclasses.fields(node):
+            value, pad = getattr(node, f.name), "  " * depth
+            if dataclasses.is_dataclass(value):
+                lines.append(f"{pad}{f.name}:")
+                walk(value, depth + 1)
+                continue
+            text = yaml.safe_dump(to_dict_value(value), default_flow_style=True, width=1 << 16).strip()
+            text = text.removesuffix("\n...").removesuffix("...").strip()
+            doc = docs.get(f.name)
+            note = f"  # {doc.description}" + (f" [{doc.unit}]" if doc.unit else "") if doc else ""
+            lines.append(f"{pad}{f.name}: {text}{note}")
+
+    walk(obj, 0)
+    return "\n".join(lines) + "\n"
+
+
+def to_dict_value(v):
+    """One value as plain YAML-able data (tuples as lists, dataclasses as dicts)."""
+    if dataclasses.is_dataclass(v):
+        return to_dict(v)
+    if isinstance(v, (list, tuple)):
+        return [to_dict_value(x) for x in v]
+    if isinstance(v, dict):
+        return {k: to_dict_value(x) for k, x in v.items()}
+    return v
