@@ -27,20 +27,20 @@ __all__ = ["ConfigError", "YowoConfig", "SupervisorParams", "fusion_upstream", "
 
 @dataclass(frozen=True)
 class SupervisorParams:
-    max_restarts: int = 2  # per node; a node that dies more often ends the run
+    max_restarts: int = 2  # restarts per node; a node that dies more often ends the run [count]
     profile_rate_hz: int = 50  # py-spy samples per second of each node (yowo run --profile)
-    # Added to the niceness of the stages that read no recorded or live topic (group SfM, fusion).
-    # 0 by default: on a machine busy with other jobs a lowered stage also discovers its peers
-    # late (DDS runs in its threads), and its statuses count fewer strays of other runs.
+    # Added to the niceness of the stages that read no recorded or live topic (group SfM, fusion)
+    # [niceness]. 0 by default: on a machine busy with other jobs a lowered stage also discovers
+    # its peers late (DDS runs in its threads), and its statuses count fewer strays of other runs.
     downstream_niceness: int = 0
-    # Threads of each node process's numeric libraries (OpenMP, OpenBLAS, MKL); 0: their defaults
-    # (every core). The graph is parallel across its processes: pools of 2 threads in each of
-    # 8 processes only spin against each other (small normal s0: ego mapper 47 -> 42 CPU s).
+    # Threads of each node process's numeric libraries (OpenMP, OpenBLAS, MKL); 0: their
+    # defaults, every core [count]. The graph is parallel across its processes: library pools
+    # in each of them only spin against each other (docs/notes/speed.md).
     library_threads: int = 1
-    # The trackers of this host run in at most this many processes (cameras spread evenly; 0: one
-    # process per camera). A process per camera costs ~120 MB and a DDS participant each, and
-    # Fast DDS's localhost-only discovery (a private run's) reaches the first 32 participants of
-    # a host only: on a 42-camera floor the ego mapper and 11 trackers never heard the replay.
+    # The trackers of this host run in at most this many processes; 0: one process per camera
+    # [count]. A process per camera costs memory and a DDS participant each, and Fast DDS's
+    # localhost-only discovery (a private run's) reaches the first 32 participants of a host
+    # only: on a large floor some stages never heard the replay.
     tracker_processes: int = 8
 
 

@@ -26,10 +26,10 @@ class ImuNoiseDefaults:
     """Used where no Kalibr imu.yaml is given: densities of the Bosch BMI055 data sheet (the
     IMU of the RealSense D435i/D455), random walks mid-range of what users measure on it."""
 
-    gyroscope_noise_density: float = 2.44e-4  # rad/s/sqrt(Hz)
-    gyroscope_random_walk: float = 1.0e-5  # rad/s^2/sqrt(Hz)
-    accelerometer_noise_density: float = 1.47e-3  # m/s^2/sqrt(Hz)
-    accelerometer_random_walk: float = 2.5e-4  # m/s^3/sqrt(Hz)
+    gyroscope_noise_density: float = 2.44e-4  # gyroscope white noise, used without a Kalibr imu.yaml [rad/s/√Hz]
+    gyroscope_random_walk: float = 1.0e-5  # gyroscope bias random walk [rad/s²/√Hz]
+    accelerometer_noise_density: float = 1.47e-3  # accelerometer white noise [m/s²/√Hz]
+    accelerometer_random_walk: float = 2.5e-4  # accelerometer bias random walk [m/s³/√Hz]
 
 
 @dataclass

@@ -107,7 +107,7 @@ class InputParams:
     # epoch or ISO 8601, else the file's creation_time; also yowo run --cmc-video.
     videos: tuple[str, ...] = ()
     video_list: str = ""  # a YAML list of {name, file, start} (start optional) beside `videos`
-    # How far a video's start may be off the recording's clock [s]: with videos, the ego-clock fit
+    # How far a video's start may be off the recording's clock. With videos, the ego-clock fit
     # (fusion.align.max_clock_offset_s) covers it. Videos of one NVR share its clock; videos from
     # recorders with clocks of their own also need cmc.clock.max_offset_s to cover their differences.
     video_clock_error_s: float = 10.0

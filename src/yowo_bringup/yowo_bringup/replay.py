@@ -12,15 +12,15 @@ from yowo_common.topics import GT_PREFIX
 class ReplayParams:
     """The `replay` section of the configuration tree."""
 
-    rate: float = 0.0  # x real time; 0: as fast as the graph keeps up (lossless)
+    rate: float = 0.0  # playback speed; 0: as fast as the graph keeps up (lossless) [x real time]
     lossless: bool = True  # reliable KEEP_ALL + wait for acknowledgements every ack_window
-    ack_window: int = 16  # messages per topic in flight at most
+    ack_window: int = 16  # messages per topic in flight at most [count]
     ack_timeout_s: float = 60.0  # a subscriber that acknowledges nothing this long is given up
     wait_timeout_s: float = 30.0  # for the stages' subscriptions before playing
     publish_clock: bool = True  # /clock at the recording's time
     exclude_prefixes: tuple[str, ...] = (GT_PREFIX,)  # never played (ground truth)
-    # After every stage is done: late joiners still get the latched final status (under load
-    # the run monitor matched it only after the 1 s this was: the run log lost its counts).
+    # How long the replay stays up after every stage is done. Late joiners still get the latched
+    # final status: under load the run monitor matches it late, and the run log would lose its counts.
     linger_s: float = 5.0
 
 

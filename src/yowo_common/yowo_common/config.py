@@ -193,7 +193,7 @@ UNIT_SUFFIXES = {
 }
 _BRACKET_UNIT = re.compile(r"\s*\[([^\]]+)\]\s*$")
 # The end of a comment's first sentence (its one-line description); what follows says why.
-_SENTENCE_END = re.compile(r"(?<=[a-z0-9)\]])\.\s+(?=[A-Z(])")
+_SENTENCE_END = re.compile(r"(?<=[a-z0-9)\]])(?<!e\.g)(?<!i\.e)\.\s+(?=[A-Z0-9(])")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
