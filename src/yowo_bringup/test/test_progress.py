@@ -77,7 +77,7 @@ def test_the_live_bar_fits_80_columns_with_share_eta_and_stages():
 
 
 def test_a_stage_that_receives_nothing_of_a_played_topic_is_named_once():
-    from yowo_bringup.graph_runner import silent_inputs
+    from yowo_bringup.run_monitor_node import silent_inputs
     from yowo_msgs.msg import ReplayStatus, StageStatus
 
     replay = ReplayStatus(topics=["/cmc/a/image_raw", "/ego/color/image_raw"], published_counts=[40, 0])

@@ -357,7 +357,7 @@ def cmd_config(args) -> int:
 
 def cmd_end_walk(args) -> int:
     """Live operation: tell the running stages that the walk is over."""
-    from .graph_runner import end_walk
+    from .run_monitor_node import end_walk
 
     end_walk(args.linger, args.run_id or "")
     print("end of walk announced on /yowo/replay/status" + (f" to run {args.run_id}" if args.run_id else ""))

@@ -8,31 +8,27 @@ import os
 import time
 from pathlib import Path
 
-import rclpy
 import yaml
-from rclpy.node import Node
 
-from yowo_common import topics
-from yowo_common.ros.bag import message_class
 from yowo_common.ros.context import ros_context
-from yowo_common.ros.stage import LATCHED, RunFilter
 from yowo_common.ros.timing import relative_to
 from yowo_msgs.msg import ReplayStatus, StageStatus
 
 from .config import CONFIG_PARAMETERS, params_document
 from .profiling import summary_markdown
-from .progress import DONE, FAILED, RUNNING, WAITING, ProgressLines, RunProgress
+from .progress import ProgressLines
 from .ros_domain import PRIVATE, GraphNetwork, graph_network
 from .run import RunOutcome, RunPlan, write_run_results
+from .run_monitor_node import RunMonitor
 from .supervisor import Supervisor, library_threads_env, stats_path, write_params_file
 
 # After the final stage finished, time for the latched outputs and every stage's last status
-# to arrive: a stage that succeeded published them all (a loaded machine took > 2 s to
+# to arrive: a stage that succeeded published them all (a loaded machine took seconds to
 # deliver the map clouds, and a tracker's last status came after the group SfM's failure);
 # after a failure some outputs never come.
 GRACE_S = {"done": 30.0, "failed": 10.0}
 # How often the supervisor samples the node processes' CPU and peak RSS, and the graph's memory
-# (the PSS of every process: the kernel walks each one's mappings, ~9 ms for a 1 GB node).
+# (the PSS of every process: the kernel walks each one's mappings, which takes a while for a large node).
 SAMPLE_S, MEMORY_SAMPLE_S = 1.0, 5.0
 # What decides which DDS graph a process joins.
 DDS_ENV = ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS")
@@ -40,121 +36,6 @@ DDS_ENV = ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS")
 
 class RunFailed(RuntimeError):
     pass
-
-
-# A stage that receives none of a replayed topic's messages this long is named on the console.
-SILENT_INPUT_S = 60.0
-
-
-def silent_inputs(
-    replay, statuses: dict, unreceived: dict, told: set, now_s: float, after_s: float = SILENT_INPUT_S
-) -> list[str]:
-    """Once each (`told`): a running stage that has received none of a topic's messages
-    `after_s` seconds after it first saw the replay had published some (`unreceived`:
-    (stage, topic) -> then); such messages never reach it."""
-    if replay is None:
-        return []
-    played = dict(zip(replay.topics, replay.published_counts))
-    said = []
-    for stage, msg in statuses.items():
-        if msg.state != StageStatus.STATE_RUNNING:
-            continue
-        for topic, received in zip(msg.input_topics, msg.received_counts):
-            if received or not played.get(topic):
-                continue
-            since = unreceived.setdefault((stage, topic), now_s)
-            if now_s - since > after_s and (stage, topic) not in told:
-                told.add((stage, topic))
-                said.append(
-                    f"stage '{stage}' has received none of the {played[topic]} messages the replay "
-                    f"published on {topic} in {now_s - since:.0f} s (see logs/{stage}.log)"
-                )
-    return said
-
-
-class RunMonitor(Node):
-    def __init__(self, stages: list[str], outputs: dict[str, str], run_id: str = ""):
-        super().__init__("yowo_run")
-        self.run_id = run_id
-        self.runs = RunFilter(run_id)
-        self.status: dict[str, StageStatus] = {}
-        self.replay: ReplayStatus | None = None
-        self.outputs: dict[str, object] = {}
-        for s in stages:
-            self.create_subscription(StageStatus, topics.status(s), lambda m, s=s: self._on_status(s, m), LATCHED)
-        self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay, LATCHED)
-        self._relay = None
-        self._announced = None
-        self._playing_since: float | None = None
-        self._unreceived: dict[tuple[str, str], float] = {}  # (stage, topic) -> when first seen unreceived
-        self._told: set[tuple[str, str]] = set()
-        for topic, msgtype in outputs.items():
-            self.create_subscription(
-                message_class(msgtype), topic, lambda m, t=topic: self.outputs.__setitem__(t, m), LATCHED
-            )
-
-    def _on_status(self, stage: str, msg: StageStatus) -> None:
-        if self.runs.accept(msg):
-            self.status[stage] = msg
-
-    def _on_replay(self, msg: ReplayStatus) -> None:
-        if self.runs.accept(msg):
-            self.replay = msg
-        if msg.run_id in ("", self.run_id) and msg.state == ReplayStatus.STATE_FINISHED:
-            self._announced = msg  # `yowo end-walk` (to this or to any live run)
-
-    def relay_end_of_walk(self) -> None:
-        """Live runs: take `yowo end-walk`'s announcement for this run and keep it latched
-        for the rest of the run, so a stage whose subscription matches late still gets it."""
-        if self._relay is None and self._announced is not None:
-            self.replay = self._announced
-            self.replay.run_id = self.run_id
-            self._relay = self.create_publisher(ReplayStatus, topics.REPLAY_STATUS, LATCHED)
-            self._relay.publish(self.replay)
-
-    def finished(self, stage: str) -> StageStatus | None:
-        msg = self.status.get(stage)
-        return msg if msg is not None and msg.state != StageStatus.STATE_RUNNING else None
-
-    def progress(self, stages: list[str], elapsed_s: float, total: int) -> RunProgress:
-        played = sum(self.replay.published_counts) if self.replay else 0
-        if played and self._playing_since is None:
-            self._playing_since = elapsed_s
-        states, consumed = {}, {}
-        published = dict(zip(self.replay.topics, self.replay.published_counts)) if self.replay else {}
-        for s in stages:
-            msg = self.status.get(s)
-            states[s] = (
-                WAITING
-                if msg is None
-                else RUNNING
-                if msg.state == StageStatus.STATE_RUNNING
-                else FAILED
-                if msg.state == StageStatus.STATE_FAILED
-                else DONE
-            )
-            if states[s] == RUNNING:
-                # Of the replayed messages meant for it, how many it has taken in.
-                mine = [(int(n), published[t]) for t, n in zip(msg.input_topics, msg.received_counts) if t in published]
-                if sum(p for _, p in mine):
-                    consumed[s] = min(1.0, sum(n for n, _ in mine) / sum(p for _, p in mine))
-        return RunProgress(
-            elapsed_s,
-            played,
-            total,
-            self.replay.resent_messages if self.replay else 0,
-            self._playing_since,
-            states,
-            consumed,
-        )
-
-    def silent_inputs(self, now_s: float) -> list[str]:
-        return silent_inputs(self.replay, self.status, self._unreceived, self._told, now_s)
-
-    def strays(self) -> dict[str, int]:
-        """Status messages of other runs each node heard and ignored."""
-        counts = {s: int(m.stray_messages) for s, m in self.status.items()}
-        return {"yowo_run": self.runs.strays, **counts}
 
 
 def execute(
@@ -236,7 +117,7 @@ def execute(
                     sup.start(spec)
                 finished_at, last_sample, last_memory = None, 0.0, 0.0
                 while True:
-                    rclpy.spin_once(monitor, timeout_sec=0.1)
+                    monitor.spin_once(0.1)
                     if plan.bag is None:
                         monitor.relay_end_of_walk()
                     failure = _restart_dead(sup, plan.config.supervisor.max_restarts, log)
@@ -299,7 +180,7 @@ def execute(
                     log(f"results written to {plan.out_dir}; the graph stays up {linger_s:.0f} s (latched /tf_static)")
                     end = time.monotonic() + linger_s
                     while time.monotonic() < end and not sup.dead():
-                        rclpy.spin_once(monitor, timeout_sec=0.1)
+                        monitor.spin_once(0.1)
             finally:
                 sup.sample()
                 outputs, status, replay, graph = (
@@ -376,24 +257,3 @@ def _restart_dead(sup: Supervisor, max_restarts: int, log) -> str:
         sup.restart(p)
         log(f"warning: {died}; restarted it ({len(p.exits)} of at most {max_restarts}); it is sent what it missed")
     return ""
-
-
-def end_walk(linger_s: float = 5.0, run_id: str = "") -> None:
-    """Live operation: announce the end of the walk (what a replay does at the end of a
-    recording), so every stage finalises with what it has received. Without a run id the
-    announcement goes to any live run on the domain (its monitor relays it to its stages)."""
-    from yowo_common.ros.stage import REPLAY
-
-    with ros_context([]):
-        node = Node("yowo_end_walk")
-        pub = node.create_publisher(ReplayStatus, topics.REPLAY_STATUS, LATCHED)
-        pub.publish(ReplayStatus(state=ReplayStatus.STATE_FINISHED, bag=f"live ({REPLAY} not used)", run_id=run_id))
-        # Latched: stages that match while we linger still get it. Discovery on a busy
-        # machine takes seconds, so the linger starts once a first stage has matched.
-        deadline = time.monotonic() + 60.0
-        while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
-            rclpy.spin_once(node, timeout_sec=0.1)
-        end = time.monotonic() + linger_s
-        while time.monotonic() < end:
-            rclpy.spin_once(node, timeout_sec=0.1)
-        node.destroy_node()
