@@ -18,8 +18,9 @@ from .config import CONFIG_PARAMETERS, params_document
 from .profiling import summary_markdown
 from .progress import ProgressLines
 from .ros_domain import PRIVATE, GraphNetwork, graph_network
-from .run import RunOutcome, RunPlan, write_run_results
+from .run import RunPlan
 from .run_monitor_node import RunMonitor
+from .run_results import RunOutcome, write_run_results
 from .supervisor import Supervisor, library_threads_env, stats_path, write_params_file
 
 # After the final stage finished, time for the latched outputs and every stage's last status

@@ -1,0 +1,285 @@
+"""The results directory of a run from the graph's latched outputs and statuses: written
+aside and moved into place, partial when a stage failed, with the run log whatever happens."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from yowo_cmc.group_sfm import CameraGroupResult
+from yowo_common import topics
+
+from .results import clock_entry, intrinsics_entry, keypoint_noise_entry, pose_entry
+from .run import CMC, EGO, FULL, RunPlan
+
+
+@dataclass(kw_only=True)
+class RunOutcome:
+    files: list[Path]
+    cameras: list  # RegisteredCmc (full) or CameraGroupResult (cmc)
+    ungrouped: dict[str, str]
+    published: dict[str, int]
+    received: dict[str, dict[str, int]]
+    mode: str = FULL  # the plan's (a full run without usable CMCs is an ego run)
+    failure: str = ""  # why the run failed ('' when it did not)
+
+
+def write_group_calibration(path: Path, groups: list[CameraGroupResult], ungrouped: dict[str, str]) -> None:
+    """cameras.yaml of a CMC-only run: per camera its group and T_group_camera
+    (pseudo-scale: the group's reference camera is the identity), the intrinsics the group
+    SfM used, clock and keypoint noise as a full run writes them."""
+    cams = []
+    for g in groups:
+        for n in g.names:
+            cams.append(
+                {
+                    "name": n,
+                    "group": g.group_id,
+                    "method": "group_sfm",
+                    "status": "ok",
+                    "reason": "",
+                    "frame": f"{g.group_id} (reference camera {g.reference}, arbitrary scale)",
+                    "T_group_camera": pose_entry(g.T_local_cam[n]),
+                    **intrinsics_entry(g.cameras.get(n)),
+                    **clock_entry(n, g),
+                    **keypoint_noise_entry(g),
+                    "reprojection_rmse_px": round(float(g.rmse_px[n]), 4),
+                    "num_agent_observations": int(g.num_observations[n]),
+                }
+            )
+    for n, why in ungrouped.items():
+        cams.append({"name": n, "group": "", "method": "none", "status": "failed", "reason": why})
+    path.write_text(yaml.safe_dump({"cameras": sorted(cams, key=lambda c: c["name"])}, sort_keys=False))
+
+
+def write_run_results(
+    plan: RunPlan, outputs: dict, status: dict, replay, seconds: float, failure: str, graph: dict | None = None
+) -> RunOutcome:
+    """Everything a run produced into plan.out_dir (partial results when a stage failed),
+    written aside and moved into place; `graph`: the run's network, restarts and stray
+    messages, for the run log. The run log is written whatever else fails, with the reason."""
+    import traceback
+
+    from yowo_cmc.messages import groups_from_msg
+
+    from .outdir import publish_staged, staging_dir
+
+    staged = replace(plan, out_dir=staging_dir(plan.out_dir))
+    out, files = staged.out_dir, []
+    groups, ungrouped, cameras = [], {}, []
+    try:
+        groups, ungrouped = groups_from_msg(outputs[topics.GROUPS]) if topics.GROUPS in outputs else ([], {})
+        cameras = groups
+        if plan.mode == CMC and topics.GROUPS in outputs:
+            write_group_calibration(out / "cameras.yaml", groups, ungrouped)
+            files.append(out / "cameras.yaml")
+        if plan.mode in (FULL, EGO):
+            cameras = _write_full_results(staged, outputs, files)
+    except Exception as exc:  # a result that cannot be written must not hide the run's own outcome
+        written = f"writing the results failed ({type(exc).__name__}: {exc}); details in logs/results.log"
+        failure = f"{failure}; {written}" if failure else written
+        (plan.out_dir / "logs").mkdir(parents=True, exist_ok=True)
+        (plan.out_dir / "logs" / "results.log").write_text(traceback.format_exc())
+    published = dict(zip(replay.topics, map(int, replay.published_counts))) if replay is not None else {}
+    received: dict[str, dict[str, int]] = {}
+    for stage, msg in status.items():
+        for t, n in zip(msg.input_topics, msg.received_counts):
+            received.setdefault(t, {})[stage] = int(n)
+    (out / "run_log.yaml").write_text(
+        yaml.safe_dump(
+            {
+                "bag": str(plan.bag or "live"),
+                "run_id": plan.run_id,
+                "mode": plan.mode,
+                **({"mode_reason": plan.mode_reason} if plan.mode_reason else {}),
+                "seconds": round(seconds, 2),
+                "failure": failure,
+                "inputs": plan.inputs,
+                "warnings": plan.warnings,
+                "stages": {s: status[s].message if s in status else "no status received" for s in plan.stages},
+                "replay_published": published,
+                "received": received,
+                "replay_resent": int(replay.resent_messages) if replay is not None else 0,
+                "replay_error": replay.error if replay is not None else "no replay status",
+                **(graph or {}),
+            },
+            sort_keys=False,
+        )
+    )
+    files.append(out / "run_log.yaml")
+    publish_staged(plan.out_dir)
+    files = [plan.out_dir / f.relative_to(out) for f in files]
+    return RunOutcome(
+        files=files,
+        cameras=cameras,
+        ungrouped=ungrouped,
+        published=published,
+        received=received,
+        mode=plan.mode,
+        failure=failure,
+    )
+
+
+def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list:
+    from std_msgs.msg import Header
+
+    from yowo_cmc.messages import groups_from_msg
+    from yowo_common.ros.bag import BagWriter
+    from yowo_common.rosconv import (
+        decode_color,
+        model_to_camera_info,
+        ns_to_time,
+        pointcloud2_to_xyz_rgb,
+        points_to_array,
+        pose_to_matrix,
+        stamp_to_ns,
+    )
+    from yowo_common.trajectory import Trajectory, write_tum
+    from yowo_fusion.messages import agent_fits_from_msg, ego_map_from_msg, registered_from_msg
+
+    from .exports import write_exports
+    from .plugins import evaluator
+    from .report import wall_segments, write_report
+    from .results import write_cameras_yaml, write_layout_json, write_no_cameras_yaml, write_ply
+
+    out = plan.out_dir
+    cameras = registered_from_msg(outputs[topics.CMC_POSES]) if topics.CMC_POSES in outputs else []
+    groups = groups_from_msg(outputs[topics.GROUPS])[0] if topics.GROUPS in outputs else []
+    if plan.mode == EGO:
+        write_no_cameras_yaml(out / "cameras.yaml", f"ego-only run: {plan.mode_reason}", plan.cmc_problems)
+        files.append(out / "cameras.yaml")
+    elif cameras:
+        write_cameras_yaml(out / "cameras.yaml", cameras, groups)
+        files.append(out / "cameras.yaml")
+        ego = _export_ego_keyframes(outputs)
+        files += write_exports(out / "export", cameras, groups, ego, _export_images(plan, outputs, ego))
+
+    def final_and_ego(refined: str, ego_only: str, stem: str, ext: str) -> list[tuple[Path, str]]:
+        """The fusion's output (at the jointly optimised ego poses) as stem.ext and the ego
+        stage's as stem_ego.ext; the ego stage's as stem.ext when the fusion published none."""
+        if refined in outputs:
+            return [(out / f"{stem}.{ext}", refined), (out / f"{stem}_ego.{ext}", ego_only)]
+        return [(out / f"{stem}.{ext}", ego_only)]
+
+    ego_xy = None
+    for path, topic in final_and_ego(topics.REFINED_EGO_PATH, topics.EGO_PATH, "ego_trajectory", "tum"):
+        if topic in outputs:
+            poses = outputs[topic].poses
+            traj = Trajectory(
+                np.array([stamp_to_ns(p.header.stamp) for p in poses], dtype=np.int64),
+                np.array([pose_to_matrix(p.pose) for p in poses]).reshape(-1, 4, 4),
+            )
+        elif path.stem == "ego_trajectory" and topics.EGO_MAP in outputs:
+            ego = ego_map_from_msg(outputs[topics.EGO_MAP])
+            traj = Trajectory(ego.stamps_ns, ego.T_world_ego)
+        else:
+            continue
+        write_tum(path, traj)
+        files.append(path)
+        if ego_xy is None:
+            ego_xy = traj.positions[:, :2]
+    for path, topic in final_and_ego(topics.REFINED_MAP_POINTS, topics.MAP_POINTS, "map", "ply"):
+        if topic in outputs:
+            write_ply(path, *pointcloud2_to_xyz_rgb(outputs[topic]))
+            files.append(path)
+    for path, topic in final_and_ego(topics.REFINED_LAYOUT, topics.LAYOUT, "layout", "json"):
+        if topic in outputs:
+            write_layout_json(path, outputs[topic])
+            files.append(path)
+    final_layout = outputs.get(topics.REFINED_LAYOUT, outputs.get(topics.LAYOUT))
+    floors = [points_to_array(p.points)[:, :2] for p in final_layout.floor_polygons] if final_layout else []
+    if plan.mode == EGO and final_layout is not None:
+        # The fusion draws the floor for RViz/Foxglove in a full run; here nobody else does.
+        from yowo_fusion.messages import layout_markers
+
+        outputs = {**outputs, topics.LAYOUT_MARKERS: layout_markers([], floors, stamp_to_ns(final_layout.header.stamp))}
+    import shutil
+
+    result_bag, staging = out / "result.mcap", out / ".result_bag"
+    for old in (result_bag, staging):
+        if old.is_dir():
+            shutil.rmtree(old)
+        elif old.exists():
+            old.unlink()
+    stamp = max((stamp_to_ns(m.header.stamp) for m in outputs.values() if hasattr(m, "header")), default=0)
+    with BagWriter(staging) as bag:
+        for topic, msg in outputs.items():
+            bag.write(topic, msg, stamp, latched=True)  # every collected output is latched
+        # Each registered camera's intrinsics in its optical frame: Foxglove / RViz draw its frustum.
+        for c in cameras:
+            if c.camera is not None and c.T_world_cam is not None:
+                info = model_to_camera_info(
+                    c.camera, Header(stamp=ns_to_time(stamp), frame_id=f"{c.name}_optical_frame")
+                )
+                bag.write(topics.cmc_info_topic(c.name), info, stamp, latched=True)
+    # One MCAP file (its channels carry the QoS, latched ones transient-local), not a folder.
+    (written,) = staging.glob("*.mcap")
+    written.rename(result_bag)
+    shutil.rmtree(staging)
+    files.append(result_bag)
+    # With the evaluation installed and ground truth in the recording, the report also
+    # shows the errors (a live run has none).
+    ev = evaluator()
+    evaluated = ev.evaluate_run(out, plan.bag) if ev is not None and plan.bag is not None else None
+    metrics, gt_cams = evaluated or (None, None)
+    walls = wall_segments(final_layout.planes) if final_layout else []
+    fits = agent_fits_from_msg(outputs[topics.AGENT_FIT]) if topics.AGENT_FIT in outputs else []
+    write_report(
+        out / "report.html",
+        str(plan.bag or "live"),
+        cameras,
+        ego_xy,
+        floors,
+        metrics,
+        gt_cams,
+        plan.warnings,
+        walls,
+        [(f, size, decode_color(bg) if bg is not None else None) for f, size, bg in fits],
+        no_cameras=f"No camera registered (ego-only run): {plan.mode_reason}" if plan.mode == EGO else "",
+    )
+    files.append(out / "report.html")
+    if metrics:
+        ev.write_metrics(metrics, out / "metrics.json")
+        files.append(out / "metrics.json")
+    return cameras
+
+
+def _export_images(plan: RunPlan, outputs: dict, ego):
+    """The pixels the COLMAP export names: each CMC's background (the fusion's agent fits
+    carry it) and the ego keyframes' colour images, read again from the recording."""
+    from yowo_common.ros.bag import read_messages
+    from yowo_common.rosconv import decode_color, stamp_to_ns
+    from yowo_fusion.messages import agent_fits_from_msg
+
+    from .exports import ExportImages
+
+    fits = agent_fits_from_msg(outputs[topics.AGENT_FIT]) if topics.AGENT_FIT in outputs else []
+    cmc = {f.name: decode_color(bg) for f, _, bg in fits if bg is not None}
+    keyframes, frames = set() if ego is None else {int(s) for s in ego.stamps_ns}, {}
+    mapper = next((n for n in plan.nodes if n.name == "ego_mapper"), None)
+    if keyframes and mapper is not None and plan.bag is not None:
+        for _, _, msg in read_messages(plan.bag, [mapper.parameters["color_topic"]]):
+            if stamp_to_ns(msg.header.stamp) in keyframes:
+                frames[stamp_to_ns(msg.header.stamp)] = decode_color(msg)
+    return ExportImages(cmc=cmc, ego=frames)
+
+
+def _export_ego_keyframes(outputs: dict):
+    """The ego map's keyframes for the exports, at the fusion's jointly optimised poses where
+    the run has them (the refined path holds one pose per keyframe stamp)."""
+    from dataclasses import replace
+
+    from yowo_common.rosconv import pose_to_matrix, stamp_to_ns
+    from yowo_fusion.messages import ego_map_from_msg
+
+    if topics.EGO_MAP not in outputs:
+        return None
+    ego = ego_map_from_msg(outputs[topics.EGO_MAP])
+    if topics.REFINED_EGO_PATH in outputs:
+        refined = {stamp_to_ns(p.header.stamp): pose_to_matrix(p.pose) for p in outputs[topics.REFINED_EGO_PATH].poses}
+        if all(int(s) in refined for s in ego.stamps_ns):
+            ego = replace(ego, T_world_ego=np.array([refined[int(s)] for s in ego.stamps_ns]).reshape(-1, 4, 4))
+    return ego
