@@ -106,7 +106,7 @@ def ego_map_data(ego):
     needs the dense trajectory), observations re-indexed from keyframes to frames, and the
     cloud and layout (refined after joint optimisation)."""
     from yowo_ego.odometry import MEASURED
-    from yowo_fusion.pipeline import EgoMapData
+    from yowo_fusion.records import EgoMapData
 
     return EgoMapData(
         ego.camera,
@@ -143,7 +143,8 @@ def process(bag, config: YowoConfig | None = None, source: str = "auto") -> Offl
     ego map, CMC groups, collaborative processing."""
     from yowo_cmc.pipeline import calibrate_cmcs_apart
     from yowo_ego.recording import map_bag
-    from yowo_fusion.pipeline import CmcInput, fuse
+    from yowo_fusion.pipeline import fuse
+    from yowo_fusion.records import CmcInput
 
     config = config or YowoConfig()
     seconds = {}

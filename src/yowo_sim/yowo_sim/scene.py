@@ -1,4 +1,6 @@
-"""Static indoor scenes (rooms, doors, furniture, textures, lights) with ground truth.
+"""Static indoor scenes (rooms, doors, furniture, textures, lights) with ground truth:
+the scene types, the layouts and ``build_scene``; the meshing is in ``scene_mesh``,
+the textures in ``textures``.
 
 World frame ``map``: metres, z up (REP 103); floor at z = 0, ceiling at
 z = ``ceiling_height``. Rooms are axis-aligned rectangles given by their
@@ -9,7 +11,7 @@ are meshed (walls have no outer faces), which is all a camera inside can see.
 UV convention: ``Scene.triangle_uvs`` are in units of the texture size, (0, 0) at
 the top-left corner of the texture image and (1, 1) at its bottom-right corner;
 values outside [0, 1] repeat (tiling), so large surfaces keep a constant texel
-density of ``TEXELS_PER_METRE``.
+density of ``scene_mesh.TEXELS_PER_METRE``.
 """
 
 from __future__ import annotations
@@ -17,26 +19,30 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 import shapely
 from shapely.geometry import Point, Polygon, box
 from shapely.geometry.polygon import orient
 from shapely.ops import unary_union
 
+from . import textures
+from .scene_mesh import (
+    SEAM_OVERLAP,
+    MeshBuilder,
+    door_mesh,
+    furniture_mesh,
+    make_palette,
+    texels,
+    wall_items,
+    wall_pieces,
+)
+
 LAYOUTS = ("room_4x4", "two_rooms", "office", "floor_40x20")
 TEXTURE_MODES = ("rich", "poor", "symmetric")
 
 WALL_THICKNESS = 0.1
-TEXELS_PER_METRE = 256.0
 DOOR_HEIGHT = 2.1
 DOOR_WIDTH = 1.0
-# Surfaces overlap by this much at junctions so that no ray slips through a crack
-# between two triangles that only touch.
-SEAM_OVERLAP = 1e-3
-# Large surfaces are cut into patches no longer than this, so per-triangle data
-# (the renderer's light map) keeps a uniform resolution.
-MAX_PATCH = 4.0
 # A light's contribution fades to zero at this distance.
 LIGHT_RANGE = 6.0
 # Posters hang this far in front of their wall (no coplanar fighting with it).
@@ -317,471 +323,6 @@ def _door_intervals(room_idx, room, start, direction, length, normal, doors) -> 
     return sorted(out)
 
 
-# ----------------------------------------------------------------------------------
-# Procedural textures (RGB uint8). Tiling textures wrap seamlessly.
-
-_LETTERS = np.array(list("ABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789"))
-
-
-def _noise(rng, h: int, w: int, beta: float) -> np.ndarray:
-    """Tileable 1/f^beta noise with unit standard deviation (via FFT, so it wraps)."""
-    ky = np.fft.fftfreq(h)[:, None]
-    kx = np.fft.rfftfreq(w)[None, :]
-    k = np.sqrt(kx * kx + ky * ky)
-    k[0, 0] = 1.0
-    amp = k ** (-beta / 2.0)
-    amp[0, 0] = 0.0
-    spectrum = amp * (rng.standard_normal(amp.shape) + 1j * rng.standard_normal(amp.shape))
-    n = np.fft.irfft2(spectrum, s=(h, w))
-    return (n / (n.std() + 1e-12)).astype(np.float32)
-
-
-def _colour(rng, hue=(0, 180), sat=(40, 200), val=(80, 220)) -> np.ndarray:
-    hsv = np.array([[[rng.uniform(*hue), rng.uniform(*sat), rng.uniform(*val)]]], np.uint8)
-    return cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0, 0].astype(np.float32)
-
-
-def _shade(base: np.ndarray, factor: np.ndarray) -> np.ndarray:
-    return np.clip(base[None, None, :] * factor[..., None], 0, 255).astype(np.uint8)
-
-
-def _wrapped(img: np.ndarray, draw) -> None:
-    """Draw a shape and its 8 periodic copies, so the texture still tiles."""
-    h, w = img.shape[:2]
-    for dy in (-h, 0, h):
-        for dx in (-w, 0, w):
-            draw(dx, dy)
-
-
-def _random_shapes(rng, img: np.ndarray, count: int, size: tuple[int, int], wrap: bool) -> None:
-    h, w = img.shape[:2]
-    for _ in range(count):
-        col = tuple(int(c) for c in _colour(rng, val=(20, 250)))
-        kind = int(rng.integers(5))
-        cx, cy = int(rng.integers(w)), int(rng.integers(h))
-        s = int(rng.integers(*size))
-        thick = -1 if rng.random() < 0.6 else int(rng.integers(1, 5))
-        pts = (rng.uniform(-s, s, (int(rng.integers(3, 7)), 2))).astype(np.int32)
-        angle = float(rng.uniform(0, 180))
-        text = "".join(rng.choice(_LETTERS, int(rng.integers(2, 6))))
-        scale = s / 30.0
-
-        def draw(dx, dy, kind=kind, col=col, cx=cx, cy=cy, s=s, thick=thick, pts=pts):
-            c = (cx + dx, cy + dy)
-            if kind == 0:
-                cv2.circle(img, c, s, col, thick, cv2.LINE_AA)
-            elif kind == 1:
-                cv2.rectangle(img, (c[0] - s, c[1] - s // 2), (c[0] + s, c[1] + s // 2), col, thick, cv2.LINE_AA)
-            elif kind == 2:
-                cv2.fillPoly(img, [pts + np.array(c)], col, cv2.LINE_AA)
-            elif kind == 3:
-                cv2.ellipse(img, c, (s, max(2, s // 3)), angle, 0, 360, col, thick, cv2.LINE_AA)
-            else:
-                cv2.putText(
-                    img, text, (c[0] - s, c[1]), cv2.FONT_HERSHEY_SIMPLEX, scale, col, max(1, s // 12), cv2.LINE_AA
-                )
-
-        if wrap:
-            _wrapped(img, draw)
-        else:
-            draw(0, 0)
-
-
-def _tex_flat(rng, size: int, colour: np.ndarray, amplitude: float) -> np.ndarray:
-    """Nearly uniform surface: only a faint, smooth variation (texture-poor case)."""
-    return _shade(colour, 1.0 + amplitude * _noise(rng, size, size, 4.0))
-
-
-def _tex_plaster(rng, h: int, w: int) -> np.ndarray:
-    img = _shade(
-        _colour(rng, sat=(10, 70), val=(170, 225)), 1.0 + 0.05 * _noise(rng, h, w, 3.0) + 0.03 * _noise(rng, h, w, 1.0)
-    )
-    for _ in range(h * w // 15000):  # stains and scuffs
-        col = tuple(int(c) for c in _colour(rng, sat=(0, 90), val=(60, 200)))
-        c = rng.integers(0, (w, h))
-        ax = tuple(int(a) for a in rng.integers(3, 25, 2))
-        ang = float(rng.uniform(0, 180))
-        _wrapped(
-            img,
-            lambda dx, dy: cv2.ellipse(img, (int(c[0]) + dx, int(c[1]) + dy), ax, ang, 0, 360, col, -1, cv2.LINE_AA),
-        )
-    for _ in range(h * w // 30000):  # cracks and scribbles
-        pts = np.cumsum(rng.normal(0, 12, (int(rng.integers(4, 12)), 2)), axis=0) + rng.integers(0, (w, h))
-        col = tuple(int(c) for c in _colour(rng, val=(30, 120)))
-        _wrapped(
-            img, lambda dx, dy: cv2.polylines(img, [(pts + [dx, dy]).astype(np.int32)], False, col, 1, cv2.LINE_AA)
-        )
-    return img
-
-
-def _tex_brick(rng, h: int, w: int) -> np.ndarray:
-    rows, per_row = max(2, 2 * round(h / 43)), max(1, round(w / 64))  # ~0.08 x 0.25 m bricks
-    y = np.arange(h)[:, None] * rows / h
-    x = np.arange(w)[None, :] * per_row / w
-    row = np.floor(y).astype(int)
-    xs = x + 0.5 * (row % 2)
-    brick_id = row * per_row + np.floor(xs).astype(int) % per_row
-    tint = rng.uniform(0.75, 1.2, rows * per_row)[brick_id]
-    mortar = ((y - row) < 0.12) | ((xs - np.floor(xs)) < 0.04)
-    base = _colour(rng, hue=(0, 15), sat=(120, 200), val=(120, 190))
-    img = _shade(base, tint * (1.0 + 0.08 * _noise(rng, h, w, 1.5)))
-    img[mortar] = _shade(np.array([190.0, 185.0, 175.0]), 1.0 + 0.05 * _noise(rng, h, w, 2.0))[mortar]
-    return img
-
-
-def _tex_wallpaper(rng, h: int, w: int) -> np.ndarray:
-    img = _shade(_colour(rng, sat=(20, 120), val=(150, 220)), 1.0 + 0.04 * _noise(rng, h, w, 2.5))
-    _random_shapes(rng, img, h * w // 6000, (5, 22), wrap=True)
-    return img
-
-
-def _tex_planks(rng, h: int, w: int, plank_px: int, vertical: bool) -> np.ndarray:
-    """Wood boards ``plank_px`` wide with grain; ``vertical``: boards run top to bottom."""
-    # Grain: noise stretched along the boards.
-    ky = np.fft.fftfreq(h)[:, None]
-    kx = np.fft.rfftfreq(w)[None, :]
-    k = np.sqrt(kx**2 + (ky * 12.0) ** 2) if vertical else np.sqrt((kx * 12.0) ** 2 + ky**2)
-    k[0, 0] = 1.0
-    amp = k**-1.2
-    amp[0, 0] = 0.0
-    grain = np.fft.irfft2(amp * (rng.standard_normal(amp.shape) + 1j * rng.standard_normal(amp.shape)), s=(h, w))
-    grain = (grain / grain.std()).astype(np.float32)
-    if vertical:
-        tint = rng.uniform(0.75, 1.2, w // plank_px + 1)[np.arange(w) // plank_px][None, :]
-        gap = np.broadcast_to(((np.arange(w) % plank_px) < 2)[None, :], (h, w))
-    else:  # rows of 1/4-width boards, with the board ends staggered per row
-        rows = np.arange(h) // plank_px
-        along = (np.arange(w)[None, :] + rng.integers(0, w, rows.max() + 1)[rows][:, None]) % w
-        board = rows[:, None] * 4 + along // (w // 4)
-        tint = rng.uniform(0.75, 1.2, board.max() + 1)[board]
-        gap = ((np.arange(h) % plank_px) < 2)[:, None] | ((along % (w // 4)) < 2)
-    base = _colour(rng, hue=(8, 22), sat=(90, 170), val=(110, 200))
-    img = _shade(base, tint * (1.0 + 0.12 * grain))
-    img[gap] //= 2
-    for _ in range(h * w // 40000):  # knots
-        c = rng.integers(0, (w, h))
-        ax = (int(rng.integers(3, 8)), int(rng.integers(6, 14)))
-        angle = 0.0 if vertical else 90.0
-        _wrapped(
-            img,
-            lambda dx, dy: cv2.ellipse(
-                img, (int(c[0]) + dx, int(c[1]) + dy), ax, angle, 0, 360, (70, 45, 25), -1, cv2.LINE_AA
-            ),
-        )
-    return img
-
-
-def _tex_tiles(rng, h: int, w: int, cell: int, decorated: bool) -> np.ndarray:
-    ny, nx = h // cell, w // cell
-    iy, ix = np.arange(h) // cell, np.arange(w) // cell
-    tile_id = iy[:, None] * nx + ix[None, :]
-    base = _colour(rng, sat=(10, 150), val=(140, 230))
-    img = _shade(base, rng.uniform(0.85, 1.12, ny * nx)[tile_id] * (1.0 + 0.03 * _noise(rng, h, w, 2.0)))
-    img[(np.arange(h) % cell) < 3, :] = (110, 105, 100)  # grout
-    img[:, (np.arange(w) % cell) < 3] = (110, 105, 100)
-    if decorated:  # some tiles carry a motif
-        for tile in rng.choice(ny * nx, ny * nx // 4, replace=False):
-            ty, tx = divmod(int(tile), nx)
-            sub = img[ty * cell + 3 : (ty + 1) * cell, tx * cell + 3 : (tx + 1) * cell]
-            _random_shapes(rng, sub, 3, (3, max(4, cell // 4)), wrap=False)
-    return img
-
-
-def _tex_concrete(rng, h: int, w: int) -> np.ndarray:
-    grey = float(rng.uniform(120, 175))
-    img = _shade(
-        np.array([grey, grey * 0.98, grey * 0.95]), 1.0 + 0.10 * _noise(rng, h, w, 2.2) + 0.05 * _noise(rng, h, w, 0.8)
-    )
-    step = 128  # form-tie holes every 0.5 m
-    for y in range(step // 2, h, step):
-        for x in range(step // 2, w, step):
-            cv2.circle(img, (x, y), 5, (50, 50, 50), -1, cv2.LINE_AA)
-    for _ in range(h * w // 25000):  # pores and stains
-        c = rng.integers(0, (w, h))
-        r = int(rng.integers(2, 14))
-        v = int(rng.uniform(60, 200))
-        _wrapped(img, lambda dx, dy: cv2.circle(img, (int(c[0]) + dx, int(c[1]) + dy), r, (v, v, v), -1, cv2.LINE_AA))
-    return img
-
-
-def _tex_carpet(rng, h: int, w: int) -> np.ndarray:
-    a, b = _colour(rng, val=(70, 160)), _colour(rng, val=(70, 160))
-    mix = (np.tanh(1.5 * _noise(rng, h, w, 2.5)) + 1.0) / 2.0
-    fibres = 1.0 + 0.15 * _noise(rng, h, w, 0.3)
-    img = (a[None, None] * mix[..., None] + b[None, None] * (1.0 - mix[..., None])) * fibres[..., None]
-    return np.clip(img, 0, 255).astype(np.uint8)
-
-
-def _tex_ceiling(rng, size: int) -> np.ndarray:
-    """Acoustic ceiling tiles (0.5 m grid) with speckles."""
-    img = _shade(np.array([225.0, 225.0, 220.0]), 1.0 + 0.06 * _noise(rng, size, size, 0.5))
-    cell = size // 4
-    grid = (np.arange(size) % cell) < 3
-    img[grid, :] = (170, 170, 170)
-    img[:, grid] = (170, 170, 170)
-    return img
-
-
-def _tex_books(rng, size: int) -> np.ndarray:
-    """Bookshelf front: boards every ~0.4 m with rows of books."""
-    img = np.zeros((size, size, 3), np.uint8)
-    wood = _tex_planks(rng, size, size, size // 4, vertical=False)
-    shelves = 5
-    gap = size // shelves
-    for s in range(shelves):
-        top = s * gap
-        img[top : top + gap] = (wood[top : top + gap] * 0.35).astype(np.uint8)  # dark shelf interior
-        img[top + gap - 10 : top + gap] = wood[top + gap - 10 : top + gap]  # the board
-        x = 0
-        while x < size:
-            bw = int(rng.integers(6, 22))
-            bh = int(rng.integers(gap // 2, gap - 14))
-            col = tuple(int(c) for c in _colour(rng, val=(40, 230)))
-            y1 = top + gap - 10
-            cv2.rectangle(img, (x, y1 - bh), (x + bw - 2, y1 - 1), col, -1)
-            if rng.random() < 0.7:  # title band
-                band = tuple(int(255 - c) for c in col)
-                yb = y1 - bh + int(rng.integers(5, max(6, bh // 2)))
-                cv2.rectangle(img, (x + 1, yb), (x + bw - 3, yb + 3), band, -1)
-            x += bw + int(rng.integers(0, 3)) + (int(rng.integers(10, 40)) if rng.random() < 0.1 else 0)
-    return img
-
-
-def _tex_cardboard(rng, size: int) -> np.ndarray:
-    img = _shade(np.array([170.0, 130.0, 85.0]) * rng.uniform(0.8, 1.1), 1.0 + 0.06 * _noise(rng, size, size, 1.2))
-    tape = int(rng.integers(size // 3, 2 * size // 3))
-    img[:, tape - 12 : tape + 12] = (200, 180, 140)
-    x, y = int(rng.integers(20, size // 2)), int(rng.integers(20, size // 2))
-    cv2.rectangle(img, (x, y), (x + size // 3, y + size // 5), (235, 235, 230), -1)
-    for k in range(3):
-        text = "".join(rng.choice(_LETTERS, int(rng.integers(4, 8))))
-        cv2.putText(img, text, (x + 4, y + 14 + 14 * k), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (20, 20, 20), 1, cv2.LINE_AA)
-    _random_shapes(rng, img, 4, (8, 30), wrap=False)
-    return img
-
-
-def _tex_poster(rng, w: int, h: int) -> np.ndarray:
-    """A unique picture: gradient or cloudy background, random shapes and text, a frame."""
-    c0, c1 = _colour(rng), _colour(rng)
-    if rng.random() < 0.5:
-        ramp = np.linspace(0.0, 1.0, h, dtype=np.float32)[:, None, None]
-        img = (c0 * (1 - ramp) + c1 * ramp) * np.ones((1, w, 1), np.float32)
-    else:
-        mix = (np.tanh(_noise(rng, h, w, 3.0)) + 1.0)[..., None] / 2.0
-        img = c0 * mix + c1 * (1.0 - mix)
-    img = np.clip(img, 0, 255).astype(np.uint8)
-    _random_shapes(rng, img, int(rng.integers(8, 20)), (max(4, min(w, h) // 20), max(6, min(w, h) // 5)), wrap=False)
-    frame = max(3, min(w, h) // 25)
-    cv2.rectangle(img, (0, 0), (w - 1, h - 1), tuple(int(c) for c in _colour(rng, val=(10, 90))), 2 * frame)
-    return img
-
-
-def _tex_decal(rng, w: int, h: int) -> np.ndarray:
-    """Small wall item: a sign, a note, a switch plate or a little picture."""
-    kind = int(rng.integers(4))
-    if kind == 3:
-        return _tex_poster(rng, w, h)
-    bg = _colour(rng, val=(60, 230)) if kind == 0 else np.array([235.0, 232.0, 220.0]) * rng.uniform(0.85, 1.0)
-    img = np.empty((h, w, 3), np.uint8)
-    img[:] = bg.astype(np.uint8)
-    ink = tuple(int(c) for c in (_colour(rng, val=(0, 90)) if bg.mean() > 120 else _colour(rng, val=(200, 255))))
-    if kind == 2:  # switch / socket plate
-        for _ in range(int(rng.integers(1, 3))):
-            x0, y0 = int(rng.integers(0, w // 2)), int(rng.integers(0, h // 2))
-            cv2.rectangle(img, (x0 + w // 8, y0 + h // 8), (x0 + w // 2, y0 + h // 2), (150, 150, 150), -1, cv2.LINE_AA)
-            cv2.circle(img, (x0 + w // 4, y0 + h // 4), max(2, min(w, h) // 12), (40, 40, 40), -1, cv2.LINE_AA)
-    else:  # sign or note: lines of text
-        line_h = max(8, h // int(rng.integers(2, 6)))
-        for y in range(line_h, h - 2, line_h):
-            text = "".join(rng.choice(_LETTERS, max(2, w // max(6, line_h // 2))))
-            cv2.putText(
-                img, text, (3, y - 2), cv2.FONT_HERSHEY_SIMPLEX, line_h / 40.0, ink, max(1, line_h // 16), cv2.LINE_AA
-            )
-    cv2.rectangle(img, (0, 0), (w - 1, h - 1), ink, max(1, min(w, h) // 30))
-    return img
-
-
-def _tex_motif_tiled(rng, size: int, repeats: int) -> np.ndarray:
-    """One motif repeated on a regular grid: locally rich, globally ambiguous."""
-    cell = size // repeats
-    motif = _tex_poster(rng, cell, cell)
-    return np.tile(motif, (repeats, repeats, 1))
-
-
-# ----------------------------------------------------------------------------------
-# Mesh assembly
-
-
-class _MeshBuilder:
-    def __init__(self):
-        self.vertices: list[np.ndarray] = []
-        self.uvs: list[np.ndarray] = []
-        self.texture: list[int] = []
-        self.room: list[int] = []
-        self.textures: list[np.ndarray] = []
-
-    def add_texture(self, img: np.ndarray) -> int:
-        self.textures.append(img)
-        return len(self.textures) - 1
-
-    def rect(
-        self,
-        origin,
-        ax_u,
-        ax_v,
-        a: tuple[float, float],
-        b: tuple[float, float],
-        tex: int,
-        room: int,
-        uv_scale=None,
-        uv_offset=(0.0, 0.0),
-        grow: float = 0.0,
-        patch: float = MAX_PATCH,
-    ) -> None:
-        """Planar rectangle {origin + s ax_u + t ax_v : s in a, t in b}, with the
-        texture mapped by u = (s + uv_offset[0]) * uv_scale[0] (same for v), so
-        ax_u runs along the image's columns and ax_v down its rows. Cut into
-        patches of at most ``patch`` metres, each grown by ``grow`` to seal seams."""
-        origin, ax_u, ax_v = (np.asarray(x, dtype=float) for x in (origin, ax_u, ax_v))
-        if uv_scale is None:
-            th, tw = self.textures[tex].shape[:2]
-            uv_scale = (TEXELS_PER_METRE / tw, TEXELS_PER_METRE / th)
-        s_edges = np.linspace(a[0], a[1], max(1, math.ceil((a[1] - a[0]) / patch - 1e-9)) + 1)
-        t_edges = np.linspace(b[0], b[1], max(1, math.ceil((b[1] - b[0]) / patch - 1e-9)) + 1)
-        for s0, s1 in zip(s_edges[:-1] - grow, s_edges[1:] + grow):
-            for t0, t1 in zip(t_edges[:-1] - grow, t_edges[1:] + grow):
-                st = np.array([[s0, t0], [s1, t0], [s1, t1], [s0, t1]])
-                corners = origin + st[:, :1] * ax_u + st[:, 1:] * ax_v
-                uv = (st + uv_offset) * uv_scale
-                for tri in ((0, 1, 2), (0, 2, 3)):
-                    self.vertices.append(corners[list(tri)])
-                    self.uvs.append(uv[list(tri)])
-                    self.texture.append(tex)
-                    self.room.append(room)
-
-    def box(
-        self,
-        lo,
-        hi,
-        room: int,
-        side_tex: int,
-        top_tex: int,
-        bottom: bool = False,
-        front: tuple[float, float] | None = None,
-        front_tex: int | None = None,
-        rng=None,
-    ) -> None:
-        (x0, y0, z0), (x1, y1, z1) = lo, hi
-        centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
-        half = np.array([(x1 - x0) / 2, (y1 - y0) / 2])
-        offset = tuple(rng.uniform(0, 1, 2)) if rng is not None else (0.0, 0.0)
-        for n in ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)):
-            n = np.array(n)
-            u = np.array([-n[1], n[0]])  # viewer's right when facing this side
-            corner = centre + n * (np.abs(n) @ half) - u * (np.abs(u) @ half)
-            width = 2.0 * (np.abs(u) @ half)
-            tex = front_tex if front is not None and np.allclose(n, front) else side_tex
-            self.rect(
-                (corner[0], corner[1], z1),
-                (u[0], u[1], 0.0),
-                (0, 0, -1),
-                (0.0, width),
-                (0.0, z1 - z0),
-                tex,
-                room,
-                uv_offset=offset if tex != front_tex else (0.0, 0.0),
-            )
-        self.rect((x0, y0, z1), (1, 0, 0), (0, 1, 0), (0.0, x1 - x0), (0.0, y1 - y0), top_tex, room, uv_offset=offset)
-        if bottom:
-            self.rect((x0, y0, z0), (1, 0, 0), (0, 1, 0), (0.0, x1 - x0), (0.0, y1 - y0), top_tex, room)
-
-    def mesh(self):
-        tri_vertices = np.array(self.vertices, dtype=np.float32).reshape(-1, 3)
-        triangles = np.arange(len(tri_vertices), dtype=np.int32).reshape(-1, 3)
-        # Merge shared corners so the mesh is indexed, not a triangle soup.
-        unique, inverse = np.unique(tri_vertices, axis=0, return_inverse=True)
-        return (
-            unique.astype(np.float32),
-            inverse.reshape(-1)[triangles].astype(np.int32),
-            np.array(self.uvs, dtype=np.float32).reshape(-1, 3, 2),
-            np.array(self.texture, dtype=np.int32),
-            np.array(self.room, dtype=np.int32),
-        )
-
-
-@dataclass
-class _Palette:
-    """Texture indices a scene draws from."""
-
-    walls: list[int]
-    floors: list[int]
-    ceilings: list[int]
-    wood: list[int]
-    boxes: list[int]
-    books: list[int]
-    poster: int | None  # the one shared poster of the "symmetric" mode
-
-
-def _make_palette(mode: str, rng, mb: _MeshBuilder) -> _Palette:
-    S = 512
-    add = mb.add_texture
-    if mode == "rich":
-        # Walls tile every 4 m x 3 m and floors every 4 m; unique posters and
-        # decals on top keep each wall distinct.
-        wh, ww, fs = 768, 1024, 1024
-        walls = [
-            add(_tex_plaster(rng, wh, ww)),
-            add(_tex_brick(rng, wh, ww)),
-            add(_tex_wallpaper(rng, wh, ww)),
-            add(_tex_planks(rng, wh, ww, 32, vertical=True)),
-            add(_tex_concrete(rng, wh, ww)),
-            add(_tex_tiles(rng, wh, ww, 64, decorated=True)),
-            add(_tex_wallpaper(rng, wh, ww)),
-            add(_tex_plaster(rng, wh, ww)),
-        ]
-        floors = [
-            add(_tex_planks(rng, fs, fs, 64, vertical=False)),
-            add(_tex_tiles(rng, fs, fs, 128, decorated=False)),
-            add(_tex_carpet(rng, fs, fs)),
-            add(_tex_concrete(rng, fs, fs)),
-        ]
-        return _Palette(
-            walls,
-            floors,
-            [add(_tex_ceiling(rng, S)), add(_tex_concrete(rng, S, S))],
-            [add(_tex_planks(rng, 256, 256, 64, vertical=False)), add(_tex_planks(rng, 256, 256, 64, vertical=True))],
-            [add(_tex_cardboard(rng, 256)), add(_tex_cardboard(rng, 256))],
-            [add(_tex_books(rng, S))],
-            None,
-        )
-    if mode == "poor":
-
-        def flat(colour, amp=0.006):
-            return add(_tex_flat(rng, 256, np.asarray(colour, np.float32), amp))
-
-        return _Palette(
-            [flat((200, 198, 192)), flat((192, 196, 200))],
-            [flat((150, 145, 138))],
-            [flat((225, 225, 225))],
-            [flat((150, 110, 70))],
-            [flat((170, 135, 90))],
-            [flat((120, 90, 60))],
-            None,
-        )
-    # symmetric: one pattern everywhere, posters identical and centred on each wall.
-    wall = add(_tex_motif_tiled(rng, S, 4))
-    wood = add(_tex_planks(rng, 256, 256, 64, vertical=False))
-    return _Palette(
-        [wall],
-        [add(_tex_tiles(rng, S, S, 128, decorated=False))],
-        [add(_tex_ceiling(rng, S))],
-        [wood],
-        [add(_tex_cardboard(rng, 256))],
-        [add(_tex_books(rng, S))],
-        add(_tex_poster(rng, 256, 192)),
-    )
-
-
 def _place_furniture(rng, room_idx: int, room: Room, doors: list[Door], count: int) -> list[Furniture]:
     """Put up to ``count`` pieces in the room, keeping every door reachable and the
     walkable floor in one piece."""
@@ -838,81 +379,6 @@ def _place_furniture(rng, room_idx: int, room: Room, doors: list[Door], count: i
     return placed
 
 
-def _furniture_mesh(mb: _MeshBuilder, f: Furniture, pal: _Palette, rng) -> None:
-    x0, y0, x1, y1 = f.bounds
-    if f.kind == "box":
-        tex = pal.boxes[int(rng.integers(len(pal.boxes)))]
-        mb.box((x0, y0, 0.0), (x1, y1, f.height), f.room, tex, tex, rng=rng)
-    elif f.kind == "shelf":
-        wood = pal.wood[int(rng.integers(len(pal.wood)))]
-        mb.box(
-            (x0, y0, 0.0),
-            (x1, y1, f.height),
-            f.room,
-            wood,
-            wood,
-            front=f.front,
-            front_tex=pal.books[int(rng.integers(len(pal.books)))],
-            rng=rng,
-        )
-    else:
-        wood = pal.wood[int(rng.integers(len(pal.wood)))]
-        top = 0.04
-        mb.box((x0, y0, f.height - top), (x1, y1, f.height), f.room, wood, wood, bottom=True, rng=rng)
-        leg = 0.05
-        for lx, ly in ((x0, y0), (x1 - leg, y0), (x0, y1 - leg), (x1 - leg, y1 - leg)):
-            mb.box((lx, ly, 0.0), (lx + leg, ly + leg, f.height - top), f.room, wood, wood)
-
-
-def _texels(metres: float) -> int:
-    """Texture size for a surface of this length (a multiple of 16 texels)."""
-    return max(16, int(round(metres * TEXELS_PER_METRE / 16)) * 16)
-
-
-def _wall_pieces(length: float, openings: list[tuple[float, float]]) -> list[tuple[float, float]]:
-    pieces, s = [], 0.0
-    for o0, o1 in openings:
-        if o0 > s:
-            pieces.append((s, o0))
-        s = max(s, o1)
-    if s < length:
-        pieces.append((s, length))
-    return pieces
-
-
-def _wall_items(rng, pieces, ceiling: float, symmetric: bool) -> list[tuple[float, float, float, float, str]]:
-    """(s0, s1, z_top, z_bottom, kind) of posters and decals along one wall;
-    "symmetric" walls get one identical poster centred on each long piece."""
-    if symmetric:
-        return [
-            (0.5 * (p0 + p1) - 0.4, 0.5 * (p0 + p1) + 0.4, 1.8, 1.2, "poster") for p0, p1 in pieces if p1 - p0 >= 1.4
-        ]
-    out = []
-    for p0, p1 in pieces:
-        s = p0 + 0.25
-        while True:  # posters side by side at eye height
-            w = rng.uniform(0.4, 1.2)
-            if s + w > p1 - 0.25:
-                break
-            h = rng.uniform(0.4, min(1.0, ceiling - 1.4))
-            bottom = rng.uniform(0.9, min(1.4, ceiling - 0.2 - h))
-            if rng.random() < 0.75:
-                out.append((s, s + w, bottom + h, bottom, "poster"))
-            s += w + rng.uniform(0.3, 1.5)
-        for _ in range(int(2.5 * (p1 - p0))):  # decals anywhere that is still free
-            w, h = rng.uniform(0.08, 0.4), rng.uniform(0.08, 0.35)
-            if p1 - p0 < w + 0.2:
-                continue
-            s0 = rng.uniform(p0 + 0.1, p1 - 0.1 - w)
-            bottom = rng.uniform(0.3, ceiling - 0.3 - h)
-            if all(
-                s0 > o[1] + 0.05 or s0 + w < o[0] - 0.05 or bottom > o[2] + 0.05 or bottom + h < o[3] - 0.05
-                for o in out
-            ):
-                out.append((s0, s0 + w, bottom + h, bottom, "decal"))
-    return out
-
-
 def _lights(room_idx: int, room: Room, intensity: float, jitter) -> list[Light]:
     """Ceiling lights: one per ~5 m along corridors, a 1x1 to 2x2 grid in rooms."""
     x0, y0, x1, y1 = room.bounds
@@ -949,8 +415,8 @@ def build_scene(spec: SceneSpec) -> Scene:
     symmetric = spec.texture == "symmetric"
     jitter = (lambda: 1.0) if symmetric else (lambda: float(geo_rng.uniform(0.85, 1.15)))
     lights = [light for ri, room in enumerate(rooms) for light in _lights(ri, room, 1.0 * li, jitter)]
-    mb = _MeshBuilder()
-    pal = _make_palette(spec.texture, rng, mb)
+    mb = MeshBuilder()
+    pal = make_palette(spec.texture, rng, mb)
 
     def pick(seq: list[int]) -> int:
         return seq[int(rng.integers(len(seq)))]
@@ -970,18 +436,18 @@ def build_scene(spec: SceneSpec) -> Scene:
             origin = (start[0], start[1], H)
             ax_u = (direction[0], direction[1], 0.0)
             openings = _door_intervals(ri, room, start, direction, length, normal, doors)
-            pieces = _wall_pieces(length, openings)
+            pieces = wall_pieces(length, openings)
             for s0, s1 in pieces:
                 mb.rect(origin, ax_u, (0, 0, -1), (s0, s1), (0.0, H), tex, ri, uv_offset=off, grow=eps)
             for s0, s1 in openings:  # lintel above the door
                 mb.rect(origin, ax_u, (0, 0, -1), (s0, s1), (0.0, H - door_h), tex, ri, uv_offset=off, grow=eps)
             if rich or symmetric:
-                for s0, s1, z_top, z_bottom, kind in _wall_items(rng, pieces, H, symmetric):
+                for s0, s1, z_top, z_bottom, kind in wall_items(rng, pieces, H, symmetric):
                     if symmetric:
                         ptex = pal.poster
                     else:
-                        make = _tex_poster if kind == "poster" else _tex_decal
-                        ptex = mb.add_texture(make(rng, _texels(s1 - s0), _texels(z_top - z_bottom)))
+                        make = textures.poster if kind == "poster" else textures.decal
+                        ptex = mb.add_texture(make(rng, texels(s1 - s0), texels(z_top - z_bottom)))
                     p_origin = (start[0] + normal[0] * POSTER_OFFSET, start[1] + normal[1] * POSTER_OFFSET, z_top)
                     mb.rect(
                         p_origin,
@@ -995,9 +461,9 @@ def build_scene(spec: SceneSpec) -> Scene:
                         uv_offset=(-s0, 0.0),
                     )
     for d in doors:
-        _door_mesh(mb, d, pal, door_h)
+        door_mesh(mb, d, pal, door_h)
     for f in furniture:
-        _furniture_mesh(mb, f, pal, rng)
+        furniture_mesh(mb, f, pal, rng)
     vertices, triangles, uvs, tex_idx, tri_room = mb.mesh()
     floor = unary_union([r.polygon() for r in rooms] + [d.polygon() for d in doors])
     polys = [floor] if floor.geom_type == "Polygon" else list(floor.geoms)
@@ -1017,21 +483,3 @@ def build_scene(spec: SceneSpec) -> Scene:
         furniture,
         spec,
     )
-
-
-def _door_mesh(mb: _MeshBuilder, d: Door, pal: _Palette, door_h: float) -> None:
-    """Reveal of the opening: two jambs, the lintel's underside and the floor strip."""
-    eps = SEAM_OVERLAP
-    room = d.rooms[0]
-    wall_tex, floor_tex = pal.walls[0], pal.floors[0]
-    lo, hi = d.wall
-    e_axis = np.zeros(3)
-    e_axis[d.axis] = 1.0  # across the wall
-    e_span = np.zeros(3)
-    e_span[1 - d.axis] = 1.0  # along the wall
-    for s in d.span:
-        origin = e_span * s + np.array([0, 0, door_h])
-        mb.rect(origin, e_axis, (0, 0, -1), (lo, hi), (0.0, door_h), wall_tex, room, grow=eps)
-    top = np.array([0, 0, door_h])
-    mb.rect(top, e_axis, e_span, (lo, hi), d.span, wall_tex, room, grow=eps)
-    mb.rect((0, 0, 0), e_axis, e_span, (lo, hi), d.span, floor_tex, room, grow=eps)
