@@ -17,7 +17,8 @@ from yowo_common.geometry import inv_se3, se3
 from yowo_common.ros.bag import read_messages
 from yowo_common.rosconv import camera_info_to_model, decode_color, stamp_to_ns
 from yowo_eval.ground_truth import read_ground_truth
-from yowo_eval.multiview_import import FORMATS, START_NS, import_multiview, joint_ids
+from yowo_eval.multiview_import import START_NS, import_multiview
+from yowo_eval.multiview_readers import FORMATS, joint_ids
 
 W, H = 160, 120
 CAMS = {
