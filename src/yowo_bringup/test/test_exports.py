@@ -18,7 +18,7 @@ from yowo_cmc.group_sfm import CameraGroupResult
 from yowo_common.camera import EQUIDISTANT, RATIONAL_POLYNOMIAL, CameraModel
 from yowo_common.geometry import inv_se3, transform_points
 from yowo_common.rosconv import camera_info_to_model
-from yowo_fusion.pipeline import EgoMapData, RegisteredCmc
+from yowo_fusion.records import EgoMapData, RegisteredCmc
 
 TARGET = np.array([2.0, 1.5, 1.0])  # a point every camera sees
 

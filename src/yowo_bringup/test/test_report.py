@@ -10,7 +10,7 @@ from geometry_msgs.msg import Point
 from yowo_bringup.report import _COLOURS, _ellipse_scale, floor_footprint, wall_segments, write_report
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import look_at
-from yowo_fusion.pipeline import AgentFit, RegisteredCmc
+from yowo_fusion.records import AgentFit, RegisteredCmc
 from yowo_msgs.msg import Plane
 
 

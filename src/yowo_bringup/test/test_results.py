@@ -6,7 +6,7 @@ import yaml
 
 from yowo_bringup.results import write_cameras_yaml
 from yowo_common.camera import CameraModel
-from yowo_fusion.pipeline import RegisteredCmc
+from yowo_fusion.records import RegisteredCmc
 
 
 def _camera(name: str, covariance: np.ndarray) -> RegisteredCmc:

@@ -17,7 +17,7 @@ from yowo_common import topics
 from yowo_common.camera import EQUIDISTANT, PLUMB_BOB, RATIONAL_POLYNOMIAL, CameraModel
 from yowo_common.geometry import inv_se3, quat_xyzw_from_rotation, transform_points
 from yowo_fusion.messages import WORLD_FRAME, optical_frame
-from yowo_fusion.pipeline import EgoMapData, RegisteredCmc
+from yowo_fusion.records import EgoMapData, RegisteredCmc
 
 # kalibr's cam_overlaps: two cameras of a group overlap when at least this many points of
 # the group's agent track fall in both images (the group SfM's minimum for an edge).

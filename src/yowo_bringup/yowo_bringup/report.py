@@ -18,7 +18,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from yowo_fusion.pipeline import AgentFit, RegisteredCmc  # noqa: E402
+from yowo_fusion.records import AgentFit, RegisteredCmc  # noqa: E402
 
 from .results import pose_sigma  # noqa: E402
 

@@ -14,7 +14,7 @@ from yowo_cmc.group_sfm import CameraGroupResult
 from yowo_cmc.intrinsics import EstimatedCamera
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import quat_xyzw_from_rotation, rotation_from_quat_xyzw, se3
-from yowo_fusion.pipeline import RegisteredCmc
+from yowo_fusion.records import RegisteredCmc
 
 
 def pose_entry(T: np.ndarray) -> dict:

@@ -264,7 +264,8 @@ def full_case(bag: Path, images: bool, config: YowoConfig = YowoConfig()) -> dic
     time per stage and the real-time factor."""
     from yowo_bringup.offline import ego_map_data, process
     from yowo_common.trajectory import Trajectory
-    from yowo_fusion.pipeline import ISOLATED_PNP, CmcInput, fuse
+    from yowo_fusion.pipeline import fuse
+    from yowo_fusion.records import ISOLATED_PNP, CmcInput
 
     from .hloc_style import build_database, localize, read_keyframe_images
     from .metrics import ate, layout_iou, registration_errors

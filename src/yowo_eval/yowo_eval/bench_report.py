@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from yowo_fusion.pipeline import FAILED, OK, WEAK
+from yowo_fusion.records import FAILED, OK, WEAK
 
 # The synchronised case of a recording with CMC clock offsets (yowo_eval.bench.truth_clocked).
 TRUE_CLOCKS = "YOWO, clocks from the truth"

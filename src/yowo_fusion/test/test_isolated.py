@@ -6,7 +6,8 @@ import numpy as np
 from yowo_cmc.keypoint_tracks import CameraTracks, KeypointTrack
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import look_at
-from yowo_fusion.isolated import AgentTrack, register_by_agent
+from yowo_fusion.isolated import register_by_agent
+from yowo_fusion.records import AgentTrack
 
 
 def test_straight_walk_registers_the_ceiling_camera_not_its_mirror_image():

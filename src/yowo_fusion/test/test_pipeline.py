@@ -14,18 +14,10 @@ from yowo_common.geometry import se3
 from yowo_ego.layout import Layout
 from yowo_eval.metrics import registration_errors
 from yowo_fusion.alignment import AlignParams, estimate_clock_offset
-from yowo_fusion.pipeline import (
-    FAILED,
-    GROUP_SFM,
-    ISOLATED_PNP,
-    OK,
-    WEAK,
-    CmcInput,
-    EgoMapData,
-    FusionParams,
-    fuse,
-    weak_ego_frames,
-)
+from yowo_fusion.config import FusionParams
+from yowo_fusion.pipeline import fuse
+from yowo_fusion.records import FAILED, GROUP_SFM, ISOLATED_PNP, OK, WEAK, CmcInput, EgoMapData
+from yowo_fusion.verdict import weak_ego_frames
 
 OFFSET = np.array([0.0, -0.10, -0.08])
 ROOM_A = np.array([[0.0, 0.0], [6.0, 0.0], [6.0, 5.0], [0.0, 5.0]])
@@ -147,10 +139,10 @@ def test_each_camera_observes_each_agent_point_once(monkeypatch):
     """The joint problem holds one observation per camera and agent point (each was repeated
     once per keypoint id triangulated at its stamp: 6x the information, covariances
     sqrt(6) too small), and a camera of the group observes most of the group's points."""
-    import yowo_fusion.pipeline as pipeline
+    import yowo_fusion.joint_groups as joint_groups
 
-    problems, solve = [], pipeline.solve_joint
-    monkeypatch.setattr(pipeline, "solve_joint", lambda p, params: problems.append(p) or solve(p, params))
+    problems, solve = [], joint_groups.solve_joint
+    monkeypatch.setattr(joint_groups, "solve_joint", lambda p, params: problems.append(p) or solve(p, params))
     _, tracks, ego = world()
     grouping = calibrate_groups(tracks)
     fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks})
@@ -161,13 +153,12 @@ def test_each_camera_observes_each_agent_point_once(monkeypatch):
 
 
 def _fuse_with_gtsam_failure(monkeypatch, function: str, symbol: str, params=FusionParams()):
-    """fuse() on the test world with `function` of the pipeline raising GTSAM's error."""
-    import yowo_fusion.pipeline as pipeline
+    """fuse() on the test world with `function` (module.name) raising GTSAM's error."""
 
     def indeterminate(*_):
         raise RuntimeError(f"\nIndeterminate linear system detected while working near variable\n1 (Symbol: {symbol}).")
 
-    monkeypatch.setattr(pipeline, function, indeterminate)
+    monkeypatch.setattr(function, indeterminate)
     _, tracks, ego = world()
     grouping = calibrate_groups(tracks)
     return fuse(ego, grouping.groups, grouping.ungrouped, {t.name: CmcInput(t) for t in tracks}, params)
@@ -175,7 +166,7 @@ def _fuse_with_gtsam_failure(monkeypatch, function: str, symbol: str, params=Fus
 
 def test_failed_joint_optimisation_keeps_the_aligned_poses(monkeypatch):
     """GTSAM giving up on the joint system is a per-camera verdict, not a crash."""
-    result = _fuse_with_gtsam_failure(monkeypatch, "solve_joint", "a58")
+    result = _fuse_with_gtsam_failure(monkeypatch, "yowo_fusion.joint_groups.solve_joint", "a58")
     by_name = {c.name: c for c in result.cameras}
     for n in ("a1", "a2", "a3"):
         assert (
@@ -186,7 +177,9 @@ def test_failed_joint_optimisation_keeps_the_aligned_poses(monkeypatch):
 
 
 def test_unknown_covariance_is_a_weak_verdict_with_the_reason(monkeypatch):
-    result = _fuse_with_gtsam_failure(monkeypatch, "pose_covariance", "x0", FusionParams(joint_optimisation=False))
+    result = _fuse_with_gtsam_failure(
+        monkeypatch, "yowo_fusion.verdict.pose_covariance", "x0", FusionParams(joint_optimisation=False)
+    )
     for c in result.cameras:  # the group's cameras and the isolated one
         assert c.status == WEAK and "covariance unavailable (indeterminate system near variable x0)" in c.reason
         assert c.T_world_cam is not None and np.isnan(c.covariance).all()
@@ -580,7 +573,7 @@ def test_an_isolated_camera_without_intrinsics_is_failed_with_the_reason():
 
 
 def test_poses_no_ceiling_camera_can_have_are_named():
-    from yowo_fusion.pipeline import absurd_pose
+    from yowo_fusion.verdict import absurd_pose
 
     params = FusionParams()
     cam, T = ceiling_camera(0.3, 0.3, (3.0, 2.5))

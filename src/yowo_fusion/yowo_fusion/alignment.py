@@ -2,18 +2,23 @@
 spatiotemporal clustering of the co-visible ego positions (eq. clustering), the
 rebalanced weights alpha_f = 1 / (N_clus * N_phi_k), and the weighted
 Kabsch-Umeyama (eq. reblanced_matching) from the group's head-top track to the
-ego trajectory, matched by timestamp."""
+ego trajectory, matched by timestamp. Against the ego map: the rig's head offset (the head
+top in the ego camera's frame), each group aligned to the head top the ego poses predict,
+a group on the best window of a broken map, and each group's track on the ego clock."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial.transform import Rotation, Slerp
 
+from yowo_cmc.group_sfm import CameraGroupResult
 from yowo_common.geometry import Sim3, umeyama
+
+from .records import AgentTrack, EgoMapData
 
 
 @dataclass(frozen=True)
@@ -240,3 +245,146 @@ def estimate_clock_offset(
             f"{params.max_clock_sigma_s:g} s): clocks assumed equal",
         )
     return ClockFit(float(best), sigma)
+
+
+def _head_offset(alignment: Sim3, top_stamps, top_local, ego: EgoMapData, max_gap_ns: int) -> np.ndarray:
+    """Initial rigid head-top offset in the ego camera frame: median of R_f^T (A - t_f)."""
+    A = alignment.apply(top_local)
+    f = np.clip(np.searchsorted(ego.stamps_ns, top_stamps), 0, len(ego.stamps_ns) - 1)
+    close = np.abs(ego.stamps_ns[f] - top_stamps) <= max_gap_ns
+    T = ego.T_world_ego[f[close]]
+    local = np.einsum("nji,nj->ni", T[:, :3, :3], A[close] - T[:, :3, 3])
+    return np.median(local, axis=0) if len(local) else np.zeros(3)
+
+
+def put_on_floor(S: Sim3, group: CameraGroupResult) -> Sim3:
+    """Shift vertically so the agent's ground points lie on the ego map's floor (z = 0):
+    the head-top/camera offset is mostly vertical and the Umeyama fit absorbs it."""
+    bottom = group.point_ids == 1
+    if bottom.sum() < 3:
+        return S
+    dz = float(np.median(S.apply(group.points[bottom])[:, 2]))
+    return Sim3(S.s, S.R, S.t - [0.0, 0.0, dz])
+
+
+def _group_tracks(group: CameraGroupResult, params: AlignParams):
+    top, bottom = group.point_ids == 0, group.point_ids == 1
+    ground = (group.point_stamps_ns[bottom], group.points[bottom]) if params.use_ground_points else (None, None)
+    return group.point_stamps_ns[top], group.points[top], ground
+
+
+def head_offset_estimate(group: CameraGroupResult, ego: EgoMapData, params: AlignParams) -> tuple[np.ndarray, int]:
+    """First pass: rebalanced Umeyama of the head-top track against the ego camera
+    positions, put on the floor; the head offset it implies and its weight (the number
+    of spatiotemporal clusters: how much of the walk the group saw). ValueError when the
+    group does not fit the ego trajectory (its cameras are then registered one by one)."""
+    stamps, local, ground = _group_tracks(group, params)
+    al = align_group(stamps, local, ego.stamps_ns, ego.T_world_ego[:, :3, 3], params, *ground)
+    if al.rms_m > params.max_rms_m:
+        raise ValueError(
+            f"its agent track does not fit the ego trajectory (RMS {al.rms_m:.2f} m > {params.max_rms_m:g} m)"
+        )
+    return _head_offset(
+        put_on_floor(al.sim3_world_local, group), stamps, local, ego, int(params.max_time_gap_s * 1e9)
+    ), al.num_clusters
+
+
+def head_tops(T_world_ego: np.ndarray, head_offset: np.ndarray) -> np.ndarray:
+    """(F, 3) the head top each ego pose predicts: the ego camera's pose applied to the offset."""
+    return np.einsum("nij,j->ni", T_world_ego[:, :3, :3], head_offset) + T_world_ego[:, :3, 3]
+
+
+def align_to_world(group: CameraGroupResult, ego: EgoMapData, params: AlignParams, head_offset: np.ndarray) -> Sim3:
+    """Rebalanced Umeyama against the head top predicted from the ego poses with the
+    rig's head offset (one for all groups: a group that saw a short stretch of the walk
+    estimates it badly on its own)."""
+    stamps, local, ground = _group_tracks(group, params)
+    return align_group(
+        stamps, local, ego.stamps_ns, head_tops(ego.T_world_ego, head_offset), params, *ground
+    ).sim3_world_local
+
+
+def weighted_median(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Per column: the value where the cumulative weight reaches half (robust to a group's outlier)."""
+    out = []
+    for column in np.atleast_2d(values).T:
+        order = np.argsort(column)
+        cum = np.cumsum(weights[order])
+        out.append(column[order][np.searchsorted(cum, 0.5 * cum[-1])])
+    return np.array(out)
+
+
+def window_alignment(group: CameraGroupResult, ego: EgoMapData, params: AlignParams, window_s: float):
+    """The group's alignment on the window_s of its walk that fits the ego trajectory best
+    (where the ego map broke: one of its pieces), or None."""
+    stamps, local, (g_ns, g_local) = _group_tracks(group, params)
+    best, span = None, int(window_s * 1e9)
+    if not len(stamps):
+        return None
+    for t0 in range(int(stamps.min()), max(int(stamps.max()) - span, int(stamps.min())) + 1, 10**9):
+        sel = (stamps >= t0) & (stamps < t0 + span)
+        ground = (
+            (None, None)
+            if g_ns is None
+            else (g_ns[(g_ns >= t0) & (g_ns < t0 + span)], g_local[(g_ns >= t0) & (g_ns < t0 + span)])
+        )
+        try:
+            al = align_group(stamps[sel], local[sel], ego.stamps_ns, ego.T_world_ego[:, :3, 3], params, *ground)
+        except ValueError:
+            continue
+        if best is None or al.rms_m < best.rms_m:
+            best = al
+    return best
+
+
+def head_top_rms(
+    agent: AgentTrack,
+    chain: np.ndarray,
+    c: int,
+    ego_stamps_ns: np.ndarray,
+    T_world_ego: np.ndarray,
+    head_offset: np.ndarray,
+    max_gap_s: float,
+) -> float:
+    """RMS distance between a group's head-top points and the head top the ego trajectory
+    predicts at their stamps."""
+    sel = (chain == c) & (agent.ids == 0)
+    predicted, ok = interpolate_positions(
+        ego_stamps_ns, head_tops(T_world_ego, head_offset), agent.stamps_ns[sel], int(max_gap_s * 1e9)
+    )
+    d = np.linalg.norm(agent.points[sel][ok] - predicted[ok], axis=1)
+    return float(np.sqrt(np.mean(d**2))) if len(d) else float("nan")
+
+
+def on_ego_clock(
+    groups: list[CameraGroupResult], ego: EgoMapData, params: AlignParams
+) -> tuple[list[CameraGroupResult], dict[str, float], dict[str, tuple[float | None, float | None, str]]]:
+    """Each group with its track on the ego clock (its reference camera's offset to the
+    ego camera estimated from the agent's track against the ego trajectory; 0 where it is
+    not observable), that offset per group, and each member's clock against the ego's:
+    its offset to the reference plus the reference's."""
+    out, shifts, clocks = [], {}, {}
+    for g in groups:
+        fit = ClockFit(None, None, "not estimated (fusion.align.estimate_clock_offset is off)")
+        if params.estimate_clock_offset:
+            stamps, local, ground = _group_tracks(g, params)
+            fit = estimate_clock_offset(stamps, local, ego.stamps_ns, ego.T_world_ego, params, *ground)
+        applied = fit.offset_s is not None and abs(fit.offset_s) > params.min_clock_significance * fit.sigma_s
+        delta = shifts[g.group_id] = fit.offset_s if applied else 0.0
+        out.append(replace(g, point_stamps_ns=g.point_stamps_ns - round(delta * 1e9)))
+        note = f"group {g.group_id}'s track against the ego trajectory (reference {g.reference})"
+        if fit.offset_s is not None and not applied:
+            note += (
+                f": {1e3 * fit.offset_s:+.1f} +- {1e3 * fit.sigma_s:.1f} ms is within "
+                f"{params.min_clock_significance:g} sigma of 0, so the clocks are taken as equal"
+            )
+        for n in g.names:
+            if fit.offset_s is None:
+                clocks[n] = (None, None, f"group {g.group_id}'s clock against the ego camera: {fit.reason}")
+            else:
+                clocks[n] = (
+                    g.clock_offsets_s.get(n, 0.0) + delta,
+                    float(np.hypot(g.clock_sigmas_s.get(n, 0.0), fit.sigma_s)),
+                    note,
+                )
+    return out, shifts, clocks

@@ -29,8 +29,10 @@ from yowo_msgs.msg import (
     SceneLayout,
 )
 
+from .config import UPSTREAM_HOMES, FusionParams, UpstreamParams
 from .messages import agent_fits_to_msg, ego_map_from_msg, layout_markers, registered_to_msg, tf_static
-from .pipeline import UPSTREAM_HOMES, CmcInput, FusionParams, UpstreamParams, fuse
+from .pipeline import fuse
+from .records import CmcInput
 
 
 class FusionNode(StageNode):

@@ -1,6 +1,7 @@
 """Register a CMC that belongs to no group (paper "Register 6-DoF Poses for Isolated
 CMCs"): 2D-3D matches between its agent keypoints and the optimised world agent
-track by timestamp, PnP + RANSAC, then (optionally) refinement with scene keypoints."""
+track by timestamp, PnP + RANSAC, then (optionally) refinement with scene keypoints.
+Where no group saw the agent, the world track is the one the ego trajectory implies."""
 
 from __future__ import annotations
 
@@ -13,6 +14,9 @@ from yowo_cmc.keypoint_tracks import CameraTracks, TrackParams, resample
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3, se3
 from yowo_common.pnp import sqpnp_all, sqpnp_ransac
+
+from .alignment import head_tops
+from .records import AgentTrack
 
 
 @dataclass(frozen=True)
@@ -29,15 +33,6 @@ class IsolatedParams:
     clock_search_s: float = 0.0
     clock_step_s: float = 0.1
     clock_near_groups_s: float = 1.0
-
-
-@dataclass
-class AgentTrack:
-    """The agent's keypoints in the world (parallel arrays, sorted by stamp per id)."""
-
-    stamps_ns: np.ndarray
-    ids: np.ndarray
-    points: np.ndarray
 
 
 @dataclass
@@ -158,3 +153,30 @@ def refine_pose(camera: CameraModel, T_world_cam: np.ndarray, points: np.ndarray
         points, uv, camera.K, None, cv2.Rodrigues(T_cw[:3, :3])[0], T_cw[:3, 3].reshape(3, 1).copy()
     )
     return inv_se3(se3(cv2.Rodrigues(rvec)[0], tvec.ravel()))
+
+
+def ego_agent_track(T_world_ego: np.ndarray, stamps_ns: np.ndarray, head_offset: np.ndarray) -> AgentTrack:
+    top = head_tops(T_world_ego, head_offset)
+    bottom = top * [1.0, 1.0, 0.0]
+    return AgentTrack(
+        np.concatenate([stamps_ns, stamps_ns]), np.repeat([0, 1], len(stamps_ns)), np.vstack([top, bottom])
+    )
+
+
+def merge_tracks(primary: AgentTrack, secondary: AgentTrack, gap_s: float) -> AgentTrack:
+    """primary, plus secondary's samples farther than gap_s from any primary sample of the same id."""
+    keep = np.ones(len(secondary.ids), bool)
+    for i in np.unique(primary.ids):
+        t = np.sort(primary.stamps_ns[primary.ids == i])
+        sel = np.flatnonzero(secondary.ids == i)
+        pos = np.clip(np.searchsorted(t, secondary.stamps_ns[sel]), 1, max(len(t) - 1, 1))
+        near = np.minimum(
+            np.abs(t[pos - 1] - secondary.stamps_ns[sel]),
+            np.abs(t[np.minimum(pos, len(t) - 1)] - secondary.stamps_ns[sel]),
+        )
+        keep[sel[near <= gap_s * 1e9]] = False
+    stamps = np.concatenate([primary.stamps_ns, secondary.stamps_ns[keep]])
+    ids = np.concatenate([primary.ids, secondary.ids[keep]])
+    pts = np.vstack([primary.points, secondary.points[keep]])
+    order = np.lexsort((stamps, ids))
+    return AgentTrack(stamps[order], ids[order], pts[order])

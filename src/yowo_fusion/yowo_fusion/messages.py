@@ -34,7 +34,7 @@ from yowo_msgs.msg import (
     SceneLayout,
 )
 
-from .pipeline import FAILED, OK, WEAK, AgentFit, EgoMapData, RegisteredCmc
+from .records import FAILED, OK, WEAK, AgentFit, EgoMapData, RegisteredCmc
 
 WORLD_FRAME = "map"
 _STATUS = {OK: RegisteredCamera.STATUS_OK, WEAK: RegisteredCamera.STATUS_WEAK, FAILED: RegisteredCamera.STATUS_FAILED}
