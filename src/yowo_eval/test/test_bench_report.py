@@ -2,7 +2,7 @@
 per-camera offset errors and the same recordings' synchronised case; verdicts, from each
 camera's status and error."""
 
-from yowo_eval.bench_report import TRUE_CLOCKS, markdown
+from yowo_eval.bench_markdown import TRUE_CLOCKS, markdown
 
 ENV = {"cpu": "test", "cores": 2, "python": "3", "numpy": "2", "gtsam": "4", "date": "today"}
 

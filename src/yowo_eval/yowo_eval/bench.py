@@ -1,6 +1,6 @@
 """`yowo bench`: YOWO and the baselines on the same generated recordings, written
 to BENCHMARKS.md (tables + the exact command + versions + machine, see
-bench_report) and results.json. Each case runs in a fresh process so its peak
+bench_markdown) and results.json. Each case runs in a fresh process so its peak
 memory is its own."""
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from yowo_cmc.pipeline import calibrate_cmcs
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
 
-from .bench_report import TRUE_CLOCKS
+from .bench_markdown import TRUE_CLOCKS
 from .bound import BOUND_VERSION, bound_case
 from .ground_truth import read_ground_truth
 from .metrics import ErrorSummary, relative_pose_errors
