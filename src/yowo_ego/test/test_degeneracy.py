@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from yowo_common.geometry import se3
 from yowo_ego.degeneracy import DegeneracyParams, degenerate_directions, motion_information, remap_degenerate
-from yowo_ego.odometry import scaled_K
+from yowo_ego.rgbd_odometry import scaled_K
 
 K = scaled_K(np.array([[525.0, 0, 319.5], [0, 525.0, 239.5], [0, 0, 1]]), 2)
 H, W = 240, 320

@@ -11,8 +11,9 @@ from yowo_common.geometry import inv_se3, look_at, rotation_angle_deg, se3, tran
 from yowo_ego.feature_tracks import Tracks
 from yowo_ego.features import KeyframeFeatures
 from yowo_ego.frames import make_frame
-from yowo_ego.odometry import Keyframe, OdometryEdge, downsample, scaled_K
+from yowo_ego.odometry import Keyframe, OdometryEdge
 from yowo_ego.refine import bundle_adjust
+from yowo_ego.rgbd_odometry import downsample, scaled_K
 from yowo_ego.scene import FloorAttitudes, WallAttitudes, floor_normal_in_view, wall_attitudes, wall_normals_in_view
 
 CAM = CameraModel.from_fov(640, 480, 70.0)

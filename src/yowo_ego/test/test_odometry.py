@@ -8,20 +8,10 @@ from scipy.spatial.transform import Rotation
 
 from yowo_common.geometry import look_at, rotation_angle_deg, se3
 from yowo_ego.frames import RgbdFrame, make_frame
-from yowo_ego.odometry import (
-    LOST,
-    MAP_RELOCALISED,
-    Keyframe,
-    KeyframeTracker,
-    OdometryEdge,
-    OdometryImages,
-    OdometryParams,
-    RgbdOdometry,
-    TrackResult,
-    downsample,
-    orthonormalize,
-)
+from yowo_ego.keyframe_tracker import KeyframeTracker
+from yowo_ego.odometry import LOST, MAP_RELOCALISED, Keyframe, OdometryEdge, OdometryParams, TrackResult
 from yowo_ego.pipeline import frames_between_keyframes
+from yowo_ego.rgbd_odometry import OdometryImages, RgbdOdometry, downsample, orthonormalize
 
 # Looking across the room at two walls, the floor and a box.
 T_START = look_at((0.8, 0.9, 1.6), (3.5, 3.2, 0.7))

@@ -10,8 +10,9 @@ from scipy.spatial.transform import Rotation
 from yowo_common.geometry import look_at, rotation_angle_deg, se3
 from yowo_ego.features import FeatureExtractor, KeyframeFeatures
 from yowo_ego.frames import make_frame
-from yowo_ego.odometry import Keyframe, OdometryEdge, RgbdOdometry, downsample
+from yowo_ego.odometry import Keyframe, OdometryEdge
 from yowo_ego.posegraph import LoopParams, _verify_across, match_pair, verify_edge
+from yowo_ego.rgbd_odometry import RgbdOdometry, downsample
 
 
 def _move(euler_deg, t):

@@ -8,7 +8,8 @@ from scipy.spatial.transform import Rotation
 from yowo_common.geometry import look_at, se3, transform_points
 from yowo_ego.frames import make_frame
 from yowo_ego.layout import KIND_CEILING, KIND_WALL, build_layout
-from yowo_ego.odometry import Keyframe, downsample, scaled_K
+from yowo_ego.odometry import Keyframe
+from yowo_ego.rgbd_odometry import downsample, scaled_K
 from yowo_ego.scene import CloudParams, find_floor, fuse_cloud, planar_patches, rectify, up_from_cameras
 from yowo_eval.metrics import layout_iou
 

@@ -33,20 +33,12 @@ from .feature_tracks import FilterParams, build_tracks, filter_matches
 from .features import FeatureExtractor, FeatureParams, KeyframeFeatures, backproject
 from .frames import MIN_TEXTURED_FRACTION, FrameError, RgbdFrame, Undistorter, make_frame, pinhole, textured_fraction
 from .imu import ImuBuffer, InertialParams, InertialTerms, keyframe_preintegration, up_from_accelerometer
+from .keyframe_tracker import KeyframeTracker
 from .layout import KIND_WALL, Layout, LayoutParams, build_layout
-from .odometry import (
-    IMU_BRIDGED,
-    RECOVERED,
-    SKIPPED,
-    Keyframe,
-    KeyframeTracker,
-    OdometryEdge,
-    OdometryImages,
-    OdometryParams,
-    TrackResult,
-)
+from .odometry import IMU_BRIDGED, RECOVERED, SKIPPED, Keyframe, OdometryEdge, OdometryParams, TrackResult
 from .posegraph import LoopParams, MultiwayRegistration
 from .refine import BundleParams, BundleProblem, solve_bundle
+from .rgbd_odometry import OdometryImages
 from .scene import (
     CloudParams,
     Rectification,

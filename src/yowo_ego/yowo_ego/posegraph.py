@@ -37,8 +37,9 @@ from yowo_common.bundle import pose3
 from yowo_common.geometry import inv_se3, rotation_angle_deg
 
 from .features import FeatureParams, KeyframeFeatures, PnpResult, match, relative_pose, support
-from .odometry import TRACKING_KINDS, Keyframe, OdometryEdge, RgbdOdometry, o3d_rgbd, orthonormalize
+from .odometry import TRACKING_KINDS, Keyframe, OdometryEdge
 from .retrieval import PlaceIndex, RetrievalParams
+from .rgbd_odometry import RgbdOdometry, o3d_rgbd, orthonormalize
 
 
 @dataclass(frozen=True)
