@@ -35,11 +35,51 @@ def _cameras() -> list[RegisteredCmc]:
         cam, T = ceiling_camera(x, y, TARGET[:2], D=D)
         cam.distortion_model = model
         cam.P = np.column_stack([cam.K * [[0.9], [0.9], [1]], np.zeros(3)])  # a rectified P that is not [K | 0]
-        out.append(RegisteredCmc(name, "g0", "group_sfm", "ok", "", T, np.eye(6) * 1e-6, cam, 0.4, 200, 30))
+        out.append(
+            RegisteredCmc(
+                name=name,
+                group="g0",
+                method="group_sfm",
+                status="ok",
+                reason="",
+                T_world_cam=T,
+                covariance=np.eye(6) * 1e-6,
+                camera=cam,
+                rmse_px=0.4,
+                num_agent=200,
+                num_scene=30,
+            )
+        )
     cam, _ = ceiling_camera(2.0, 2.0, TARGET[:2])
-    out.append(RegisteredCmc("e_failed", "", "none", "failed", "seen in 0 frames", None, None, cam, float("nan"), 0, 0))
     out.append(
-        RegisteredCmc("f_no_info", "", "none", "failed", "no usable CameraInfo", None, None, None, float("nan"), 0, 0)
+        RegisteredCmc(
+            name="e_failed",
+            group="",
+            method="none",
+            status="failed",
+            reason="seen in 0 frames",
+            T_world_cam=None,
+            covariance=None,
+            camera=cam,
+            rmse_px=float("nan"),
+            num_agent=0,
+            num_scene=0,
+        )
+    )
+    out.append(
+        RegisteredCmc(
+            name="f_no_info",
+            group="",
+            method="none",
+            status="failed",
+            reason="no usable CameraInfo",
+            T_world_cam=None,
+            covariance=None,
+            camera=None,
+            rmse_px=float("nan"),
+            num_agent=0,
+            num_scene=0,
+        )
     )
     return out
 
@@ -84,15 +124,15 @@ def _ego() -> EgoMapData:
     cloud = landmarks[:-1] + [0.001, 0.0, 0.0]
     colours = rng.uniform(0, 1, (len(cloud), 3))
     return EgoMapData(
-        cam,
-        np.array([10**18, 10**18 + 10**8, 10**18 + 2 * 10**8]),
-        np.array(poses),
-        landmarks,
-        "ORB",
-        np.zeros((30, 32), np.uint8),
-        np.array(obs_pose),
-        np.array(obs_lm),
-        np.vstack(obs_uv),
+        camera=cam,
+        stamps_ns=np.array([10**18, 10**18 + 10**8, 10**18 + 2 * 10**8]),
+        T_world_ego=np.array(poses),
+        landmarks=landmarks,
+        descriptor_type="ORB",
+        descriptors=np.zeros((30, 32), np.uint8),
+        obs_pose=np.array(obs_pose),
+        obs_landmark=np.array(obs_lm),
+        obs_uv=np.vstack(obs_uv),
         cloud_points=cloud,
         cloud_colors=colours,
     )

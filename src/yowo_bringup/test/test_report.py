@@ -17,23 +17,35 @@ from yowo_msgs.msg import Plane
 def camera(name, eye, target, status="ok", sigma_m=0.01):
     cov = np.diag([sigma_m**2, (2 * sigma_m) ** 2, sigma_m**2, 1e-6, 1e-6, 1e-6])
     cam = CameraModel.from_fov(640, 480, 90.0)
-    return RegisteredCmc(name, "g0", "group_sfm", status, "", look_at(eye, target), cov, cam, 1.2, 500, 40)
+    return RegisteredCmc(
+        name=name,
+        group="g0",
+        method="group_sfm",
+        status=status,
+        reason="",
+        T_world_cam=look_at(eye, target),
+        covariance=cov,
+        camera=cam,
+        rmse_px=1.2,
+        num_agent=500,
+        num_scene=40,
+    )
 
 
 def test_a_camera_looking_straight_down_sees_a_rectangle_of_the_floor():
     # 90 deg horizontal field of view from 3 m: the floor from x - 3 to x + 3 (+-2.25 m across).
     c = RegisteredCmc(
-        "down",
-        "g0",
-        "group_sfm",
-        "ok",
-        "",
-        np.diag([1.0, -1.0, -1.0, 1.0]) @ np.eye(4),
-        None,
-        CameraModel.from_fov(640, 480, 90.0),
-        1.0,
-        1,
-        1,
+        name="down",
+        group="g0",
+        method="group_sfm",
+        status="ok",
+        reason="",
+        T_world_cam=np.diag([1.0, -1.0, -1.0, 1.0]) @ np.eye(4),
+        covariance=None,
+        camera=CameraModel.from_fov(640, 480, 90.0),
+        rmse_px=1.0,
+        num_agent=1,
+        num_scene=1,
     )
     c.T_world_cam[:3, 3] = (1.0, 2.0, 3.0)
     foot = floor_footprint(c)
@@ -69,14 +81,31 @@ def test_report_renders_in_headless_chromium(tmp_path):
     cams = [
         camera("c1", (0.3, 0.3, 3.0), (3.0, 2.0, 0.0)),
         camera("c2", (5.7, 3.7, 3.0), (3.0, 2.0, 0.0), "weak"),
-        RegisteredCmc("c3", "", "none", "failed", "never saw the agent", None, None, None, float("nan"), 0, 0),
+        RegisteredCmc(
+            name="c3",
+            group="",
+            method="none",
+            status="failed",
+            reason="never saw the agent",
+            T_world_cam=None,
+            covariance=None,
+            camera=None,
+            rmse_px=float("nan"),
+            num_agent=0,
+            num_scene=0,
+        ),
     ]
     walls = [np.array([[0.0, 4.0], [6.0, 4.0]]), np.array([[6.0, 0.0], [6.0, 4.0]])]
     rng = np.random.default_rng(1)
     obs = rng.uniform([100, 100], [540, 380], (800, 2))
     fits = [
         (
-            AgentFit(n, rng.integers(0, 20, 800), obs, obs + rng.normal(0, 1.5, obs.shape)),
+            AgentFit(
+                name=n,
+                keypoint_ids=rng.integers(0, 20, 800),
+                observed_uv=obs,
+                reprojected_uv=obs + rng.normal(0, 1.5, obs.shape),
+            ),
             (640, 480),
             np.full((480, 640, 3), 200, np.uint8) if n == "c1" else None,
         )

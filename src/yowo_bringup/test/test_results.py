@@ -11,17 +11,17 @@ from yowo_fusion.records import RegisteredCmc
 
 def _camera(name: str, covariance: np.ndarray) -> RegisteredCmc:
     return RegisteredCmc(
-        name,
-        "g0",
-        "group_sfm",
-        "weak",
-        "covariance unavailable",
-        np.eye(4),
-        covariance,
-        CameraModel(640, 480, np.diag([500.0, 500.0, 1.0])),
-        0.5,
-        100,
-        10,
+        name=name,
+        group="g0",
+        method="group_sfm",
+        status="weak",
+        reason="covariance unavailable",
+        T_world_cam=np.eye(4),
+        covariance=covariance,
+        camera=CameraModel(640, 480, np.diag([500.0, 500.0, 1.0])),
+        rmse_px=0.5,
+        num_agent=100,
+        num_scene=10,
     )
 
 

@@ -109,22 +109,22 @@ def ego_map_data(ego):
     from yowo_fusion.records import EgoMapData
 
     return EgoMapData(
-        ego.camera,
-        ego.stamps_ns,
-        ego.T_world_cam,
-        ego.landmarks,
-        "SIFT",
-        ego.descriptors,
-        ego.keyframe_frames[ego.obs_keyframe],
-        ego.obs_landmark,
-        ego.obs_uv,
-        ego.cloud_points,
-        ego.cloud_colors,
-        ego.layout,
-        np.isin(ego.tracking, MEASURED),
-        ego.tracking_fitness,
-        ego.imu,
-        ego.attitude_held,
+        camera=ego.camera,
+        stamps_ns=ego.stamps_ns,
+        T_world_ego=ego.T_world_cam,
+        landmarks=ego.landmarks,
+        descriptor_type="SIFT",
+        descriptors=ego.descriptors,
+        obs_pose=ego.keyframe_frames[ego.obs_keyframe],
+        obs_landmark=ego.obs_landmark,
+        obs_uv=ego.obs_uv,
+        cloud_points=ego.cloud_points,
+        cloud_colors=ego.cloud_colors,
+        layout=ego.layout,
+        tracking_measured=np.isin(ego.tracking, MEASURED),
+        tracking_fitness=ego.tracking_fitness,
+        imu=ego.imu,
+        attitude_held=ego.attitude_held,
     )
 
 

@@ -85,18 +85,18 @@ def make_problem(seed=0, drift_scale=1.0):
         )
 
     problem = JointProblem(
-        ego_cam,
-        stamps,
-        drifted(T_ego, rng, 0.03 * drift_scale, 0.002 * drift_scale),
-        landmarks + rng.normal(size=landmarks.shape) * 0.02,
-        ego_obs,
-        cmc_cams,
-        [jitter(T, 1.0, 0.08) for T in T_cmc],
-        scene_obs,
-        agent + rng.normal(size=agent.shape) * 0.04,
-        agent_stamps,
-        agent_ids,
-        agent_obs,
+        ego_camera=ego_cam,
+        ego_stamps_ns=stamps,
+        T_world_ego=drifted(T_ego, rng, 0.03 * drift_scale, 0.002 * drift_scale),
+        landmarks=landmarks + rng.normal(size=landmarks.shape) * 0.02,
+        ego_obs=ego_obs,
+        cmc_cameras=cmc_cams,
+        T_world_cmc=[jitter(T, 1.0, 0.08) for T in T_cmc],
+        cmc_scene_obs=scene_obs,
+        agent_points=agent + rng.normal(size=agent.shape) * 0.04,
+        agent_stamps_ns=agent_stamps,
+        agent_ids=agent_ids,
+        cmc_agent_obs=agent_obs,
         head_offset=np.zeros(3),
     )  # the paper's "head top = camera"
     return problem, truth

@@ -66,18 +66,18 @@ def world(seed=0):
     ego_cam = CameraModel.from_fov(640, 480, 70)
     cloud = np.column_stack([rng.uniform(0, 16, 2000), rng.uniform(0, 5, 2000), rng.uniform(0, 2.5, 2000)])
     ego = EgoMapData(
-        ego_cam,
-        stamps,
-        T_ego,
-        np.zeros((0, 3)),
-        "SIFT",
-        np.zeros((0, 128), np.uint8),
-        np.zeros(0, int),
-        np.zeros(0, int),
-        np.zeros((0, 2)),
-        cloud,
-        np.full((2000, 3), 0.5),
-        Layout([ROOM_A, ROOM_B], 0.0, float("nan")),
+        camera=ego_cam,
+        stamps_ns=stamps,
+        T_world_ego=T_ego,
+        landmarks=np.zeros((0, 3)),
+        descriptor_type="SIFT",
+        descriptors=np.zeros((0, 128), np.uint8),
+        obs_pose=np.zeros(0, int),
+        obs_landmark=np.zeros(0, int),
+        obs_uv=np.zeros((0, 2)),
+        cloud_points=cloud,
+        cloud_colors=np.full((2000, 3), 0.5),
+        layout=Layout([ROOM_A, ROOM_B], 0.0, float("nan")),
     )
     return cams, tracks, ego
 
@@ -279,18 +279,18 @@ def broken_ego(ego: EgoMapData, t_break_s: float, lost_s: float, jump: np.ndarra
     J = pivot @ jump @ np.linalg.inv(pivot)
     T = np.array([P if tt < t_break_s else J @ P for tt, P in zip(t, ego.T_world_ego)])
     return EgoMapData(
-        ego.camera,
-        ego.stamps_ns[keep],
-        T[keep],
-        ego.landmarks,
-        ego.descriptor_type,
-        ego.descriptors,
-        ego.obs_pose,
-        ego.obs_landmark,
-        ego.obs_uv,
-        ego.cloud_points,
-        ego.cloud_colors,
-        ego.layout,
+        camera=ego.camera,
+        stamps_ns=ego.stamps_ns[keep],
+        T_world_ego=T[keep],
+        landmarks=ego.landmarks,
+        descriptor_type=ego.descriptor_type,
+        descriptors=ego.descriptors,
+        obs_pose=ego.obs_pose,
+        obs_landmark=ego.obs_landmark,
+        obs_uv=ego.obs_uv,
+        cloud_points=ego.cloud_points,
+        cloud_colors=ego.cloud_colors,
+        layout=ego.layout,
     )
 
 
@@ -429,29 +429,29 @@ def test_weak_ego_frames_from_landmark_support_and_gaps():
     stamps[30:] += 10**9  # 1 s without frames before frame 30
     obs_pose = np.repeat([0, 10, 20], [50, 5, 30])  # keyframes 0 and 20 well supported, 10 not
     sparse = EgoMapData(
-        ego.camera,
-        stamps,
-        ego.T_world_ego[:40],
-        np.zeros((85, 3)),
-        "SIFT",
-        np.zeros((85, 128), np.uint8),
-        obs_pose,
-        np.arange(85),
-        np.zeros((85, 2)),
+        camera=ego.camera,
+        stamps_ns=stamps,
+        T_world_ego=ego.T_world_ego[:40],
+        landmarks=np.zeros((85, 3)),
+        descriptor_type="SIFT",
+        descriptors=np.zeros((85, 128), np.uint8),
+        obs_pose=obs_pose,
+        obs_landmark=np.arange(85),
+        obs_uv=np.zeros((85, 2)),
     )
     weak, gap = weak_ego_frames(sparse, FusionParams())
     assert np.flatnonzero(weak).tolist() == list(range(10, 20)) + [30]
     assert np.flatnonzero(gap).tolist() == [30]
     bare = EgoMapData(
-        ego.camera,
-        stamps,
-        ego.T_world_ego[:40],
-        np.zeros((0, 3)),
-        "SIFT",
-        np.zeros((0, 128), np.uint8),
-        np.zeros(0, int),
-        np.zeros(0, int),
-        np.zeros((0, 2)),
+        camera=ego.camera,
+        stamps_ns=stamps,
+        T_world_ego=ego.T_world_ego[:40],
+        landmarks=np.zeros((0, 3)),
+        descriptor_type="SIFT",
+        descriptors=np.zeros((0, 128), np.uint8),
+        obs_pose=np.zeros(0, int),
+        obs_landmark=np.zeros(0, int),
+        obs_uv=np.zeros((0, 2)),
     )
     assert np.flatnonzero(weak_ego_frames(bare, FusionParams())[0]).tolist() == [30]
     # Where the ego stage says how it tracked: a landmark-poor keyframe's frames tracked with

@@ -46,7 +46,7 @@ class AlignParams:
     min_clock_significance: float = 3.0
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Alignment:
     sim3_world_local: Sim3
     num_pairs: int
@@ -136,7 +136,13 @@ def align_group(
             labels = np.concatenate([labels, floor_labels])
     weights = rebalanced_weights(labels) if params.rebalance else np.full(len(world), 1.0 / len(world))
     S = umeyama(local, world, weights=weights)
-    return Alignment(S, len(world), int(labels.max()) + 1, weights, np.linalg.norm(S.apply(local) - world, axis=1))
+    return Alignment(
+        sim3_world_local=S,
+        num_pairs=len(world),
+        num_clusters=int(labels.max()) + 1,
+        weights=weights,
+        residuals_m=np.linalg.norm(S.apply(local) - world, axis=1),
+    )
 
 
 MIN_CLOCK_POINTS = 10  # head-top and ground points a group's clock offset needs (beside the 10 unknowns)

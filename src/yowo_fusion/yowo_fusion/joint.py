@@ -108,7 +108,7 @@ class JointParams:
     marginals_max_held_points: int = 10
 
 
-@dataclass
+@dataclass(kw_only=True)
 class JointProblem:
     ego_camera: CameraModel
     ego_stamps_ns: np.ndarray  # (F,) sorted
@@ -131,7 +131,7 @@ class JointProblem:
     ego_imu: bool = False  # the ego map was tracked with the gyro (ego_between_sigma_imu)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class JointResult:
     T_world_ego: list[np.ndarray]
     landmarks: np.ndarray
@@ -305,20 +305,20 @@ def _solve(p: JointProblem, params: JointParams) -> JointResult:
         # stand, their covariance is unknown.
         failure = covariance_unavailable(exc)
     return JointResult(
-        T_ego,
-        landmarks,
-        T_cmc,
-        agent,
-        np.asarray(result.atPoint3(O(0))),
-        covs,
-        reprojection_residuals(p.cmc_cameras, T_cmc, agent, p.cmc_agent_obs),
-        reprojection_residuals(p.cmc_cameras, T_cmc, landmarks, p.cmc_scene_obs),
-        initial_error,
-        final_error,
-        anchors,
-        failure,
-        _broken_steps(p, params, anchors, result),
-        held,
+        T_world_ego=T_ego,
+        landmarks=landmarks,
+        T_world_cmc=T_cmc,
+        agent_points=agent,
+        head_offset=np.asarray(result.atPoint3(O(0))),
+        cmc_covariances=covs,
+        cmc_agent_residuals=reprojection_residuals(p.cmc_cameras, T_cmc, agent, p.cmc_agent_obs),
+        cmc_scene_residuals=reprojection_residuals(p.cmc_cameras, T_cmc, landmarks, p.cmc_scene_obs),
+        initial_error=initial_error,
+        final_error=final_error,
+        anchors=anchors,
+        covariance_failure=failure,
+        ego_breaks=_broken_steps(p, params, anchors, result),
+        held_points=held,
     )
 
 

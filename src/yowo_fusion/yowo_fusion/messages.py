@@ -62,22 +62,24 @@ def ego_map_from_msg(msg: EgoMap, cloud=None, layout: SceneLayout | None = None)
     desc = np.frombuffer(bytes(msg.descriptors), dtype=np.uint8).reshape(-1, size)
     xyz, rgb = pointcloud2_to_xyz_rgb(cloud) if cloud is not None else (np.zeros((0, 3)), None)
     colors = rgb / 255.0 if rgb is not None else np.full((len(xyz), 3), 0.5)
+    measured, fitness = _tracking(msg)
     return EgoMapData(
-        camera_info_to_model(msg.camera_info),
-        np.array([stamp_to_ns(s) for s in msg.stamps], dtype=np.int64),
-        np.array([pose_to_matrix(p) for p in msg.poses]).reshape(-1, 4, 4),
-        points_to_array(msg.landmarks),
-        msg.descriptor_type,
-        desc,
-        np.asarray(msg.obs_pose_index, dtype=int),
-        np.asarray(msg.obs_landmark_index, dtype=int),
-        np.column_stack([np.asarray(msg.obs_x, float), np.asarray(msg.obs_y, float)]).reshape(-1, 2),
-        xyz,
-        colors,
-        layout_from_msg(layout) if layout is not None else None,
-        *_tracking(msg),
-        bool(msg.imu),
-        np.asarray(msg.attitude_held, dtype=bool) if len(msg.attitude_held) == len(msg.poses) else None,
+        camera=camera_info_to_model(msg.camera_info),
+        stamps_ns=np.array([stamp_to_ns(s) for s in msg.stamps], dtype=np.int64),
+        T_world_ego=np.array([pose_to_matrix(p) for p in msg.poses]).reshape(-1, 4, 4),
+        landmarks=points_to_array(msg.landmarks),
+        descriptor_type=msg.descriptor_type,
+        descriptors=desc,
+        obs_pose=np.asarray(msg.obs_pose_index, dtype=int),
+        obs_landmark=np.asarray(msg.obs_landmark_index, dtype=int),
+        obs_uv=np.column_stack([np.asarray(msg.obs_x, float), np.asarray(msg.obs_y, float)]).reshape(-1, 2),
+        cloud_points=xyz,
+        cloud_colors=colors,
+        layout=layout_from_msg(layout) if layout is not None else None,
+        tracking_measured=measured,
+        tracking_fitness=fitness,
+        imu=bool(msg.imu),
+        attitude_held=np.asarray(msg.attitude_held, dtype=bool) if len(msg.attitude_held) == len(msg.poses) else None,
     )
 
 
@@ -221,10 +223,10 @@ def agent_fits_from_msg(msg: CameraAgentFitArray) -> list[tuple[AgentFit, tuple[
     return [
         (
             AgentFit(
-                c.name,
-                np.asarray(c.keypoint_ids, int),
-                np.asarray(c.observed_uv, float).reshape(-1, 2),
-                np.asarray(c.reprojected_uv, float).reshape(-1, 2),
+                name=c.name,
+                keypoint_ids=np.asarray(c.keypoint_ids, int),
+                observed_uv=np.asarray(c.observed_uv, float).reshape(-1, 2),
+                reprojected_uv=np.asarray(c.reprojected_uv, float).reshape(-1, 2),
             ),
             (c.width, c.height),
             c.background if c.background.width else None,
@@ -240,20 +242,20 @@ def registered_from_msg(msg: RegisteredCameraArray) -> list[RegisteredCmc]:
         failed = c.status == RegisteredCamera.STATUS_FAILED
         out.append(
             RegisteredCmc(
-                c.name,
-                c.group,
-                c.method,
-                status[c.status],
-                c.reason,
-                None if failed else pose_to_matrix(c.pose_world_camera.pose),
-                None if failed else np.asarray(c.pose_world_camera.covariance).reshape(6, 6),
-                camera_info_to_model(c.camera_info) if c.camera_info.width else None,
-                c.reprojection_rmse_px,
-                c.num_agent_observations,
-                c.num_scene_observations,
-                float(c.clock_offset_s) if np.isfinite(c.clock_offset_s) else None,
-                float(c.clock_sigma_s) if np.isfinite(c.clock_sigma_s) else None,
-                c.clock_note,
+                name=c.name,
+                group=c.group,
+                method=c.method,
+                status=status[c.status],
+                reason=c.reason,
+                T_world_cam=None if failed else pose_to_matrix(c.pose_world_camera.pose),
+                covariance=None if failed else np.asarray(c.pose_world_camera.covariance).reshape(6, 6),
+                camera=camera_info_to_model(c.camera_info) if c.camera_info.width else None,
+                rmse_px=c.reprojection_rmse_px,
+                num_agent=c.num_agent_observations,
+                num_scene=c.num_scene_observations,
+                clock_offset_s=float(c.clock_offset_s) if np.isfinite(c.clock_offset_s) else None,
+                clock_sigma_s=float(c.clock_sigma_s) if np.isfinite(c.clock_sigma_s) else None,
+                clock_note=c.clock_note,
             )
         )
     return out

@@ -193,10 +193,10 @@ def _register_grouped(
         raw = cmcs[n].tracks.camera
         fits.append(
             AgentFit(
-                n,
-                agent.ids[agent_obs.point[own]],
-                raw.distort_pixels(agent_obs.uv[own]),
-                raw.distort_pixels(agent_obs.uv[own] - agent_res[own]),
+                name=n,
+                keypoint_ids=agent.ids[agent_obs.point[own]],
+                observed_uv=raw.distort_pixels(agent_obs.uv[own]),
+                reprojected_uv=raw.distort_pixels(agent_obs.uv[own] - agent_res[own]),
             )
         )
         rmse = reprojection_rmse(agent_res[own])

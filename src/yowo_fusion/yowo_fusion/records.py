@@ -16,7 +16,7 @@ GROUP_SFM, ISOLATED_PNP, NONE = "group_sfm", "isolated_pnp", "none"
 OK, WEAK, FAILED = "ok", "weak", "failed"
 
 
-@dataclass
+@dataclass(kw_only=True)
 class EgoMapData:
     camera: CameraModel  # ego intrinsics with distortion
     stamps_ns: np.ndarray  # (F,)
@@ -46,7 +46,7 @@ class CmcInput:
     intrinsics_known: bool = True  # False: the camera model is a nominal one its group SfM estimates
 
 
-@dataclass
+@dataclass(kw_only=True)
 class RegisteredCmc:
     name: str
     group: str
@@ -69,7 +69,7 @@ class RegisteredCmc:
         return self.camera.K if self.camera is not None else np.zeros((3, 3))
 
 
-@dataclass
+@dataclass(kw_only=True)
 class AgentFit:
     """The fused agent track against one grouped CMC's observations, in its raw pixels
     (what the report draws over the camera's background)."""
@@ -89,7 +89,7 @@ class AgentTrack:
     points: np.ndarray
 
 
-@dataclass
+@dataclass(kw_only=True)
 class FusionResult:
     cameras: list[RegisteredCmc]
     T_world_ego: np.ndarray

@@ -52,7 +52,7 @@ def weak_ego_frames(ego: EgoMapData, params: FusionParams) -> tuple[np.ndarray, 
     return weak, gap
 
 
-@dataclass
+@dataclass(kw_only=True)
 class EgoStretch:
     """The ego map along the stretch of the walk (first to last frame) a camera's
     registration rests on: its share of weak frames, and the gaps from the map's first
@@ -98,14 +98,17 @@ def ego_stretch(
     f = np.clip(np.searchsorted(ego.stamps_ns, stamps_ns), 0, len(ego.stamps_ns) - 1)
     f = f[np.abs(ego.stamps_ns[f] - stamps_ns) <= max_gap_s * 1e9]
     if not len(f):
-        return EgoStretch(0, 0.0, 0)
+        return EgoStretch(frames=0, weak_share=0.0, gaps=0)
     lo, hi = int(f.min()), int(f.max())
     moved = 0.0
     if T_world_ego_joint is not None:
         d = T_world_ego_joint[lo : hi + 1, :3, 3] - ego.T_world_ego[lo : hi + 1, :3, 3]
         moved = float(np.sqrt(np.mean(np.sum(d**2, axis=1))))
     return EgoStretch(
-        hi - lo + 1, float(weak[0][lo + 1 : hi + 1].mean()) if hi > lo else 0.0, int(weak[1][: hi + 1].sum()), moved
+        frames=hi - lo + 1,
+        weak_share=float(weak[0][lo + 1 : hi + 1].mean()) if hi > lo else 0.0,
+        gaps=int(weak[1][: hi + 1].sum()),
+        moved_m=moved,
     )
 
 
