@@ -16,7 +16,7 @@ import yaml
 
 from yowo_cmc.config import CmcParams
 from yowo_common.config import ConfigError, dump, load, to_dict
-from yowo_ego.pipeline import EgoParams
+from yowo_ego.config import EgoParams
 from yowo_fusion.config import UPSTREAM_HOMES, FusionParams, UpstreamParams
 
 from .layouts import InputParams

@@ -23,26 +23,30 @@ from .records import AgentTrack, EgoMapData
 
 @dataclass(frozen=True)
 class AlignParams:
-    # eq. clustering. Single linkage chains consecutive frames, so the spatial threshold
-    # sits below the per-frame displacement of walking (~7 cm at 1 m/s, 15 Hz) and above
-    # the jitter of a standing head: a stop becomes one cluster, a walk many.
-    spatial_threshold_m: float = 0.025  # ||X_f_i - X_f_j|| <= spatialThreshold
-    temporal_threshold_s: float = 1.0  # |f_i - f_j| <= temporalThreshold (seconds; rates differ)
+    # Two ego positions link in a spatiotemporal cluster when closer than this (eq. clustering's
+    # spatialThreshold). Single linkage chains consecutive frames, so it sits below the
+    # per-frame displacement of walking (~7 cm at 1 m/s, 15 Hz) and above the jitter of a
+    # standing head: a stop becomes one cluster, a walk many.
+    spatial_threshold_m: float = 0.025
+    # Two ego positions link only when also closer in time than this (temporalThreshold; in
+    # seconds, as the frame rates differ).
+    temporal_threshold_s: float = 1.0
     max_time_gap_s: float = 0.15  # ego poses further than this from a track stamp are not matched
-    rebalance: bool = True  # False: the original (unweighted) KU, for ablation
+    rebalance: bool = True  # rebalanced weights (eq. reblanced_matching); False: the original KU, for ablation
     use_ground_points: bool = True  # ground points matched to the floor as well (see align_group)
-    # A group whose track misses the ego trajectory by more than this (weighted RMS, before the
-    # head offset is known: ~0.1 m when it fits) has a broken reconstruction, not a bad fit.
+    # A group whose track misses the ego trajectory by more than this (weighted RMS) has a
+    # broken reconstruction, not a bad fit. Measured before the head offset is known, so a
+    # group that fits misses by about that offset.
     max_rms_m: float = 0.5
-    # The clock offset of a group's reference camera to the ego camera, from the agent's
-    # track against the ego trajectory (real CCTV clocks are not synchronised): searched
-    # over +-max_clock_offset_s, used when its sigma is below max_clock_sigma_s (a straight
-    # walk at constant speed leaves it unobservable: then the clocks are assumed equal), and
-    # applied only beyond min_clock_significance sigma of 0 (as cmc.clock.min_significance).
+    # Each group's clock offset to the ego camera estimated from the agent's track against the
+    # ego trajectory (real CCTV clocks are not synchronised).
     estimate_clock_offset: bool = True
-    max_clock_offset_s: float = 2.5
-    clock_step_s: float = 0.02
+    max_clock_offset_s: float = 2.5  # the clock offset is searched within +- this
+    clock_step_s: float = 0.02  # step of that search's grid of offsets
+    # An offset with a larger sigma is not used: the clocks are taken as equal (a straight walk
+    # at constant speed leaves the offset unobservable).
     max_clock_sigma_s: float = 0.05
+    # An offset within this many sigmas of 0 is not applied [sigmas]. As cmc.clock.min_significance.
     min_clock_significance: float = 3.0
 
 

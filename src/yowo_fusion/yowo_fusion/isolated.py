@@ -21,17 +21,17 @@ from .records import AgentTrack
 
 @dataclass(frozen=True)
 class IsolatedParams:
-    min_matches: int = 8
-    pnp_px: float = 4.0
+    min_matches: int = 8  # agent correspondences, and PnP inliers, a pose needs at least [count]
+    pnp_px: float = 4.0  # PnP RANSAC inlier threshold on the reprojection error
     min_spread_m: float = 0.05  # RMS spread of the 3D points below which no pose is attempted
     max_gap_s: float = 0.25  # the world track is interpolated only between samples this close
-    # The camera's clock offset to the ego clock is searched within +- this [s] (0: its stamps are on
-    # the ego clock; `yowo run` sets it for CCTV video files, whose start can be seconds off), on a
-    # grid of clock_step_s, then around the best shift at a tenth of it. Where groups found their
-    # offsets, the search is within +- clock_near_groups_s of theirs (one NVR's videos share its
-    # clock): over +-10 s, walks along the same paths seconds apart gave wrong poses (small seed 0).
+    # The camera's clock offset to the ego clock is searched within +- this; 0: its stamps are on
+    # the ego clock. Set by `yowo run` for CCTV video files, whose start can be seconds off.
     clock_search_s: float = 0.0
-    clock_step_s: float = 0.1
+    clock_step_s: float = 0.1  # step of that search's grid; then around the best offset at a tenth of it
+    # Where groups found their clock offsets, the search is within +- this of theirs instead. One
+    # NVR's videos share its clock; over a wide search, walks along the same paths seconds apart
+    # gave wrong poses.
     clock_near_groups_s: float = 1.0
 
 
@@ -87,8 +87,8 @@ def register_by_agent(
     if len(inliers) >= params.min_matches:
         candidates.append((rvec, tvec))
     # Head tops and ground points along a straight walk are nearly coplanar: RANSAC's minimal
-    # samples then admit a mirrored pose (standard s1: a camera 3.9 m / 86 deg off, under the
-    # agent's head). SQPnP on every correspondence is the second candidate.
+    # samples then admit a mirrored pose (a camera metres off, under the agent's head). SQPnP on
+    # every correspondence is the second candidate.
     candidates += sqpnp_all(P, uv, ideal.K)
     best = max((_score(P, uv, ideal, rv, tv, params) for rv, tv in candidates), key=lambda c: c[0], default=None)
     if best is None or best[0][1] < params.min_matches:

@@ -59,53 +59,49 @@ UNKNOWN_COVARIANCE.setflags(write=False)
 
 @dataclass(frozen=True)
 class JointParams:
-    huber_k: float = 1.345
+    huber_k: float = 1.345  # Huber threshold of the projection and head-top (a2e) factors [sigmas]
+    # Pixel noise of the ego map's landmark observations; 1.5x it for a CMC keypoint whose
+    # group estimated none of its own.
     ego_sigma_px: float = 1.0
-    landmark_prior_sigma_m: float = 0.05  # depth-derived position of each ego landmark
-    ego_between_sigma: tuple[float, float] = (0.001, 0.002)  # (rad, m) its motion between consecutive anchors
-    # The same for an ego map tracked with the gyro (JointProblem.ego_imu): its rotation between anchors is what
-    # the ego stage measures best, with gyro factors and walls-and-floor attitudes the JO does not carry. At 1 mrad
-    # a step the 26-minute floor's ego map (0.0075 m ATE) came out of the JO at 0.0153 m; at 0.2 mrad at 0.0123 m,
-    # and its registration 0.0175 -> 0.0166 m avg, 0.100 -> 0.071 max (docs/notes/floor.md).
+    landmark_prior_sigma_m: float = 0.05  # sigma of each ego landmark's depth-derived position
+    ego_between_sigma: tuple[float, float] = (0.001, 0.002)  # sigma of the ego motion between anchors [rad, m]
+    # The same for an ego map tracked with the gyro (JointProblem.ego_imu) [rad, m]. Its rotation
+    # between anchors is what the ego stage measures best, with gyro factors and walls-and-floor
+    # attitudes the JO does not carry (docs/notes/floor.md).
     ego_between_sigma_imu: tuple[float, float] = (0.0002, 0.002)
-    # (rad, m) an anchor step over a frame the ego map does not vouch for (JointProblem.ego_weak_frames):
-    # a break joined by a guess, or tracking on next to no landmarks. Loose, not free: a true break
-    # still opens through the Huber kernel, while tracked low-overlap steps (mostly right) are not
-    # bent by a group whose own geometry is weak (small texture_poor s2 with IMU: at (0.2, 0.5) the
-    # JO took a 0.021 m ego map to 0.203 m and registration 0.063 -> 0.137 m; at (0.05, 0.1) 0.028 /
-    # 0.075 m; the other 13 hard small runs within +-0.003 m or better, BENCHMARKS.md).
+    # Sigma of an anchor step over a frame the ego map does not vouch for (JointProblem.ego_weak_frames)
+    # [rad, m]. A break joined by a guess, or tracking on next to no landmarks. Loose, not free: a
+    # true break still opens through the Huber kernel, while tracked low-overlap steps (mostly
+    # right) are not bent by a group whose own geometry is weak (docs/notes/fusion.md).
     ego_weak_between_sigma: tuple[float, float] = (0.05, 0.1)
-    # (rad, m) such a step between two frames whose attitude the ego map held to the building's
-    # walls and floor (JointProblem.ego_attitude_held): its rotation is measured, only its
-    # translation is loose. The held keyframes' walls and floor fit to about 1 deg each, so
-    # a step between two of them to ~1.4 deg.
+    # The same between two frames whose attitude the ego map held to the building's walls and
+    # floor (JointProblem.ego_attitude_held) [rad, m]. Its rotation is measured, only its
+    # translation is loose: the held keyframes' walls and floor fit to about 1 deg each, so a
+    # step between two of them to ~1.4 deg.
     ego_held_weak_between_sigma: tuple[float, float] = (0.025, 0.1)
-    # Huber threshold of the chain's whitened 6-DoF residual: above the ~sqrt(6) of a good
-    # step, so the chain is Gaussian where the ego map holds and gives way at a break it missed.
+    # Huber threshold of the ego chain's whitened 6-DoF residual [sigmas]. Above the ~sqrt(6) of
+    # a good step, so the chain is Gaussian where the ego map holds and gives way at a break it missed.
     ego_between_huber_k: float = 5.0
-    # A chain step the solution leaves this many sigmas off the ego map's is a break the ego
-    # map did not flag: solved again with it weak (and reported in JointResult.ego_breaks).
+    # A chain step the solution leaves more than this off the ego map's is a break the ego map
+    # did not flag [sigmas]. Solved again with it weak (and reported in JointResult.ego_breaks).
     ego_break_sigmas: float = 20.0
-    floor_sigma_m: float = 0.03  # the agent's ground point lies on the floor z = 0
-    a2e_sigma_m: float = 0.05  # head-top vs predicted head top (offset model residual)
-    kin_accel_sigma_m: float = 0.05  # per grid step, second difference of the head top
-    kin_body_sigma_m: float = 0.05  # change of the top-to-bottom vector per grid step
-    upright_sigma_m: float = 0.05  # horizontal offset of the ground point from under the head top
+    floor_sigma_m: float = 0.03  # sigma of the agent's ground point on the floor z = 0
+    a2e_sigma_m: float = 0.05  # sigma of a head top against the one the ego pose predicts (a2e)
+    kin_accel_sigma_m: float = 0.05  # sigma of the head top's second difference per grid step
+    kin_body_sigma_m: float = 0.05  # sigma of the change of the top-to-bottom vector per grid step
+    upright_sigma_m: float = 0.05  # sigma of the ground point's horizontal offset from under the head top
     max_a2e_gap_s: float = 0.2  # ego poses further apart than this are not interpolated
     max_anchor_gap_s: float = 0.5  # frames without ego observations: an anchor at least this often
-    estimate_head_offset: bool = True  # False: the paper's model, head top = ego camera centre
-    iterations: int = 200  # at most; a broken ego map put back takes ~50
-    # LM stops once an iteration lowers the error by less than this share (Ceres' default
-    # function tolerance). Past it the Huber weights creep for up to 200 iterations that move
-    # no result: on the 20 small hard/normal runs (with and without IMU) registration and JO ATE
-    # are 0.0002 m worse to 0.0005 m better than 1e-10's, and the JO's CPU falls 2-11x (normal s0:
-    # 45 -> 4 s).
+    estimate_head_offset: bool = True  # the head offset estimated; False: the paper's model, head top = ego camera
+    iterations: int = 200  # Levenberg-Marquardt iterations at most [count]
+    # LM stops once an iteration lowers the error by less than this [share]. Ceres' default
+    # function tolerance: past it the Huber weights creep for iterations that move no result,
+    # at several times the CPU (docs/notes/speed.md).
     relative_error_tol: float = 1e-6
-    # For the covariances only (not the solve): a prior holds an agent point or landmark the data
-    # leaves indeterminate, at most this many (JointResult.held_points); past them the covariances
-    # are unknown.
+    # Sigma of the prior that holds an agent point or landmark the data leaves indeterminate, for
+    # the covariances only (not the solve; JointResult.held_points).
     marginals_point_prior_sigma_m: float = 1.0
-    marginals_max_held_points: int = 10
+    marginals_max_held_points: int = 10  # points held so at most; past them the covariances are unknown [count]
 
 
 @dataclass(kw_only=True)

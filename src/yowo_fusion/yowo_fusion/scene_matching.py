@@ -20,16 +20,15 @@ from yowo_ego.features import create_sift
 @dataclass(frozen=True)
 class SceneMatchParams:
     radius_px: float = 40.0  # search radius around a landmark's predicted pixel
-    ratio: float = 0.8  # Lowe's ratio between best and second-best candidate
-    max_range_m: float = 15.0
-    pnp_px: float = 4.0
-    min_inliers: int = 12
-    max_features: int = 4000
-    # The verified matches this far (median) from where the prior projects their landmarks: a
-    # consistent set of wrong ones (a repeated pattern one period over, a look-alike wall) or a
-    # prior too far off for the guided search to tell: no match either way. On the 20 hard small
-    # runs right sets lie 0.6-13 px from their prior; small symmetric s1 without the IMU matched
-    # 29 landmarks one period over (27.6 px; PnP verified them 0.48 m from a prior 4 cm off).
+    ratio: float = 0.8  # Lowe's ratio test: best candidate's descriptor distance over the second best's [ratio]
+    max_range_m: float = 15.0  # landmarks farther than this from the prior camera centre are not searched
+    pnp_px: float = 4.0  # PnP RANSAC inlier threshold of the verification
+    min_inliers: int = 12  # verified matches a camera needs at least [count]
+    max_features: int = 4000  # features detected on the background image at most [count]
+    # Verified matches lying farther than this (median) from where the prior projects their
+    # landmarks are refused. They are a consistent set of wrong ones (a repeated pattern one
+    # period over, a look-alike wall) or the prior is too far off for the guided search to
+    # tell: no match either way.
     max_prior_median_px: float = 20.0
 
 

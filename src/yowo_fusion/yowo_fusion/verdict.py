@@ -30,8 +30,7 @@ def weak_ego_frames(ego: EgoMapData, params: FusionParams) -> tuple[np.ndarray, 
     joins the two sides is a guess). A map without any landmark observations (a trajectory
     alone) is judged by its gaps (and tracking) only. In a well-lit bare room every keyframe
     has few landmarks while depth tracks it to centimetres: by landmarks alone the joint
-    optimisation let the agent track shape the whole map (small texture_poor s0: cameras
-    1.0 m off, 0.05 m with the tracking's overlap)."""
+    optimisation let the agent track shape the whole map (docs/notes/fusion.md)."""
     n = len(ego.stamps_ns)
     gap = np.zeros(n, bool)
     gap[1:] = np.diff(ego.stamps_ns) > params.weak_frame_gap_s * 1e9
