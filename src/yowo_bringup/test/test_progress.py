@@ -22,21 +22,31 @@ def test_the_eta_follows_the_slowest_stage_past_the_replay():
     stages = {"ego_mapper": RUNNING, "group_sfm": RUNNING}
     # The replay is over after 20 s of playing; the ego mapper has taken in half of it: 20 s more.
     p = RunProgress(
-        30.0, 1000, 1000, playing_since_s=10.0, stages=stages, consumed={"ego_mapper": 0.5, "group_sfm": 1.0}
+        elapsed_s=30.0,
+        played=1000,
+        total=1000,
+        playing_since_s=10.0,
+        stages=stages,
+        consumed={"ego_mapper": 0.5, "group_sfm": 1.0},
     )
     assert abs(p.eta_s - 20.0) < 1e-9 and "ETA 20 s" in p.line()
     # Halfway through the replay, a stage a quarter of the way through its share sets the pace.
-    p = RunProgress(30.0, 500, 1000, playing_since_s=10.0, stages=stages, consumed={"ego_mapper": 0.25})
+    p = RunProgress(
+        elapsed_s=30.0, played=500, total=1000, playing_since_s=10.0, stages=stages, consumed={"ego_mapper": 0.25}
+    )
     assert abs(p.eta_s - 20.0 * (1 - 0.125) / 0.125) < 1e-9
     assert (
-        RunProgress(30.0, 1000, 1000, playing_since_s=10.0, stages=stages, consumed={"ego_mapper": 1.0}).eta_s is None
+        RunProgress(
+            elapsed_s=30.0, played=1000, total=1000, playing_since_s=10.0, stages=stages, consumed={"ego_mapper": 1.0}
+        ).eta_s
+        is None
     )
 
 
 def test_no_eta_before_playing_or_when_live():
-    assert RunProgress(5.0, 0, 1000).eta_s is None
-    assert RunProgress(5.0, 1000, 1000, playing_since_s=1.0).eta_s is None  # the replay is over
-    live = RunProgress(5.0, 0, 0, stages={"fusion": RUNNING})
+    assert RunProgress(elapsed_s=5.0, played=0, total=1000).eta_s is None
+    assert RunProgress(elapsed_s=5.0, played=1000, total=1000, playing_since_s=1.0).eta_s is None  # the replay is over
+    live = RunProgress(elapsed_s=5.0, played=0, total=0, stages={"fusion": RUNNING})
     assert live.share is None and live.eta_s is None and "live" in live.line()
 
 
@@ -44,7 +54,7 @@ def test_lines_are_rate_limited():
     lines = []
     show = ProgressLines(lines.append, period_s=3600.0)
     for i in range(5):
-        show(RunProgress(float(i), i, 10))
+        show(RunProgress(elapsed_s=float(i), played=i, total=10))
     assert len(lines) == 1 and lines[0].startswith("[   0.0 s] replayed")
 
 

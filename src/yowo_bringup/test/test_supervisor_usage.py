@@ -44,6 +44,6 @@ def test_node_processes_get_the_library_thread_count(tmp_path):
     base.update(PYTHONPATH=str(tmp_path), DUMP=str(tmp_path / "dump"))
     for threads, expected in ((1, "1 1 1"), (0, "- - -")):
         sup = Supervisor(tmp_path / f"logs{threads}", library_threads_env(base, threads))
-        proc = sup.start(NodeSpec("dump", "envdump"))
+        proc = sup.start(NodeSpec(name="dump", module="envdump"))
         assert proc.popen.wait(timeout=60) == 0, proc.log_tail()
         assert (tmp_path / "dump").read_text() == expected

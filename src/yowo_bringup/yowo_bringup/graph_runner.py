@@ -10,6 +10,7 @@ from pathlib import Path
 
 import yaml
 
+from yowo_common import topics
 from yowo_common.ros.context import ros_context
 from yowo_common.ros.timing import relative_to
 from yowo_msgs.msg import ReplayStatus, StageStatus
@@ -248,10 +249,10 @@ def _restart_dead(sup: Supervisor, max_restarts: int, log) -> str:
     for p in sup.dead():
         hosting = f" (hosting {', '.join(p.spec.hosted)})" if p.spec.hosted else ""
         died = f"node '{p.spec.name}'{hosting} died (exit {p.popen.returncode})"
-        if p.spec.name == "replay" or len(p.exits) >= max_restarts:
+        if p.spec.name == topics.REPLAY_STAGE or len(p.exits) >= max_restarts:
             why = (
                 "the replay cannot be restarted: nobody could re-send what the stages missed"
-                if p.spec.name == "replay"
+                if p.spec.name == topics.REPLAY_STAGE
                 else f"it was restarted {len(p.exits)} times already"
             )
             return f"{died}; {why}; last log lines:\n{p.log_tail()}"

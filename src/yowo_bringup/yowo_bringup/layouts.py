@@ -17,7 +17,7 @@ from .imu_source import ImuNoiseDefaults
 # A driver's ego streams relative to its camera namespace: (colour, depth, camera info,
 # united IMU, gyro, accelerometer). Colour and depth also as image_transport's compressed
 # sub-topics. Names are the drivers' defaults.
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class DriverLayout:
     driver: str
     color: str
@@ -32,10 +32,10 @@ class DriverLayout:
 
 DRIVER_LAYOUTS = (
     DriverLayout(
-        "realsense2_camera",
-        "color/image_raw",
-        "aligned_depth_to_color/image_raw",
-        "color/camera_info",
+        driver="realsense2_camera",
+        color="color/image_raw",
+        depth="aligned_depth_to_color/image_raw",
+        info="color/camera_info",
         imu="imu",
         gyro="gyro/sample",
         accel="accel/sample",
@@ -52,18 +52,18 @@ DRIVER_LAYOUTS = (
         ),
     ),
     DriverLayout(
-        "Azure Kinect / Orbbec Femto",
-        "rgb/image_raw",
-        "depth_to_rgb/image_raw",
-        "rgb/camera_info",
+        driver="Azure Kinect / Orbbec Femto",
+        color="rgb/image_raw",
+        depth="depth_to_rgb/image_raw",
+        info="rgb/camera_info",
         imu="imu",
         streams=("rgb", "depth", "ir", "depth_to_rgb", "rgb_to_depth"),
     ),
     DriverLayout(
-        "ZED",
-        "rgb/image_rect_color",
-        "depth/depth_registered",
-        "rgb/camera_info",
+        driver="ZED",
+        color="rgb/image_rect_color",
+        depth="depth/depth_registered",
+        info="rgb/camera_info",
         imu="imu/data",
         streams=(
             "rgb",

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 WAITING, RUNNING, DONE, FAILED = "waiting", "running", "done", "failed"
 
 
-@dataclass
+@dataclass(kw_only=True)
 class RunProgress:
     elapsed_s: float
     played: int  # messages the replay published

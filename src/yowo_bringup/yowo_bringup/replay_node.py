@@ -56,7 +56,7 @@ FASTDDS_PROFILE = Path(__file__).parent / "config" / "replay_fastdds.xml"
 
 class ReplayNode(Node):
     def __init__(self):
-        super().__init__("replay")
+        super().__init__(topics.REPLAY_STAGE)
         # Start-up (until playing) and the time flow control held it back, per topic.
         self.timing = NodeTiming()
         self.stats_file = self.declare_parameter("stats_file", "").value

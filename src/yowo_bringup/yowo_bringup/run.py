@@ -27,21 +27,21 @@ from .imu_source import resolve_imu
 from .supervisor import NodeSpec
 
 STAGE_MODULES = {
-    "replay": "yowo_bringup.replay_node",
-    "keypoint_tracker": "yowo_cmc.keypoint_tracker_node",
-    "group_sfm": "yowo_cmc.group_sfm_node",
-    "ego_mapper": "yowo_ego.ego_mapper_node",
-    "fusion": "yowo_fusion.fusion_node",
+    topics.REPLAY_STAGE: "yowo_bringup.replay_node",
+    topics.TRACKER_STAGE: "yowo_cmc.keypoint_tracker_node",
+    topics.GROUP_SFM_STAGE: "yowo_cmc.group_sfm_node",
+    topics.EGO_STAGE: "yowo_ego.ego_mapper_node",
+    topics.FUSION_STAGE: "yowo_fusion.fusion_node",
 }
 # Stages that read only other stages' outputs: they accumulate while the recording plays
 # and compute at its end, so they are off the start-up's critical path (see _stamp_run).
-DOWNSTREAM = (STAGE_MODULES["group_sfm"], STAGE_MODULES["fusion"])
+DOWNSTREAM = (STAGE_MODULES[topics.GROUP_SFM_STAGE], STAGE_MODULES[topics.FUSION_STAGE])
 CMC, FULL, EGO = "cmc", "full", "ego"
 # A group needs two cameras; the CMC-only calibration has nothing to do with fewer.
 MIN_GROUP_CMCS = 2
 
 
-@dataclass
+@dataclass(kw_only=True)
 class RunPlan:
     bag: Path | None  # None: live operation on camera topics
     out_dir: Path
@@ -63,7 +63,7 @@ class RunPlan:
     @property
     def stages(self) -> list[str]:
         """The names of the nodes that report a stage status (every node but the replay)."""
-        return [n.name for n in self.nodes if n.name != "replay"]
+        return [n.name for n in self.nodes if n.name != topics.REPLAY_STAGE]
 
     @property
     def local_nodes(self) -> list[NodeSpec]:
@@ -74,14 +74,14 @@ class RunPlan:
         """The processes this host starts, in the order of its nodes: the trackers spread
         over at most `supervisor.tracker_processes` processes, each other node alone."""
         nodes = self.local_nodes
-        trackers = [n for n in nodes if n.module == STAGE_MODULES["keypoint_tracker"]]
+        trackers = [n for n in nodes if n.module == STAGE_MODULES[topics.TRACKER_STAGE]]
         count = self.config.supervisor.tracker_processes
         if not count or len(trackers) <= count:
             return nodes
         hosts = [
             NodeSpec(
-                f"keypoint_trackers_{i}",
-                trackers[0].module,
+                name=f"{topics.TRACKER_STAGE}s_{i}",
+                module=trackers[0].module,
                 niceness=trackers[0].niceness,
                 hosted=[t.name for t in trackers[i::count]],
             )
@@ -134,7 +134,7 @@ def _stamp_run(nodes: list[NodeSpec], run_id: str, replayed: bool, config: YowoC
             spec.niceness = config.supervisor.downstream_niceness
         spec.parameters["run_id"] = run_id
         spec.parameters.update(node_config(config, spec.name))
-        if spec.name != "replay":
+        if spec.name != topics.REPLAY_STAGE:
             spec.parameters["replayed"] = replayed
 
 
@@ -236,9 +236,9 @@ def plan_run(
     readers = [n.name for n in nodes if n.module not in DOWNSTREAM]
     nodes.append(
         NodeSpec(
-            "replay",
-            STAGE_MODULES["replay"],
-            {  # last: it waits for the stages' subscriptions
+            name=topics.REPLAY_STAGE,
+            module=STAGE_MODULES[topics.REPLAY_STAGE],
+            parameters={  # last: it waits for the stages' subscriptions
                 "bag": str(bag),
                 "topics": played,
                 "wait_for_topics": played,
@@ -251,15 +251,15 @@ def plan_run(
     _stamp_run(nodes, run_id, True, config)
     total = sum(t.count for t in inputs.topics if t.name in played)
     return RunPlan(
-        Path(bag),
-        Path(out_dir),
-        mode,
-        cameras,
-        nodes,
-        final,
-        outputs,
-        problems,
-        run_id,
+        bag=Path(bag),
+        out_dir=Path(out_dir),
+        mode=mode,
+        cameras=cameras,
+        nodes=nodes,
+        final_stage=final,
+        outputs=outputs,
+        warnings=problems,
+        run_id=run_id,
         config=config,
         replay_messages=total,
         mode_reason=reason,
@@ -383,7 +383,17 @@ def plan_live(
     nodes, final, outputs = _stage_nodes(mode, trackers, ego_topics)
     run_id = run_id or new_run_id()
     _stamp_run(nodes, run_id, False, config)
-    return RunPlan(None, Path(out_dir), mode, list(cameras), nodes, final, outputs, run_id=run_id, config=config)
+    return RunPlan(
+        bag=None,
+        out_dir=Path(out_dir),
+        mode=mode,
+        cameras=list(cameras),
+        nodes=nodes,
+        final_stage=final,
+        outputs=outputs,
+        run_id=run_id,
+        config=config,
+    )
 
 
 # What the ego mapper publishes at the end of the walk (latched), collected by every run with a map.
@@ -409,19 +419,39 @@ def _stage_nodes(
     unknown = {"estimate_intrinsics": list(estimated)} if estimated else {}
     ego_params = {"color_topic": ego[0], "depth_topic": ego[1], "info_topic": ego[2], **(imu or {})}
     if mode == EGO:  # the map alone: its stage publishes the map, path, cloud and layout
-        return ([NodeSpec("ego_mapper", STAGE_MODULES["ego_mapper"], ego_params)], "ego_mapper", dict(EGO_OUTPUTS))
+        return (
+            [NodeSpec(name=topics.EGO_STAGE, module=STAGE_MODULES[topics.EGO_STAGE], parameters=ego_params)],
+            topics.EGO_STAGE,
+            dict(EGO_OUTPUTS),
+        )
     cameras = [c for c, _, _ in trackers]
     nodes = [
-        NodeSpec(f"keypoint_tracker_{c}", STAGE_MODULES["keypoint_tracker"], {"camera": c, "source": kind, **roles})
+        NodeSpec(
+            name=topics.tracker_stage(c),
+            module=STAGE_MODULES[topics.TRACKER_STAGE],
+            parameters={"camera": c, "source": kind, **roles},
+        )
         for c, kind, roles in trackers
     ]
-    nodes.append(NodeSpec("group_sfm", STAGE_MODULES["group_sfm"], {"cameras": cameras, **unknown}))
-    final = "group_sfm"
+    nodes.append(
+        NodeSpec(
+            name=topics.GROUP_SFM_STAGE,
+            module=STAGE_MODULES[topics.GROUP_SFM_STAGE],
+            parameters={"cameras": cameras, **unknown},
+        )
+    )
+    final = topics.GROUP_SFM_STAGE
     outputs = {topics.GROUPS: "yowo_msgs/msg/CameraGroupArray"}
     if mode == FULL:
-        nodes.append(NodeSpec("ego_mapper", STAGE_MODULES["ego_mapper"], ego_params))
-        nodes.append(NodeSpec("fusion", STAGE_MODULES["fusion"], {"cameras": cameras, **unknown}))
-        final = "fusion"
+        nodes.append(NodeSpec(name=topics.EGO_STAGE, module=STAGE_MODULES[topics.EGO_STAGE], parameters=ego_params))
+        nodes.append(
+            NodeSpec(
+                name=topics.FUSION_STAGE,
+                module=STAGE_MODULES[topics.FUSION_STAGE],
+                parameters={"cameras": cameras, **unknown},
+            )
+        )
+        final = topics.FUSION_STAGE
         outputs.update(
             {
                 topics.CMC_POSES: "yowo_msgs/msg/RegisteredCameraArray",

@@ -113,13 +113,13 @@ class RunMonitor(Node):
                 if sum(p for _, p in mine):
                     consumed[s] = min(1.0, sum(n for n, _ in mine) / sum(p for _, p in mine))
         return RunProgress(
-            elapsed_s,
-            played,
-            total,
-            self.replay.resent_messages if self.replay else 0,
-            self._playing_since,
-            states,
-            consumed,
+            elapsed_s=elapsed_s,
+            played=played,
+            total=total,
+            resent=self.replay.resent_messages if self.replay else 0,
+            playing_since_s=self._playing_since,
+            stages=states,
+            consumed=consumed,
         )
 
     def spin_once(self, timeout_s: float) -> None:

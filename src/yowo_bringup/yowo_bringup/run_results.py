@@ -259,7 +259,7 @@ def _export_images(plan: RunPlan, outputs: dict, ego):
     fits = agent_fits_from_msg(outputs[topics.AGENT_FIT]) if topics.AGENT_FIT in outputs else []
     cmc = {f.name: decode_color(bg) for f, _, bg in fits if bg is not None}
     keyframes, frames = set() if ego is None else {int(s) for s in ego.stamps_ns}, {}
-    mapper = next((n for n in plan.nodes if n.name == "ego_mapper"), None)
+    mapper = next((n for n in plan.nodes if n.name == topics.EGO_STAGE), None)
     if keyframes and mapper is not None and plan.bag is not None:
         for _, _, msg in read_messages(plan.bag, [mapper.parameters["color_topic"]]):
             if stamp_to_ns(msg.header.stamp) in keyframes:

@@ -19,7 +19,7 @@ from yowo_common.ros.context import NODES_ARG
 from .profiling import NodeProfiler, py_spy
 
 
-@dataclass
+@dataclass(kw_only=True)
 class NodeSpec:
     name: str  # node (and stage) name; of a process hosting several: the process's
     module: str  # python module with main(), e.g. "yowo_cmc.group_sfm_node"
@@ -72,7 +72,7 @@ def _proc_mb(text: str, key: str) -> float:
     return next((int(line.split()[1]) for line in text.splitlines() if line.startswith(key)), 0) / 1024.0
 
 
-@dataclass
+@dataclass(kw_only=True)
 class NodeProcess:
     spec: NodeSpec
     popen: subprocess.Popen
@@ -192,7 +192,7 @@ class Supervisor:
         return popen
 
     def start(self, spec: NodeSpec) -> NodeProcess:
-        proc = NodeProcess(spec, self._popen(spec, 0, "w"), self.log_dir / f"{spec.name}.log")
+        proc = NodeProcess(spec=spec, popen=self._popen(spec, 0, "w"), log_path=self.log_dir / f"{spec.name}.log")
         self.procs.append(proc)
         return proc
 

@@ -25,7 +25,7 @@ class VideoError(ValueError):
     """A video input that cannot be used; the message names the file or the rule."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class VideoInput:
     camera: str
     path: Path
@@ -136,7 +136,16 @@ def probe_video(rule: str) -> VideoInput:
         )
     if not frames and duration_s:
         frames = int(round(duration_s * float(stream.average_rate or 0)))
-    return VideoInput(camera, path, start_ns, start_from, frames, duration_s, *size)
+    return VideoInput(
+        camera=camera,
+        path=path,
+        start_ns=start_ns,
+        start_from=start_from,
+        frames=frames,
+        duration_s=duration_s,
+        width=size[0],
+        height=size[1],
+    )
 
 
 def video_images(video: VideoInput) -> Iterator[tuple[int, object]]:

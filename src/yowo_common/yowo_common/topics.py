@@ -110,7 +110,9 @@ REFINED_LAYOUT = "/yowo/fusion/layout"  # yowo_msgs/SceneLayout, latched
 REFINED_EGO_PATH = "/yowo/fusion/path"  # nav_msgs/Path, latched: the ego trajectory after JO
 AGENT_FIT = "/yowo/fusion/agent_fit"  # yowo_msgs/CameraAgentFitArray, latched: the report's panels
 
-EGO_STAGE, GROUP_SFM_STAGE, FUSION_STAGE = "ego_mapper", "group_sfm", "fusion"
+# The graph's stages by node name (a tracker's is TRACKER_STAGE_<camera>).
+REPLAY_STAGE, EGO_STAGE, GROUP_SFM_STAGE, FUSION_STAGE = "replay", "ego_mapper", "group_sfm", "fusion"
+TRACKER_STAGE = "keypoint_tracker"
 
 
 def status(stage: str) -> str:
@@ -118,7 +120,7 @@ def status(stage: str) -> str:
 
 
 def tracker_stage(camera: str) -> str:
-    return f"keypoint_tracker_{camera}"
+    return f"{TRACKER_STAGE}_{camera}"
 
 
 def tracker_keypoints(camera: str) -> str:

@@ -21,7 +21,7 @@ from ..memory import release_free_memory
 from ..streams import StreamCompletion
 from .timing import NodeTiming
 
-REPLAY = "replay"
+REPLAY = topics.REPLAY_STAGE
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # Streams: reliable and never dropped by the history (the replay applies flow control).
 STREAM = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
