@@ -12,9 +12,10 @@ import pytest
 
 from yowo_common.geometry import inv_se3, rotation_angle_deg
 from yowo_common.trajectory import Trajectory
+from yowo_ego.config import EgoParams
 from yowo_ego.imu import ImuBuffer
 from yowo_ego.odometry import INTERPOLATED, SKIPPED, TRACKED
-from yowo_ego.pipeline import EgoMapper, EgoParams, map_recording
+from yowo_ego.pipeline import EgoMapper, map_recording
 from yowo_ego.recording import EgoRecording, find_ego_topics, read_ego_frames
 from yowo_eval.ground_truth import read_ground_truth
 from yowo_eval.metrics import associate, ate

@@ -15,10 +15,11 @@ from yowo_common import topics
 from yowo_common.ros.bag import BagWriter, list_topics, read_messages
 from yowo_common.rosconv import stamp_to_ns
 from yowo_common.trajectory import Trajectory
+from yowo_ego.config import EgoParams
 from yowo_ego.ego_messages import ego_map_msg
 from yowo_ego.imu import CoverageWait, ImuBuffer, ImuCalibration, ImuSamples
 from yowo_ego.odometry import INTERPOLATED, SKIPPED
-from yowo_ego.pipeline import EgoParams, map_recording
+from yowo_ego.pipeline import map_recording
 from yowo_ego.recording import COLOR_TOPICS, DEPTH_TOPICS, INFO_TOPIC, map_bag
 from yowo_eval.ground_truth import read_ground_truth
 from yowo_eval.metrics import ate

@@ -9,8 +9,15 @@ from scipy.spatial.transform import Rotation
 from yowo_common.geometry import look_at, rotation_angle_deg, se3
 from yowo_ego.frames import RgbdFrame, make_frame
 from yowo_ego.keyframe_tracker import KeyframeTracker
-from yowo_ego.odometry import LOST, MAP_RELOCALISED, Keyframe, OdometryEdge, OdometryParams, TrackResult
-from yowo_ego.pipeline import frames_between_keyframes
+from yowo_ego.odometry import (
+    LOST,
+    MAP_RELOCALISED,
+    Keyframe,
+    OdometryEdge,
+    OdometryParams,
+    TrackResult,
+    frames_between_keyframes,
+)
 from yowo_ego.rgbd_odometry import OdometryImages, RgbdOdometry, downsample, orthonormalize
 
 # Looking across the room at two walls, the floor and a box.

@@ -11,7 +11,7 @@ from std_msgs.msg import Header
 
 from yowo_common.ros.bag import BagWriter
 from yowo_common.rosconv import encode_color_jpeg, encode_depth_png
-from yowo_ego.pipeline import EgoParams
+from yowo_ego.config import EgoParams
 from yowo_ego.recording import map_bag
 from yowo_eval.ego_bench import evaluate
 from yowo_eval.ground_truth import read_ground_truth

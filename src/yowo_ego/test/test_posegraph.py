@@ -8,10 +8,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from yowo_common.geometry import look_at, rotation_angle_deg, se3
+from yowo_ego.edge_checks import match_pair, verify_across, verify_edge
 from yowo_ego.features import FeatureExtractor, KeyframeFeatures
 from yowo_ego.frames import make_frame
 from yowo_ego.odometry import Keyframe, OdometryEdge
-from yowo_ego.posegraph import LoopParams, _verify_across, match_pair, verify_edge
+from yowo_ego.posegraph import LoopParams
 from yowo_ego.rgbd_odometry import RgbdOdometry, downsample
 
 
@@ -70,7 +71,7 @@ def three_keyframes(renderer, ego_camera):
 
 def _across(T_0_1, edge_1_2, features, keyframes, odometry):
     edges = [OdometryEdge(1, 0, T_0_1, np.eye(6), "odometry"), OdometryEdge(2, 1, edge_1_2, np.eye(6), "odometry")]
-    replaced = _verify_across(edges, [True, False], [], features, keyframes, odometry, LoopParams())
+    replaced = verify_across(edges, [True, False], [], features, keyframes, odometry, LoopParams())
     return replaced, edges[1].T_target_source
 
 

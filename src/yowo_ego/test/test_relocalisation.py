@@ -10,7 +10,8 @@ from scipy.spatial.transform import Rotation
 
 from yowo_common.geometry import inv_se3, look_at, rotation_angle_deg, se3
 from yowo_common.trajectory import Trajectory
-from yowo_ego.pipeline import EgoMapper, EgoParams, map_recording
+from yowo_ego.config import EgoParams
+from yowo_ego.pipeline import EgoMapper, map_recording
 from yowo_ego.retrieval import PlaceIndex, RetrievalParams
 from yowo_eval.ground_truth import read_ground_truth
 from yowo_eval.metrics import associate, ate

@@ -5,10 +5,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from yowo_common.geometry import inv_se3, rotation_angle_deg, se3, transform_points
+from yowo_ego.edge_checks import PairMatches, verify_edge
 from yowo_ego.feature_tracks import build_tracks, filter_matches
 from yowo_ego.features import KeyframeFeatures, match, relative_pose
 from yowo_ego.odometry import Keyframe, OdometryEdge
-from yowo_ego.posegraph import LoopParams, PairMatches, verify_edge
+from yowo_ego.posegraph import LoopParams
 from yowo_ego.rgbd_odometry import RgbdOdometry
 
 K = np.array([[457.0, 0.0, 319.5], [0.0, 457.0, 239.5], [0.0, 0.0, 1.0]])

@@ -30,10 +30,11 @@ from yowo_common.rosconv import (
 )
 from yowo_msgs.msg import EgoMap, SceneLayout
 
+from .config import EgoParams
 from .ego_messages import cloud_msg, ego_map_msg, layout_msg, path_msg
 from .frames import FrameError, StampPairer
 from .imu import CoverageWait, ImuBuffer, ImuCalibration, ImuUniter
-from .pipeline import EgoMapper, EgoParams
+from .pipeline import EgoMapper
 
 MAX_EARLY_FRAMES = 30  # frames kept while waiting for the first CameraInfo
 # Online odometry is expressed in the first ego camera's optical frame: gravity and

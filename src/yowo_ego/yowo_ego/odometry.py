@@ -12,6 +12,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation
+
+from yowo_common.geometry import inv_se3, se3
 
 from .degeneracy import DegeneracyParams
 from .features import FeatureParams
@@ -212,3 +215,27 @@ class TrackResult:
     fitness: float  # overlap with the keyframe (the map's share within ICP reach when placed)
     status: str  # tracked | recovered | lost | imu_bridged | map_relocalised | interpolated
     new_keyframe: bool
+
+
+def frames_between_keyframes(
+    results: list[TrackResult], edges: list[OdometryEdge], keyframes: list[Keyframe], T_keyframes: list[np.ndarray]
+) -> np.ndarray:
+    """Every frame's pose from its keyframe's (optimised) pose and its tracked
+    offset. Tracking and the optimised keyframes disagree about the next
+    keyframe by a correction; frames between two keyframes take that correction
+    in proportion to their time (the drift accumulated along the way), so a
+    corrected edge does not leave the frames before it behind."""
+    tracked = {e.target: e.T_target_source for e in edges if e.source == e.target + 1}
+    stamps = np.array([k.stamp_ns for k in keyframes], dtype=np.int64)
+    out = np.empty((len(results), 4, 4))
+    for i, r in enumerate(results):
+        a = r.keyframe
+        T = r.T_kf_cam
+        if a + 1 < len(keyframes) and a in tracked and stamps[a] < r.stamp_ns < stamps[a + 1]:
+            final = inv_se3(T_keyframes[a]) @ T_keyframes[a + 1]
+            delta = final @ inv_se3(tracked[a])
+            alpha = (r.stamp_ns - stamps[a]) / (stamps[a + 1] - stamps[a])
+            partial = se3((Rotation.from_matrix(delta[:3, :3]) ** alpha).as_matrix(), alpha * delta[:3, 3])
+            T = partial @ T
+        out[i] = T_keyframes[a] @ T
+    return out

@@ -23,54 +23,21 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import open3d as o3d
-from scipy.spatial.transform import Rotation
 
 from yowo_common.camera import CameraModel
-from yowo_common.geometry import inv_se3, se3, transform_points
-from yowo_common.memory import release_free_memory
+from yowo_common.geometry import transform_points
 
-from .feature_tracks import FilterParams, build_tracks, filter_matches
-from .features import FeatureExtractor, FeatureParams, KeyframeFeatures, backproject
+from .config import EgoParams
+from .features import FeatureExtractor, KeyframeFeatures, backproject
 from .frames import MIN_TEXTURED_FRACTION, FrameError, RgbdFrame, Undistorter, make_frame, pinhole, textured_fraction
-from .imu import ImuBuffer, InertialParams, InertialTerms, keyframe_preintegration, up_from_accelerometer
+from .imu import ImuBuffer, InertialTerms, keyframe_preintegration, up_from_accelerometer
 from .keyframe_tracker import KeyframeTracker
-from .layout import KIND_WALL, Layout, LayoutParams, build_layout
-from .odometry import IMU_BRIDGED, RECOVERED, SKIPPED, Keyframe, OdometryEdge, OdometryParams, TrackResult
-from .posegraph import LoopParams, MultiwayRegistration
-from .refine import BundleParams, BundleProblem, solve_bundle
+from .layout import KIND_WALL, Layout, build_layout
+from .odometry import IMU_BRIDGED, RECOVERED, SKIPPED, TrackResult, frames_between_keyframes
+from .posegraph import MultiwayRegistration
 from .rgbd_odometry import OdometryImages
-from .scene import (
-    CloudParams,
-    Rectification,
-    find_floor,
-    floor_attitudes,
-    fuse_cloud,
-    planar_patches,
-    rectify,
-    up_from_cameras,
-    wall_attitudes,
-)
-
-MIN_TRACKS = 10  # fewer feature tracks than this: no bundle adjustment
-
-
-@dataclass(frozen=True)
-class EgoParams:
-    odometry: OdometryParams = OdometryParams()
-    features: FeatureParams = FeatureParams()
-    loops: LoopParams = LoopParams()
-    filter: FilterParams = FilterParams()
-    bundle: BundleParams = BundleParams()
-    cloud: CloudParams = CloudParams()
-    layout: LayoutParams = LayoutParams()
-    inertial: InertialParams = InertialParams()
-    bundle_adjustment: bool = True  # False: stop after multiway registration (ablation)
-    # Open3D's parallel reductions (dense odometry, information matrices) sum in a
-    # varying order: runs differ by micrometres per frame, which keyframe and loop
-    # decisions turn into millimetres. One thread makes a recording map the same
-    # every time; on 2 cores it costs nothing measurable, since frames are decoded
-    # and features extracted on other threads. 0: Open3D's default (all cores).
-    open3d_threads: int = 1
+from .scene import Rectification, find_floor, fuse_cloud, planar_patches, rectify, up_from_cameras
+from .visual_refinement import SceneMap, refine_keyframes
 
 
 @dataclass
@@ -353,11 +320,13 @@ class EgoMapper:
         )
         T_kf = mw.T_odom_kf
 
-        T_bundle, scene_map, inertial_up, held = T_kf, _SceneMap.empty(), None, np.zeros(len(keyframes), bool)
+        T_bundle, scene_map, inertial_up, held = T_kf, SceneMap.empty(), None, np.zeros(len(keyframes), bool)
         if p.bundle_adjustment:
             t0 = time.perf_counter()
             inertial = self._inertial_terms(T_kf, stats, warnings) if p.inertial.bundle_factors else None
-            T_bundle, scene_map, inertial_up, held = self._refine(mw, features, T_kf, stats, warnings, inertial)
+            T_bundle, scene_map, inertial_up, held = refine_keyframes(
+                mw, features, keyframes, T_kf, self.ideal, tr.odometry.K, p, stats, warnings, inertial
+            )
             stats["bundle_s"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
@@ -496,131 +465,6 @@ class EgoMapper:
                 f"the floor rectification's vertical is {angle:.1f} deg from the IMU's gravity (> {limit:g} "
                 "deg): the floor plane found may be wrong, or the IMU calibration (T_cam_imu)"
             )
-
-    def _refine(
-        self,
-        mw,
-        features: list[KeyframeFeatures],
-        T_kf: list[np.ndarray],
-        stats: dict,
-        warnings: list[str],
-        inertial: InertialTerms | None = None,
-    ) -> tuple[list[np.ndarray], "_SceneMap", np.ndarray | None, np.ndarray]:
-        """Visual refinement: filtered matches of every registered keyframe pair ->
-        tracks -> bundle adjustment (with the pose graph's edges and ``inertial``).
-        Returns the refined keyframe poses, the map, the up direction of the IMU
-        factors' gravity (None when none entered) and which keyframes had their heading
-        held to the building's walls."""
-        p, K = self.params, self.ideal.K
-        accepted, n_matches, n_epi, n_depth = [], 0, 0, 0
-        for pair in mw.pairs:
-            fa, fb = features[pair.a], features[pair.b]
-            m = pair.matches
-            res = filter_matches(
-                fa.uv[m[:, 0]],
-                fb.uv[m[:, 1]],
-                fa.depth[m[:, 0]],
-                fb.depth[m[:, 1]],
-                T_kf[pair.a],
-                T_kf[pair.b],
-                K,
-                p.filter,
-            )
-            accepted.append((pair.a, pair.b, m[res.keep]))
-            n_matches += len(m)
-            n_epi += res.epipolar_rejected
-            n_depth += res.depth_rejected
-        tracks = build_tracks(accepted, [len(f) for f in features])
-        stats.update(matches=n_matches, epipolar_rejected=n_epi, depth_rejected=n_depth, tracks=tracks.count)
-        if tracks.count < MIN_TRACKS:
-            warnings.append(f"only {tracks.count} feature tracks survived the filters; bundle adjustment skipped")
-            return T_kf, _SceneMap.empty(), None, np.zeros(len(T_kf), bool)
-        problem = BundleProblem.from_tracks(tracks, features, T_kf, K, p.bundle)
-        # Nothing after reads the features or the matches: they go before the solve's GBs come.
-        features.clear()
-        mw.pairs.clear()
-        del tracks, accepted
-        release_free_memory()
-        floor = walls = None
-        if inertial is None and p.bundle.floor.enabled:
-            floor = floor_attitudes(self.tracker.keyframes, T_kf, self.tracker.odometry.K, p.bundle.floor)
-            stats["floor_attitudes"] = len(floor.normals) if floor is not None else 0
-        if inertial is None and p.bundle.walls.enabled:
-            up = floor.up_odom if floor is not None else up_from_cameras(T_kf)
-            walls = wall_attitudes(self.tracker.keyframes, T_kf, self.tracker.odometry.K, up, p.bundle.walls)
-            stats["wall_attitudes"] = len(walls.walls) if walls is not None else 0
-        ba = solve_bundle(problem, T_kf, self.ideal, p.bundle, mw.edges, inertial, floor, walls)
-        # Its factor graph's GBs (a 25-minute floor: 3.9 -> 7.3 GB) back before the cloud is fused.
-        release_free_memory()
-        # Landmarks that kept at least two observations after outlier removal.
-        counts = np.bincount(ba.obs.point, minlength=len(ba.landmarks))
-        keep = counts >= 2
-        remap = np.cumsum(keep) - 1
-        sel = keep[ba.obs.point]
-        stats.update(
-            landmarks=int(keep.sum()),
-            observations=int(sel.sum()),
-            bundle_rmse_px=ba.rmse_px,
-            bundle_sigma_px=ba.sigma_px,
-            bundle_dropped=ba.dropped,
-            bundle_left_out=ba.left_out,
-            bundle_iterations=ba.iterations,
-        )
-        if ba.biases:
-            b = np.array(list(ba.biases.values()))
-            stats.update(
-                imu_accel_bias_mps2=float(np.linalg.norm(b[:, :3], axis=1).mean()),
-                imu_gyro_bias_dps=float(np.degrees(np.linalg.norm(b[:, 3:], axis=1).mean())),
-            )
-        return (
-            ba.T_world_kf,
-            _SceneMap(
-                ba.landmarks[keep], ba.descriptors[keep], ba.obs.camera[sel], remap[ba.obs.point[sel]], ba.obs.uv[sel]
-            ),
-            inertial.up_odom if inertial is not None and inertial.between else None,
-            np.isin(np.arange(len(T_kf)), list(walls.walls) if walls is not None else []),
-        )
-
-
-@dataclass
-class _SceneMap:
-    """Landmarks (odometry frame) with descriptors and undistorted observations."""
-
-    landmarks: np.ndarray
-    descriptors: np.ndarray
-    obs_keyframe: np.ndarray
-    obs_landmark: np.ndarray
-    obs_uv: np.ndarray
-
-    @staticmethod
-    def empty() -> "_SceneMap":
-        return _SceneMap(
-            np.zeros((0, 3)), np.zeros((0, 128), np.uint8), np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))
-        )
-
-
-def frames_between_keyframes(
-    results: list[TrackResult], edges: list[OdometryEdge], keyframes: list[Keyframe], T_keyframes: list[np.ndarray]
-) -> np.ndarray:
-    """Every frame's pose from its keyframe's (optimised) pose and its tracked
-    offset. Tracking and the optimised keyframes disagree about the next
-    keyframe by a correction; frames between two keyframes take that correction
-    in proportion to their time (the drift accumulated along the way), so a
-    corrected edge does not leave the frames before it behind."""
-    tracked = {e.target: e.T_target_source for e in edges if e.source == e.target + 1}
-    stamps = np.array([k.stamp_ns for k in keyframes], dtype=np.int64)
-    out = np.empty((len(results), 4, 4))
-    for i, r in enumerate(results):
-        a = r.keyframe
-        T = r.T_kf_cam
-        if a + 1 < len(keyframes) and a in tracked and stamps[a] < r.stamp_ns < stamps[a + 1]:
-            final = inv_se3(T_keyframes[a]) @ T_keyframes[a + 1]
-            delta = final @ inv_se3(tracked[a])
-            alpha = (r.stamp_ns - stamps[a]) / (stamps[a + 1] - stamps[a])
-            partial = se3((Rotation.from_matrix(delta[:3, :3]) ** alpha).as_matrix(), alpha * delta[:3, 3])
-            T = partial @ T
-        out[i] = T_keyframes[a] @ T
-    return out
 
 
 def map_recording(

@@ -17,9 +17,10 @@ from yowo_common.ros.bag import list_topics, read_messages
 from yowo_common.rosconv import camera_info_to_model, decode_color, decode_depth, stamp_to_ns
 from yowo_common.topics import EGO_COLOR, EGO_DEPTH, EGO_IMU, EGO_IMU_CALIBRATION, EGO_INFO
 
+from .config import EgoParams
 from .frames import StampPairer
 from .imu import CoverageWait, ImuBuffer, ImuCalibration
-from .pipeline import EgoMapResult, EgoParams, map_recording
+from .pipeline import EgoMapResult, map_recording
 
 COLOR_TOPICS, DEPTH_TOPICS, INFO_TOPIC = EGO_COLOR, EGO_DEPTH, EGO_INFO
 

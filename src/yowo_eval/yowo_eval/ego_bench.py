@@ -24,7 +24,8 @@ from dataclasses import replace
 import numpy as np
 
 from yowo_common.trajectory import Trajectory
-from yowo_ego.pipeline import EgoMapResult, EgoParams
+from yowo_ego.config import EgoParams
+from yowo_ego.pipeline import EgoMapResult
 from yowo_ego.recording import map_bag
 
 from .ground_truth import GroundTruth, read_ground_truth
