@@ -17,18 +17,17 @@ from .scene import CloudParams
 
 @dataclass(frozen=True)
 class EgoParams:
-    odometry: OdometryParams = OdometryParams()
-    features: FeatureParams = FeatureParams()
-    loops: LoopParams = LoopParams()
-    filter: FilterParams = FilterParams()
-    bundle: BundleParams = BundleParams()
-    cloud: CloudParams = CloudParams()
-    layout: LayoutParams = LayoutParams()
-    inertial: InertialParams = InertialParams()
-    bundle_adjustment: bool = True  # False: stop after multiway registration (ablation)
-    # Open3D's parallel reductions (dense odometry, information matrices) sum in a
-    # varying order: runs differ by micrometres per frame, which keyframe and loop
-    # decisions turn into millimetres. One thread makes a recording map the same
-    # every time; on 2 cores it costs nothing measurable, since frames are decoded
-    # and features extracted on other threads. 0: Open3D's default (all cores).
+    odometry: OdometryParams = OdometryParams()  # frame-to-keyframe tracking (keyframe_tracker)
+    features: FeatureParams = FeatureParams()  # SIFT of the keyframes
+    loops: LoopParams = LoopParams()  # multiway registration: edge checks, loops, pose graph (posegraph)
+    filter: FilterParams = FilterParams()  # match filters before the bundle adjustment (feature_tracks)
+    bundle: BundleParams = BundleParams()  # bundle adjustment (refine)
+    cloud: CloudParams = CloudParams()  # TSDF cloud, planar patches and the floor (scene)
+    layout: LayoutParams = LayoutParams()  # walls, floor outline and ceiling (layout)
+    inertial: InertialParams = InertialParams()  # the IMU in the bundle adjustment and gravity check (imu)
+    bundle_adjustment: bool = True  # bundle adjustment after multiway registration; False: stop there (ablation)
+    # Threads Open3D may use, 0: its default (all cores) [count]. Its parallel reductions (dense
+    # odometry, information matrices) sum in a varying order, and keyframe and loop decisions
+    # amplify the difference: one thread makes a recording map the same every time, and costs
+    # nothing on 2 cores, where frames are decoded and features extracted on other threads.
     open3d_threads: int = 1

@@ -28,16 +28,16 @@ import numpy as np
 
 @dataclass(frozen=True)
 class DegeneracyParams:
-    enabled: bool = True
-    depth_sigma_m: float = 0.005  # point-to-plane residual (sensor noise plus normal errors)
-    intensity_sigma: float = 0.02  # grey level in [0, 1] (sensor noise, shading between views)
+    enabled: bool = True  # remap accepted results along the directions their images do not constrain
+    depth_sigma_m: float = 0.005  # noise of the point-to-plane residual (sensor noise plus normal errors)
+    # Noise of a grey level in [0, 1] (sensor noise, shading between views) [grey level].
+    intensity_sigma: float = 0.02
     correspondence_m: float = 0.07  # depth difference beyond which a pixel has no correspondence
-    stride: int = 4  # every stride-th pixel (each way) of the odometry images
-    length_m: float = 1.0  # rotation vs translation scale
-    # A direction whose information leaves more than this sigma per tracked step is
-    # degenerate (a step is ~7 cm of walking). The pixels' errors are taken as independent,
-    # so the sigmas are optimistic: rooms, bare-walled ones too (small texture_poor), give
-    # 0.1-1 mm in every direction; one bare plane gives none in three.
+    stride: int = 4  # every stride-th pixel (each way) of the odometry images enters the information [px]
+    length_m: float = 1.0  # the length a radian of rotation counts as against translation
+    # Sigma per tracked step above which a direction is degenerate. A step is ~7 cm of walking.
+    # The pixels' errors are taken as independent, so the sigmas are optimistic: rooms, bare-walled
+    # ones too, stay well below it in every direction; one bare plane leaves three directions free.
     max_sigma_m: float = 0.003
 
 

@@ -29,13 +29,13 @@ from .features import backproject
 
 @dataclass(frozen=True)
 class FilterParams:
-    epipolar_px: float = 2.5
-    depth_abs_m: float = 0.05  # plus depth_rel * z: depth noise and pose error
-    depth_rel: float = 0.02
-    keypoint_sigma_px: float = 1.0  # for the triangulation uncertainty
-    triangulation_k: float = 3.0
-    transfer_px: float = 4.0
-    min_translation_m: float = 1e-3  # below this the epipolar geometry is undefined
+    epipolar_px: float = 2.5  # Sampson distance to the poses' epipolar geometry above which a match is rejected
+    depth_abs_m: float = 0.05  # depth-consistency threshold's constant part (depth noise and pose error)
+    depth_rel: float = 0.02  # depth-consistency threshold's part proportional to the depth [share]
+    keypoint_sigma_px: float = 1.0  # keypoint noise behind the triangulation's uncertainty along the ray
+    triangulation_k: float = 3.0  # the triangulation's uncertainty in the depth-consistency threshold [sigmas]
+    transfer_px: float = 4.0  # a keypoint's depth point reprojects at most this far from its match
+    min_translation_m: float = 1e-3  # baseline below which the epipolar geometry is undefined (no epipolar check)
 
 
 @dataclass

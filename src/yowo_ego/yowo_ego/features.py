@@ -17,11 +17,11 @@ from yowo_common.pnp import sqpnp_ransac
 
 @dataclass(frozen=True)
 class FeatureParams:
-    max_features: int = 1000
-    ratio: float = 0.8  # Lowe's ratio test
-    depth_edge_ratio: float = 0.03  # keypoints on depth discontinuities get no depth
+    max_features: int = 1000  # SIFT keypoints per image at most [count]
+    ratio: float = 0.8  # Lowe's ratio test threshold [ratio]
+    depth_edge_ratio: float = 0.03  # relative depth spread around a keypoint above which it gets none (an edge) [ratio]
     pnp_px: float = 3.0  # PnP RANSAC reprojection threshold
-    pnp_min_inliers: int = 25
+    pnp_min_inliers: int = 25  # matches with depth, and PnP RANSAC inliers, a relative pose needs [count]
 
 
 @dataclass

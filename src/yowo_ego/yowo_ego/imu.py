@@ -342,18 +342,20 @@ class InertialParams:
     gravity check of the floor rectification (used when the recording has an IMU and
     ``OdometryParams.use_imu``)."""
 
-    bundle_factors: bool = True  # CombinedImuFactor between consecutive keyframes
-    gravity_mps2: float = 9.81
-    # Bias priors at each chain's first keyframe: consumer MEMS turn-on offsets (BMI055/
-    # BMI088, ICM-42688: accelerometer <= 20-60 mg, gyro <= 1-3 deg/s; the tracker's running
-    # gyro estimate is the prior's mean).
+    bundle_factors: bool = True  # IMU factors (CombinedImuFactor) between consecutive keyframes
+    gravity_mps2: float = 9.81  # gravity's magnitude
+    # Sigma of the accelerometer bias prior at each chain's first keyframe. Consumer MEMS
+    # turn-on offsets (BMI055/BMI088, ICM-42688 datasheets) reach tens of mg.
     accel_bias_prior_mps2: float = 0.3
+    # Sigma of the gyro bias prior at each chain's first keyframe, about the tracker's running
+    # estimate. Consumer MEMS gyros are specified to a few deg/s.
     gyro_bias_prior_radps: float = 0.01
-    integration_sigma: float = 1e-4  # preintegration's position integration noise (GTSAM's term)
+    # Preintegration's position integration noise (GTSAM's integration covariance) [m/s/√Hz].
+    integration_sigma: float = 1e-4
     # The map may tilt this much (a loose prior) in the bundle adjustment for the IMU's gravity.
     tilt_prior_deg: float = 5.0
-    # The floor rectification's vertical and the accelerometer's gravity further apart than
-    # this: said in the run's warnings (the floor plane or the IMU calibration is wrong).
+    # Angle between the floor rectification's vertical and the accelerometer's gravity above
+    # which the run warns. The floor plane or the IMU calibration is then wrong.
     max_gravity_disagreement_deg: float = 2.0
 
 

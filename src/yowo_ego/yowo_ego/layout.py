@@ -32,27 +32,29 @@ KIND_OTHER, KIND_FLOOR, KIND_WALL, KIND_CEILING = 0, 1, 2, 3  # yowo_msgs/Plane 
 
 @dataclass(frozen=True)
 class LayoutParams:
-    cell_m: float = 0.05
+    cell_m: float = 0.05  # cell size of the floor outline's top-view grid
     floor_band_m: float = 0.15  # points from this far below the floor count
-    below_ceiling_m: float = 0.25  # ceiling points (and lamps) do not
+    below_ceiling_m: float = 0.25  # points this close below the ceiling (and lamps) do not count
     default_top_m: float = 2.3  # upper bound when no ceiling was found
     wall_from_m: float = 0.3  # points above this height block the inside test
-    wall_min_points: int = 2
-    enclosing_sides: int = 3  # of the four wall directions, for unobserved floor to count
+    wall_min_points: int = 2  # points above wall_from_m a cell needs to block the inside test [count]
+    enclosing_sides: int = 3  # blocked directions (of four) an unobserved cell needs to count as inside [count]
     door_gap_m: float = 1.2  # wall pieces this far apart count as one wall (a door)
-    room_fill_min: float = 0.3  # observed fraction of a room's box for rectangle completion
-    close_m: float = 0.35
-    open_m: float = 0.2
-    min_area_m2: float = 1.0
-    simplify_m: float = 0.05
-    wall_max_tilt_deg: float = 10.0
-    wall_min_height_m: float = 0.6
-    wall_ransac_m: float = 0.04
-    wall_min_points_plane: int = 150  # at the 6 cm sampling of the cloud: ~0.5 m^2
-    wall_gap_m: float = 0.5
-    max_walls: int = 60
-    horizontal_max_tilt_deg: float = 10.0
-    ceiling_above_camera_m: float = 0.3
+    room_fill_min: float = 0.3  # observed share of a room's box for rectangle completion [share]
+    close_m: float = 0.35  # radius of the morphological closing that bridges gaps in the outline
+    open_m: float = 0.2  # radius of the morphological opening that removes thin spurs
+    min_area_m2: float = 1.0  # outline regions and rooms smaller than this are dropped
+    simplify_m: float = 0.05  # tolerance of the outline polygons' simplification
+    wall_max_tilt_deg: float = 10.0  # points whose normal is this close to horizontal may lie on walls
+    wall_min_height_m: float = 0.6  # a wall piece spans this height at least
+    wall_ransac_m: float = 0.04  # RANSAC inlier distance of the wall planes
+    # Points a wall plane needs at least, a wall piece half as many [count]. At the cloud's 6 cm
+    # sampling, about 0.5 m².
+    wall_min_points_plane: int = 150
+    wall_gap_m: float = 0.5  # gaps along a wall plane longer than this split it into pieces
+    max_walls: int = 60  # wall planes extracted at most [count]
+    horizontal_max_tilt_deg: float = 10.0  # a ceiling patch's normal is this close to straight down
+    ceiling_above_camera_m: float = 0.3  # a ceiling patch lies this far above the highest camera at least
 
 
 @dataclass

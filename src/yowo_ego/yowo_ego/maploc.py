@@ -28,25 +28,23 @@ _reg = o3d.pipelines.registration
 
 @dataclass(frozen=True)
 class MapLocParams:
-    enabled: bool = True
-    keyframes: int = 60  # most recent keyframes of the current chain that form the map
-    pixel_step: int = 4  # every pixel_step-th pixel (each way) of the odometry images
-    voxel_m: float = 0.04
-    heading_step_deg: float = 3.0
+    enabled: bool = True  # place a frame no attempt tracks in the map of the recent keyframes by its depth
+    keyframes: int = 60  # most recent keyframes of the current chain that form the map [count]
+    pixel_step: int = 4  # every pixel_step-th pixel (each way) of the odometry depth enters the clouds [px]
+    voxel_m: float = 0.04  # voxel size of the map's and the frame's clouds
+    heading_step_deg: float = 3.0  # step of the scan over the heading about the vertical
     inlier_m: float = 0.15  # heading scan: a frame point this close to the map fits
-    candidates: int = 4  # best headings (local maxima of the scan) refined by ICP
-    icp_distances_m: tuple[float, ...] = (0.15, 0.08, 0.04)
-    icp_iterations: int = 20
-    min_fitness: float = 0.8  # share of the frame's points within the finest ICP distance
-    # Over the best other heading (more than distinct_deg away) that stays within reach.
+    candidates: int = 4  # best headings (local maxima of the scan) refined by ICP [count]
+    icp_distances_m: tuple[float, ...] = (0.15, 0.08, 0.04)  # point-to-plane ICP's correspondence distances, in turn
+    icp_iterations: int = 20  # ICP iterations per correspondence distance at most [count]
+    min_fitness: float = 0.8  # share of the frame's points within the finest ICP distance [share]
+    # Fitness margin over the best other heading (more than distinct_deg away) that stays within reach [share].
     min_margin: float = 0.1
-    distinct_deg: float = 10.0
-    reach_margin_m: float = 0.1  # beyond odometry.max_speed_mps x the time since the previous frame
+    distinct_deg: float = 10.0  # headings further apart than this are other headings (min_margin)
+    reach_margin_m: float = 0.1  # reach beyond odometry.max_speed_mps x the time since the previous frame
     horizontal_deg: float = 25.0  # surface normals this close to the cameras' mean down: horizontal
-    # Uncertainty of the "map" edge to the previous keyframe (ICP against a 4 cm voxel map:
-    # within 0.1 deg and 1 cm on the simulator's whip turns).
-    sigma_deg: float = 1.0
-    sigma_m: float = 0.03
+    sigma_deg: float = 1.0  # rotation sigma of the "map" edge to the previous keyframe
+    sigma_m: float = 0.03  # translation sigma of the "map" edge to the previous keyframe
 
 
 @dataclass

@@ -37,83 +37,88 @@ MEASURED = (TRACKED, RECOVERED, MAP_RELOCALISED, INTERPOLATED)
 class SkipParams:
     """Motion-adaptive frame rate (issue #19): which frames dense odometry may leave out."""
 
-    # Dense odometry (~33 ms a frame on one core) is the ego stage's long pole. Leaving out
-    # frames where the gyro sees a slow head halves its CPU with the same bundle-adjusted ATE
-    # (BENCHMARKS, issue #19). Without the IMU the last step's rate is no safe prediction: on
-    # small dim_light s0 the 2-frame steps then converged to wrong minima (ATE 0.008 -> 0.71 m),
-    # so without it every frame is tracked.
+    # Leave frames out of dense odometry where the gyro sees a slow head. Dense odometry is the
+    # ego stage's long pole; without the IMU the last step's rate is no safe prediction (steps
+    # over two frames converged to wrong minima), so without it every frame is tracked.
     enabled: bool = True
-    # Gyro rotation since the last tracked frame above which a frame is tracked: 4 deg per
-    # 15 Hz frame is 60 deg/s, a look around; the next tracked step then spans ~8 deg, well
-    # inside the dense odometry's basin (2 deg skipped a third fewer frames, no more accurate).
+    # Gyro rotation since the last tracked frame above which a frame is tracked. At 15 Hz this is
+    # a look around; the next tracked step then spans twice it, well inside dense odometry's basin.
     max_rotation_deg: float = 4.0
-    # Predicted translation (last tracked step's velocity x interval): 1 m/s walking is 6.7 cm a frame.
+    # Translation predicted since the last tracked frame above which a frame is tracked. The
+    # prediction is that frame's step velocity x the interval; 1 m/s walking is 6.7 cm a 15 Hz frame.
     max_translation_m: float = 0.08
-    max_frames: int = 1  # skipped frames in a row (1: every 2nd frame at least)
-    max_interval_s: float = 0.2  # from the last tracked frame (a gap in the stream: track)
-    # The last tracked frame's overlap with its keyframe below this: weak, track every frame.
+    max_frames: int = 1  # skipped frames in a row at most, 1: every 2nd frame tracked at least [count]
+    max_interval_s: float = 0.2  # a frame this long after the last tracked frame is tracked (a gap in the stream)
+    # Overlap of the last tracked frame with its keyframe below which no frame is skipped [share].
     min_fitness: float = 0.5
 
 
 @dataclass(frozen=True)
 class OdometryParams:
-    scale: int = 2  # image downsampling for dense odometry (2: 320x240 from VGA)
-    depth_max_m: float = 6.0  # Open3D defaults to 3-4 m; indoor rooms need more
+    scale: int = 2  # image downsampling for dense odometry (2: 320x240 from VGA) [factor]
+    # Depth beyond which dense odometry leaves a pixel out. Open3D's default (3-4 m) is short
+    # for indoor rooms.
+    depth_max_m: float = 6.0
     # Method cascades tried in turn from each initial guess. Hybrid alone is the
     # most accurate and cheapest; point-to-plane first has the wider basin but
     # slides along degenerate geometry (two walls), so it is the second choice.
     cascades: tuple[tuple[str, ...], ...] = (("Hybrid",), ("PointToPlane", "Hybrid"))
-    # Per pyramid level, coarse to fine, at most; a level stops once fitness and inlier
-    # RMSE change by less than relative_tolerance. Textured views converge in a few
-    # iterations from the constant-velocity guess; along bare walls the photometric
-    # term pulls weakly and (6, 3, 2) stopped short, 1-19 cm off per frame (small
-    # texture_poor s0, frames 90-240: mean step error 19 mm -> 3 mm, tracking no slower
-    # since Open3D's default tolerance, 1e-6, ran every level to its maximum).
+    # Iterations per pyramid level, coarse to fine, at most [count]. Textured views converge in
+    # a few from the constant-velocity guess; along bare walls the photometric term pulls weakly
+    # and fewer stopped centimetres short.
     iterations: tuple[int, ...] = (20, 10, 5)
+    # Relative change of fitness and inlier RMSE below which a pyramid level stops [share].
+    # Open3D's default (1e-6) runs every level to its maximum.
     relative_tolerance: float = 1e-4
-    polish_iterations: int = 1  # point-to-plane at the finest level after an accepted result
-    polish_max_m: float = 0.005
-    polish_max_deg: float = 0.2
-    min_fitness: float = 0.2  # fraction of pixels with a correspondence (fast turns: little overlap)
-    # An accepted result whose inlier RMSE exceeds suspect_rmse_ratio x the median of the last
-    # rmse_window accepted ones is suspect: the other cascades run from the same guess and the
-    # result with the most overlap is kept. On bare walls Hybrid settles in wrong minima 6-44 cm
-    # off at 5-15x the RMSE the right answer has (small texture_poor s2 without IMU: bundle ATE
-    # 0.559 -> 0.193 m at the same CPU; running both cascades on every frame costs 30-70 % more).
+    polish_iterations: int = 1  # point-to-plane iterations at the finest level after an accepted result [count]
+    polish_max_m: float = 0.005  # a polish that moves the result further than this is discarded (it slid)
+    polish_max_deg: float = 0.2  # a polish that turns the result further than this is discarded
+    # Overlap with the keyframe a result needs, as Open3D's fitness: the share of pixels with a
+    # correspondence [share]. Low, as fast turns leave little overlap.
+    min_fitness: float = 0.2
+    # Inlier RMSE, over the median of the last rmse_window accepted results, above which a result
+    # is suspect [x]. The other cascades then run from the same guess
+    # and the result with the most overlap is kept: on bare walls Hybrid settles in wrong minima
+    # centimetres off at several times the RMSE the right answer has, and running every cascade
+    # on every frame would cost much more CPU.
     suspect_rmse_ratio: float = 3.0
-    rmse_window: int = 15
-    # Hybrid residual RMSE (Open3D's mixed depth/intensity units): converged
-    # results stay below ~4e-4, wrong minima lie above ~1e-3 on the synthetic data.
+    rmse_window: int = 15  # last accepted results whose median RMSE the suspect test takes [count]
+    # Inlier RMSE above which a result is rejected, in Open3D's mixed depth/intensity units
+    # [residual]. It lies between converged results and wrong minima; a rejected result can
+    # still serve a break edge as the least bad attempt.
     max_inlier_rmse: float = 6e-4
-    max_speed_mps: float = 3.0  # motion plausibility between consecutive frames
-    max_turn_dps: float = 900.0  # head turns reach several hundred deg/s
-    # A result with little overlap that turns far from the motion prediction is ambiguous:
-    # in a whip turn on bare walls dense odometry settles near zero motion at fitness ~0.3,
-    # tens of degrees off. Such a result is not accepted without the feature guess agreeing;
-    # otherwise the frame is lost and relocalisation joins what follows.
+    max_speed_mps: float = 3.0  # camera speed between consecutive frames above which a result is implausible
+    # Head turn rate between consecutive frames above which a result is implausible [deg/s].
+    # Head turns reach several hundred deg/s.
+    max_turn_dps: float = 900.0
+    # Overlap below which a result that turns far from the motion prediction is ambiguous, and
+    # not accepted [share]. In a whip turn on bare walls dense odometry settles near zero motion
+    # with little overlap, tens of degrees off; the feature guess or relocalisation takes over.
     ambiguous_fitness: float = 0.4
+    # A low-overlap result turning further than this from the motion prediction is ambiguous (ambiguous_fitness).
     max_prediction_disagreement_deg: float = 15.0
-    keyframe_fitness: float = 0.65  # a new keyframe when the overlap with the last falls below
-    keyframe_translation_m: float = 0.5
-    keyframe_rotation_deg: float = 20.0
-    info_distance_m: float = 0.07  # correspondence distance for edge information matrices
-    # Open3D's fitness is a share of all pixels, and the fitness thresholds above hold for frames
-    # with depth almost everywhere. A frame with depth in fewer than this share of its pixels
-    # (a Kinect: ~70 %) has its fitness scaled up by this share over its own: unscaled, TUM
-    # fr1_rpy never reached keyframe_fitness and every one of its 694 frames became a keyframe.
+    keyframe_fitness: float = 0.65  # overlap with the keyframe below which a frame becomes a new keyframe [share]
+    keyframe_translation_m: float = 0.5  # a frame this far from its keyframe becomes a new keyframe
+    keyframe_rotation_deg: float = 20.0  # a frame turned this far from its keyframe becomes a new keyframe
+    info_distance_m: float = 0.07  # correspondence distance of the edges' information matrices
+    # Share of pixels with depth that the fitness thresholds assume [share]. Open3D's fitness is a
+    # share of all pixels: a frame with depth in fewer (a Kinect's) has its fitness scaled up by
+    # this share over its own, or a real sensor's frames would never reach keyframe_fitness.
     full_depth_fraction: float = 0.9
     # Re-tracking after a fast turn accepts weaker evidence than loop closures:
     # the dense check that follows rejects a wrong guess.
     recovery_features: FeatureParams = FeatureParams(ratio=0.9, pnp_min_inliers=15)
-    # IMU (when the recording has one): gyro rotation as first guess and check, bridging.
+    # Track with the IMU when the recording has one. The gyro's rotation is the first guess and a
+    # check, and bridges frames vision does not track.
     use_imu: bool = True
-    max_gyro_disagreement_deg: float = 5.0  # between consecutive frames; the gyro is off ~0.02 deg there
+    # A result turning further than this from the gyro's rotation between consecutive frames is implausible.
+    max_gyro_disagreement_deg: float = 5.0
     max_bridge_s: float = 1.0  # longest stretch of frames bridged by the gyro alone
-    # Uncertainty of a bridged step (its "imu" edge): rotation from the gyro (bias and noise),
-    # translation from the constant velocity of the last visual step (a walk's speed changes).
+    # Rotation sigma of a gyro-bridged step's "imu" edge per second bridged (the gyro's bias and noise) [deg/s].
     bridge_rotation_sigma_dps: float = 1.0
+    # Translation sigma of a bridged step's edge per second bridged (its constant velocity: a walk's speed changes).
     bridge_translation_sigma_mps: float = 0.5
-    gyro_bias_time_constant_s: float = 10.0  # running mean of the bias tracked frames imply
+    gyro_bias_time_constant_s: float = 10.0  # time constant of the running gyro bias from tracked steps
     # Offline reader: a frame waits this long (the recording's time) for IMU samples covering it.
     # (The graph's node waits until the end of the stream: its topics arrive in no common order.)
     imu_wait_s: float = 0.5
@@ -124,8 +129,8 @@ class OdometryParams:
     maploc: MapLocParams = MapLocParams()
     # Frames not tracked where the motion is slow, their poses interpolated (SkipParams).
     skip: SkipParams = SkipParams()
-    # Keyframe images PNG-compressed in memory (Keyframe): lossless, half the memory of the
-    # walk's keyframes (a 25-minute floor: -0.9 GB) for ~10 ms per keyframe.
+    # Keep keyframe images PNG-compressed in memory (Keyframe). Lossless: a long walk's
+    # keyframes take about half the memory, for milliseconds per keyframe.
     compress_keyframes: bool = True
 
 

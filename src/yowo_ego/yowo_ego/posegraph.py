@@ -46,50 +46,46 @@ from .rgbd_odometry import RgbdOdometry, orthonormalize
 
 @dataclass(frozen=True)
 class LoopParams:
-    min_separation: int = 3  # keyframes; closer ones are linked by odometry already
-    max_distance_m: float = 2.5  # candidate camera centres this close ...
-    max_angle_deg: float = 45.0  # ... looking within this angle of each other
-    max_per_keyframe: int = 2  # nearest candidates verified per keyframe
-    break_window: int = 4  # keyframes either side of a tracking break, all pairs tried
-    features: FeatureParams = FeatureParams()
-    # A tracking edge and the PnP estimate agree within these bounds; so must a
-    # dense refinement started from PnP. PnP on SIFT is accurate to a few mm /
-    # 0.1 deg here, while wrong dense minima are off by 0.3-4 deg.
+    min_separation: int = 3  # keyframes between a loop's two at least; closer ones are linked by odometry [count]
+    max_distance_m: float = 2.5  # loop candidates: camera centres at most this far apart
+    max_angle_deg: float = 45.0  # loop candidates: viewing directions at most this far apart
+    max_per_keyframe: int = 2  # nearest loop candidates verified per keyframe [count]
+    break_window: int = 4  # keyframes either side of a tracking break whose pairs are all tried [count]
+    features: FeatureParams = FeatureParams()  # matching and PnP of the edge checks and loops
+    # Translation within which a tracking edge and the PnP estimate agree, as must a dense
+    # refinement started from it. PnP on SIFT is accurate to millimetres on these images, while
+    # wrong dense minima are off by more.
     agree_m: float = 0.01
-    agree_deg: float = 0.25
-    # Loop edges are refined densely from PnP (which is off by 1-8 cm / up to
-    # 2.5 deg on wide-baseline loops, the dense result by a few mm); a dense
-    # result further than this from PnP fell into another minimum.
+    agree_deg: float = 0.25  # rotation within which a tracking edge and the PnP estimate agree
+    # A loop's dense refinement further than this from PnP fell into another minimum. PnP is
+    # off by centimetres on wide-baseline loops, the dense result by millimetres.
     loop_refine_max_m: float = 0.1
-    loop_refine_max_deg: float = 3.0
-    # When they disagree, the tracking edge stays if the SIFT matches support it
-    # almost as well as the PnP estimate (PnP may be the ambiguous one).
+    loop_refine_max_deg: float = 3.0  # the same in rotation
+    # Support by the SIFT matches, the edge's over the PnP estimate's, at which a disagreeing
+    # tracking edge stays [ratio]. PnP may be the ambiguous one.
     keep_support_ratio: float = 0.7
-    # A PnP estimate from the looser retry matching replaces an edge without the dense
-    # confirmation when the matches contradict the edge outright: it explains fewer than
-    # this fraction of what PnP explains (a wrong dense minimum on a fast turn explains
-    # none; an ambiguous PnP leaves the edge most of its support).
+    # Support ratio (the edge's over PnP's) below which a PnP estimate from the looser retry
+    # matching replaces the edge unconfirmed [ratio]. A wrong dense minimum on a fast turn
+    # explains none; an ambiguous PnP leaves the edge most of its support.
     contradicted_support_ratio: float = 0.2
     # A pair whose matches are too few for the default check is retried with
     # looser matching (the support comparison still guards the result).
     retry_features: FeatureParams = FeatureParams(ratio=0.9, pnp_min_inliers=15)
-    # A tracking edge with the gyro's rotation (the IMU) is not replaced by an estimate whose
-    # rotation differs from the gyro's by more: in a symmetric room PnP can match a
-    # look-alike view 90-180 deg off (small symmetric s0: a 45 deg turn replaced by one the
-    # other way), while the gyro over a keyframe interval is off by a tenth of a degree.
+    # A tracking edge with the gyro's rotation is not replaced by an estimate turning further
+    # than this from the gyro's. In a symmetric room PnP can match a look-alike view far off,
+    # while the gyro over a keyframe interval is accurate.
     max_gyro_disagreement_deg: float = 5.0
-    # Without a dense confirmation, a tracking edge checked only across a neighbour is not
-    # turned further than this: the check corrects wrong dense minima (a few degrees off),
-    # while a larger change means PnP matched a look-alike view (small symmetric s0 without
-    # the IMU: a tracked 45 deg whip-turn step replaced by one 90 deg off).
+    # Without a dense confirmation, a tracking edge checked only across a neighbour is not turned
+    # further than this. The check corrects wrong dense minima, a few degrees off, while a larger
+    # change means PnP matched a look-alike view.
     max_across_correction_deg: float = 20.0
-    retrieval: RetrievalParams = RetrievalParams()
-    # Global optimisation, Open3D's GlobalOptimizationOption and convergence criteria.
+    retrieval: RetrievalParams = RetrievalParams()  # place recognition
+    # Correspondence distance behind the loop edges' line-process weight (Open3D's GlobalOptimizationOption).
     max_correspondence_distance_m: float = 0.05
-    edge_prune_threshold: float = 0.25
-    preference_loop_closure: float = 1.0
-    max_iterations: int = 100
-    relative_error_tol: float = 1e-6
+    edge_prune_threshold: float = 0.25  # loops whose line process ends below this are pruned [share]
+    preference_loop_closure: float = 1.0  # weight of the loop edges' line process (Open3D's) [x]
+    max_iterations: int = 100  # Levenberg-Marquardt iterations at most [count]
+    relative_error_tol: float = 1e-6  # LM stops once an iteration lowers the error by less than this [share]
 
 
 @dataclass

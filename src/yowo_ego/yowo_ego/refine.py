@@ -45,22 +45,25 @@ from .scene import FloorAttitudeParams, FloorAttitudes, WallAttitudeParams, Wall
 
 @dataclass(frozen=True)
 class BundleParams:
-    sigma_px: float = 1.0  # first-round keypoint noise
-    huber_k: float = 1.345
-    depth_sigma_a_m: float = 0.0012  # sigma(z) = a + b (z - 0.4)^2 (Kinect-like structured light)
-    depth_sigma_b: float = 0.0019
-    max_iterations: int = 8  # per round; LM starts close (multiway registration): 15 changed no ATE by 0.1 mm
-    rounds: int = 2
-    outlier_k: float = 5.0  # observations beyond k sigma are dropped between rounds
-    min_track_length: int = 2
-    # The pose graph's edges as between factors; their Open3D information counts each
-    # depth correspondence as 1 m of noise, i.e. a few mm / 0.1 deg per tracking edge.
+    sigma_px: float = 1.0  # keypoint noise in the first round (later rounds estimate it)
+    huber_k: float = 1.345  # Huber threshold of the projection and range factors [sigmas]
+    # Depth noise a of the range factors' sigma(z) = a + b (z - 0.4)^2 (Kinect-like structured light).
+    depth_sigma_a_m: float = 0.0012
+    depth_sigma_b: float = 0.0019  # growth b of the depth noise sigma(z) = a + b (z - 0.4)^2 [1/m]
+    # Levenberg-Marquardt iterations per round at most [count]. LM starts close (multiway registration).
+    max_iterations: int = 8
+    rounds: int = 2  # solves; the pixel sigma is re-estimated and outliers dropped between them [count]
+    outlier_k: float = 5.0  # observations beyond this many sigmas are dropped between rounds [sigmas]
+    min_track_length: int = 2  # keyframes a track needs to become a landmark [count]
+    # The pose graph's edges as between factors in the adjustment. Their Open3D information
+    # counts each depth correspondence as 1 m of noise, i.e. a few mm / 0.1 deg per tracking edge.
     pose_graph_factors: bool = True
-    edge_information_scale: float = 1.0
-    edge_huber_k: float = 1.345  # on the whitened edge error: a wrong edge yields to the features
-    # Observations the adjustment (and so the map) keeps at most; 0: all. GTSAM's solve takes
-    # ~3 kB per observation (a 25-minute floor: 1.09 M, +3.4 GB), so above this each keyframe
-    # keeps its longest tracks (select_landmarks). The small and standard walks stay below it.
+    edge_information_scale: float = 1.0  # multiplier of the pose graph edges' information [x]
+    # Huber threshold of the edge factors' whitened error [sigmas]. A wrong edge yields to the features.
+    edge_huber_k: float = 1.345
+    # Observations the adjustment (and so the map) keeps at most, 0: all [count]. GTSAM's solve
+    # takes kilobytes per observation, so above this each keyframe keeps its longest tracks
+    # (select_landmarks).
     max_observations: int = 500_000
     # Without an IMU: each keyframe's view of the floor as a prior on its tilt (FloorAttitudeParams).
     floor: FloorAttitudeParams = FloorAttitudeParams()

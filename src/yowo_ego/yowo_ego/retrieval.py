@@ -20,15 +20,16 @@ from scipy.cluster.vq import kmeans2, vq
 
 @dataclass(frozen=True)
 class RetrievalParams:
-    enabled: bool = True
-    words: int = 256  # vocabulary size
-    vocabulary_keyframes: int = 8  # built once this many keyframes have descriptors
-    vocabulary_iterations: int = 10  # k-means iterations (seeded: runs are repeatable)
-    # Best-scoring earlier keyframes verified per keyframe: of a segment not yet joined to
-    # the walk's first one (relocalisation), and of one that is (loop closures by appearance).
+    enabled: bool = True  # place recognition: relocalisation after tracking breaks, loops by appearance
+    words: int = 256  # vocabulary size [count]
+    vocabulary_keyframes: int = 8  # the vocabulary is built once this many keyframes have descriptors [count]
+    vocabulary_iterations: int = 10  # k-means iterations (seeded: runs are repeatable) [count]
+    # Best-scoring earlier keyframes verified per keyframe of a segment not yet joined to the
+    # walk (relocalisation) [count].
     relocalisation_candidates: int = 3
+    # Best-scoring earlier keyframes verified per keyframe of a joined segment (loop closures by appearance) [count].
     loop_candidates: int = 1
-    min_score: float = 0.1  # cosine similarity of the tf-idf vectors
+    min_score: float = 0.1  # cosine similarity of the tf-idf vectors a retrieved keyframe needs [cos]
 
 
 class PlaceIndex:

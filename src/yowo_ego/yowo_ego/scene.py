@@ -34,19 +34,19 @@ from .odometry import Keyframe
 
 @dataclass(frozen=True)
 class CloudParams:
-    voxel_m: float = 0.03
-    block_resolution: int = 8
-    depth_max_m: float = 5.0
-    trunc_voxels: float = 4.0
-    min_weight: float = 2.0  # TSDF surface points seen fewer times are dropped
+    voxel_m: float = 0.03  # voxel size of the TSDF the keyframes are fused into
+    block_resolution: int = 8  # voxels along a TSDF block's side [count]
+    depth_max_m: float = 5.0  # depth beyond which a pixel is not fused
+    trunc_voxels: float = 4.0  # the TSDF's truncation distance [voxels]
+    min_weight: float = 2.0  # TSDF surface points seen fewer times are dropped [views]
     plane_voxel_m: float = 0.06  # cloud resolution for plane detection
-    plane_min_points: int = 60
-    plane_min_edge_m: float = 0.4
-    patch_normal_cos: float = 0.94  # a point belongs to a patch when its normal is within 20 deg
-    floor_bin_m: float = 0.02  # height histogram of upward-facing points
-    floor_max_tilt_deg: float = 35.0
-    floor_below_camera_m: float = 0.5
-    floor_refit_band_m: float = 0.04
+    plane_min_points: int = 60  # points a planar patch needs at least [count]
+    plane_min_edge_m: float = 0.4  # a planar patch's shortest edge at least
+    patch_normal_cos: float = 0.94  # a point belongs to a patch when its normal is within 20 deg [cos]
+    floor_bin_m: float = 0.02  # bin of the height histogram of upward-facing points
+    floor_max_tilt_deg: float = 35.0  # floor candidates: patches whose normal is this close to the up guess
+    floor_below_camera_m: float = 0.5  # floor candidates: points this far below the cameras' median height at least
+    floor_refit_band_m: float = 0.04  # the floor plane is refit to the upward-facing points this close to its level
 
 
 @dataclass
@@ -233,17 +233,17 @@ def up_from_cameras(T_odom_cam: list[np.ndarray]) -> np.ndarray:
 class FloorAttitudeParams:
     """Without an IMU, the floor each keyframe sees sets its tilt in the bundle adjustment
     (yowo_ego.refine): a building's floor is one plane, so a keyframe whose view of it
-    leans against the map's floor was tracked with a tilt (bare walls: 7 deg over 14 s on
-    small texture_poor s2). Not the paper's (an extension, like the IMU's gravity)."""
+    leans against the map's floor was tracked with a tilt (bare walls let dense odometry
+    tilt unseen). Not the paper's (an extension, like the IMU's gravity)."""
 
-    enabled: bool = True
-    sigma_deg: float = 1.0  # a keyframe's floor normal (plane fit to its own depth)
+    enabled: bool = True  # without an IMU, hold each keyframe's tilt to the floor it sees
+    sigma_deg: float = 1.0  # sigma of a keyframe's floor normal (a plane fit to its own depth)
     tilt_prior_deg: float = 5.0  # the map may tilt this much (the first keyframe's prior)
     below_camera_m: float = 0.8  # floor candidates: this far below the camera at least
-    max_tilt_deg: float = 20.0  # from the up direction the keyframe's pose predicts
+    max_tilt_deg: float = 20.0  # floor candidates: normals this close to the up direction the keyframe's pose predicts
     distance_m: float = 0.02  # RANSAC inlier distance of the plane fit
-    min_points: int = 1500  # inliers (of the 320x240 depth) for a keyframe to count
-    stride: int = 2  # every stride-th pixel each way
+    min_points: int = 1500  # inliers (of the 320x240 depth) for a keyframe to count [count]
+    stride: int = 2  # every stride-th pixel each way [px]
 
 
 def _plane(P: np.ndarray, distance_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -316,24 +316,26 @@ class WallAttitudeParams:
     (yowo_ego.refine). Most buildings stand on two perpendicular horizontal axes (a Manhattan
     world), so a keyframe whose largest wall turns against the axes the map's walls share was
     tracked with a turn: dense odometry along bare walls turns by degrees where nothing else
-    sees it (small texture_poor s1: 8 deg, then 25 deg, over 13 s), and neither the floor nor
-    the agent track observes a turn about the vertical. Not the paper's (an extension, like
-    the floor's tilt). Whether the building is one is seen within single views, whatever the
-    tracking's turns: where a view holds two walls that are not parallel, they are
-    perpendicular in at least ``min_share`` of such views; otherwise no keyframe gets one."""
+    sees it, and neither the floor nor the agent track observes a turn about the vertical.
+    Not the paper's (an extension, like the floor's tilt). Whether the building is one is seen
+    within single views, whatever the tracking's turns: where a view holds two walls that are
+    not parallel, they are perpendicular in at least ``min_share`` of such views; otherwise no
+    keyframe gets one."""
 
-    enabled: bool = True
-    sigma_deg: float = 1.0  # a keyframe's largest wall's normal (plane fit to its own depth)
+    enabled: bool = True  # without an IMU, hold each keyframe's heading to the walls it sees
+    sigma_deg: float = 1.0  # sigma of a keyframe's largest wall's normal (a plane fit to its own depth)
     turn_prior_deg: float = 5.0  # the map may turn this much (the first keyframe's prior)
     max_tilt_deg: float = 10.0  # a wall's normal from horizontal (across the up direction)
     max_turn_deg: float = 20.0  # a keyframe's wall from the nearest axis, as tracked
     perpendicular_deg: float = 5.0  # two walls of one view are perpendicular within this
+    # Share of the views with two non-parallel walls in which they are perpendicular, for a
+    # Manhattan building [share].
     min_share: float = 0.7
-    min_corners: int = 3  # views holding two walls that are not parallel, at least
-    max_planes: int = 3  # planes tried per view, largest first
+    min_corners: int = 3  # views holding two walls that are not parallel, at least [count]
+    max_planes: int = 3  # planes tried per view, largest first [count]
     distance_m: float = 0.02  # RANSAC inlier distance of each plane fit
-    min_points: int = 3000  # inliers (of the 320x240 depth) for a plane to count
-    stride: int = 2  # every stride-th pixel each way
+    min_points: int = 3000  # inliers (of the 320x240 depth) for a plane to count [count]
+    stride: int = 2  # every stride-th pixel each way [px]
 
 
 def wall_normals_in_view(
