@@ -18,7 +18,7 @@ from yowo_cmc.group_sfm import CameraGroupResult
 from yowo_common.camera import EQUIDISTANT, RATIONAL_POLYNOMIAL, CameraModel
 from yowo_common.geometry import inv_se3, transform_points
 from yowo_common.rosconv import camera_info_to_model
-from yowo_fusion.records import EgoMapData, RegisteredCmc
+from yowo_fusion.records import EgoMapData, RegisteredCmc, unregistered
 
 TARGET = np.array([2.0, 1.5, 1.0])  # a point every camera sees
 
@@ -51,36 +51,8 @@ def _cameras() -> list[RegisteredCmc]:
             )
         )
     cam, _ = ceiling_camera(2.0, 2.0, TARGET[:2])
-    out.append(
-        RegisteredCmc(
-            name="e_failed",
-            group="",
-            method="none",
-            status="failed",
-            reason="seen in 0 frames",
-            T_world_cam=None,
-            covariance=None,
-            camera=cam,
-            rmse_px=float("nan"),
-            num_agent=0,
-            num_scene=0,
-        )
-    )
-    out.append(
-        RegisteredCmc(
-            name="f_no_info",
-            group="",
-            method="none",
-            status="failed",
-            reason="no usable CameraInfo",
-            T_world_cam=None,
-            covariance=None,
-            camera=None,
-            rmse_px=float("nan"),
-            num_agent=0,
-            num_scene=0,
-        )
-    )
+    out.append(unregistered("e_failed", "seen in 0 frames", cam))
+    out.append(unregistered("f_no_info", "no usable CameraInfo"))
     return out
 
 

@@ -10,7 +10,7 @@ from geometry_msgs.msg import Point
 from yowo_bringup.report import _COLOURS, _ellipse_scale, floor_footprint, wall_segments, write_report
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import look_at
-from yowo_fusion.records import AgentFit, RegisteredCmc
+from yowo_fusion.records import AgentFit, RegisteredCmc, unregistered
 from yowo_msgs.msg import Plane
 
 
@@ -81,19 +81,7 @@ def test_report_renders_in_headless_chromium(tmp_path):
     cams = [
         camera("c1", (0.3, 0.3, 3.0), (3.0, 2.0, 0.0)),
         camera("c2", (5.7, 3.7, 3.0), (3.0, 2.0, 0.0), "weak"),
-        RegisteredCmc(
-            name="c3",
-            group="",
-            method="none",
-            status="failed",
-            reason="never saw the agent",
-            T_world_cam=None,
-            covariance=None,
-            camera=None,
-            rmse_px=float("nan"),
-            num_agent=0,
-            num_scene=0,
-        ),
+        unregistered("c3", "never saw the agent"),
     ]
     walls = [np.array([[0.0, 4.0], [6.0, 4.0]]), np.array([[6.0, 0.0], [6.0, 4.0]])]
     rng = np.random.default_rng(1)

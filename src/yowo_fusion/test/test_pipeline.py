@@ -428,12 +428,10 @@ def test_weak_ego_frames_from_landmark_support_and_gaps():
     stamps = ego.stamps_ns[:40].copy()
     stamps[30:] += 10**9  # 1 s without frames before frame 30
     obs_pose = np.repeat([0, 10, 20], [50, 5, 30])  # keyframes 0 and 20 well supported, 10 not
-    sparse = EgoMapData(
-        camera=ego.camera,
-        stamps_ns=stamps,
-        T_world_ego=ego.T_world_ego[:40],
+    bare = replace(ego, stamps_ns=stamps, T_world_ego=ego.T_world_ego[:40])  # no landmark observations
+    sparse = replace(
+        bare,
         landmarks=np.zeros((85, 3)),
-        descriptor_type="SIFT",
         descriptors=np.zeros((85, 128), np.uint8),
         obs_pose=obs_pose,
         obs_landmark=np.arange(85),
@@ -442,17 +440,6 @@ def test_weak_ego_frames_from_landmark_support_and_gaps():
     weak, gap = weak_ego_frames(sparse, FusionParams())
     assert np.flatnonzero(weak).tolist() == list(range(10, 20)) + [30]
     assert np.flatnonzero(gap).tolist() == [30]
-    bare = EgoMapData(
-        camera=ego.camera,
-        stamps_ns=stamps,
-        T_world_ego=ego.T_world_ego[:40],
-        landmarks=np.zeros((0, 3)),
-        descriptor_type="SIFT",
-        descriptors=np.zeros((0, 128), np.uint8),
-        obs_pose=np.zeros(0, int),
-        obs_landmark=np.zeros(0, int),
-        obs_uv=np.zeros((0, 2)),
-    )
     assert np.flatnonzero(weak_ego_frames(bare, FusionParams())[0]).tolist() == [30]
     # Where the ego stage says how it tracked: a landmark-poor keyframe's frames tracked with
     # good overlap (depth on a bare wall) are not weak, those with little are, and a frame

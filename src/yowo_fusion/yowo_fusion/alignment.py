@@ -92,16 +92,23 @@ def rebalanced_weights(labels: np.ndarray) -> np.ndarray:
     return 1.0 / (len(counts) * counts[inverse])
 
 
-def interpolate_positions(
-    stamps_ns: np.ndarray, positions: np.ndarray, query_ns: np.ndarray, max_gap_ns: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Linear interpolation of a trajectory at query stamps; valid only between two
-    samples at most max_gap_ns apart."""
+def interpolation_pairs(stamps_ns: np.ndarray, query_ns: np.ndarray, max_gap_ns: int):
+    """(left index, right index, weight of right, valid) for each query stamp: valid only
+    inside the stream, between two samples at most max_gap_ns apart."""
     right = np.clip(np.searchsorted(stamps_ns, query_ns), 1, len(stamps_ns) - 1)
     left = right - 1
     gap = stamps_ns[right] - stamps_ns[left]
     ok = (query_ns >= stamps_ns[0]) & (query_ns <= stamps_ns[-1]) & (gap <= max_gap_ns)
-    a = np.clip((query_ns - stamps_ns[left]) / np.maximum(gap, 1), 0.0, 1.0)[:, None]
+    a = np.clip((query_ns - stamps_ns[left]) / np.maximum(gap, 1), 0.0, 1.0)
+    return left, right, a, ok
+
+
+def interpolate_positions(
+    stamps_ns: np.ndarray, positions: np.ndarray, query_ns: np.ndarray, max_gap_ns: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Linear interpolation of a trajectory at query stamps, and where it is valid (interpolation_pairs)."""
+    left, right, a, ok = interpolation_pairs(stamps_ns, query_ns, max_gap_ns)
+    a = a[:, None]
     return (1 - a) * positions[left] + a * positions[right], ok
 
 

@@ -15,7 +15,7 @@ from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3, se3
 from yowo_common.pnp import sqpnp_all, sqpnp_ransac
 
-from .alignment import head_tops
+from .alignment import head_tops, interpolate_positions
 from .records import AgentTrack
 
 
@@ -55,13 +55,8 @@ def agent_correspondences(
         sel = track.ids == kp_id
         if sel.sum() < 2:
             continue
-        t_ns, P = track.stamps_ns[sel], track.points[sel]
-        right = np.clip(np.searchsorted(t_ns, stamps), 1, len(t_ns) - 1)
-        left = right - 1
-        gap = t_ns[right] - t_ns[left]
-        valid = ok & (stamps >= t_ns[0]) & (stamps <= t_ns[-1]) & (gap <= params.max_gap_s * 1e9)
-        a = np.clip((stamps - t_ns[left]) / np.maximum(gap, 1), 0, 1)[:, None]
-        X = (1 - a) * P[left] + a * P[right]
+        X, near = interpolate_positions(track.stamps_ns[sel], track.points[sel], stamps, int(params.max_gap_s * 1e9))
+        valid = ok & near
         pts.append(X[valid])
         uvs.append(uv[valid])
     return ideal, np.vstack(pts or [np.zeros((0, 3))]), np.vstack(uvs or [np.zeros((0, 2))])

@@ -52,6 +52,8 @@ from yowo_common.bundle import (
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3
 
+from .alignment import interpolation_pairs
+
 TOP, BOTTOM = 0, 1
 UNKNOWN_COVARIANCE = np.full((6, 6), np.nan)  # a pose whose covariance could not be computed
 UNKNOWN_COVARIANCE.setflags(write=False)
@@ -143,16 +145,6 @@ class JointResult:
     covariance_failure: str = ""  # why cmc_covariances are NaN (unknown): an indeterminate system
     ego_breaks: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # frames of unflagged breaks found
     held_points: list[str] = field(default_factory=list)  # indeterminate points held for the covariances
-
-
-def interpolation_pairs(ego_ns: np.ndarray, query_ns: np.ndarray, max_gap_ns: int):
-    """(left index, right index, weight of right) for each query inside the ego stream."""
-    right = np.clip(np.searchsorted(ego_ns, query_ns), 1, len(ego_ns) - 1)
-    left = right - 1
-    gap = ego_ns[right] - ego_ns[left]
-    ok = (query_ns >= ego_ns[0]) & (query_ns <= ego_ns[-1]) & (gap <= max_gap_ns)
-    a = np.clip((query_ns - ego_ns[left]) / np.maximum(gap, 1), 0.0, 1.0)
-    return left, right, a, ok
 
 
 def ros_covariance(cov_gtsam: np.ndarray, R_world_cam: np.ndarray) -> np.ndarray:

@@ -24,10 +24,8 @@ from .grouped import GroupedCmcs, gather_groups
 from .isolated import ego_agent_track, merge_tracks, refine_pose, register_over_clock
 from .joint_groups import JointOutcome, solve_groups
 from .records import (
-    FAILED,
     GROUP_SFM,
     ISOLATED_PNP,
-    NONE,
     WEAK,
     AgentFit,
     AgentTrack,
@@ -35,6 +33,7 @@ from .records import (
     EgoMapData,
     FusionResult,
     RegisteredCmc,
+    unregistered,
 )
 from .refined_map import move_cloud, rebuild_layout
 from .scene_matching import match_scene
@@ -303,17 +302,16 @@ def _register_isolated(
     registration now rests on (never ok); groups_offset_s: the groups' clock offset to the ego
     clock, where the clock search (params.isolated.clock_search_s) looks first."""
     if cmc is None:
-        return _unregistered(name, why, None)
+        return unregistered(name, why)
     if not cmc.intrinsics_known:  # its nominal model would place it wherever its focal length says
-        return _unregistered(
+        return unregistered(
             name,
             f"{why}; without CameraInfo or an intrinsics file it is "
             "calibrated only within a group (give them with --intrinsics)",
-            None,
         )
     pnp, reason, offset = register_over_clock(cmc.tracks, agent, params.isolated, tracks, groups_offset_s)
     if pnp is None:
-        return _unregistered(name, f"{why}; isolated registration failed: {reason}", cmc.tracks.camera)
+        return unregistered(name, f"{why}; isolated registration failed: {reason}", cmc.tracks.camera)
     clock = (
         (
             offset,
@@ -363,23 +361,6 @@ def _register_isolated(
         clock_offset_s=clock[0],
         clock_sigma_s=clock[1],
         clock_note=clock[2],
-    )
-
-
-def _unregistered(name: str, reason: str, camera: CameraModel | None) -> RegisteredCmc:
-    """A camera no pose was found for."""
-    return RegisteredCmc(
-        name=name,
-        group="",
-        method=NONE,
-        status=FAILED,
-        reason=reason,
-        T_world_cam=None,
-        covariance=None,
-        camera=camera,
-        rmse_px=float("nan"),
-        num_agent=0,
-        num_scene=0,
     )
 
 

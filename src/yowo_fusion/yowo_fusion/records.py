@@ -69,6 +69,23 @@ class RegisteredCmc:
         return self.camera.K if self.camera is not None else np.zeros((3, 3))
 
 
+def unregistered(name: str, reason: str, camera: CameraModel | None = None) -> RegisteredCmc:
+    """A camera no pose was found for: failed, with the reason."""
+    return RegisteredCmc(
+        name=name,
+        group="",
+        method=NONE,
+        status=FAILED,
+        reason=reason,
+        T_world_cam=None,
+        covariance=None,
+        camera=camera,
+        rmse_px=float("nan"),
+        num_agent=0,
+        num_scene=0,
+    )
+
+
 @dataclass(kw_only=True)
 class AgentFit:
     """The fused agent track against one grouped CMC's observations, in its raw pixels
