@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from cmc_synthetic import ceiling_camera, loop_walk, observe
-from yowo_cmc.clock import ClockParams, PairOffset, combine, estimate_clock_offsets
+from yowo_cmc.clock import ClockParams, combine, estimate_clock_offsets
+from yowo_cmc.clock_pairs import PairOffset
 from yowo_cmc.config import CmcParams
 from yowo_cmc.group_sfm import calibrate_groups
 from yowo_cmc.keypoint_tracks import interpolate

@@ -4,16 +4,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from cmc_synthetic import ceiling_camera, loop_walk, observe
-from yowo_cmc.group_sfm import (
-    SfmParams,
-    agreement_px,
-    calibrate_groups,
-    geometric_gate_scales,
-    overlap_score,
-    sample_on_grid,
-    weak_cut_parts,
-)
+from yowo_cmc.group_sfm import agreement_px, calibrate_groups, geometric_gate_scales
 from yowo_cmc.keypoint_tracks import KeypointTrack, TrackParams
+from yowo_cmc.params import SfmParams
+from yowo_cmc.scene_graph import overlap_score, sample_on_grid, weak_cut_parts
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import se3
 from yowo_eval.metrics import relative_pose_errors

@@ -9,8 +9,9 @@ import pytest
 import shapely
 from scipy.spatial.transform import Rotation
 
-from yowo_cmc.image_detector import AgentDetector, DetectorParams
+from yowo_cmc.image_detector import AgentDetector
 from yowo_cmc.keypoint_input import ImageKeypointSource
+from yowo_cmc.params import DetectorParams
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import se3
 from yowo_sim.body import GROUND, HEAD_TOP, agent_keypoints_3d, agent_mesh
@@ -53,7 +54,11 @@ def render_sequence(seed: int) -> Sequence:
     cmc = place_cmc("cam", room, room.ceiling_height, CmcSpec(), rng)
     roll = Rotation.from_rotvec([0.0, 0.0, np.radians(EXTRA_ROLL_DEG)]).as_matrix()
     cmc = Cmc(
-        cmc.name, cmc.room, cmc.camera, se3(cmc.T_world_cam[:3, :3] @ roll, cmc.T_world_cam[:3, 3]), cmc.target_xy
+        name=cmc.name,
+        room=cmc.room,
+        camera=cmc.camera,
+        T_world_cam=se3(cmc.T_world_cam[:3, :3] @ roll, cmc.T_world_cam[:3, 3]),
+        target_xy=cmc.target_xy,
     )
     free = scene.free_space_polygon()
     x0, y0, x1, y1 = room.bounds

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 from cmc_synthetic import HEIGHT, ceiling_camera, loop_walk, observe
-from yowo_cmc.group_sfm import GroupingResult, SfmParams, calibrate_groups
+from yowo_cmc.group_sfm import GroupingResult, calibrate_groups
 from yowo_cmc.intrinsics import EstimatedCamera, focal_from_fundamental, pnp_unknown_focal
 from yowo_cmc.messages import groups_from_msg, groups_to_msg
+from yowo_cmc.params import SfmParams
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import inv_se3
 from yowo_eval.metrics import relative_pose_errors

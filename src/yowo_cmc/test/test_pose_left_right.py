@@ -7,7 +7,9 @@ out must be right or absent."""
 import numpy as np
 import pytest
 
-from yowo_cmc.pose_model import MOVENET_JOINTS, LeftRight, PersonPose, PoseModelParams, lr_pairs
+from yowo_cmc.params import PoseModelParams
+from yowo_cmc.pose_keypoints import MOVENET_JOINTS, PersonPose
+from yowo_cmc.pose_left_right import LeftRight, lr_pairs
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import look_at
 

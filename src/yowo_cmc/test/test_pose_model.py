@@ -8,7 +8,10 @@ import cv2
 import numpy as np
 import pytest
 
-from yowo_cmc.pose_model import GROUND, HEAD_TOP, PersonPose, PoseDetector, PoseModelParams, pick_agent
+from yowo_cmc.params import PoseModelParams
+from yowo_cmc.pose_keypoints import GROUND, HEAD_TOP, PersonPose
+from yowo_cmc.pose_model import PoseDetector
+from yowo_cmc.pose_source import pick_agent
 
 # Per photograph, per person: its height in the image (head top to soles, or the
 # visible extent for the upper-body photos) and hand-marked joints [px]. A tuple

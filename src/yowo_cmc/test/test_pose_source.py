@@ -8,8 +8,8 @@ import pytest
 
 from yowo_bringup.offline import read_cmc_tracks
 from yowo_bringup.run import cmc_source
-from yowo_cmc.image_detector import DetectorParams
-from yowo_cmc.pose_model import PoseModelParams, PoseOrDetectorSource
+from yowo_cmc.params import DetectorParams, PoseModelParams
+from yowo_cmc.pose_source import PoseOrDetectorSource
 from yowo_common.camera import CameraModel
 from yowo_common.ros.bag import read_messages
 from yowo_common.rosconv import camera_info_to_model, points_to_array, pose_to_matrix, stamp_to_ns

@@ -1,13 +1,11 @@
-"""The `cmc` section of YOWO's configuration tree: what the keypoint trackers and the
-group SfM use."""
+"""The root of the `cmc` section of YOWO's configuration tree: what the keypoint trackers
+and the group SfM use. Its sections are the dataclasses of params.py."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .image_detector import DetectorParams
-from .params import ClockParams, SfmParams
-from .pose_model import PoseModelParams
+from .params import ClockParams, DetectorParams, PoseModelParams, SfmParams
 
 
 @dataclass(frozen=True)

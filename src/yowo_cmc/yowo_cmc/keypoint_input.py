@@ -11,8 +11,9 @@ import numpy as np
 
 from yowo_common.camera import CameraModel
 
-from .image_detector import AgentDetection, AgentDetector, DetectorParams
+from .image_detector import AgentDetection, AgentDetector
 from .keypoint_tracks import CameraTracks, KeypointTrack
+from .params import DetectorParams
 
 
 @dataclass

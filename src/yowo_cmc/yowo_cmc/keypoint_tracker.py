@@ -16,7 +16,7 @@ from yowo_common.intrinsics_io import intrinsics_from_text
 from .background import BackgroundSampler
 from .config import CmcParams
 from .keypoint_input import ImageKeypointSource, KeypointFrame, TrackAccumulator
-from .pose_model import PoseOrDetectorSource
+from .pose_source import PoseOrDetectorSource
 
 SOURCES = ("keypoints", "pose", "images")
 

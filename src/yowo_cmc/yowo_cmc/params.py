@@ -1,6 +1,7 @@
-"""The parameters of the CMC tracks, clock offsets and the group SfM, apart from the algorithms: the
-configuration tree (config.py) imports these, and a keypoint tracker needs the tree but
-none of the SfM's libraries (scipy.signal, gtsam, networkx), which are slow to import."""
+"""The sections of the cmc configuration (config.py, its root) apart from their
+algorithms: the keypoint tracks, the group SfM, the clock offsets, the model-free
+detector and the pose model. A keypoint tracker needs the tree but none of the SfM's
+libraries (scipy.signal, gtsam, networkx), which are slow to import."""
 
 from __future__ import annotations
 
@@ -159,3 +160,81 @@ class ClockParams:
     refine_range_s: float = 0.1  # largest correction of the refinement
     refine_max_points: int = 3000  # agent points in the fit (evenly spread in time)
     refine_min_observations: int = 50  # a member's observations the fit needs to refine its offset
+
+
+@dataclass(frozen=True)
+class DetectorParams:
+    warmup_s: float = 20.0  # the background starts as the per-pixel median over this long
+    warmup_samples: int = 40  # frames (evenly spaced) in that median
+    hold_jpeg_quality: int = 95  # frames waiting for the background are held JPEG-encoded
+    diff_low: float = 10.0  # colour difference (grey levels, max over channels) of agent pixels
+    diff_high: float = 30.0  # a blob needs pixels this different (hysteresis seeds)
+    min_area: float = 4e-4  # blob area gates, fraction of the image
+    max_area: float = 0.5
+    background_rate: float = 0.02  # running-average weight per frame away from the agent
+    flaw_rate: float = 0.3  # weight inside blobs that are background flaws (fast healing)
+    flaw_edge_ratio: float = 1.5  # a blob whose outline edge is weaker than this times both the
+    #                                  background's edge there and the frame's texture around is a flaw
+    shadow_ratio: tuple[float, float] = (0.6, 0.95)  # brightness ratio to the background of shadow pixels
+    shadow_chroma: float = 8.0  # colour deviation (grey levels) allowed in shadow pixels
+    track_jump: float = 0.5  # largest move of the blob centre per frame, in blob heights
+    track_gap_s: float = 1.0  # a track unseen longer than this starts anew
+    geometry_frames: int = 40  # distinct silhouettes before the first estimate of d and rho
+    min_geometry_frames: int = 8  # at the end of the stream, fewer: no keypoints
+    max_geometry_frames: int = 400
+    distinct_px: float = 4.0  # a silhouette is new for the geometry when its centre moved this far
+    settle_deg: float = 0.2  # frames are emitted once two successive estimates of d agree this well
+    settle_rho: float = 0.003  # ... and of rho
+    scene_cone_deg: float = 8.0  # scene edges may move the agent's vertical this far (by its misfit)
+    top_band_px: float = 3.0  # outline points this close to the top set the head's sideways position
+    head_radius: float = 0.05  # head radius / agent height (anthropometric; 0 disables the correction)
+    max_height_misfit: float = 0.1  # silhouettes whose head and lowest point imply a height ratio this far
+    #                                  from rho are partly hidden: no keypoints (the gait alone scatters 0.035)
+    foot_reach: float = 0.11  # mean horizontal distance, / agent height, from the point under the head
+    #                                  to the sole point nearest to the camera (shoe length and stride;
+    #                                  measured on simulated walks of the anthropometric body model)
+
+
+@dataclass(frozen=True)
+class PoseModelParams:
+    model: str = "movenet"  # "movenet" (multi-person, one pass) or "blazepose" (detector + landmarks)
+    threads: int = 1  # LiteRT interpreter threads (one core per camera)
+    input_size: int = 256  # movenet: long side of the network input (multiple of 32; 256 is
+    #                                   the model's training size, larger finds smaller persons, slower)
+    min_person_score: float = 0.2  # persons below this score are dropped
+    # Top-down refinement (movenet): the whole-frame pass sees a small person in a big frame at a few
+    # pixels per joint (Pose2Sim's 1080x1920 videos: ~110 px tall in the 256 input), so each person
+    # found is passed through the model again on a square crop around its box, resized to input_size
+    # (the person ~200 px tall there, whatever the frame size). Measured (docs/pose_model.md): hand-marked
+    # photos median 1.2 -> 0.9 % of the height; simulator ankles 6.5 -> 2.1 px, head top 11 -> 6.6 px
+    # (shoulders 11 -> 14 px); 640x480 on one core 41 -> 17 frames/s.
+    refine_crop: bool = True  # movenet: the second pass on each person's crop (PoseKeypointSource:
+    #                                   on the agent only, one more pass per image)
+    refine_margin: float = 1.3  # the box times this fits in the crop (the whole-frame box can be
+    #                                   short of a limb; the crop must hold the whole person)
+    refine_aspect: float = 1.0  # the crop's short side / long side (1: square; 0.5 halves the crop
+    #                                   pass's cost, but on Pose2Sim gave 3.3 % against the square's 1.4 %)
+    refine_max_zoom: float = 1.0  # the crop is never magnified more than this (a small person's crop
+    #                                   grows instead): upsampling adds no detail, and the model's
+    #                                   confidences drop on the blurred input (320x240: hips 0.6 -> 0.3)
+    max_persons: int = 6  # blazepose: landmark passes per image (movenet: always <= 6)
+    detector_score: float = 0.5  # blazepose: person detector score threshold (MediaPipe's)
+    nms_iou: float = 0.3  # blazepose: overlapping person detections merged above this IoU
+    joint_score: float = 0.3  # joints below this confidence do not feed the derived ids 0 and 1
+    min_keypoint_score: float = 0.3  # keypoints below this are left out of a KeypointFrame (MoveNet puts
+    #                                   joints cut by the border on the border at 0.1-0.26)
+    border_px: float = 0.0  # joints farther than this outside the image get confidence 0
+    ankle_to_ground: float = 0.15  # movenet ground point: below the ankles by this times hip-to-ankle
+    #                                   (ankle joint ~10 cm above the floor in shoes, hip ~93 cm)
+    # Left/right: a model labels them by appearance and swaps them for a person seen from behind or
+    # above; a swapped id is a gross outlier across cameras (docs/pose_model.md, "Left and right").
+    lr_window_s: float = 0.6  # the walking direction of a pair's midpoint: a line fit over this
+    #                                   span centred on the frame (frames go out lr_window_s / 2 late)
+    lr_min_motion: float = 0.08  # ... decides only if the midpoint moves this much over the window
+    #                                   (fraction of the person's box size; walking: ~0.25)
+    lr_min_offset: float = 0.06  # a pair whose left-to-right offset across the walking direction
+    #                                   (or, standing, its offset) is below this (fraction of the box
+    #                                   size) is ambiguous: dropped
+    lr_resolve: bool = True  # False: the model's own labels as they come (to measure them)
+    lr_track_s: float = 1.0  # standing: the pair follows its last decided assignment in the
+    #                                   same track if that is at most this old; else it is dropped

@@ -10,7 +10,8 @@ from dataclasses import replace
 
 import cv2
 
-from .clock import attach_to_groups, estimate_clock_offsets, refine_group_offsets
+from .clock import attach_to_groups, estimate_clock_offsets
+from .clock_refine import refine_group_offsets
 from .config import CmcParams
 from .group_sfm import GroupingResult, calibrate_groups
 from .keypoint_tracks import CameraTracks

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from yowo_bringup.cli import main
-from yowo_cmc.pose_model import PoseModelParams, ground_point, head_top
+from yowo_cmc.params import PoseModelParams
+from yowo_cmc.pose_keypoints import ground_point, head_top
 from yowo_common import topics
 from yowo_common.geometry import inv_se3, se3
 from yowo_common.ros.bag import read_messages

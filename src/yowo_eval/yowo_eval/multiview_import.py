@@ -67,7 +67,8 @@ def person_pose(uv: np.ndarray, conf: np.ndarray, fmt: str, width: int, height: 
     """One detected person as the pose model's PersonPose: ids 0 and 1 derived by the pose
     model's own rules (head_top, ground_point; a big toe stands for BlazePose's foot index),
     joints outside the image at confidence 0 as there, the box over the confident joints."""
-    from yowo_cmc.pose_model import GROUND, HEAD_TOP, PersonPose, PoseModelParams, ground_point, head_top
+    from yowo_cmc.params import PoseModelParams
+    from yowo_cmc.pose_keypoints import GROUND, HEAD_TOP, PersonPose, ground_point, head_top
 
     p = PoseModelParams()
     names = format_joints(fmt)
@@ -107,7 +108,7 @@ class AgentTracker:
     _missed: int = 0
 
     def pick(self, people):
-        from yowo_cmc.pose_model import pick_agent
+        from yowo_cmc.pose_source import pick_agent
 
         people = sorted(people, key=lambda p: -p.score)
         agent = pick_agent(people, self._previous, self.max_jump * self.diagonal_px)
@@ -286,7 +287,7 @@ def import_caliscope(xy_csv, bag, calibration=None, progress=None) -> ImportSumm
     frame CameraInfo and AgentKeypoints stamped by the frame's capture time."""
     from std_msgs.msg import Header
 
-    from yowo_cmc.pose_model import ID_OFFSET
+    from yowo_cmc.pose_keypoints import ID_OFFSET
     from yowo_common import topics
     from yowo_common.rosconv import model_to_camera_info, ns_to_time
 

@@ -102,14 +102,14 @@ BLAZEPOSE = "BLAZEPOSE"  # mediapipe's 33 landmarks: the pose model's own BlazeP
 
 def joint_ids(fmt: str) -> dict[str, int]:
     """Keypoint id of every joint name of a format (the table in docs/usage.md's importer section)."""
-    from yowo_cmc.pose_model import BLAZEPOSE_JOINTS, ID_OFFSET
+    from yowo_cmc.pose_keypoints import BLAZEPOSE_JOINTS, ID_OFFSET
 
     names = BLAZEPOSE_JOINTS if fmt == BLAZEPOSE else COCO_17 + EXTRA_JOINTS
     return {n: i + ID_OFFSET for i, n in enumerate(names)}
 
 
 def format_joints(fmt: str) -> tuple[str, ...]:
-    from yowo_cmc.pose_model import BLAZEPOSE_JOINTS
+    from yowo_cmc.pose_keypoints import BLAZEPOSE_JOINTS
 
     return BLAZEPOSE_JOINTS if fmt == BLAZEPOSE else FORMATS[fmt]
 

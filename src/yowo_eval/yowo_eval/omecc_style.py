@@ -36,20 +36,11 @@ import networkx as nx
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
-from yowo_cmc.group_sfm import (
-    MAX_IDS,
-    CameraGroupResult,
-    GridObservations,
-    GroupingResult,
-    IncrementalSfm,
-    PairGeometry,
-    SfmParams,
-    group_cameras,
-    pair_geometry,
-    sample_on_grid,
-    triangulate,
-)
+from yowo_cmc.group_sfm import CameraGroupResult, GroupingResult
+from yowo_cmc.incremental_sfm import IncrementalSfm, triangulate
 from yowo_cmc.keypoint_tracks import CameraTracks
+from yowo_cmc.params import SfmParams
+from yowo_cmc.scene_graph import MAX_IDS, GridObservations, PairGeometry, group_cameras, pair_geometry, sample_on_grid
 from yowo_common.bundle import (
     FIXED_SIGMA,
     Observations,

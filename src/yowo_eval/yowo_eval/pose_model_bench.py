@@ -39,7 +39,10 @@ import time
 import cv2
 import numpy as np
 
-from yowo_cmc.pose_model import ID_OFFSET, MOVENET_JOINTS, PoseDetector, PoseKeypointSource, PoseModelParams
+from yowo_cmc.params import PoseModelParams
+from yowo_cmc.pose_keypoints import ID_OFFSET, MOVENET_JOINTS
+from yowo_cmc.pose_model import PoseDetector
+from yowo_cmc.pose_source import PoseKeypointSource
 
 ROOT = pathlib.Path(__file__).resolve().parents[3]  # the source checkout (the photos are marked in its tests)
 

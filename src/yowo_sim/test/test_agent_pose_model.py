@@ -5,7 +5,9 @@ ceiling camera's view: found, its joints near the true projections of the body's
 import numpy as np
 import pytest
 
-from yowo_cmc.pose_model import ID_OFFSET, MOVENET_JOINTS, PoseDetector, PoseModelParams
+from yowo_cmc.params import PoseModelParams
+from yowo_cmc.pose_keypoints import ID_OFFSET, MOVENET_JOINTS
+from yowo_cmc.pose_model import PoseDetector
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import look_at
 from yowo_sim.body import BODY_JOINTS, agent_joints_3d, agent_mesh
