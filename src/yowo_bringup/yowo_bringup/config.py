@@ -15,6 +15,7 @@ from pathlib import Path
 import yaml
 
 from yowo_cmc.config import CmcParams
+from yowo_common import topics
 from yowo_common.config import ConfigError, dump, load, to_dict
 from yowo_ego.config import EgoParams
 from yowo_fusion.config import UPSTREAM_HOMES, FusionParams, UpstreamParams
@@ -56,11 +57,11 @@ class YowoConfig:
 
 # Which section each node reads (trackers are keypoint_tracker_<camera>).
 NODE_SECTIONS = {
-    "replay": "replay",
-    "ego_mapper": "ego",
-    "keypoint_tracker": "cmc",
-    "group_sfm": "cmc",
-    "fusion": "fusion",
+    topics.REPLAY_STAGE: "replay",
+    topics.EGO_STAGE: "ego",
+    topics.TRACKER_STAGE: "cmc",
+    topics.GROUP_SFM_STAGE: "cmc",
+    topics.FUSION_STAGE: "fusion",
 }
 
 
@@ -104,7 +105,7 @@ CONFIG_PARAMETERS = {"config", *(k for extras in NODE_EXTRAS.values() for k in e
 def node_config(config: YowoConfig, node: str) -> dict[str, str]:
     """A node's configuration parameters: its section's YAML in `config`, and the YAML of any
     other value of the tree it reads (NODE_EXTRAS)."""
-    kind = "keypoint_tracker" if node.startswith("keypoint_tracker") else node
+    kind = topics.TRACKER_STAGE if node.startswith(topics.TRACKER_STAGE) else node
     return {
         "config": dump(getattr(config, NODE_SECTIONS[kind])),
         **{name: dump(_value(config, home)) for name, home in NODE_EXTRAS.get(kind, {}).items()},

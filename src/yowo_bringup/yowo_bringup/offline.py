@@ -12,6 +12,7 @@ import numpy as np
 from yowo_cmc.config import CmcParams
 from yowo_cmc.keypoint_input import TrackAccumulator, frame_from_msg, frame_to_msg
 from yowo_cmc.keypoint_tracks import CameraTracks
+from yowo_common import topics
 from yowo_common.ros.bag import read_messages
 from yowo_common.rosconv import camera_info_to_model
 
@@ -47,7 +48,7 @@ def read_cmc_inputs(
     from yowo_cmc.keypoint_tracker import KeypointTracker
     from yowo_common.rosconv import decode_color, encode_raw, stamp_to_ns
 
-    from .run import CMC, FULL, plan_run
+    from .run import CMC, FULL, STAGE_MODULES, plan_run
 
     params = params or CmcParams()
     config = YowoConfig(inputs=replace(inputs or InputParams(), videos=(), video_list=""), cmc=params)
@@ -55,7 +56,7 @@ def read_cmc_inputs(
     specs = [
         n.parameters
         for n in plan_run(bag, ".", mode=mode, config=config, source=source).nodes
-        if n.name.startswith("keypoint_tracker_")
+        if n.module == STAGE_MODULES[topics.TRACKER_STAGE]
     ]
     trackers, by_topic = {}, {}
     for spec in specs:
