@@ -19,7 +19,7 @@ def test_isolated_cameras_get_registration_errors_and_no_table_of_nan(tmp_path, 
         "cameras": [{"name": n, "group": None, "T_world_camera": pose_entry(T)} for n, T in est.items()],
     }
     (tmp_path / "cameras.yaml").write_text(yaml.safe_dump(doc))
-    monkeypatch.setattr(yowo_eval, "read_ground_truth", lambda bag: GroundTruth(gt, None, []))
+    monkeypatch.setattr(yowo_eval, "read_ground_truth", lambda bag: GroundTruth(cameras=gt, ego=None, floor=[]))
     m = yowo_eval.evaluate(tmp_path, "rec.mcap")
     assert m["registration"]["summary"]["pos_max"] == pytest.approx(0.1)
     assert "relative" not in m and "no group" in m["relative_note"]

@@ -13,7 +13,7 @@ from yowo_common.trajectory import Trajectory
 from .metrics import map_frame_from_first_pose
 
 
-@dataclass
+@dataclass(kw_only=True)
 class GroundTruth:
     cameras: dict[str, np.ndarray]
     ego: Trajectory | None
@@ -53,4 +53,4 @@ def read_ground_truth(bag) -> GroundTruth:
         cams = {n: T @ P for n, P in cams.items()}
         ego = Trajectory(ego.stamps_ns, np.einsum("ij,njk->nik", T, ego.T_world_cam))
         floor = [p @ T[:2, :2].T + T[:2, 3] for p in floor]
-    return GroundTruth(cams, ego, floor, T, offsets)
+    return GroundTruth(cameras=cams, ego=ego, floor=floor, T_map_sim=T, clock_offsets_s=offsets)

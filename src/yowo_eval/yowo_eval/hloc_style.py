@@ -62,7 +62,7 @@ class KeyframeImage:
     depth: np.ndarray  # H x W float metres (NaN / 0: missing)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class LocalizationResult:
     name: str
     T_world_cam: np.ndarray | None
@@ -78,7 +78,7 @@ class Features:
     descriptors: np.ndarray  # (N, 128) float32 RootSIFT
 
 
-@dataclass
+@dataclass(kw_only=True)
 class KeyframeDatabase:
     """The map side, built once per ego map: each keyframe's features, their 3D points
     in the map frame (NaN without depth) and VLAD descriptors."""
@@ -181,7 +181,11 @@ def build_database(
         cv2.KMEANS_PP_CENTERS,
     )
     return KeyframeDatabase(
-        indices, feats, points, vocabulary, np.array([vlad(f.descriptors, vocabulary) for f in feats])
+        indices=indices,
+        features=feats,
+        points=points,
+        vocabulary=vocabulary,
+        vlad=np.array([vlad(f.descriptors, vocabulary) for f in feats]),
     )
 
 
@@ -243,14 +247,20 @@ def localize(
     """T_world_cam of one CMC from its background image (RGB), with or without a prior pose."""
     query = extract(background, params.max_features)
     if len(query.uv) < params.min_inliers:
-        return LocalizationResult(name, None, f"only {len(query.uv)} SIFT keypoints in its image")
+        return LocalizationResult(
+            name=name, T_world_cam=None, reason=f"only {len(query.uv)} SIFT keypoints in its image"
+        )
     if prior is None:
         sims = db.vlad @ vlad(query.descriptors, db.vocabulary)
         entries = [int(e) for e in np.argsort(-sims, kind="stable")[: params.num_retrieved]]
     else:
         entries = _prior_candidates(db, camera, prior, params)
         if not entries:
-            return LocalizationResult(name, None, "no keyframe sees the part of the map in the prior camera's view")
+            return LocalizationResult(
+                name=name,
+                T_world_cam=None,
+                reason="no keyframe sees the part of the map in the prior camera's view",
+            )
     query_tree = cKDTree(query.uv)
     obj, img = [], []
     for e in entries:
@@ -269,12 +279,11 @@ def localize(
     obj, img = np.vstack(obj), camera.undistort_pixels(np.vstack(img))
     if len(obj) < params.min_inliers:
         return LocalizationResult(
-            name,
-            None,
-            f"only {len(obj)} 2D-3D matches with {len(entries)} keyframes (needs {params.min_inliers})",
-            0,
-            len(obj),
-            retrieved,
+            name=name,
+            T_world_cam=None,
+            reason=f"only {len(obj)} 2D-3D matches with {len(entries)} keyframes (needs {params.min_inliers})",
+            num_matches=len(obj),
+            retrieved=retrieved,
         )
     rvec, tvec, idx = sqpnp_ransac(
         obj, img, camera.K, params.pnp_px, iterations=params.pnp_iterations, confidence=0.9999, seed=RANSAC_SEED
@@ -282,13 +291,15 @@ def localize(
     n = len(idx)
     if n < params.min_inliers:
         return LocalizationResult(
-            name,
-            None,
-            f"PnP RANSAC found {n} inliers among {len(obj)} matches (needs {params.min_inliers})",
-            n,
-            len(obj),
-            retrieved,
+            name=name,
+            T_world_cam=None,
+            reason=f"PnP RANSAC found {n} inliers among {len(obj)} matches (needs {params.min_inliers})",
+            num_inliers=n,
+            num_matches=len(obj),
+            retrieved=retrieved,
         )
     rvec, tvec = cv2.solvePnPRefineLM(obj[idx], img[idx], camera.K, None, rvec, tvec)
     T = inv_se3(se3(cv2.Rodrigues(rvec)[0], tvec.ravel()))
-    return LocalizationResult(name, T, "", n, len(obj), retrieved)
+    return LocalizationResult(
+        name=name, T_world_cam=T, reason="", num_inliers=n, num_matches=len(obj), retrieved=retrieved
+    )

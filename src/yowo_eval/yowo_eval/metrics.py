@@ -21,7 +21,7 @@ class PoseError:
     eps_rot_deg: float
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ErrorSummary:
     """avg / min / max over cameras, as in the paper's tables."""
 
@@ -37,10 +37,18 @@ class ErrorSummary:
     def of(errors: list[PoseError]) -> "ErrorSummary":
         if not errors:
             nan = float("nan")
-            return ErrorSummary(0, nan, nan, nan, nan, nan, nan)
+            return ErrorSummary(count=0, pos_avg=nan, pos_min=nan, pos_max=nan, rot_avg=nan, rot_min=nan, rot_max=nan)
         p = np.array([e.eps_pos_m for e in errors])
         r = np.array([e.eps_rot_deg for e in errors])
-        return ErrorSummary(len(errors), p.mean(), p.min(), p.max(), r.mean(), r.min(), r.max())
+        return ErrorSummary(
+            count=len(errors),
+            pos_avg=p.mean(),
+            pos_min=p.min(),
+            pos_max=p.max(),
+            rot_avg=r.mean(),
+            rot_min=r.min(),
+            rot_max=r.max(),
+        )
 
 
 def pose_error(name: str, T_est: np.ndarray, T_gt: np.ndarray) -> PoseError:
@@ -125,7 +133,7 @@ def associate(est_ns: np.ndarray, ref_ns: np.ndarray, max_diff_ns: int) -> tuple
     return np.flatnonzero(keep), nearest[keep]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class AteResult:
     rmse_m: float
     mean_m: float
@@ -143,7 +151,13 @@ def ate(est: Trajectory, ref: Trajectory, max_diff_s: float = 0.01, align: bool 
     p_est, p_ref = est.positions[i_est], ref.positions[i_ref]
     S = umeyama(p_est, p_ref, with_scale=False) if align else Sim3.identity()
     err = np.linalg.norm(S.apply(p_est) - p_ref, axis=1)
-    return AteResult(float(np.sqrt(np.mean(err**2))), float(err.mean()), float(err.max()), len(err), S)
+    return AteResult(
+        rmse_m=float(np.sqrt(np.mean(err**2))),
+        mean_m=float(err.mean()),
+        max_m=float(err.max()),
+        matched=len(err),
+        alignment=S,
+    )
 
 
 # --- layout ---------------------------------------------------------------------

@@ -122,7 +122,7 @@ class AgentTracker:
         return agent
 
 
-@dataclass
+@dataclass(kw_only=True)
 class CameraSummary:
     name: str
     keypoints_from: str | None
@@ -230,7 +230,11 @@ def import_multiview(
             for k, ref in enumerate(s.cameras):
                 kp_dir = s.keypoint_dirs[k] if s.keypoint_dirs else None
                 video = streams[k] if streams else None
-                summary = CameraSummary(ref.name, kp_dir.name if kp_dir else None, video.path.name if video else None)
+                summary = CameraSummary(
+                    name=ref.name,
+                    keypoints_from=kp_dir.name if kp_dir else None,
+                    video_from=video.path.name if video else None,
+                )
                 files = dict(frame_files(kp_dir)) if kp_dir else {}
                 indices = sorted(files) if files else list(range(video.count))
                 if video:
@@ -303,7 +307,7 @@ def import_caliscope(xy_csv, bag, calibration=None, progress=None) -> ImportSumm
     bag, summaries = Path(bag), []
     with _recording(bag, list(refs.values())) as out:
         for k, (cam_id, ref) in enumerate(sorted(refs.items())):
-            summary = CameraSummary(ref.name, xy_csv.name, None)
+            summary = CameraSummary(name=ref.name, keypoints_from=xy_csv.name, video_from=None)
             cam = ref.camera
             for n, (t, ids, uv) in enumerate(frames.get(cam_id, [])):
                 stamp = START_NS + round((t - t0) * 1e9)

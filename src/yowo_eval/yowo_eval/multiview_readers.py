@@ -332,7 +332,7 @@ def find_caliscope_calibration(xy_csv: Path) -> Path:
 
 
 # --- the session folder -------------------------------------------------------------------
-@dataclass
+@dataclass(kw_only=True)
 class Session:
     calibration: Path
     cameras: list[ReferenceCamera]
@@ -386,7 +386,7 @@ def read_session(folder, calibration=None, videos: bool = False, fps: float | No
             )
     if videos and not vids:
         raise MultiviewImportError(f"{folder}: --videos, but no videos/*.mp4 (or .avi, .mov, .mkv)")
-    return Session(calib, cams, kp_dirs, vids, rate)
+    return Session(calibration=calib, cameras=cams, keypoint_dirs=kp_dirs, videos=vids, fps=rate)
 
 
 class Video:

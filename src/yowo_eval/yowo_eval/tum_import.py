@@ -174,7 +174,7 @@ def _read_png(path: Path, depth: bool) -> np.ndarray:
     return img
 
 
-@dataclass
+@dataclass(kw_only=True)
 class ImportSummary:
     bag: Path
     camera: str
@@ -278,13 +278,13 @@ def import_tum(
         shutil.rmtree(bag, ignore_errors=True)  # no half recording left behind
         raise
     return ImportSummary(
-        bag,
-        name,
-        written,
-        len(seq.rgb) - len(pairs),
-        len(seq.depth) - len(pairs),
-        len(seq.groundtruth),
-        (last - first) / 1e9,
+        bag=bag,
+        camera=name,
+        frames=written,
+        rgb_unmatched=len(seq.rgb) - len(pairs),
+        depth_unmatched=len(seq.depth) - len(pairs),
+        gt_poses=len(seq.groundtruth),
+        duration_s=(last - first) / 1e9,
     )
 
 

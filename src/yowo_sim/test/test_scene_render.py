@@ -33,11 +33,11 @@ def _quads_scene(quads: list[np.ndarray], texture: np.ndarray, uvs: list[np.ndar
         vertices.extend(quad)
     n = len(triangles)
     return Scene(
-        np.array(vertices, np.float32),
-        np.array(triangles, np.int32),
-        np.array(tri_uvs, np.float32),
-        np.zeros(n, np.int32),
-        [texture],
+        vertices=np.array(vertices, np.float32),
+        triangles=np.array(triangles, np.int32),
+        triangle_uvs=np.array(tri_uvs, np.float32),
+        triangle_texture=np.zeros(n, np.int32),
+        textures=[texture],
         ambient=1.0,
     )
 

@@ -41,7 +41,7 @@ START_NS = 1_700_000_000 * 10**9  # recordings start at a fixed epoch: determini
 EGO_FRAME = "ego_optical_frame"
 
 
-@dataclass
+@dataclass(kw_only=True)
 class CaptureSummary:
     path: Path
     duration_s: float
@@ -131,7 +131,7 @@ def agent_in_view(cmc: Cmc, keypoints: dict[int, np.ndarray], margin_px: float =
     return bool(np.any(ok & np.all((uv > lo) & (uv < hi), axis=1)))
 
 
-@dataclass
+@dataclass(kw_only=True)
 class CaptureSetup:
     """Everything a capture is made of before rendering (deterministic for a seed)."""
 
@@ -161,7 +161,15 @@ def build_capture(preset: CapturePreset, seed: int) -> CaptureSetup:
         scene.free_space_polygon(), scene.rooms[0].center_xy(), [c.target_xy for c in cmcs], preset.walk, rng
     )
     ego_cam = CameraModel.from_fov(preset.ego_width, preset.ego_height, preset.ego_hfov_deg)
-    return CaptureSetup(preset, scene, cmcs, walk, ego_cam, rng, clock_offsets(preset, seed, cmcs))
+    return CaptureSetup(
+        preset=preset,
+        scene=scene,
+        cmcs=cmcs,
+        walk=walk,
+        ego_camera=ego_cam,
+        rng=rng,
+        clock_offsets_ns=clock_offsets(preset, seed, cmcs),
+    )
 
 
 def generate(
@@ -264,15 +272,15 @@ def generate(
         if imu_writer:
             imu_writer.until(None)
     return CaptureSummary(
-        out_path,
-        walk.duration_s,
-        counts["ego"],
-        counts["cmc"],
-        counts["agent"],
-        cmcs,
-        render_s,
-        rendered,
-        0 if imu is None else len(imu.stamps_ns),
+        path=out_path,
+        duration_s=walk.duration_s,
+        ego_frames=counts["ego"],
+        cmc_frames=counts["cmc"],
+        cmc_frames_with_agent=counts["agent"],
+        cmcs=cmcs,
+        render_seconds=render_s,
+        rendered_frames=rendered,
+        imu_samples=0 if imu is None else len(imu.stamps_ns),
     )
 
 

@@ -95,7 +95,7 @@ class ImuParams:
         return self.gyro_noise_density * root, self.accel_noise_density * root
 
 
-@dataclass
+@dataclass(kw_only=True)
 class ImuKinematics:
     """Noise-free motion of the IMU frame at times t_s (world frame unless stated)."""
 
@@ -117,11 +117,16 @@ def imu_kinematics(walk: Walk, t_s: np.ndarray, params: ImuParams) -> ImuKinemat
     acc = m.ddp + m.ddR @ c
     g = np.array([0.0, 0.0, -params.gravity_mps2])
     return ImuKinematics(
-        m.t_s, R_wi, m.p + m.R @ c, m.dp + m.dR @ c, m.omega_ego @ R_ci, np.einsum("nji,nj->ni", R_wi, acc - g)
+        t_s=m.t_s,
+        R_world_imu=R_wi,
+        p=m.p + m.R @ c,
+        v=m.dp + m.dR @ c,
+        omega=m.omega_ego @ R_ci,
+        specific_force=np.einsum("nji,nj->ni", R_wi, acc - g),
     )
 
 
-@dataclass
+@dataclass(kw_only=True)
 class ImuData:
     """What /ego/imu records, with the truth behind it."""
 
@@ -152,7 +157,7 @@ def simulate_imu(walk: Walk, params: ImuParams, seed: int, start_ns: int) -> Imu
     gyro = truth.omega + bg + rng.normal(size=(n, 3)) * sg
     accel = truth.specific_force + ba + rng.normal(size=(n, 3)) * sa
     stamps = start_ns + np.round(k * (1e9 / params.rate_hz)).astype(np.int64)
-    return ImuData(stamps, gyro, accel, bg, ba, truth)
+    return ImuData(stamps_ns=stamps, gyro=gyro, accel=accel, gyro_bias=bg, accel_bias=ba, truth=truth)
 
 
 def _vector(v) -> Vector3:

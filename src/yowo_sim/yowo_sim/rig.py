@@ -22,7 +22,7 @@ class CmcSpec:
     distortion: bool = True
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Cmc:
     name: str
     room: str
@@ -70,4 +70,4 @@ def place_cmc(
     T = look_at([*mount, h], [*target, 1.0])
     roll = Rotation.from_rotvec([0, 0, np.radians(rng.uniform(-1, 1) * spec.max_roll_deg)]).as_matrix()
     T = se3(T[:3, :3] @ roll, T[:3, 3])
-    return Cmc(name, room.name, make_intrinsics(spec, rng), T, target)
+    return Cmc(name=name, room=room.name, camera=make_intrinsics(spec, rng), T_world_cam=T, target_xy=target)

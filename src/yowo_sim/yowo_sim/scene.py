@@ -92,7 +92,7 @@ class Room:
         return box(*self.bounds)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Door:
     """An opening through the wall between ``rooms[0]`` and ``rooms[1]``.
 
@@ -124,7 +124,7 @@ class Door:
         return box(self.span[0], self.wall[0], self.span[1], self.wall[1])
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Furniture:
     kind: str  # "box", "table" or "shelf"
     room: int
@@ -143,7 +143,7 @@ class Light:
     room: int
 
 
-@dataclass
+@dataclass(kw_only=True)
 class WallSegment:
     """Interior face of one room wall, as seen from inside the room: ``start`` is
     on the viewer's left, ``normal`` points into the room."""
@@ -160,7 +160,7 @@ class WallSegment:
         return float(np.linalg.norm(self.end - self.start))
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Scene:
     vertices: np.ndarray  # (V, 3) float32
     triangles: np.ndarray  # (T, 3) int32
@@ -199,7 +199,11 @@ class Scene:
             for start, direction, length, normal in _room_walls(room):
                 end = start + length * direction
                 openings = _door_intervals(i, room, start, direction, length, normal, self.doors)
-                out.append(WallSegment(i, start, end, normal, room.ceiling_height, openings))
+                out.append(
+                    WallSegment(
+                        room=i, start=start, end=end, normal=normal, height=room.ceiling_height, openings=openings
+                    )
+                )
         return out
 
     def room_at(self, xy) -> int:
@@ -290,7 +294,7 @@ def _place_door(rooms: list[Room], i: int, j: int, rng, height: float) -> Door:
         if hi - lo < DOOR_WIDTH + 2 * margin:
             continue
         c = round(float(rng.uniform(lo + margin + DOOR_WIDTH / 2, hi - margin - DOOR_WIDTH / 2)), 3)
-        return Door((i, j), axis, wall, (c - DOOR_WIDTH / 2, c + DOOR_WIDTH / 2), height)
+        return Door(rooms=(i, j), axis=axis, wall=wall, span=(c - DOOR_WIDTH / 2, c + DOOR_WIDTH / 2), height=height)
     raise ValueError(f"rooms {rooms[i].name} and {rooms[j].name} share no wall wide enough for a door")
 
 
@@ -374,7 +378,7 @@ def _place_furniture(rng, room_idx: int, room: Room, doors: list[Door], count: i
             free = rp.difference(unary_union([o.polygon() for o in placed] + [fp])).buffer(-0.3)
             if free.geom_type != "Polygon" or free.area < 0.4 * rp.area or not all(free.contains(p) for p in approach):
                 continue
-            placed.append(Furniture(kind, room_idx, bounds, round(float(h), 4), front))
+            placed.append(Furniture(kind=kind, room=room_idx, bounds=bounds, height=round(float(h), 4), front=front))
             break
     return placed
 
@@ -469,17 +473,17 @@ def build_scene(spec: SceneSpec) -> Scene:
     polys = [floor] if floor.geom_type == "Polygon" else list(floor.geoms)
     floor_polygons = [np.asarray(orient(p, 1.0).exterior.coords)[:-1] for p in polys]
     return Scene(
-        vertices,
-        triangles,
-        uvs,
-        tex_idx,
-        mb.textures,
-        tri_room,
-        rooms,
-        doors,
-        floor_polygons,
-        lights,
-        0.35 * li,
-        furniture,
-        spec,
+        vertices=vertices,
+        triangles=triangles,
+        triangle_uvs=uvs,
+        triangle_texture=tex_idx,
+        textures=mb.textures,
+        triangle_room=tri_room,
+        rooms=rooms,
+        doors=doors,
+        floor_polygons=floor_polygons,
+        lights=lights,
+        ambient=0.35 * li,
+        furniture=furniture,
+        spec=spec,
     )

@@ -124,7 +124,7 @@ class MeshBuilder:
         )
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Palette:
     """Texture indices a scene draws from."""
 
@@ -161,16 +161,16 @@ def make_palette(mode: str, rng, mb: MeshBuilder) -> Palette:
             add(textures.concrete(rng, fs, fs)),
         ]
         return Palette(
-            walls,
-            floors,
-            [add(textures.ceiling(rng, S)), add(textures.concrete(rng, S, S))],
-            [
+            walls=walls,
+            floors=floors,
+            ceilings=[add(textures.ceiling(rng, S)), add(textures.concrete(rng, S, S))],
+            wood=[
                 add(textures.planks(rng, 256, 256, 64, vertical=False)),
                 add(textures.planks(rng, 256, 256, 64, vertical=True)),
             ],
-            [add(textures.cardboard(rng, 256)), add(textures.cardboard(rng, 256))],
-            [add(textures.books(rng, S))],
-            None,
+            boxes=[add(textures.cardboard(rng, 256)), add(textures.cardboard(rng, 256))],
+            books=[add(textures.books(rng, S))],
+            poster=None,
         )
     if mode == "poor":
 
@@ -178,25 +178,25 @@ def make_palette(mode: str, rng, mb: MeshBuilder) -> Palette:
             return add(textures.flat(rng, 256, np.asarray(colour, np.float32), amp))
 
         return Palette(
-            [flat((200, 198, 192)), flat((192, 196, 200))],
-            [flat((150, 145, 138))],
-            [flat((225, 225, 225))],
-            [flat((150, 110, 70))],
-            [flat((170, 135, 90))],
-            [flat((120, 90, 60))],
-            None,
+            walls=[flat((200, 198, 192)), flat((192, 196, 200))],
+            floors=[flat((150, 145, 138))],
+            ceilings=[flat((225, 225, 225))],
+            wood=[flat((150, 110, 70))],
+            boxes=[flat((170, 135, 90))],
+            books=[flat((120, 90, 60))],
+            poster=None,
         )
     # symmetric: one pattern everywhere, posters identical and centred on each wall.
     wall = add(textures.motif_tiled(rng, S, 4))
     wood = add(textures.planks(rng, 256, 256, 64, vertical=False))
     return Palette(
-        [wall],
-        [add(textures.tiles(rng, S, S, 128, decorated=False))],
-        [add(textures.ceiling(rng, S))],
-        [wood],
-        [add(textures.cardboard(rng, 256))],
-        [add(textures.books(rng, S))],
-        add(textures.poster(rng, 256, 192)),
+        walls=[wall],
+        floors=[add(textures.tiles(rng, S, S, 128, decorated=False))],
+        ceilings=[add(textures.ceiling(rng, S))],
+        wood=[wood],
+        boxes=[add(textures.cardboard(rng, 256))],
+        books=[add(textures.books(rng, S))],
+        poster=add(textures.poster(rng, 256, 192)),
     )
 
 

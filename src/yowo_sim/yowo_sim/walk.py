@@ -39,7 +39,7 @@ class WalkSpec:
     ramp_s: float = 0.8
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Walk:
     """Dense timeline of the agent: position, heading, gait phase and head angles."""
 
@@ -91,17 +91,17 @@ class Walk:
         dbase = np.column_stack([dv[:, 0], dv[:, 1], dv[:, 7]])
         ddbase = np.column_stack([ddv[:, 0], ddv[:, 1], ddv[:, 7]])
         return EgoMotion(
-            t,
-            R @ R_BODY_OPTICAL,
-            dR @ R_BODY_OPTICAL,
-            ddR @ R_BODY_OPTICAL,
-            base + R @ eye,
-            dbase + dR @ eye,
-            ddbase + ddR @ eye,
+            t_s=t,
+            R=R @ R_BODY_OPTICAL,
+            dR=dR @ R_BODY_OPTICAL,
+            ddR=ddR @ R_BODY_OPTICAL,
+            p=base + R @ eye,
+            dp=dbase + dR @ eye,
+            ddp=ddbase + ddR @ eye,
         )
 
 
-@dataclass
+@dataclass(kw_only=True)
 class EgoMotion:
     """T_world_ego (R, p) at times t and its time derivatives, in the world frame."""
 
@@ -311,4 +311,14 @@ def _timeline(corners: np.ndarray, pauses: np.ndarray, spec: WalkSpec, rng: np.r
     head_roll = np.radians(2.0) * np.sin(phase / 2.0) * (1 - standing)
     # The bob grows with the speed (no jump of the head when the agent stops or starts).
     bob = BOB_M * np.cos(2.0 * phase) * speed_frac
-    return Walk(t, xy, heading, phase, head_yaw, head_pitch, head_roll, spec.agent_height_m, bob)
+    return Walk(
+        t_s=t,
+        xy=xy,
+        heading=heading,
+        phase=phase,
+        head_yaw=head_yaw,
+        head_pitch=head_pitch,
+        head_roll=head_roll,
+        height_m=spec.agent_height_m,
+        bob_m=bob,
+    )
