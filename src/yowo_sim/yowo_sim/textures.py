@@ -5,9 +5,6 @@ Every function draws from the ``rng`` it is given, in a fixed order, so a seed
 gives the same pixels.
 """
 
-# The lambdas handed to _wrapped inside loops are called at once, inside the loop.
-# ruff: noqa: B023
-
 from __future__ import annotations
 
 import cv2
