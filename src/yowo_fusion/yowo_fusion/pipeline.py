@@ -21,7 +21,7 @@ from yowo_ego.layout import KIND_CEILING
 from .alignment import head_top_rms
 from .config import FusionParams, UpstreamParams
 from .grouped import GroupedCmcs, gather_groups
-from .isolated import ego_agent_track, merge_tracks, refine_pose, register_over_clock
+from .isolated import PnpResult, ego_agent_track, merge_tracks, refine_pose, register_over_clock
 from .joint_groups import JointOutcome, solve_groups
 from .records import (
     GROUP_SFM,
@@ -62,6 +62,7 @@ def fuse(
     weak = weak_ego_frames(ego, params)
     grouped = gather_groups(ego, groups, ungrouped, cmcs, params, weak, upstream.tracks)
     scene_obs, scene_count = _scene_observations(grouped, cmcs, ego, params)
+    # The ego stage's map until the joint optimisation refines it; the cameras come last.
     result = FusionResult(
         cameras=[],
         T_world_ego=ego.T_world_ego,
@@ -169,23 +170,10 @@ def _register_grouped(
 ) -> tuple[list[RegisteredCmc], list[AgentFit]]:
     """Each grouped camera at its pose after the joint optimisation, with its verdict, and
     its agent fit."""
-    # Each group's track against the ego map as the ego stage made it (before the joint optimisation).
-    fit_before = {
-        gid: head_top_rms(
-            grouped.agent,
-            grouped.fit_chain,
-            c,
-            ego.stamps_ns,
-            ego.T_world_ego,
-            grouped.head_offset,
-            params.align.max_time_gap_s,
-        )
-        for gid, (c, _) in grouped.chains.items()
-    }
     agent, agent_obs, T_final = result.agent, grouped.agent_obs, jo.T_world_cmc
     covs, cov_failures = _covariances(grouped, jo, agent)
     agent_res = reprojection_residuals(grouped.cams, T_final, agent.points, agent_obs)
-    distrust_of: dict[str, list[str]] = {}  # a group's, the same for each of its cameras
+    distrust_of = _distrust_by_group(grouped, jo, result, ego, weak, params)
     registered, fits = [], []
     for i, n in enumerate(grouped.names):
         own = agent_obs.camera == i
@@ -201,22 +189,8 @@ def _register_grouped(
         rmse = reprojection_rmse(agent_res[own])
         status, reason = residual_verdict(rmse, covs[i], params, cov_failures[i])
         g = grouped.group_of[n]
-        if g not in distrust_of:
-            distrust_of[g] = [jo.failure, jo.left_out.get(g, "")] + group_distrust(
-                grouped.chains[g],
-                agent,
-                grouped.fit_chain,
-                ego,
-                result.T_world_ego,
-                result.head_offset,
-                weak,
-                params,
-                n in grouped.disputed,
-                fit_before[g],
-            )
-        distrust = distrust_of[g]
-        if any(distrust):
-            status, reason = WEAK, "; ".join(r for r in distrust + [reason] if r)
+        if any(distrust_of[g]):
+            status, reason = WEAK, "; ".join(r for r in distrust_of[g] + [reason] if r)
         offset, sigma, note = grouped.clocks[n]
         registered.append(
             RegisteredCmc(
@@ -237,6 +211,46 @@ def _register_grouped(
             )
         )
     return registered, fits
+
+
+def _distrust_by_group(
+    grouped: GroupedCmcs,
+    jo: JointOutcome,
+    result: FusionResult,
+    ego: EgoMapData,
+    weak: tuple[np.ndarray, np.ndarray],
+    params: FusionParams,
+) -> dict[str, list[str]]:
+    """Why the cameras of each group with a grouped camera are not ok whatever their
+    residuals (empty strings: no reason)."""
+    out: dict[str, list[str]] = {}
+    for n in grouped.names:
+        g = grouped.group_of[n]
+        if g in out:
+            continue
+        # The group's track against the ego map as the ego stage made it (before the joint optimisation).
+        before = head_top_rms(
+            grouped.agent,
+            grouped.fit_chain,
+            grouped.chains[g][0],
+            ego.stamps_ns,
+            ego.T_world_ego,
+            grouped.head_offset,
+            params.align.max_time_gap_s,
+        )
+        out[g] = [jo.failure, jo.left_out.get(g, "")] + group_distrust(
+            grouped.chains[g],
+            result.agent,
+            grouped.fit_chain,
+            ego,
+            result.T_world_ego,
+            result.head_offset,
+            weak,
+            params,
+            n in grouped.disputed,
+            before,
+        )
+    return out
 
 
 def _covariances(grouped: GroupedCmcs, jo: JointOutcome, agent: AgentTrack) -> tuple[list[np.ndarray], list[str]]:
@@ -312,26 +326,8 @@ def _register_isolated(
     pnp, reason, offset = register_over_clock(cmc.tracks, agent, params.isolated, tracks, groups_offset_s)
     if pnp is None:
         return unregistered(name, f"{why}; isolated registration failed: {reason}", cmc.tracks.camera)
-    clock = (
-        (
-            offset,
-            params.isolated.clock_step_s / 10,
-            "this camera's clock minus the ego camera's, the offset its isolated registration fits best",
-        )
-        if params.isolated.clock_search_s > 0
-        else (None, None, "")
-    )
-    P, uv, T = pnp.points, pnp.uv, pnp.T_world_cam
-    landmarks = result.landmarks
-    n_agent, n_scene = len(P), 0
-    if params.use_scene_keypoints:
-        m = match_scene(
-            cmc.background, cmc.tracks.camera, T, landmarks, ego.descriptors, ego.descriptor_type, params.scene
-        )
-        if m is not None:
-            P, uv = np.vstack([P, landmarks[m.landmark]]), np.vstack([uv, m.uv])
-            n_scene = len(m.landmark)
-            T = refine_pose(pnp.camera, T, P, uv)
+    searched = params.isolated.clock_search_s > 0
+    T, P, uv, n_scene = _with_scene_keypoints(pnp, cmc, ego, result.landmarks, params)
     proj, _ = pnp.camera.project_world(T, P)
     rmse = reprojection_rmse(uv - proj)
     cov, cov_failure = fixed_point_covariance(pnp.camera, T, P, uv, max(rmse, 0.5))
@@ -356,12 +352,32 @@ def _register_isolated(
         covariance=cov,
         camera=cmc.tracks.camera,
         rmse_px=rmse,
-        num_agent=n_agent,
+        num_agent=len(pnp.points),
         num_scene=n_scene,
-        clock_offset_s=clock[0],
-        clock_sigma_s=clock[1],
-        clock_note=clock[2],
+        # Where its clock was searched: the offset its registration fits best.
+        clock_offset_s=offset if searched else None,
+        clock_sigma_s=params.isolated.clock_step_s / 10 if searched else None,
+        clock_note=(
+            "this camera's clock minus the ego camera's, the offset its isolated registration fits best"
+            if searched
+            else ""
+        ),
     )
+
+
+def _with_scene_keypoints(
+    pnp: PnpResult, cmc: CmcInput, ego: EgoMapData, landmarks: np.ndarray, params: FusionParams
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """(pose, 3D points, ideal pixels, scene matches): the agent PnP's, refined with the
+    camera's scene keypoints matched to the ego map's landmarks where they match."""
+    P, uv, T = pnp.points, pnp.uv, pnp.T_world_cam
+    if not params.use_scene_keypoints:
+        return T, P, uv, 0
+    m = match_scene(cmc.background, cmc.tracks.camera, T, landmarks, ego.descriptors, ego.descriptor_type, params.scene)
+    if m is None:
+        return T, P, uv, 0
+    P, uv = np.vstack([P, landmarks[m.landmark]]), np.vstack([uv, m.uv])
+    return refine_pose(pnp.camera, T, P, uv), P, uv, len(m.landmark)
 
 
 def _refuse_absurd_poses(
