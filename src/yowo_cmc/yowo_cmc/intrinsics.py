@@ -132,6 +132,29 @@ def solve_with_intrinsics(
     `unknown` (its current estimate): the observations of those cameras are raw pixels
     (`raw_uv`, parallel to problem.obs). k2 is held at 0, and k1 too unless estimate_k1."""
     graph, values = problem_graph(problem)
+    _add_calibrations(graph, values, unknown, estimate_k1)
+    _add_observations(graph, problem, unknown, raw_uv)
+    result, initial_error, final_error, iterations = optimize(graph, values, max_iterations)
+    T_out = [result.atPose3(X(i)).matrix() for i in range(len(problem.T_world_cam))]
+    points = problem.points.copy()
+    for j in np.unique(problem.obs.point):
+        points[j] = result.atPoint3(L(int(j)))
+    estimated = _estimated_cameras(graph, result, unknown, estimate_k1)
+    cameras = [estimated.get(i, c) for i, c in enumerate(problem.cameras)]
+    obs = problem.obs
+    residuals = np.full((len(obs), 2), np.nan)
+    for c in np.unique(obs.camera):
+        sel = obs.camera == c
+        T = T_out[c]
+        proj, front = cameras[c].project((points[obs.point[sel]] - T[:3, 3]) @ T[:3, :3])
+        res = (raw_uv[sel] if int(c) in unknown else obs.uv[sel]) - proj
+        res[~front] = np.nan
+        residuals[sel] = res
+    return BundleResult(T_out, points, residuals, initial_error, final_error, iterations), estimated
+
+
+def _add_calibrations(graph, values, unknown: dict[int, CameraModel], estimate_k1: bool) -> None:
+    """A calibration variable per unknown camera, from its current estimate."""
     # Cal3Bundler: (f, k1, k2) with the principal point fixed at the centre; the prior pins
     # what is not estimated (k2, and k1 unless asked) and leaves f free.
     free = 1e6
@@ -147,6 +170,11 @@ def solve_with_intrinsics(
                 ),
             )
         )
+
+
+def _add_observations(graph, problem: BundleProblem, unknown: dict[int, CameraModel], raw_uv: np.ndarray) -> None:
+    """One Huber-robust projection factor per observation: an unknown camera's raw pixel
+    through its calibration variable, a known camera's ideal pixel through its K."""
     cals = [gtsam.Cal3_S2(c.K[0, 0], c.K[1, 1], c.K[0, 1], c.K[0, 2], c.K[1, 2]) for c in problem.cameras]
     huber = gtsam.noiseModel.mEstimator.Huber.Create(problem.huber_k)
     models: dict[float, gtsam.noiseModel.Base] = {}
@@ -162,11 +190,10 @@ def solve_with_intrinsics(
             graph.add(gtsam.GeneralSFMFactor2Cal3Bundler(gtsam.Point2(*raw), model, X(c), L(j), CAL(c)))
         else:
             graph.add(gtsam.GenericProjectionFactorCal3_S2(gtsam.Point2(*uv), model, X(c), L(j), cals[c]))
-    result, initial_error, final_error, iterations = optimize(graph, values, max_iterations)
-    T_out = [result.atPose3(X(i)).matrix() for i in range(len(problem.T_world_cam))]
-    points = problem.points.copy()
-    for j in np.unique(problem.obs.point):
-        points[j] = result.atPoint3(L(int(j)))
+
+
+def _estimated_cameras(graph, result, unknown: dict[int, CameraModel], estimate_k1: bool) -> dict[int, EstimatedCamera]:
+    """Each unknown camera's solved intrinsics with their marginal sigmas."""
     marginals = gtsam.Marginals(graph, result)
     estimated = {}
     for i, cam in unknown.items():
@@ -181,13 +208,4 @@ def solve_with_intrinsics(
             focal_sigma_px=float(np.sqrt(cov[0, 0])),
             k1_sigma=float(np.sqrt(cov[1, 1])) if estimate_k1 else float("nan"),
         )
-    cameras = [estimated.get(i, c) for i, c in enumerate(problem.cameras)]
-    residuals = np.full((len(obs), 2), np.nan)
-    for c in np.unique(obs.camera):
-        sel = obs.camera == c
-        T = T_out[c]
-        proj, front = cameras[c].project((points[obs.point[sel]] - T[:3, 3]) @ T[:3, :3])
-        res = (raw_uv[sel] if int(c) in unknown else obs.uv[sel]) - proj
-        res[~front] = np.nan
-        residuals[sel] = res
-    return BundleResult(T_out, points, residuals, initial_error, final_error, iterations), estimated
+    return estimated

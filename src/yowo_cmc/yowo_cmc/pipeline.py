@@ -10,7 +10,7 @@ from dataclasses import replace
 
 import cv2
 
-from .clock import attach_to_groups, estimate_clock_offsets
+from .clock import ClockEstimate, attach_to_groups, estimate_clock_offsets
 from .clock_refine import refine_group_offsets
 from .config import CmcParams
 from .group_sfm import GroupingResult, calibrate_groups
@@ -92,28 +92,12 @@ def calibrate_cmcs(
     corrected = [t.shifted(offsets.get(t.name, 0.0)) for t in tracks]
     grouping = calibrate_groups(corrected, params.sfm, components, unknown)
     if params.clock.refine and grouping.groups:
-        # The refinement projects with each member's intrinsics: the group's estimates where it made them.
-        estimated = {n: c for g in grouping.groups for n, c in g.cameras.items() if n in unknown}
-        shifted = {t.name: replace(t, camera=estimated.get(t.name, t.camera)) for t in corrected}
-        applied = dict(offsets)
-        # Only clocks that some pair's cost curve pinned: where none has a clear minimum (a
-        # seated person), the refinement's sigma takes view-dependent keypoint errors for
-        # independent noise (caliscope's demo: +-35 ms at 2-5 sigma, 4.3 -> 7.7 % of the mean
-        # baseline when applied).
-        pinned = {n for n, c in estimate.cameras.items() if c.offset_s is not None}
-        for g in grouping.groups:
-            ref = applied.get(g.reference, 0.0)
-            refined = refine_group_offsets(g, shifted, params.clock, params.sfm) if g.reference in pinned else {}
-            for n, (delta, sigma) in ((n, r) for n, r in refined.items() if n in pinned):
-                # The refined sigma is against the group's reference, so that is the clock a
-                # member within its noise stays on (not the clock estimate's reference camera).
-                relative = applied.get(n, 0.0) + delta - ref
-                offsets[n] = ref + (relative if abs(relative) > params.clock.min_significance * sigma else 0.0)
-                sigmas[n], sigmas[g.reference] = sigma, 0.0
-        if offsets != applied:
+        refined, sigmas = _refined_offsets(grouping, corrected, estimate, offsets, sigmas, unknown, params)
+        if refined != offsets:
             grouping = calibrate_groups(
-                [t.shifted(offsets.get(t.name, 0.0)) for t in tracks], params.sfm, components, unknown
+                [t.shifted(refined.get(t.name, 0.0)) for t in tracks], params.sfm, components, unknown
             )
+        offsets = refined
     for g in grouping.groups:
         ref = offsets.get(g.reference, 0.0)
         # The group's points onto its reference camera's own clock.
@@ -125,3 +109,34 @@ def calibrate_cmcs(
                 0.0 if n == g.reference else float((sigmas.get(n, 0.0) ** 2 + sigmas.get(g.reference, 0.0) ** 2) ** 0.5)
             )
     return grouping
+
+
+def _refined_offsets(
+    grouping: GroupingResult,
+    corrected: list[CameraTracks],
+    estimate: ClockEstimate,
+    applied: dict[str, float],
+    sigmas: dict[str, float],
+    unknown: frozenset[str],
+    params: CmcParams,
+) -> tuple[dict[str, float], dict[str, float]]:
+    """The offsets and their sigmas with each group's members' offsets refined with its
+    poses and points (`corrected`: the tracks on the `applied` offsets)."""
+    offsets, sigmas = dict(applied), dict(sigmas)
+    # The refinement projects with each member's intrinsics: the group's estimates where it made them.
+    estimated = {n: c for g in grouping.groups for n, c in g.cameras.items() if n in unknown}
+    shifted = {t.name: replace(t, camera=estimated.get(t.name, t.camera)) for t in corrected}
+    # Only clocks that some pair's cost curve pinned: where none has a clear minimum (a
+    # seated person), the refinement's sigma takes view-dependent keypoint errors for
+    # independent noise, and applying its offsets costs accuracy.
+    pinned = {n for n, c in estimate.cameras.items() if c.offset_s is not None}
+    for g in grouping.groups:
+        ref = applied.get(g.reference, 0.0)
+        refined = refine_group_offsets(g, shifted, params.clock, params.sfm) if g.reference in pinned else {}
+        for n, (delta, sigma) in ((n, r) for n, r in refined.items() if n in pinned):
+            # The refined sigma is against the group's reference, so that is the clock a
+            # member within its noise stays on (not the clock estimate's reference camera).
+            relative = applied.get(n, 0.0) + delta - ref
+            offsets[n] = ref + (relative if abs(relative) > params.clock.min_significance * sigma else 0.0)
+            sigmas[n], sigmas[g.reference] = sigma, 0.0
+    return offsets, sigmas
