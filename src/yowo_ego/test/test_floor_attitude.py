@@ -147,7 +147,9 @@ def test_a_tilted_step_between_two_halves_is_levelled_by_the_floor():
     # The step from keyframe 3 to 4 was tracked 5 deg off; the second half inherits it.
     T_3_4 = inv_se3(poses[3]) @ poses[4] @ tilt
     init = poses[:4] + [poses[3] @ T_3_4 @ inv_se3(poses[4]) @ T for T in poses[4:]]
-    edge = OdometryEdge(4, 3, T_3_4, np.diag([1e4] * 3 + [1e4] * 3), "odometry")
+    edge = OdometryEdge(
+        source=4, target=3, T_target_source=T_3_4, information=np.diag([1e4] * 3 + [1e4] * 3), kind="odometry"
+    )
     plain = bundle_adjust(tracks, features, init, CAM, edges=[edge])
     floor = FloorAttitudes(UP, {k: T[:3, :3].T @ UP for k, T in enumerate(poses)})  # each view's true floor
     levelled = bundle_adjust(tracks, features, init, CAM, edges=[edge], floor=floor)
@@ -165,7 +167,9 @@ def test_a_turned_step_between_two_halves_is_squared_by_the_walls():
     turn = se3(Rotation.from_rotvec(np.radians(5.0) * (poses[4][:3, :3].T @ UP)).as_matrix(), np.zeros(3))
     T_3_4 = inv_se3(poses[3]) @ poses[4] @ turn
     init = poses[:4] + [poses[3] @ T_3_4 @ inv_se3(poses[4]) @ T for T in poses[4:]]
-    edge = OdometryEdge(4, 3, T_3_4, np.diag([1e4] * 3 + [1e4] * 3), "odometry")
+    edge = OdometryEdge(
+        source=4, target=3, T_target_source=T_3_4, information=np.diag([1e4] * 3 + [1e4] * 3), kind="odometry"
+    )
     plain = bundle_adjust(tracks, features, init, CAM, edges=[edge])
     wall = np.array([0.0, -1.0, 0.0])  # the wall at y = 3-3.5 faces the cameras
     walls = WallAttitudes(UP, np.array([1.0, 0.0, 0.0]), {k: (T[:3, :3].T @ wall, wall) for k, T in enumerate(poses)})

@@ -99,7 +99,8 @@ def test_edge_factor_keeps_open3d_information():
     T = se3(Rotation.from_rotvec([0.1, -0.3, 0.2]).as_matrix(), [0.4, -0.1, 0.3])
     A = rng.normal(size=(6, 6))
     info = A @ A.T + 6 * np.eye(6)
-    factor = edge_factor(OdometryEdge(1, 0, T, info, "odometry"), BundleParams(edge_huber_k=1e9))
+    edge = OdometryEdge(source=1, target=0, T_target_source=T, information=info, kind="odometry")
+    factor = edge_factor(edge, BundleParams(edge_huber_k=1e9))
     delta = rng.normal(scale=1e-3, size=6)  # (rotation, translation), target frame
     perturbed = se3(Rotation.from_rotvec(delta[:3]).as_matrix(), delta[3:]) @ T
     values = gtsam.Values()

@@ -106,11 +106,23 @@ def test_frames_between_keyframes_share_the_keyframe_correction():
     true_b = step @ step  # what the optimisation found
     kfs = [Keyframe(i, 2 * i, 2 * i, np.eye(4), None, None, 0) for i in range(2)]
     results = [
-        TrackResult(0, 0, 0, np.eye(4), np.eye(4), 1.0, "tracked", True),
-        TrackResult(1, 1, 0, step, step, 1.0, "tracked", False),  # midway, tracked right
-        TrackResult(2, 2, 1, np.eye(4), tracked_b, 1.0, "tracked", True),
+        TrackResult(
+            frame_index=i,
+            stamp_ns=i,
+            keyframe=k,
+            T_kf_cam=T_kf,
+            T_odom_cam=T,
+            fitness=1.0,
+            status="tracked",
+            new_keyframe=new,
+        )
+        for i, k, T_kf, T, new in (
+            (0, 0, np.eye(4), np.eye(4), True),
+            (1, 0, step, step, False),  # midway, tracked right
+            (2, 1, np.eye(4), tracked_b, True),
+        )
     ]
-    edges = [OdometryEdge(1, 0, tracked_b, np.eye(6), "odometry")]
+    edges = [OdometryEdge(source=1, target=0, T_target_source=tracked_b, information=np.eye(6), kind="odometry")]
     T = frames_between_keyframes(results, edges, kfs, [np.eye(4), true_b])
     assert np.allclose(T[2], true_b)
     delta = true_b @ np.linalg.inv(tracked_b)
@@ -126,7 +138,16 @@ def test_low_overlap_result_far_from_the_prediction_is_ambiguous(ego_camera):
     assert not tracker._ambiguous(settled, 0.5, predicted)  # enough overlap
     assert not tracker._ambiguous(_motion([0.0, 40.0, 0.0], [0, 0, 0]), 0.3, predicted)  # near the prediction
     # Right after a lost frame (whose pose is a guess) no prediction vouches for little overlap.
-    tracker._prev_result = TrackResult(1, FRAME_NS, 1, np.eye(4), np.eye(4), 0.0, LOST, True)
+    tracker._prev_result = TrackResult(
+        frame_index=1,
+        stamp_ns=FRAME_NS,
+        keyframe=1,
+        T_kf_cam=np.eye(4),
+        T_odom_cam=np.eye(4),
+        fitness=0.0,
+        status=LOST,
+        new_keyframe=True,
+    )
     assert tracker._ambiguous(_motion([0.0, 40.0, 0.0], [0, 0, 0]), 0.3, predicted)
     assert not tracker._ambiguous(_motion([0.0, 40.0, 0.0], [0, 0, 0]), 0.5, predicted)
 

@@ -42,11 +42,13 @@ def _ring(rng, n: int = 60):
     info = _information(rng)
 
     def edge(s, t, kind, sigma_m, sigma_deg):
-        return OdometryEdge(s, t, _perturb(inv_se3(truth[t]) @ truth[s], rng, sigma_m, sigma_deg), info, kind)
+        T = _perturb(inv_se3(truth[t]) @ truth[s], rng, sigma_m, sigma_deg)
+        return OdometryEdge(source=s, target=t, T_target_source=T, information=info, kind=kind)
 
     edges = [edge(k, k - 1, "odometry", 0.01, 0.3) for k in range(1, n)]
     edges += [edge(n - 1, 0, "loop", 0.002, 0.05), edge(n - 2, 1, "loop", 0.002, 0.05)]
-    wrong = OdometryEdge(n // 2, 5, _perturb(inv_se3(truth[5]) @ truth[n // 2], rng, 0.6, 20.0), info, "loop")
+    T_wrong = _perturb(inv_se3(truth[5]) @ truth[n // 2], rng, 0.6, 20.0)
+    wrong = OdometryEdge(source=n // 2, target=5, T_target_source=T_wrong, information=info, kind="loop")
     edges.append(wrong)
     # Nodes start on the odometry chain, as the ego stage starts them.
     chain = [truth[0]]

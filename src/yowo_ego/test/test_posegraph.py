@@ -42,7 +42,9 @@ def test_an_edge_is_replaced_by_pnp_only_where_the_gyro_agrees(two_keyframes, gy
     T_0_1, features, keyframes, odometry, pair = two_keyframes
     wrong = T_0_1 @ _move([0.0, 12.0, 0.0], [0.0, 0.0, 0.0])  # what a wrong dense minimum gives
     R_gyro = {"none": None, "true": T_0_1[:3, :3], "wrong": wrong[:3, :3]}[gyro]
-    edge = OdometryEdge(1, 0, wrong, np.eye(6), "odometry", R_gyro)
+    edge = OdometryEdge(
+        source=1, target=0, T_target_source=wrong, information=np.eye(6), kind="odometry", R_gyro=R_gyro
+    )
     out, was_replaced = verify_edge(edge, pair, features, keyframes, odometry, LoopParams())
     assert was_replaced == replaced
     if replaced:
@@ -70,7 +72,10 @@ def three_keyframes(renderer, ego_camera):
 
 
 def _across(T_0_1, edge_1_2, features, keyframes, odometry):
-    edges = [OdometryEdge(1, 0, T_0_1, np.eye(6), "odometry"), OdometryEdge(2, 1, edge_1_2, np.eye(6), "odometry")]
+    edges = [
+        OdometryEdge(source=1, target=0, T_target_source=T_0_1, information=np.eye(6), kind="odometry"),
+        OdometryEdge(source=2, target=1, T_target_source=edge_1_2, information=np.eye(6), kind="odometry"),
+    ]
     replaced = verify_across(edges, [True, False], [], features, keyframes, odometry, LoopParams())
     return replaced, edges[1].T_target_source
 

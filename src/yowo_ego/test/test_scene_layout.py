@@ -93,7 +93,8 @@ def test_the_floor_is_the_plane_most_points_lie_on_not_the_largest_patch():
     cams = np.column_stack([rng.uniform(1, 9, 50), rng.uniform(1, 5, 50), np.full(50, 1.6)])
 
     def patch(n, c, count):
-        return PlanarPatch(np.asarray(n, float), np.asarray(c, float), float(-np.dot(n, c)), np.tile(c, (4, 1)), count)
+        n, c = np.asarray(n, float), np.asarray(c, float)
+        return PlanarPatch(normal=n, center=c, d=float(-np.dot(n, c)), corners=np.tile(c, (4, 1)), num_points=count)
 
     patches = [patch(slab_n, [5.0, 3.0, 0.4], 800), patch([0.0, 0.0, 1.0], [2.0, 2.0, 0.0], 300)]
     n, c, support = find_floor(patches, points, normals, cams, np.array([0.05, 0.0, 1.0]))

@@ -114,12 +114,22 @@ def test_tracking_edge_is_checked_against_pnp():
     T_true = inv_se3(T_A) @ T_B  # T_a_b
     wrong = T_true @ se3(Rotation.from_euler("x", 2.0, degrees=True).as_matrix(), [0.0, 0.03, 0.0])
     fixed, replaced = verify_edge(
-        OdometryEdge(1, 0, wrong, np.eye(6), "odometry"), pair, feats, kfs, odometry, LoopParams()
+        OdometryEdge(source=1, target=0, T_target_source=wrong, information=np.eye(6), kind="odometry"),
+        pair,
+        feats,
+        kfs,
+        odometry,
+        LoopParams(),
     )
     assert replaced
     assert np.linalg.norm(fixed.T_target_source[:3, 3] - T_true[:3, 3]) < 0.005
     assert rotation_angle_deg(fixed.T_target_source[:3, :3], T_true[:3, :3]) < 0.1
     kept, replaced = verify_edge(
-        OdometryEdge(1, 0, T_true, np.eye(6), "odometry"), pair, feats, kfs, odometry, LoopParams()
+        OdometryEdge(source=1, target=0, T_target_source=T_true, information=np.eye(6), kind="odometry"),
+        pair,
+        feats,
+        kfs,
+        odometry,
+        LoopParams(),
     )
     assert not replaced and kept.T_target_source is T_true

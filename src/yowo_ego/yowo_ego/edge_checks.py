@@ -66,7 +66,13 @@ def dense_edge(
             and rmse <= odometry.params.max_inlier_rmse
             and _agree(T, T_a_b, params, loose=kind == "loop")
         ):
-            return OdometryEdge(kf_b.index, kf_a.index, T, odometry.information(kf_b.depth_mm, kf_a.depth_mm, T), kind)
+            return OdometryEdge(
+                source=kf_b.index,
+                target=kf_a.index,
+                T_target_source=T,
+                information=odometry.information(kf_b.depth_mm, kf_a.depth_mm, T),
+                kind=kind,
+            )
     return None
 
 
@@ -115,7 +121,11 @@ def verify_edge(
         not loose or edge.kind == "break" or edge_support < params.contradicted_support_ratio * pnp_support
     ):
         fixed = OdometryEdge(
-            kf_b.index, kf_a.index, T_pnp, odometry.information(kf_b.depth_mm, kf_a.depth_mm, T_pnp), "odometry"
+            source=kf_b.index,
+            target=kf_a.index,
+            T_target_source=T_pnp,
+            information=odometry.information(kf_b.depth_mm, kf_a.depth_mm, T_pnp),
+            kind="odometry",
         )
     if fixed is None or not gyro_agrees(edge, fixed.T_target_source, params):
         return edge, False
@@ -167,12 +177,12 @@ def verify_across(
                 and rotation_angle_deg(e.T_target_source[:3, :3], implied[:3, :3]) <= params.max_across_correction_deg
             ):
                 edges[i] = OdometryEdge(
-                    b,
-                    a,
-                    implied,
-                    odometry.information(keyframes[b].depth_mm, keyframes[a].depth_mm, implied),
-                    "odometry",
-                    e.R_gyro,
+                    source=b,
+                    target=a,
+                    T_target_source=implied,
+                    information=odometry.information(keyframes[b].depth_mm, keyframes[a].depth_mm, implied),
+                    kind="odometry",
+                    R_gyro=e.R_gyro,
                 )
                 replaced += 1
             break

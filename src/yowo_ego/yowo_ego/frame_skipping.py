@@ -55,14 +55,14 @@ class FrameSkipping:
         attempts (or should it end the walk, ``flush``)."""
         prev = self._prev_result
         result = TrackResult(
-            len(self.results),
-            stamp_ns,
-            prev.keyframe,
-            prev.T_kf_cam.copy(),
-            prev.T_odom_cam.copy(),
-            prev.fitness,
-            SKIPPED,
-            False,
+            frame_index=len(self.results),
+            stamp_ns=stamp_ns,
+            keyframe=prev.keyframe,
+            T_kf_cam=prev.T_kf_cam.copy(),
+            T_odom_cam=prev.T_odom_cam.copy(),
+            fitness=prev.fitness,
+            status=SKIPPED,
+            new_keyframe=False,
         )
         self.results.append(result)
         self._skipped.append((result, source))

@@ -57,7 +57,7 @@ class ImuSamples:
             raise ValueError("IMU samples: stamps are not strictly increasing")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ImuCalibration:
     """/ego/imu/calibration: Kalibr's imu.yaml noise model (continuous-time densities) and
     its camchain-imucam extrinsics. T_cam_imu maps IMU-frame points to the camera's
@@ -128,13 +128,13 @@ class ImuCalibration:
         except (TypeError, ValueError):
             raise ValueError(f"{topic}: timeshift_cam_imu must be a number, got {shift!r}") from None
         return ImuCalibration(
-            T,
-            number("gyroscope_noise_density"),
-            number("gyroscope_random_walk"),
-            number("accelerometer_noise_density"),
-            number("accelerometer_random_walk"),
-            number("update_rate", positive=True),
-            shift,
+            T_cam_imu=T,
+            gyroscope_noise_density=number("gyroscope_noise_density"),
+            gyroscope_random_walk=number("gyroscope_random_walk"),
+            accelerometer_noise_density=number("accelerometer_noise_density"),
+            accelerometer_random_walk=number("accelerometer_random_walk"),
+            update_rate_hz=number("update_rate", positive=True),
+            timeshift_cam_imu_s=shift,
         )
 
 
@@ -359,7 +359,7 @@ class InertialParams:
     max_gravity_disagreement_deg: float = 2.0
 
 
-@dataclass
+@dataclass(kw_only=True)
 class InertialTerms:
     """Preintegrated IMU between consecutive keyframes, for the bundle adjustment."""
 
@@ -416,5 +416,11 @@ def keyframe_preintegration(
         np.array([params.accel_bias_prior_mps2] * 3 + [params.gyro_bias_prior_radps] * 3)
     )
     return InertialTerms(
-        between, np.asarray(stamps_ns) * 1e-9, bias, prior, np.asarray(up_odom, float), params.tilt_prior_deg, skipped
+        between=between,
+        stamps_s=np.asarray(stamps_ns) * 1e-9,
+        bias=bias,
+        bias_prior=prior,
+        up_odom=np.asarray(up_odom, float),
+        tilt_prior_deg=params.tilt_prior_deg,
+        skipped=skipped,
     )

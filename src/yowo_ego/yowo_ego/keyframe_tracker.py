@@ -98,13 +98,21 @@ class KeyframeTracker(FrameSkipping, TrackingRecovery):
     # --- internals --------------------------------------------------------------
     def _level(self, index: int, frame: RgbdFrame, images: OdometryImages | None) -> OdometryFrame:
         im = images if images is not None else OdometryImages.of(frame, self.params.scale)
-        return OdometryFrame(index, frame.stamp_ns, im.color, im.depth_mm, im.rgbd, im.full_gray, frame.depth)
+        return OdometryFrame(
+            frame_index=index,
+            stamp_ns=frame.stamp_ns,
+            color=im.color,
+            depth_mm=im.depth_mm,
+            rgbd=im.rgbd,
+            full_gray=im.full_gray,
+            full_depth=frame.depth,
+        )
 
     def _process(self, level: OdometryFrame) -> TrackResult:
         """Track ``level`` into its place in ``results`` (appended, or a skipped frame's)."""
         if self._kf is None:
-            result = TrackResult(level.frame_index, level.stamp_ns, 0, np.eye(4), np.eye(4), 1.0, TRACKED, True)
             self._add_keyframe(level, np.eye(4), None, None)
+            result = self._keyframe_result(level, np.eye(4), 1.0, TRACKED)
         else:
             result = self._track(level)
         if level.frame_index == len(self.results):
@@ -271,10 +279,32 @@ class KeyframeTracker(FrameSkipping, TrackingRecovery):
         )
         if new_kf:
             self._add_keyframe(level, T_odom_cam, kf, T_kf_cur)
-            return TrackResult(
-                level.frame_index, level.stamp_ns, len(self.keyframes) - 1, np.eye(4), T_odom_cam, fitness, status, True
-            )
-        return TrackResult(level.frame_index, level.stamp_ns, kf.index, T_kf_cur, T_odom_cam, fitness, status, False)
+            return self._keyframe_result(level, T_odom_cam, fitness, status)
+        return TrackResult(
+            frame_index=level.frame_index,
+            stamp_ns=level.stamp_ns,
+            keyframe=kf.index,
+            T_kf_cam=T_kf_cur,
+            T_odom_cam=T_odom_cam,
+            fitness=fitness,
+            status=status,
+            new_keyframe=False,
+        )
+
+    def _keyframe_result(
+        self, level: OdometryFrame, T_odom_cam: np.ndarray, fitness: float, status: str
+    ) -> TrackResult:
+        """The result of a frame that just became the last keyframe."""
+        return TrackResult(
+            frame_index=level.frame_index,
+            stamp_ns=level.stamp_ns,
+            keyframe=len(self.keyframes) - 1,
+            T_kf_cam=np.eye(4),
+            T_odom_cam=T_odom_cam,
+            fitness=fitness,
+            status=status,
+            new_keyframe=True,
+        )
 
     def _add_keyframe(
         self,
@@ -302,17 +332,20 @@ class KeyframeTracker(FrameSkipping, TrackingRecovery):
         self._chain = (self._chain + [kf])[-self.params.maploc.keyframes :] if T_prev_cur is not None else [kf]
         edge = None
         if previous is not None:
+            T, R_gyro = T_prev_cur, None
             if given is not None:
-                edge = OdometryEdge(kf.index, previous.index, T_prev_cur, given[1], given[0])
+                kind, info = given
             else:
                 R_gyro = self._gyro_rotation(previous.stamp_ns, level.stamp_ns)
                 if T_prev_cur is not None:
-                    info = self.odometry.information(level.depth_mm, previous.depth_mm, T_prev_cur)
-                    edge = OdometryEdge(kf.index, previous.index, T_prev_cur, info, "odometry", R_gyro)
+                    kind, info = "odometry", self.odometry.information(level.depth_mm, previous.depth_mm, T_prev_cur)
                 else:
                     # Unknown motion: a weak edge keeps the graph connected (1 m, ~30 deg sigma).
+                    kind, info = "break", np.diag([1.0] * 6)
                     T = inv_se3(previous.T_odom_cam) @ T_odom_cam
-                    edge = OdometryEdge(kf.index, previous.index, T, np.diag([1.0] * 6), "break", R_gyro)
+            edge = OdometryEdge(
+                source=kf.index, target=previous.index, T_target_source=T, information=info, kind=kind, R_gyro=R_gyro
+            )
             self.edges.append(edge)
         if self.on_keyframe is not None:
             self.on_keyframe(kf, edge, level.full_gray, level.full_depth)

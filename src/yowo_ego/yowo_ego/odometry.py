@@ -198,7 +198,7 @@ class Keyframe:
         return kf
 
 
-@dataclass
+@dataclass(kw_only=True)
 class OdometryEdge:
     """Relative pose between two keyframes: T_target_source maps source points to target."""
 
@@ -210,7 +210,7 @@ class OdometryEdge:
     R_gyro: np.ndarray | None = None  # tracking edges with the IMU: the gyro's R_target_source
 
 
-@dataclass
+@dataclass(kw_only=True)
 class TrackResult:
     frame_index: int
     stamp_ns: int

@@ -49,7 +49,7 @@ class PreparedFrame:
     textured: bool  # colour with texture (else tracked by depth alone)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class EgoMapResult:
     """Everything in the world frame `map` (z up, floor z = 0) unless noted."""
 
@@ -383,27 +383,27 @@ class EgoMapper:
         # Observations back to raw pixels for other stages.
         raw_uv = self.camera.project(backproject(m.obs_uv, np.ones(len(m.obs_uv)), K))[0] if len(m.obs_uv) else m.obs_uv
         return EgoMapResult(
-            self.camera,
-            np.array([r.stamp_ns for r in tr.results], dtype=np.int64),
-            final,
-            np.array([k.frame_index for k in keyframes], dtype=int),
-            np.array([W @ T for T in T_bundle]),
-            transform_points(W, m.landmarks) if len(m.landmarks) else m.landmarks,
-            m.descriptors,
-            m.obs_keyframe,
-            m.obs_landmark,
-            raw_uv,
-            points_w,
-            colors,
-            layout,
-            rect,
-            trajectories,
-            stats,
-            warnings,
-            np.array([r.status for r in tr.results]),
-            np.array([r.fitness for r in tr.results], dtype=float),
-            tr.imu_frames > 0,
-            held[np.array([r.keyframe for r in tr.results], dtype=int)],
+            camera=self.camera,
+            stamps_ns=np.array([r.stamp_ns for r in tr.results], dtype=np.int64),
+            T_world_cam=final,
+            keyframe_frames=np.array([k.frame_index for k in keyframes], dtype=int),
+            T_world_kf=np.array([W @ T for T in T_bundle]),
+            landmarks=transform_points(W, m.landmarks) if len(m.landmarks) else m.landmarks,
+            descriptors=m.descriptors,
+            obs_keyframe=m.obs_keyframe,
+            obs_landmark=m.obs_landmark,
+            obs_uv=raw_uv,
+            cloud_points=points_w,
+            cloud_colors=colors,
+            layout=layout,
+            rectification=rect,
+            trajectories=trajectories,
+            stats=stats,
+            warnings=warnings,
+            tracking=np.array([r.status for r in tr.results]),
+            tracking_fitness=np.array([r.fitness for r in tr.results], dtype=float),
+            imu=tr.imu_frames > 0,
+            attitude_held=held[np.array([r.keyframe for r in tr.results], dtype=int)],
         )
 
     def _imu_usable(self) -> bool:

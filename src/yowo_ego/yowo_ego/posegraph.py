@@ -88,7 +88,7 @@ class LoopParams:
     relative_error_tol: float = 1e-6  # LM stops once an iteration lowers the error by less than this [share]
 
 
-@dataclass
+@dataclass(kw_only=True)
 class MultiwayResult:
     T_odom_kf: list[np.ndarray]  # optimised keyframe poses
     edges_corrected: int  # tracking edges replaced after the PnP check
@@ -299,12 +299,12 @@ class MultiwayRegistration:
         if brk.kind != "break":
             return
         self.edges[s0 - 1] = OdometryEdge(
-            brk.source,
-            brk.target,
-            orthonormalize(inv_se3(self._chain[s0 - 1]) @ T_s0),
-            brk.information,
-            brk.kind,
-            brk.R_gyro,
+            source=brk.source,
+            target=brk.target,
+            T_target_source=orthonormalize(inv_se3(self._chain[s0 - 1]) @ T_s0),
+            information=brk.information,
+            kind=brk.kind,
+            R_gyro=brk.R_gyro,
         )
         for k in range(s0, len(self.keyframes)):
             self._chain[k] = orthonormalize(self._chain[k - 1] @ self.edges[k - 1].T_target_source)
@@ -339,14 +339,14 @@ class MultiwayRegistration:
         nodes = [k.moved(T) for k, T in zip(self.keyframes, T_init)]
         T, kept = optimize(nodes, self.edges + self._loops, p)
         return MultiwayResult(
-            T,
-            self._corrected,
-            len(self._tried),
-            self._verified,
-            len(self._loops),
-            sum(e.kind not in TRACKING_KINDS for e in kept),
-            self._relocalised,
-            self._retrieved,
-            self._pairs,
-            kept,
+            T_odom_kf=T,
+            edges_corrected=self._corrected,
+            loops_tried=len(self._tried),
+            loops_verified=self._verified,
+            loops_refined=len(self._loops),
+            loops_kept=sum(e.kind not in TRACKING_KINDS for e in kept),
+            relocalised=self._relocalised,
+            loops_retrieved=self._retrieved,
+            pairs=self._pairs,
+            edges=kept,
         )

@@ -25,7 +25,7 @@ from .pipeline import EgoMapResult, map_recording
 COLOR_TOPICS, DEPTH_TOPICS, INFO_TOPIC = EGO_COLOR, EGO_DEPTH, EGO_INFO
 
 
-@dataclass
+@dataclass(kw_only=True)
 class EgoTopics:
     color: str
     depth: str
@@ -58,7 +58,9 @@ def find_ego_topics(bag) -> EgoTopics:
     if missing:
         raise ValueError(f"{bag}: no ego camera: missing {'; '.join(missing)}")
     imu = EGO_IMU in present and EGO_IMU_CALIBRATION in present
-    return EgoTopics(color, depth, imu=EGO_IMU if imu else "", imu_calibration=EGO_IMU_CALIBRATION if imu else "")
+    return EgoTopics(
+        color=color, depth=depth, imu=EGO_IMU if imu else "", imu_calibration=EGO_IMU_CALIBRATION if imu else ""
+    )
 
 
 def read_ego_frames(

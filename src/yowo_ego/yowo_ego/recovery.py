@@ -55,23 +55,12 @@ class TrackingRecovery:
             T_odom_cam, m = placed.T_odom_cam, p.maploc
             info = np.diag([np.radians(m.sigma_deg) ** -2] * 3 + [m.sigma_m**-2] * 3)
             self._add_keyframe(level, T_odom_cam, kf, inv_se3(kf.T_odom_cam) @ T_odom_cam, ("map", info))
-            return TrackResult(
-                level.frame_index,
-                level.stamp_ns,
-                len(self.keyframes) - 1,
-                np.eye(4),
-                T_odom_cam,
-                placed.fitness,
-                MAP_RELOCALISED,
-                True,
-            )
+            return self._keyframe_result(level, T_odom_cam, placed.fitness, MAP_RELOCALISED)
         T_kf_cur = fallback[0] if fallback is not None else T_kf_prev @ self._predicted_step(dt_s)
         T_odom_cam = kf.T_odom_cam @ orthonormalize(T_kf_cur)
         self.breaks += 1
         self._add_keyframe(level, T_odom_cam, kf, None)
-        return TrackResult(
-            level.frame_index, level.stamp_ns, len(self.keyframes) - 1, np.eye(4), T_odom_cam, 0.0, LOST, True
-        )
+        return self._keyframe_result(level, T_odom_cam, 0.0, LOST)
 
     def _map_pose(self, level: OdometryFrame, prev_res: TrackResult, dt_s: float) -> MapLocResult | None:
         """The frame's placement in the map of the chain's keyframes (yowo_ego.maploc), None
@@ -110,6 +99,4 @@ class TrackingRecovery:
         sigma_t = p.bridge_translation_sigma_mps * dt_s
         info = np.diag([sigma_rot**-2] * 3 + [sigma_t**-2] * 3)
         self._add_keyframe(level, T_odom_cam, kf, inv_se3(kf.T_odom_cam) @ T_odom_cam, ("imu", info))
-        return TrackResult(
-            level.frame_index, level.stamp_ns, len(self.keyframes) - 1, np.eye(4), T_odom_cam, 0.0, IMU_BRIDGED, True
-        )
+        return self._keyframe_result(level, T_odom_cam, 0.0, IMU_BRIDGED)

@@ -71,7 +71,7 @@ class BundleParams:
     walls: WallAttitudeParams = WallAttitudeParams()
 
 
-@dataclass
+@dataclass(kw_only=True)
 class BundleOutput:
     T_world_kf: list[np.ndarray]
     landmarks: np.ndarray  # (P, 3) world
@@ -206,7 +206,7 @@ def add_inertial(graph, values, T_world_kf: list[np.ndarray], inertial: Inertial
         graph.add(gtsam.CombinedImuFactor(X(i), V(i), X(i + 1), V(i + 1), B(i), B(i + 1), pim))
 
 
-@dataclass
+@dataclass(kw_only=True)
 class BundleProblem:
     """What the adjustment takes from the tracks and keyframe features: each kept
     observation's landmark, keyframe, undistorted pixel and depth, the landmarks' initial
@@ -247,7 +247,15 @@ class BundleProblem:
         first = np.unique(lm, return_index=True)[1]
         for i in first:
             descriptors[lm[i]] = features[kf[i]].descriptors[feat[i]]
-        return cls(lm, kf, uv, depth, points, descriptors, left_out)
+        return cls(
+            landmark=lm,
+            keyframe=kf,
+            uv=uv,
+            depth=depth,
+            points=points,
+            descriptors=descriptors,
+            left_out=left_out,
+        )
 
 
 def bundle_adjust(
@@ -372,17 +380,17 @@ def solve_bundle(
             b = result.atConstantBias(B(i))
             biases[i] = np.concatenate([b.accelerometer(), b.gyroscope()])
     return BundleOutput(
-        T,
-        P,
-        problem.descriptors,
-        final_obs,
-        rmse,
-        sigma,
-        initial_error,
-        final_error,
-        iterations,
-        dropped,
-        problem.left_out,
-        velocities,
-        biases,
+        T_world_kf=T,
+        landmarks=P,
+        descriptors=problem.descriptors,
+        obs=final_obs,
+        rmse_px=rmse,
+        sigma_px=sigma,
+        initial_error=initial_error,
+        final_error=final_error,
+        iterations=iterations,
+        dropped=dropped,
+        left_out=problem.left_out,
+        velocities=velocities,
+        biases=biases,
     )

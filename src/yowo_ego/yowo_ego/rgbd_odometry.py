@@ -100,7 +100,7 @@ class OdometryImages:
         return cls(color, depth_mm, o3d_rgbd(color, depth_mm), cv2.cvtColor(frame.color, cv2.COLOR_RGB2GRAY))
 
 
-@dataclass
+@dataclass(kw_only=True)
 class OdometryFrame:
     """One frame as the tracker holds it: its OdometryImages with its index, stamp and
     full-resolution depth (the feature fall-back's)."""
@@ -141,26 +141,39 @@ class RgbdOdometry:
         """(T_target_source, fitness, inlier RMSE) after running the methods of
         ``cascade`` in turn (fitness scaled for a source with little depth, full_depth_fraction);
         fitness 0 when Open3D gives up."""
-        T = init_target_source
+        T, r = init_target_source, None
         for method in cascade:
-            try:
-                r = _odo.rgbd_odometry_multi_scale(
-                    source,
-                    target,
-                    self._K,
-                    o3d.core.Tensor(T),
-                    1000.0,
-                    self.params.depth_max_m,
-                    self._criteria,
-                    getattr(_odo.Method, method),
-                )
-            except RuntimeError:  # "Singular 6x6 linear system": nothing to track
+            run = self._run(source, target, T, self._criteria, getattr(_odo.Method, method))
+            if run is None:
                 return init_target_source, 0.0, np.inf
-            T = r.transformation.numpy()
-            if not np.isfinite(T).all():
-                return init_target_source, 0.0, np.inf
-            T = orthonormalize(T)
+            T, r = run
         return T, float(r.fitness) * self._fitness_scale(source), float(r.inlier_rmse)
+
+    def _run(
+        self,
+        source: o3d.t.geometry.RGBDImage,
+        target: o3d.t.geometry.RGBDImage,
+        init_target_source: np.ndarray,
+        criteria: list,
+        method,
+    ):
+        """(T_target_source orthonormalised, Open3D's result) of one multi-scale odometry run;
+        None when Open3D gives up or diverges."""
+        try:
+            r = _odo.rgbd_odometry_multi_scale(
+                source,
+                target,
+                self._K,
+                o3d.core.Tensor(init_target_source),
+                1000.0,
+                self.params.depth_max_m,
+                criteria,
+                method,
+            )
+        except RuntimeError:  # "Singular 6x6 linear system": nothing to track
+            return None
+        T = r.transformation.numpy()
+        return (orthonormalize(T), r) if np.isfinite(T).all() else None
 
     def _fitness_scale(self, source: o3d.t.geometry.RGBDImage) -> float:
         """full_depth_fraction over the source's share of pixels with depth (inside the padding), at least 1."""
@@ -177,23 +190,10 @@ class RgbdOdometry:
         (one wall, two walls), point-to-plane slides, so a polish that moves
         further than ``polish_max_m`` / ``polish_max_deg`` is discarded."""
         p = self.params
-        try:
-            r = _odo.rgbd_odometry_multi_scale(
-                source,
-                target,
-                self._K,
-                o3d.core.Tensor(T_target_source),
-                1000.0,
-                p.depth_max_m,
-                self._polish_criteria,
-                _odo.Method.PointToPlane,
-            )
-        except RuntimeError:
+        run = self._run(source, target, T_target_source, self._polish_criteria, _odo.Method.PointToPlane)
+        if run is None:
             return T_target_source
-        T = r.transformation.numpy()
-        if not np.isfinite(T).all():
-            return T_target_source
-        T = orthonormalize(T)
+        T = run[0]
         if (
             np.linalg.norm(T[:3, 3] - T_target_source[:3, 3]) > p.polish_max_m
             or rotation_angle_deg(T[:3, :3], T_target_source[:3, :3]) > p.polish_max_deg

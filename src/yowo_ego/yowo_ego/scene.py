@@ -49,7 +49,7 @@ class CloudParams:
     floor_refit_band_m: float = 0.04  # the floor plane is refit to the upward-facing points this close to its level
 
 
-@dataclass
+@dataclass(kw_only=True)
 class PlanarPatch:
     normal: np.ndarray  # unit, facing the side the cameras saw
     center: np.ndarray
@@ -60,10 +60,12 @@ class PlanarPatch:
     def transformed(self, T: np.ndarray) -> "PlanarPatch":
         n = T[:3, :3] @ self.normal
         c = transform_points(T, self.center)[0]
-        return PlanarPatch(n, c, float(-n @ c), transform_points(T, self.corners), self.num_points)
+        return PlanarPatch(
+            normal=n, center=c, d=float(-n @ c), corners=transform_points(T, self.corners), num_points=self.num_points
+        )
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Rectification:
     T_world_odom: np.ndarray  # applied to every pose, landmark and cloud point
     R_rect: np.ndarray  # eq. rot_gp2w (before the heading turn)
@@ -146,7 +148,7 @@ def planar_patches(
         ext = np.asarray(box.extent)
         u, v = R[:, 0] * ext[0] / 2, R[:, 1] * ext[1] / 2
         corners = np.array([c - u - v, c + u - v, c + u + v, c - u + v])
-        patches.append(PlanarPatch(n, c, float(-n @ c), corners, len(own)))
+        patches.append(PlanarPatch(normal=n, center=c, d=float(-n @ c), corners=corners, num_points=len(own)))
     return patches, pts, normals
 
 
@@ -219,7 +221,11 @@ def rectify(
     floor_z = float((R @ floor_point)[2])
     T = se3(R, [-first[0], -first[1], -floor_z])
     return Rectification(
-        T, R_rect, np.asarray(floor_normal, float), support, float(transform_points(T, T_odom_first[:3, 3])[0, 2])
+        T_world_odom=T,
+        R_rect=R_rect,
+        floor_normal_odom=np.asarray(floor_normal, float),
+        floor_points=support,
+        camera_height_m=float(transform_points(T, T_odom_first[:3, 3])[0, 2]),
     )
 
 

@@ -24,7 +24,7 @@ from .scene import floor_attitudes, up_from_cameras, wall_attitudes
 MIN_TRACKS = 10  # fewer feature tracks than this: no bundle adjustment
 
 
-@dataclass
+@dataclass(kw_only=True)
 class SceneMap:
     """Landmarks (odometry frame) with descriptors and undistorted observations."""
 
@@ -37,7 +37,11 @@ class SceneMap:
     @staticmethod
     def empty() -> "SceneMap":
         return SceneMap(
-            np.zeros((0, 3)), np.zeros((0, 128), np.uint8), np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))
+            landmarks=np.zeros((0, 3)),
+            descriptors=np.zeros((0, 128), np.uint8),
+            obs_keyframe=np.zeros(0, int),
+            obs_landmark=np.zeros(0, int),
+            obs_uv=np.zeros((0, 2)),
         )
 
 
@@ -122,7 +126,11 @@ def refine_keyframes(
     return (
         ba.T_world_kf,
         SceneMap(
-            ba.landmarks[keep], ba.descriptors[keep], ba.obs.camera[sel], remap[ba.obs.point[sel]], ba.obs.uv[sel]
+            landmarks=ba.landmarks[keep],
+            descriptors=ba.descriptors[keep],
+            obs_keyframe=ba.obs.camera[sel],
+            obs_landmark=remap[ba.obs.point[sel]],
+            obs_uv=ba.obs.uv[sel],
         ),
         inertial.up_odom if inertial is not None and inertial.between else None,
         np.isin(np.arange(len(T_kf)), list(walls.walls) if walls is not None else []),
