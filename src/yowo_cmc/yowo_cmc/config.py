@@ -12,19 +12,19 @@ from .params import ClockParams, DetectorParams, PoseModelParams, SfmParams
 class CmcParams:
     detector: DetectorParams = field(default_factory=DetectorParams)  # the built-in model-free detector
     pose: PoseModelParams = field(default_factory=PoseModelParams)  # the human-pose model (source pose)
-    # A camera uses the pose model once it has seen the agent in this many images; else
-    # (nobody it recognises) the model-free detector's keypoints.
+    # Images with the agent after which a camera uses the pose model [count]. Before, and for a
+    # camera where the model recognises nobody, the model-free detector's keypoints.
     pose_min_frames: int = 5
     sfm: SfmParams = field(default_factory=SfmParams)  # groups, incremental SfM, group BA
     clock: ClockParams = field(default_factory=ClockParams)  # clock offsets from the agent's motion
-    # Clock offsets from the agent's motion: reported in cameras.yaml, and applied to the
-    # stamps (clock.apply) before the group SfM.
+    # The cameras' clock offsets are estimated from the agent's motion. Reported in cameras.yaml,
+    # and applied to the stamps (clock.apply) before the group SfM.
     estimate_clock_offsets: bool = True
     background_period_s: float = 1.0  # recorded images sampled this often for the agent-free background
-    max_pending_frames: int = 300  # detector frames that may wait for the camera's CameraInfo
-    # A camera without CameraInfo or intrinsics file starts from this horizontal field of view
-    # [deg] (a typical CCTV lens) at its first image's size; the group SfM estimates its intrinsics.
+    max_pending_frames: int = 300  # images that may wait for the camera's CameraInfo [count]
+    # Horizontal field of view a camera without CameraInfo or intrinsics file starts from, at its
+    # first image's size. A typical CCTV lens; the group SfM estimates its intrinsics.
     nominal_hfov_deg: float = 90.0
-    # A group SfM that fails is tried again without each camera in turn (the one whose data
-    # makes it fail is left out with the error) when there are at most this many cameras.
+    # Most cameras for which a failing group SfM is tried again without each camera in turn
+    # [count]. The one whose data makes it fail is left out with the error.
     isolate_failure_max_cameras: int = 12
