@@ -61,18 +61,18 @@ def _group(cameras: list[RegisteredCmc]) -> CameraGroupResult:
     rng = np.random.default_rng(0)
     points = np.column_stack([rng.uniform(1.0, 3.0, 200), rng.uniform(0.8, 2.2, 200), rng.uniform(0.0, 1.8, 200)])
     return CameraGroupResult(
-        "g0",
-        members[0].name,
-        [c.name for c in members],
-        {c.name: c.T_world_cam for c in members},
-        np.arange(200, dtype=np.int64),
-        np.zeros(200, int),
-        points,
-        {c.name: 0.4 for c in members},
-        {c.name: 100 for c in members},
-        {0: 0.8, 1: 1.6, 5: 12.0},
-        (members[0].name, members[1].name),
-        {c.name: c.camera for c in members},
+        group_id="g0",
+        reference=members[0].name,
+        names=[c.name for c in members],
+        T_local_cam={c.name: c.T_world_cam for c in members},
+        point_stamps_ns=np.arange(200, dtype=np.int64),
+        point_ids=np.zeros(200, int),
+        points=points,
+        rmse_px={c.name: 0.4 for c in members},
+        num_observations={c.name: 100 for c in members},
+        sigma_px_by_id={0: 0.8, 1: 1.6, 5: 12.0},
+        initial_pair=(members[0].name, members[1].name),
+        cameras={c.name: c.camera for c in members},
     )
 
 

@@ -144,7 +144,9 @@ def test_inconsistent_pair_is_dropped():
     truth = {"a": 0.0, "b": 0.2, "c": -0.3, "d": 0.45}
     names = list(truth)
     pairs = [
-        PairOffset(x, y, truth[y] - truth[x], 0.002, 500, 1.0) for i, x in enumerate(names) for y in names[i + 1 :]
+        PairOffset(a=x, b=y, offset_s=truth[y] - truth[x], sigma_s=0.002, correspondences=500, rms_px=1.0)
+        for i, x in enumerate(names)
+        for y in names[i + 1 :]
     ]
     pairs[1].offset_s += 0.1  # a - c: a wrong minimum a frame away
     out = combine(names, pairs, ClockParams())

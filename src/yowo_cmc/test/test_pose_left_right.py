@@ -81,7 +81,7 @@ def poses(camera, T, joints3d, swapped_frames, rng, noise_px=1.5):
             uv[[a, b]] = uv[[b, a]]
         seen = uv[conf > 0] if (conf > 0).any() else uv
         box = np.concatenate([seen.min(axis=0), seen.max(axis=0)])
-        out.append((truth, PersonPose(0.9, box, np.arange(K), uv, conf)))
+        out.append((truth, PersonPose(score=0.9, box=box, ids=np.arange(K), uv=uv, confidence=conf)))
     return out
 
 

@@ -169,17 +169,17 @@ def test_crop_maps_back_to_image_pixels(movenet):
     # half-pixel slip in the crop's placement or the mapping back would show).
     rgb = photo("bus")
     coat = PersonPose(
-        1.0,
-        np.array([40.0, 390.0, 230.0, 900.0]),
-        movenet.ids,
-        np.zeros((len(movenet.ids), 2)),
-        np.zeros(len(movenet.ids)),
+        score=1.0,
+        box=np.array([40.0, 390.0, 230.0, 900.0]),
+        ids=movenet.ids,
+        uv=np.zeros((len(movenet.ids), 2)),
+        confidence=np.zeros(len(movenet.ids)),
     )
     here = movenet.refine(rgb, coat)
     dx, dy = 37, 211
     canvas = np.zeros((rgb.shape[0] + 400, rgb.shape[1] + 100, 3), np.uint8)
     canvas[dy : dy + rgb.shape[0], dx : dx + rgb.shape[1]] = rgb
-    moved = PersonPose(1.0, coat.box + [dx, dy, dx, dy], coat.ids, coat.uv, coat.confidence)
+    moved = PersonPose(score=1.0, box=coat.box + [dx, dy, dx, dy], ids=coat.ids, uv=coat.uv, confidence=coat.confidence)
     there = movenet.refine(canvas, moved)
     assert here.confidence[2:].min() > 0.0 and np.isfinite(here.uv[2:]).all()
     np.testing.assert_allclose(there.uv, here.uv + [dx, dy], atol=1e-3)  # NaN (not derivable) in both

@@ -21,7 +21,7 @@ from .keypoint_tracks import CameraTracks
 from .params import ClockParams, SfmParams
 
 
-@dataclass
+@dataclass(kw_only=True)
 class CameraClock:
     name: str
     offset_s: float | None  # this camera's clock - the reference camera's
@@ -84,9 +84,10 @@ def combine(names: list[str], pairs: list[PairOffset], params: ClockParams) -> d
     for k, n in enumerate(names):
         if k in solution:
             off, sig, ref = solution[k]
-            out[n] = CameraClock(n, off, sig, names[ref])
+            out[n] = CameraClock(name=n, offset_s=off, sigma_s=sig, reference=names[ref])
         else:
-            out[n] = CameraClock(n, None, None, None, _no_estimate_reason(n, pairs, params))
+            reason = _no_estimate_reason(n, pairs, params)
+            out[n] = CameraClock(name=n, offset_s=None, sigma_s=None, reference=None, reason=reason)
     return out
 
 

@@ -22,7 +22,7 @@ from .params import ClockParams, SfmParams
 from .scene_graph import RANSAC_SEED, sampson_px, signed_sampson_px, spread_subset
 
 
-@dataclass
+@dataclass(kw_only=True)
 class PairOffset:
     a: str
     b: str
@@ -293,14 +293,14 @@ def estimate_pair(a: SplineTracks, b: SplineTracks, params: ClockParams, sfm: Sf
     if isinstance(refined, str):
         return _no_offset(a, b, refined)
     delta, sigma, n, rms = refined
-    out = PairOffset(a.name, b.name, delta, sigma, n, rms)
+    out = PairOffset(a=a.name, b=b.name, offset_s=delta, sigma_s=sigma, correspondences=n, rms_px=rms)
     if sigma > params.max_pair_sigma_s:
         out.reason = f"sigma {sigma * 1e3:.1f} ms > {params.max_pair_sigma_s * 1e3:.0f} ms (too little motion)"
     return out
 
 
 def _no_offset(a: SplineTracks, b: SplineTracks, reason: str) -> PairOffset:
-    return PairOffset(a.name, b.name, None, None, 0, None, reason=reason)
+    return PairOffset(a=a.name, b=b.name, offset_s=None, sigma_s=None, correspondences=0, rms_px=None, reason=reason)
 
 
 def covisible_pairs(cams: list[SplineTracks], params: ClockParams) -> list[tuple[int, int]]:

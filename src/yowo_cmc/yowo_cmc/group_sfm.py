@@ -27,7 +27,7 @@ from .scene_graph import (
 )
 
 
-@dataclass
+@dataclass(kw_only=True)
 class CameraGroupResult:
     group_id: str
     reference: str
@@ -199,18 +199,18 @@ def _group_result(
         counts[obs.names[c]] = int(len(r))
     stamps, ids = obs.stamp_and_id(ba["keys"])
     return CameraGroupResult(
-        group_id,
-        obs.names[init.a],
-        [obs.names[c] for c in ba["cams"]],
-        {obs.names[c]: sfm.poses[c] for c in ba["cams"]},
-        stamps,
-        ids,
-        np.array([sfm.points[int(k)] for k in ba["keys"]]),
-        rmse,
-        counts,
-        sigma_by_id,
-        (obs.names[init.a], obs.names[init.b]),
-        {obs.names[c]: m for c, m in sfm.estimated.items() if c in sfm.poses},
+        group_id=group_id,
+        reference=obs.names[init.a],
+        names=[obs.names[c] for c in ba["cams"]],
+        T_local_cam={obs.names[c]: sfm.poses[c] for c in ba["cams"]},
+        point_stamps_ns=stamps,
+        point_ids=ids,
+        points=np.array([sfm.points[int(k)] for k in ba["keys"]]),
+        rmse_px=rmse,
+        num_observations=counts,
+        sigma_px_by_id=sigma_by_id,
+        initial_pair=(obs.names[init.a], obs.names[init.b]),
+        cameras={obs.names[c]: m for c, m in sfm.estimated.items() if c in sfm.poses},
     )
 
 
@@ -238,7 +238,7 @@ def calibrate_groups(
     pairs = [
         pair_geometry(obs, a, b, params)
         if related(a, b)
-        else PairGeometry(a, b, None, np.zeros(0, np.int64), np.zeros(0, bool))
+        else PairGeometry.without_geometry(a, b, np.zeros(0, np.int64))
         for a in range(len(cams))
         for b in range(a + 1, len(cams))
     ]

@@ -75,19 +75,19 @@ def groups_from_msg(msg: CameraGroupArray) -> tuple[list[CameraGroupResult], dic
         names = list(g.camera_names)
         groups.append(
             CameraGroupResult(
-                g.group_id,
-                g.reference_camera,
-                names,
-                {n: pose_to_matrix(p) for n, p in zip(names, g.poses_local_camera)},
-                np.array([stamp_to_ns(s) for s in g.track_stamps], dtype=np.int64),
-                np.array(g.track_keypoint_ids, dtype=int),
-                points_to_array(g.track_points),
-                dict(zip(names, g.reprojection_rmse_px)),
-                dict(zip(names, g.num_observations)),
-                {int(i): float(s) for i, s in zip(g.sigma_keypoint_ids, g.sigma_px)},
-                (g.reference_camera, g.initial_pair_camera),
+                group_id=g.group_id,
+                reference=g.reference_camera,
+                names=names,
+                T_local_cam={n: pose_to_matrix(p) for n, p in zip(names, g.poses_local_camera)},
+                point_stamps_ns=np.array([stamp_to_ns(s) for s in g.track_stamps], dtype=np.int64),
+                point_ids=np.array(g.track_keypoint_ids, dtype=int),
+                points=points_to_array(g.track_points),
+                rmse_px=dict(zip(names, g.reprojection_rmse_px)),
+                num_observations=dict(zip(names, g.num_observations)),
+                sigma_px_by_id={int(i): float(s) for i, s in zip(g.sigma_keypoint_ids, g.sigma_px)},
+                initial_pair=(g.reference_camera, g.initial_pair_camera),
                 # a group without them (an older message) has no intrinsics to give
-                {
+                cameras={
                     n: _estimated(camera_info_to_model(i), s, k)
                     for n, i, s, k in zip(
                         names, g.camera_infos, _or_nan(g.focal_sigmas_px, names), _or_nan(g.k1_sigmas, names)
@@ -95,9 +95,11 @@ def groups_from_msg(msg: CameraGroupArray) -> tuple[list[CameraGroupResult], dic
                 }
                 if len(g.camera_infos) == len(names)
                 else {},
-                {n: float(o) for n, o in zip(names, g.clock_offsets_s) if np.isfinite(o)},
-                {n: float(s) for n, s, o in zip(names, g.clock_sigmas_s, g.clock_offsets_s) if np.isfinite(o)},
-                g.clocks_applied,
+                clock_offsets_s={n: float(o) for n, o in zip(names, g.clock_offsets_s) if np.isfinite(o)},
+                clock_sigmas_s={
+                    n: float(s) for n, s, o in zip(names, g.clock_sigmas_s, g.clock_offsets_s) if np.isfinite(o)
+                },
+                clocks_applied=g.clocks_applied,
             )
         )
     return groups, dict(zip(msg.ungrouped_cameras, msg.ungrouped_reasons))

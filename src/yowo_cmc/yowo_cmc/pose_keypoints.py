@@ -85,7 +85,7 @@ JOINTS = {"movenet": MOVENET_JOINTS, "blazepose": BLAZEPOSE_JOINTS}
 HEAD_TOP_RATIOS = {"ears": 0.70, "eyes": 0.60, "nose": 0.95}
 
 
-@dataclass
+@dataclass(kw_only=True)
 class PersonPose:
     """One person in one image. ids / uv / confidence are parallel arrays holding
     every id of the model (0, 1, then the joints); a keypoint that was not seen

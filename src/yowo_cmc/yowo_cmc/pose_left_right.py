@@ -130,7 +130,7 @@ class LeftRight:
             else:
                 self.kept += 1
             self._last[(a, b)] = (stamp, track, uv[a] - uv[b])
-        return PersonPose(pose.score, pose.box, pose.ids, uv, conf)
+        return PersonPose(score=pose.score, box=pose.box, ids=pose.ids, uv=uv, confidence=conf)
 
     def summary(self) -> str:
         return f"left/right pairs {self.kept} kept, {self.swapped} swapped, {self.dropped} dropped"

@@ -255,7 +255,7 @@ class PoseDetector:
         ids = self.ids
         all_uv = np.vstack([top[:2], ground[:2], uv])
         all_conf = np.concatenate([[top[2], ground[2]], np.clip(conf, 0.0, 1.0)])
-        return PersonPose(score, np.asarray(box, float), ids, all_uv, all_conf)
+        return PersonPose(score=score, box=np.asarray(box, float), ids=ids, uv=all_uv, confidence=all_conf)
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:

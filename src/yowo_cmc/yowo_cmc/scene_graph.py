@@ -20,7 +20,7 @@ MAX_IDS = 1000  # keypoint ids per grid time: key = grid index * MAX_IDS + id
 RANSAC_SEED = 0  # OpenCV's RANSAC draws from a global RNG: seed it so a bag always gives the same result
 
 
-@dataclass
+@dataclass(kw_only=True)
 class GridObservations:
     """Every camera's keypoints sampled on one time grid: a 3D agent point is a
     (grid time, keypoint id) pair, so views at unequal rates correspond."""
@@ -39,7 +39,7 @@ class GridObservations:
         return self.grid_ns[keys // MAX_IDS], keys % MAX_IDS
 
 
-@dataclass
+@dataclass(kw_only=True)
 class PairGeometry:
     a: int
     b: int
@@ -52,6 +52,11 @@ class PairGeometry:
     def num_inliers(self) -> int:
         return int(self.inliers.sum())
 
+    @classmethod
+    def without_geometry(cls, a: int, b: int, keys: np.ndarray) -> PairGeometry:
+        """A pair with no fundamental matrix, its co-visible `keys` all outliers."""
+        return cls(a=a, b=b, F=None, keys=keys, inliers=np.zeros(len(keys), bool))
+
 
 def sample_on_grid(cams: list[CameraTracks], params: TrackParams) -> GridObservations:
     """Clean, undistort and sample every track on a common grid at the fastest camera's period."""
@@ -59,12 +64,12 @@ def sample_on_grid(cams: list[CameraTracks], params: TrackParams) -> GridObserva
     all_stamps = np.concatenate([t.stamps_ns for c in cams for t in c.tracks.values()] or [np.zeros(0, np.int64)])
     if len(all_stamps) == 0:
         return GridObservations(
-            np.zeros(0, np.int64),
-            [],
-            [c.name for c in cams],
-            [{} for _ in cams],
-            [1.0 for _ in cams],
-            [{} for _ in cams],
+            grid_ns=np.zeros(0, np.int64),
+            cameras=[],
+            names=[c.name for c in cams],
+            per_camera=[{} for _ in cams],
+            noise_scale=[1.0 for _ in cams],
+            sigma_factor=[{} for _ in cams],
         )
     t0 = all_stamps.min() - all_stamps.min() % period
     grid = np.arange(t0, all_stamps.max() + period, period, dtype=np.int64)
@@ -82,7 +87,14 @@ def sample_on_grid(cams: list[CameraTracks], params: TrackParams) -> GridObserva
                 weak.update((int(at[i]) * MAX_IDS + kp_id, float(factor[i])) for i in np.flatnonzero(factor > 1))
         per_camera.append(obs)
         factors.append(weak)
-    return GridObservations(grid, models, [c.name for c in cams], per_camera, scales, factors)
+    return GridObservations(
+        grid_ns=grid,
+        cameras=models,
+        names=[c.name for c in cams],
+        per_camera=per_camera,
+        noise_scale=scales,
+        sigma_factor=factors,
+    )
 
 
 def spread_subset(uv: np.ndarray, camera: CameraModel, params: SfmParams) -> np.ndarray:
@@ -116,7 +128,7 @@ def pair_geometry(obs: GridObservations, a: int, b: int, params: SfmParams) -> P
     every co-visible correspondence."""
     keys = np.intersect1d(obs.keys(a), obs.keys(b))
     if len(keys) < params.min_matches:
-        return PairGeometry(a, b, None, keys, np.zeros(len(keys), bool))
+        return PairGeometry.without_geometry(a, b, keys)
     pa = np.array([obs.per_camera[a][k] for k in keys])
     pb = np.array([obs.per_camera[b][k] for k in keys])
     sub = spread_subset(pa, obs.cameras[a], params)
@@ -129,15 +141,18 @@ def pair_geometry(obs: GridObservations, a: int, b: int, params: SfmParams) -> P
         except cv2.error:  # degenerate configurations (e.g. all points in one spot) make USAC assert
             F = None
     if F is None or F.shape != (3, 3):
-        return PairGeometry(a, b, None, keys, np.zeros(len(keys), bool))
+        return PairGeometry.without_geometry(a, b, keys)
     inliers = sampson_px(F, pa, pb) <= ransac_px
     return PairGeometry(
-        a,
-        b,
-        F,
-        keys,
-        inliers,
-        (overlap_score(pa[inliers], obs.cameras[a], params), overlap_score(pb[inliers], obs.cameras[b], params)),
+        a=a,
+        b=b,
+        F=F,
+        keys=keys,
+        inliers=inliers,
+        overlap=(
+            overlap_score(pa[inliers], obs.cameras[a], params),
+            overlap_score(pb[inliers], obs.cameras[b], params),
+        ),
     )
 
 

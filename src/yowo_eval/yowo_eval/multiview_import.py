@@ -90,7 +90,7 @@ def person_pose(uv: np.ndarray, conf: np.ndarray, fmt: str, width: int, height: 
     score = float(conf[seen].mean()) if seen.any() else 0.0
     pts = uv[seen] if seen.any() else uv
     box = np.concatenate([pts.min(axis=0), pts.max(axis=0)])
-    return PersonPose(score, box, ids, all_uv, all_conf)
+    return PersonPose(score=score, box=box, ids=ids, uv=all_uv, confidence=all_conf)
 
 
 @dataclass

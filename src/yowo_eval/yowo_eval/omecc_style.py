@@ -267,17 +267,17 @@ def calibrate_group(
     names = [obs.names[c] for c in cams]
     return (
         CameraGroupResult(
-            group_id,
-            obs.names[root],
-            names,
-            {obs.names[c]: T[index[c]] for c in cams},
-            stamps,
-            ids,
-            points,
-            rmse,
-            counts,
-            sigma_by_id,
-            (obs.names[root], obs.names[other]),
+            group_id=group_id,
+            reference=obs.names[root],
+            names=names,
+            T_local_cam={obs.names[c]: T[index[c]] for c in cams},
+            point_stamps_ns=stamps,
+            point_ids=ids,
+            points=points,
+            rmse_px=rmse,
+            num_observations=counts,
+            sigma_px_by_id=sigma_by_id,
+            initial_pair=(obs.names[root], obs.names[other]),
         ),
         failed,
     )
