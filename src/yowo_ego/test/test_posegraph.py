@@ -1,4 +1,4 @@
-"""Multiway registration's edge check (yowo_ego.posegraph.verify_edge) on two rendered
+"""Multiway registration's edge check (yowo_ego.edge_checks.verify_edge) on two rendered
 keyframes: a tracking edge that SIFT + PnP contradict is replaced, unless the gyro's
 rotation over the edge says the edge is right (a symmetric room's look-alike views)."""
 
