@@ -1,11 +1,10 @@
 """Initial ego motion (paper: ICP with multiway registration, first half): the parameters
 of the tracking (the ``ego.odometry`` section) and what it hands on: keyframes, the edges
-between them and each frame's result with its status, from which
-``frames_between_keyframes`` poses every frame once the keyframes are optimised. The
-tracking itself:
-``keyframe_tracker`` (frame to keyframe, keyframe decisions), ``rgbd_odometry`` (dense
-odometry of an image pair), ``recovery`` (frames no dense attempt tracks) and
-``frame_skipping`` (motion-adaptive frame rate).
+between them and each frame's result with its status, from which ``frames_between_keyframes``
+poses every frame once the keyframes are optimised. The tracking itself: ``keyframe_tracker``
+(frame to keyframe, keyframe decisions), ``rgbd_odometry`` (dense odometry of an image pair),
+``recovery`` (frames no dense attempt tracks) and ``frame_skipping`` (motion-adaptive frame
+rate).
 """
 
 from __future__ import annotations
