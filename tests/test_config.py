@@ -155,3 +155,30 @@ def test_offline_api_and_graph_agree_with_the_same_tree(tmp_path, ros_env):
     )
     stages = yaml.safe_load((tmp_path / "blind" / "run_log.yaml").read_text())["stages"]
     assert all("agent in 0" in stages[f"keypoint_tracker_cam0{i}"] for i in range(3)), stages
+
+
+def test_every_key_has_a_description_and_every_number_a_unit():
+    """`yowo config` shows each key's one-line description and unit, read from the comment
+    of its dataclass field; a key added without one fails here."""
+    from yowo_common.config import leaf_docs
+
+    leaves = leaf_docs(YowoConfig())
+    undescribed = [k for k, (_, doc) in leaves.items() if doc is None or not doc.description]
+    unitless = [
+        k
+        for k, (v, doc) in leaves.items()
+        if doc and not doc.unit and isinstance(v, (int, float)) and not isinstance(v, bool)
+    ]
+    assert not undescribed, f"keys without a comment: {undescribed}"
+    assert not unitless, f"numbers without a unit (name suffix or a trailing [unit]): {unitless}"
+
+
+def test_yowo_config_prints_a_file_that_config_takes_back(tmp_path):
+    from yowo_common.config import dump_described
+
+    cfg = load_config(None, ["ego.odometry.iterations=[7, 3]", "replay.exclude_prefixes=[/gt/, /x/]"])
+    text = dump_described(cfg)
+    assert "# image downsampling" in text.split("scale:")[1].splitlines()[0]
+    path = tmp_path / "c.yaml"
+    path.write_text(text)
+    assert load_config(path) == cfg
