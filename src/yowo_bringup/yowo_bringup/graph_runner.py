@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
@@ -58,117 +59,25 @@ def execute(
     recording of every node process there and summary.md, their top functions."""
     progress = progress or ProgressLines(log)
     network = network or graph_network(PRIVATE)
-    (plan.out_dir / "logs").mkdir(parents=True, exist_ok=True)
-    params_file = plan.out_dir / "logs" / "ros_params.yaml"  # what the nodes are started with
-    write_params_file(plan.nodes, params_file)
-    (plan.out_dir / "params.yaml").write_text(
-        yaml.safe_dump(
-            params_document(
-                plan.config,
-                {n.name: {k: v for k, v in n.parameters.items() if k not in CONFIG_PARAMETERS} for n in plan.nodes},
-            ),
-            sort_keys=False,
-        )
-    )
     sup = Supervisor(
         plan.out_dir / "logs",
         library_threads_env(network.env, plan.config.supervisor.library_threads),
-        params_file,
+        _write_parameters(plan),
         profile_dir,
         plan.config.supervisor.profile_rate_hz,
     )
-    stages = plan.stages
     t0, t0_wall = time.monotonic(), time.time()
-    failure, outcome, notes = "", None, set()
-    outputs, status, replay, graph = {}, {}, None, {}
-    saved_env = {k: os.environ.get(k) for k in DDS_ENV}
-    os.environ.update({k: network.env[k] for k in DDS_ENV if k in network.env})  # this process's own node
-    for k in DDS_ENV:
-        if k not in network.env:
-            os.environ.pop(k, None)
-
-    def graph_log() -> dict:
-        return {
-            "graph": {
-                "run_id": plan.run_id,
-                "ros_domain_id": network.domain_id,
-                "private": network.private,
-                "discovery_range": network.discovery,
-                "nodes_on_this_host": [n for p in sup.procs for n in p.spec.nodes],
-                "processes": {p.spec.name: p.spec.nodes for p in sup.procs},
-                "stray_status_messages": monitor.strays(),
-            },
-            "restarts": {p.spec.name: p.exits for p in sup.procs if p.exits},
-            # Sampled once a second from /proc: the last second of a node is not counted.
-            "resources": {p.spec.name: p.resources() for p in sup.procs},
-            # The largest sum of every process's proportional set size (this one's included)
-            # at one sample: what the graph held of the machine's memory at its peak.
-            "peak_memory_mb": round(sup.peak_memory_mb, 1),
-            "peak_memory_by_process_mb": {k: round(v, 1) for k, v in sup.peak_memory_by_process.items()},
-            # Seconds since the run started; queue waits and handling per input topic.
-            "timing": node_timing(sup, t0_wall),
-        }
-
-    try:
+    failure, outcome = "", None
+    collected = _Collected(outputs={}, status={}, replay=None, graph={})
+    with _dds_environment(network):
         # Ctrl-C (and SIGTERM) as KeyboardInterrupt, not rclpy's shutdown: the nodes are stopped
         # and the run log says the run was interrupted.
         with ros_context([], signal_handlers=False), _interrupted(lambda: time.monotonic() - t0) as stop:
-            monitor = RunMonitor(stages, plan.outputs, plan.run_id)
+            monitor = RunMonitor(plan.stages, plan.outputs, plan.run_id)
             try:
                 for spec in plan.local_processes:  # replay last: it waits for the stages' subscriptions
                     sup.start(spec)
-                finished_at, last_sample, last_memory = None, 0.0, 0.0
-                while True:
-                    monitor.spin_once(0.1)
-                    if plan.bag is None:
-                        monitor.relay_end_of_walk()
-                    failure = _restart_dead(sup, plan.config.supervisor.max_restarts, log)
-                    if failure:
-                        break
-                    if monitor.replay is not None and monitor.replay.error not in notes | {""}:
-                        notes.add(monitor.replay.error)
-                        if monitor.replay.error not in plan.warnings:  # a damaged file is told at the start
-                            log(f"warning: {monitor.replay.error}")
-                    final = monitor.finished(plan.final_stage)
-                    if final is not None and finished_at is None:
-                        finished_at = time.monotonic()
-                    grace = GRACE_S[
-                        "failed" if final is not None and final.state == StageStatus.STATE_FAILED else "done"
-                    ]
-                    # The replay's final status too (the run log's counts): on a loaded machine it
-                    # reached the stages but not yet this node when they had all finished.
-                    replayed = plan.bag is None or (
-                        monitor.replay is not None and monitor.replay.state == ReplayStatus.STATE_FINISHED
-                    )
-                    settled = (
-                        final is not None
-                        and replayed
-                        and all(monitor.finished(s) for s in stages)
-                        and (final.state == StageStatus.STATE_FAILED or all(t in monitor.outputs for t in plan.outputs))
-                    )
-                    if finished_at is not None and (settled or time.monotonic() - finished_at > grace):
-                        if final.state == StageStatus.STATE_FAILED:
-                            # The first cause too: a final stage fails for want of an upstream one's output.
-                            upstream = [
-                                f"stage '{s}' failed: {m.message}"
-                                for s, m in monitor.status.items()
-                                if s != plan.final_stage and m.state == StageStatus.STATE_FAILED
-                            ]
-                            failure = "; ".join([*upstream, f"stage '{plan.final_stage}' failed: {final.message}"])
-                        break
-                    if time.monotonic() - t0 > timeout_s:
-                        failure = f"no result after {timeout_s:.0f} s; " + ", ".join(
-                            f"{s}={'done' if monitor.finished(s) else 'running'}" for s in stages
-                        )
-                        break
-                    progress(monitor.progress(stages, time.monotonic() - t0, plan.replay_messages))
-                    for silent in monitor.silent_inputs(time.monotonic() - t0):
-                        log(f"warning: {silent}")
-                    if time.monotonic() - last_sample >= SAMPLE_S:
-                        memory = time.monotonic() - last_memory >= MEMORY_SAMPLE_S
-                        sup.sample(memory)
-                        last_sample = time.monotonic()
-                        last_memory = last_sample if memory else last_memory
+                failure = _follow(plan, monitor, sup, log, progress, t0, timeout_s)
                 if linger_s > 0 and not failure:
                     outcome = write_run_results(
                         plan,
@@ -177,7 +86,7 @@ def execute(
                         monitor.replay,
                         time.monotonic() - t0,
                         failure,
-                        graph_log(),
+                        _graph_log(plan, network, sup, monitor, t0_wall),
                     )
                     log(f"results written to {plan.out_dir}; the graph stays up {linger_s:.0f} s (latched /tf_static)")
                     end = time.monotonic() + linger_s
@@ -185,34 +94,158 @@ def execute(
                         monitor.spin_once(0.1)
             finally:
                 sup.sample()
-                outputs, status, replay, graph = (
-                    dict(monitor.outputs),
-                    dict(monitor.status),
-                    monitor.replay,
-                    graph_log(),
+                collected = _Collected(
+                    outputs=dict(monitor.outputs),
+                    status=dict(monitor.status),
+                    replay=monitor.replay,
+                    graph=_graph_log(plan, network, sup, monitor, t0_wall),
                 )
                 monitor.destroy_node()
                 sup.stop()
-                if profile_dir is not None:
-                    (Path(profile_dir) / "summary.md").write_text(
-                        summary_markdown(profile_dir, plan.config.supervisor.profile_rate_hz)
-                    )
-                    for profiler in sup.profilers:
-                        if profiler.error:
-                            log(f"warning: --profile: {profiler.error}")
+                _write_profiles(plan, sup, profile_dir, log)
+    failure = stop.reason or failure
+    if outcome is None:
+        outcome = write_run_results(
+            plan, collected.outputs, collected.status, collected.replay, time.monotonic() - t0, failure, collected.graph
+        )
+    if outcome.failure:
+        raise RunFailed(outcome.failure)
+    return outcome
+
+
+@dataclass(kw_only=True)
+class _Collected:
+    """What the monitor held when the graph stopped."""
+
+    outputs: dict
+    status: dict
+    replay: object
+    graph: dict
+
+
+def _write_parameters(plan: RunPlan) -> Path:
+    """params.yaml (the resolved tree and each node's own parameters) and the ROS parameter
+    file the nodes are started with, whose path is returned."""
+    (plan.out_dir / "logs").mkdir(parents=True, exist_ok=True)
+    params_file = plan.out_dir / "logs" / "ros_params.yaml"
+    write_params_file(plan.nodes, params_file)
+    own = {n.name: {k: v for k, v in n.parameters.items() if k not in CONFIG_PARAMETERS} for n in plan.nodes}
+    (plan.out_dir / "params.yaml").write_text(yaml.safe_dump(params_document(plan.config, own), sort_keys=False))
+    return params_file
+
+
+@contextlib.contextmanager
+def _dds_environment(network: GraphNetwork):
+    """This process's own node joins the run's DDS graph; the environment is restored and the
+    network released afterwards."""
+    saved = {k: os.environ.get(k) for k in DDS_ENV}
+    for k in DDS_ENV:
+        if k in network.env:
+            os.environ[k] = network.env[k]
+        else:
+            os.environ.pop(k, None)
+    try:
+        yield
     finally:
-        for k, v in saved_env.items():
+        for k, v in saved.items():
             if v is None:
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
         network.release()
-    failure = stop.reason or failure
-    if outcome is None:
-        outcome = write_run_results(plan, outputs, status, replay, time.monotonic() - t0, failure, graph)
-    if outcome.failure:
-        raise RunFailed(outcome.failure)
-    return outcome
+
+
+def _follow(plan: RunPlan, monitor: RunMonitor, sup: Supervisor, log, progress, t0: float, timeout_s: float) -> str:
+    """Follow the graph until its final stage has finished and its outputs arrived (or a
+    grace period passed), a node cannot be restarted, or the timeout: the failure ('' when
+    none)."""
+    finished_at, last_sample, last_memory, notes = None, 0.0, 0.0, set()
+    while True:
+        monitor.spin_once(0.1)
+        if plan.bag is None:
+            monitor.relay_end_of_walk()
+        failure = _restart_dead(sup, plan.config.supervisor.max_restarts, log)
+        if failure:
+            return failure
+        if monitor.replay is not None and monitor.replay.error not in notes | {""}:
+            notes.add(monitor.replay.error)
+            if monitor.replay.error not in plan.warnings:  # a damaged file is told at the start
+                log(f"warning: {monitor.replay.error}")
+        final = monitor.finished(plan.final_stage)
+        if final is not None and finished_at is None:
+            finished_at = time.monotonic()
+        failed = final is not None and final.state == StageStatus.STATE_FAILED
+        if finished_at is not None and (
+            _settled(plan, monitor, failed) or time.monotonic() - finished_at > GRACE_S["failed" if failed else "done"]
+        ):
+            return _final_failure(plan, monitor, final) if failed else ""
+        if time.monotonic() - t0 > timeout_s:
+            return f"no result after {timeout_s:.0f} s; " + ", ".join(
+                f"{s}={'done' if monitor.finished(s) else 'running'}" for s in plan.stages
+            )
+        progress(monitor.progress(plan.stages, time.monotonic() - t0, plan.replay_messages))
+        for silent in monitor.silent_inputs(time.monotonic() - t0):
+            log(f"warning: {silent}")
+        if time.monotonic() - last_sample >= SAMPLE_S:
+            memory = time.monotonic() - last_memory >= MEMORY_SAMPLE_S
+            sup.sample(memory)
+            last_sample = time.monotonic()
+            last_memory = last_sample if memory else last_memory
+
+
+def _settled(plan: RunPlan, monitor: RunMonitor, failed: bool) -> bool:
+    """Every stage finished, the replay's final status here and (after a success) every output."""
+    # The replay's final status too (the run log's counts): on a loaded machine it
+    # reached the stages but not yet this node when they had all finished.
+    replayed = plan.bag is None or (monitor.replay is not None and monitor.replay.state == ReplayStatus.STATE_FINISHED)
+    return (
+        replayed
+        and all(monitor.finished(s) for s in plan.stages)
+        and (failed or all(t in monitor.outputs for t in plan.outputs))
+    )
+
+
+def _final_failure(plan: RunPlan, monitor: RunMonitor, final) -> str:
+    # The first cause too: a final stage fails for want of an upstream one's output.
+    upstream = [
+        f"stage '{s}' failed: {m.message}"
+        for s, m in monitor.status.items()
+        if s != plan.final_stage and m.state == StageStatus.STATE_FAILED
+    ]
+    return "; ".join([*upstream, f"stage '{plan.final_stage}' failed: {final.message}"])
+
+
+def _graph_log(plan: RunPlan, network: GraphNetwork, sup: Supervisor, monitor: RunMonitor, t0_wall: float) -> dict:
+    """The run log's account of the graph: network, processes, restarts, resources, timing."""
+    return {
+        "graph": {
+            "run_id": plan.run_id,
+            "ros_domain_id": network.domain_id,
+            "private": network.private,
+            "discovery_range": network.discovery,
+            "nodes_on_this_host": [n for p in sup.procs for n in p.spec.nodes],
+            "processes": {p.spec.name: p.spec.nodes for p in sup.procs},
+            "stray_status_messages": monitor.strays(),
+        },
+        "restarts": {p.spec.name: p.exits for p in sup.procs if p.exits},
+        # Sampled once a second from /proc: the last second of a node is not counted.
+        "resources": {p.spec.name: p.resources() for p in sup.procs},
+        # The largest sum of every process's proportional set size (this one's included)
+        # at one sample: what the graph held of the machine's memory at its peak.
+        "peak_memory_mb": round(sup.peak_memory_mb, 1),
+        "peak_memory_by_process_mb": {k: round(v, 1) for k, v in sup.peak_memory_by_process.items()},
+        # Seconds since the run started; queue waits and handling per input topic.
+        "timing": node_timing(sup, t0_wall),
+    }
+
+
+def _write_profiles(plan: RunPlan, sup: Supervisor, profile_dir: Path | None, log) -> None:
+    if profile_dir is None:
+        return
+    (Path(profile_dir) / "summary.md").write_text(summary_markdown(profile_dir, plan.config.supervisor.profile_rate_hz))
+    for profiler in sup.profilers:
+        if profiler.error:
+            log(f"warning: --profile: {profiler.error}")
 
 
 class _Interruption:
