@@ -2,7 +2,7 @@
 keypoints (OpenPose JSON, as Pose2Sim keeps them in pose/<cam>_json/) and a reference
 calibration (Pose2Sim's Calib*.toml: K, distortion, rvec/tvec) -- optionally with the
 cameras' videos, -> a rosbag2 MCAP recording in YOWO's contract: per CMC CameraInfo,
-AgentKeypoints (ids as in yowo_cmc.pose_model: 0 head top and 1 ground point derived by
+AgentKeypoints (ids as in yowo_cmc.pose_keypoints: 0 head top and 1 ground point derived by
 its code, body joints 2+) and, with --videos, the frames as JPEG CompressedImage; the
 reference poses on /gt/cmc/<name>/pose for the evaluation only (hence in yowo_eval).
 
@@ -96,7 +96,7 @@ def person_pose(uv: np.ndarray, conf: np.ndarray, fmt: str, width: int, height: 
 @dataclass
 class AgentTracker:
     """The agent among several people per frame, as the pose source keeps it
-    (yowo_cmc.pose_model.pick_agent: the best-scored person to start, then the one nearest
+    (yowo_cmc.pose_source.pick_agent: the best-scored person to start, then the one nearest
     the agent's last box centre within max_jump of the image diagonal; lost after
     lost_after frames without it). Counts the others."""
 

@@ -316,7 +316,7 @@ def agent_keypoints_3d(position_xy, heading_rad: float, height_m: float, phase: 
     }
 
 
-# COCO-17 body joints (the order of yowo_cmc.pose_model.MOVENET_JOINTS); person's left / right.
+# COCO-17 body joints (the order of yowo_cmc.pose_keypoints.MOVENET_JOINTS); person's left / right.
 BODY_JOINTS = (
     "nose",
     "left_eye",
