@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from yowo_cmc.skeletons import declared_skeletons
 from yowo_common import topics
 
 from .config import YowoConfig, node_config
@@ -204,6 +205,7 @@ def plan_run(
             roles["info_topic"], roles["camera_info"] = "", intrinsics_text(inputs.intrinsics_files[c], c)
         trackers.append((c, kind, roles))
     cmc_problems = [p for p in problems if p.startswith("CMC ")]
+    declared_skeletons(config.cmc.keypoints, inputs.cmc_names)  # a malformed declaration stops here
     mode, reason = _mode_for(mode, cameras, inputs.cmc_names, cmc_problems)
     if mode == CMC and len(cameras) < MIN_GROUP_CMCS:
         raise ValueError(

@@ -5,11 +5,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .params import ClockParams, DetectorParams, PoseModelParams, SfmParams
+from .params import ClockParams, DetectorParams, KeypointFormatParams, PoseModelParams, SfmParams
 
 
 @dataclass(frozen=True)
 class CmcParams:
+    # The skeleton of recorded or published agent keypoints (which joint each id is).
+    keypoints: KeypointFormatParams = field(default_factory=KeypointFormatParams)
     detector: DetectorParams = field(default_factory=DetectorParams)  # the built-in model-free detector
     pose: PoseModelParams = field(default_factory=PoseModelParams)  # the human-pose model (source pose)
     # Images with the agent after which a camera uses the pose model [count]. Before, and for a

@@ -24,7 +24,7 @@ def robust_rounds(sfm: IncrementalSfm, init: PairGeometry, params: SfmParams) ->
             # Points rejected under the pre-BA poses get a second chance, at the wider gate.
             sfm.triangulate_new(params.rounds_reproj_px)
         ba = bundle_adjust(sfm, init.a, init.b, sigma_by_id)
-        previous, sigma_by_id = sigma_by_id, residual_sigmas(ba, params.sigma_class_bounds)
+        previous, sigma_by_id = sigma_by_id, residual_sigmas(ba, params.sigma_class_bounds, sfm.obs.skeleton)
         if previous and all(abs(sigma_by_id.get(i, v) / v - 1) <= params.sigma_tolerance for i, v in previous.items()):
             break
     return ba, sigma_by_id
@@ -84,11 +84,16 @@ def bundle_adjust(sfm: IncrementalSfm, reference: int, second: int, sigma_by_id:
     return {"obs": obs, "residuals": res.residuals_px, "cams": cams, "keys": keys}
 
 
-def residual_sigmas(ba: dict, class_bounds: tuple[int, ...]) -> dict[int, float]:
+def residual_sigmas(ba: dict, class_bounds: tuple[int, ...], skeleton=None) -> dict[int, float]:
     """{keypoint id: robust sigma px} from a bundle adjustment's residuals, pooled over each
-    keypoint class (ids split at class_bounds; classes with 10 or more residuals)."""
+    keypoint class (the declared skeleton's, else ids split at class_bounds; classes with 10
+    or more residuals)."""
     kp_ids = ba["keys"][ba["obs"].point] % MAX_IDS
-    classes = np.searchsorted(np.asarray(class_bounds, dtype=np.int64), kp_ids, side="right")
+    if skeleton is not None:
+        names = {k: i for i, k in enumerate(sorted({skeleton.noise_class(int(k)) for k in np.unique(kp_ids)}))}
+        classes = np.array([names[skeleton.noise_class(int(k))] for k in kp_ids], dtype=np.int64)
+    else:
+        classes = np.searchsorted(np.asarray(class_bounds, dtype=np.int64), kp_ids, side="right")
     sigma = {
         int(k): max(robust_sigma(ba["residuals"][classes == k]), 0.05)
         for k in np.unique(classes)

@@ -219,16 +219,18 @@ def calibrate_groups(
     params: SfmParams = SfmParams(),
     clock_components: dict[str, str] | None = None,
     estimate: frozenset[str] = frozenset(),
+    skeleton=None,
 ) -> GroupingResult:
     """All CMCs -> groups with relative poses + local agent tracks, and the rest with reasons.
     `clock_components`: camera -> the reference of its clock (yowo_cmc.clock); two cameras
     on different clocks whose offset is unknown are not matched (their stamps do not
     relate: a room walked after another would pair the end of one with the start of the
     other). `estimate`: the cameras whose intrinsics are unknown (their CameraTracks carry a
-    nominal model of the right image size): the group SfM estimates them."""
+    nominal model of the right image size): the group SfM estimates them. `skeleton`: the
+    keypoints' declared skeleton (yowo_cmc.skeletons), whose classes the noise model pools."""
     if not cams:
         return GroupingResult([], {}, [])
-    obs = sample_on_grid(cams, params.tracks)
+    obs = replace(sample_on_grid(cams, params.tracks), skeleton=skeleton)
     clocks = clock_components or {}
 
     def related(a: int, b: int) -> bool:

@@ -17,6 +17,7 @@ from .background import BackgroundSampler
 from .config import CmcParams
 from .keypoint_input import ImageKeypointSource, KeypointFrame, TrackAccumulator
 from .pose_source import PoseOrDetectorSource
+from .skeletons import camera_skeleton
 
 SOURCES = ("keypoints", "pose", "images")
 
@@ -44,6 +45,9 @@ class KeypointTracker:
             raise ValueError(f"camera '{camera}': source {source} needs the camera's images")
         self.name, self.source, self.nominal_hfov_deg = camera, source, params.nominal_hfov_deg
         self.acc = TrackAccumulator(camera)
+        # Raises ValueError naming the camera on a malformed declaration.
+        self.skeleton = camera_skeleton(params.keypoints, camera)
+        self.pose_params = params.pose
         self.problem = ""  # why the camera has no usable intrinsics
         self.nominal = nominal and not camera_info
         self.detector = (
@@ -105,7 +109,10 @@ class KeypointTracker:
         return frames, nominal
 
     def take_keypoints(self, frame: KeypointFrame) -> KeypointFrame | None:
-        """An external detector's frame, validated (None: rejected, counted)."""
+        """An external detector's frame, completed by its declared skeleton (ids 0 and 1
+        derived where missing), validated (None: rejected, counted)."""
+        if self.skeleton is not None:
+            frame = self.skeleton.complete(frame, self.pose_params)
         return self.acc.add(frame)
 
     def flush(self) -> list[KeypointFrame]:

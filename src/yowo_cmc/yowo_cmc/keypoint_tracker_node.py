@@ -114,12 +114,7 @@ class KeypointTrackerNode(StageNode):
         kept = self.tracker.take_keypoints(frame_from_msg(msg))
         if kept is None:
             return
-        out = AgentKeypoints(
-            header=msg.header,
-            camera_name=self.camera,
-            keypoints=[k for k in msg.keypoints if k.id in set(kept.ids.tolist())],
-        )
-        self.pub.publish(out)
+        self.pub.publish(frame_to_msg(kept, self.camera, msg.header.frame_id))
 
     def publish_frames(self, frames: list[KeypointFrame]) -> None:
         for f in frames:

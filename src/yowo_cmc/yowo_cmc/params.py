@@ -9,6 +9,18 @@ from dataclasses import dataclass, field
 
 
 @dataclass(frozen=True)
+class KeypointFormatParams:
+    # The detector's skeleton of every camera's agent keypoints: a format (coco17, coco18,
+    # body25, body25b, halpe26, blazepose33, holistic) or a YAML table {id: {name, class}}; ''
+    # undeclared. Declared, ids 0 and 1 are derived from the joints where the detector does
+    # not publish them and the noise classes come from the skeleton (yowo_cmc.skeletons).
+    skeleton: str = ""
+    # CAMERA=SKELETON entries over `skeleton` for single cameras; every declared camera must
+    # use one skeleton, as ids are matched across cameras.
+    cameras: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
 class TrackParams:
     window_s: float = 0.7  # Savitzky-Golay window the tracks are smoothed over
     polyorder: int = 2  # polynomial order of the Savitzky-Golay smoothing [order]

@@ -15,6 +15,7 @@ from .clock_refine import refine_group_offsets
 from .config import CmcParams
 from .group_sfm import GroupingResult, calibrate_groups
 from .keypoint_tracks import CameraTracks
+from .skeletons import camera_skeleton
 
 
 def significant(offsets: dict[str, float], sigmas: dict[str, float], k: float) -> dict[str, float]:
@@ -69,6 +70,8 @@ def calibrate_cmcs(
     its reference camera's clock, and `clock_offsets_s` says how far each member's clock
     is from it (member's stamp of an instant = reference's + offset). `estimate_intrinsics`:
     the cameras whose intrinsics the group SfM estimates (their tracks carry a nominal model)."""
+    # The declared skeleton's noise classes (plan_run checked that the cameras agree on one).
+    skeleton = next((s for t in tracks if (s := camera_skeleton(params.keypoints, t.name)) is not None), None)
     apart = alone_in_time(tracks, params.clock.max_offset_s)
     if apart:
         grouping = calibrate_cmcs([t for t in tracks if t.name not in apart], params, estimate_intrinsics)
@@ -76,10 +79,10 @@ def calibrate_cmcs(
         return grouping
     unknown = frozenset(estimate_intrinsics)
     if not params.estimate_clock_offsets:
-        return calibrate_groups(tracks, params.sfm, estimate=unknown)
+        return calibrate_groups(tracks, params.sfm, estimate=unknown, skeleton=skeleton)
     estimate = estimate_clock_offsets(tracks, params.clock, params.sfm)
     if not params.clock.apply:
-        grouping = calibrate_groups(tracks, params.sfm, estimate=unknown)
+        grouping = calibrate_groups(tracks, params.sfm, estimate=unknown, skeleton=skeleton)
         attach_to_groups(grouping.groups, estimate)
         return grouping
     # Each camera's offset to the reference camera of its co-visibility component
@@ -90,12 +93,16 @@ def calibrate_cmcs(
     components = {n: c.reference for n, c in estimate.cameras.items() if c.reference is not None}
     offsets = significant(offsets, sigmas, params.clock.min_significance)
     corrected = [t.shifted(offsets.get(t.name, 0.0)) for t in tracks]
-    grouping = calibrate_groups(corrected, params.sfm, components, unknown)
+    grouping = calibrate_groups(corrected, params.sfm, components, unknown, skeleton=skeleton)
     if params.clock.refine and grouping.groups:
         refined, sigmas = _refined_offsets(grouping, corrected, estimate, offsets, sigmas, unknown, params)
         if refined != offsets:
             grouping = calibrate_groups(
-                [t.shifted(refined.get(t.name, 0.0)) for t in tracks], params.sfm, components, unknown
+                [t.shifted(refined.get(t.name, 0.0)) for t in tracks],
+                params.sfm,
+                components,
+                unknown,
+                skeleton=skeleton,
             )
         offsets = refined
     for g in grouping.groups:

@@ -158,3 +158,15 @@ def ground_point(joints: dict, thr: float, ankle_to_ground: float) -> tuple[floa
     g = ankles[0] + ankle_to_ground * (ankles[0] - hips[0])
     # Derived over a longer lever than the feet's own contact: a little less trusted.
     return float(g[0]), float(g[1]), 0.8 * min(ankles[1], hips[1])
+
+
+# A big toe (OpenPose, HALPE) stands for BlazePose's foot index: both touch the floor in stance.
+FOOT_INDEX_ALIASES = {"left_big_toe": "left_foot_index", "right_big_toe": "right_foot_index"}
+
+
+def derive_top_and_ground(joints: dict, params: PoseModelParams) -> tuple[tuple, tuple]:
+    """Keypoints 0 and 1 (head_top, ground_point) from a skeleton's named joints {name: (uv,
+    confidence)}: the one derivation the pose model, declared skeletons and the importer share."""
+    joints = dict(joints)
+    joints.update({a: joints[t] for t, a in FOOT_INDEX_ALIASES.items() if t in joints and a not in joints})
+    return head_top(joints, params.joint_score), ground_point(joints, params.joint_score, params.ankle_to_ground)

@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 
 from .params import PoseModelParams
-from .pose_keypoints import ID_OFFSET, JOINTS, PersonPose, ground_point, head_top
+from .pose_keypoints import ID_OFFSET, JOINTS, PersonPose, derive_top_and_ground
 
 # Where each model's file is: (distribution, file inside it, member inside a zip or None).
 _SOURCES = {
@@ -251,8 +251,7 @@ class PoseDetector:
         outside = (uv[:, 0] < -0.5 - b) | (uv[:, 0] > w - 0.5 + b) | (uv[:, 1] < -0.5 - b) | (uv[:, 1] > h - 0.5 + b)
         conf[outside] = 0.0
         joints = dict(zip(self.joints, zip(uv, conf)))
-        top = head_top(joints, p.joint_score)
-        ground = ground_point(joints, p.joint_score, p.ankle_to_ground)
+        top, ground = derive_top_and_ground(joints, p)
         ids = self.ids
         all_uv = np.vstack([top[:2], ground[:2], uv])
         all_conf = np.concatenate([[top[2], ground[2]], np.clip(conf, 0.0, 1.0)])

@@ -31,6 +31,9 @@ class GridObservations:
     per_camera: list[dict[int, np.ndarray]]  # camera -> {key: uv (2,)}
     noise_scale: list[float]  # camera -> factor on its pixel thresholds (tracks.noise_scale)
     sigma_factor: list[dict[int, float]]  # camera -> {key: factor on its BA sigma} for weak detections only
+    # The keypoints' declared skeleton (yowo_cmc.skeletons): the noise classes by joint; None,
+    # by id ranges (SfmParams.sigma_class_bounds).
+    skeleton: object = None
 
     def keys(self, c: int) -> np.ndarray:
         return np.fromiter(self.per_camera[c].keys(), dtype=np.int64)

@@ -68,19 +68,14 @@ def person_pose(uv: np.ndarray, conf: np.ndarray, fmt: str, width: int, height: 
     model's own rules (head_top, ground_point; a big toe stands for BlazePose's foot index),
     joints outside the image at confidence 0 as there, the box over the confident joints."""
     from yowo_cmc.params import PoseModelParams
-    from yowo_cmc.pose_keypoints import GROUND, HEAD_TOP, PersonPose, ground_point, head_top
+    from yowo_cmc.pose_keypoints import GROUND, HEAD_TOP, PersonPose, derive_top_and_ground
 
     p = PoseModelParams()
     names = format_joints(fmt)
     conf = conf.copy()
     outside = (uv[:, 0] < -0.5) | (uv[:, 0] > width - 0.5) | (uv[:, 1] < -0.5) | (uv[:, 1] > height - 0.5)
     conf[outside] = 0.0
-    joints = dict(zip(names, zip(uv, conf)))
-    for side in ("left", "right"):
-        if f"{side}_big_toe" in joints:
-            joints[f"{side}_foot_index"] = joints[f"{side}_big_toe"]
-    top = head_top(joints, p.joint_score)
-    ground = ground_point(joints, p.joint_score, p.ankle_to_ground)
+    top, ground = derive_top_and_ground(dict(zip(names, zip(uv, conf))), p)
     table = joint_ids(fmt)
     ids = np.array([HEAD_TOP, GROUND] + [table[n] for n in names if n in table], dtype=int)
     keep = [i for i, n in enumerate(names) if n in table]

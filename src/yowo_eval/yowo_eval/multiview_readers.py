@@ -15,88 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
-COCO_17 = (
-    "nose",
-    "left_eye",
-    "right_eye",
-    "left_ear",
-    "right_ear",
-    "left_shoulder",
-    "right_shoulder",
-    "left_elbow",
-    "right_elbow",
-    "left_wrist",
-    "right_wrist",
-    "left_hip",
-    "right_hip",
-    "left_knee",
-    "right_knee",
-    "left_ankle",
-    "right_ankle",
-)
-_FEET = ("left_big_toe", "left_small_toe", "left_heel", "right_big_toe", "right_small_toe", "right_heel")
-# Each detector's joints in its own output order (OpenPose's output docs; Pose2Sim's skeletons.py).
-FORMATS = {
-    "BODY_25B": COCO_17 + ("neck", "head_top") + _FEET,
-    "BODY_25": (
-        "nose",
-        "neck",
-        "right_shoulder",
-        "right_elbow",
-        "right_wrist",
-        "left_shoulder",
-        "left_elbow",
-        "left_wrist",
-        "mid_hip",
-        "right_hip",
-        "right_knee",
-        "right_ankle",
-        "left_hip",
-        "left_knee",
-        "left_ankle",
-        "right_eye",
-        "left_eye",
-        "right_ear",
-        "left_ear",
-    )
-    + _FEET,
-    "COCO_18": (
-        "nose",
-        "neck",
-        "right_shoulder",
-        "right_elbow",
-        "right_wrist",
-        "left_shoulder",
-        "left_elbow",
-        "left_wrist",
-        "right_hip",
-        "right_knee",
-        "right_ankle",
-        "left_hip",
-        "left_knee",
-        "left_ankle",
-        "right_eye",
-        "left_eye",
-        "right_ear",
-        "left_ear",
-    ),
-    "COCO_17": COCO_17,
-    "HALPE_26": COCO_17
-    + (
-        "head_top",
-        "neck",
-        "mid_hip",
-        "left_big_toe",
-        "right_big_toe",
-        "left_small_toe",
-        "right_small_toe",
-        "left_heel",
-        "right_heel",
-    ),
-}
+from yowo_cmc.skeletons import BODY_25, BODY_25B, COCO_17, COCO_18, FEET, HALPE_26
+
+# Each detector's joints in its own output order (yowo_cmc.skeletons, the declared formats).
+FORMATS = {"BODY_25B": BODY_25B, "BODY_25": BODY_25, "COCO_18": COCO_18, "COCO_17": COCO_17, "HALPE_26": HALPE_26}
 # Joints beyond COCO's 17, after them (the COCO 17 take MoveNet's ids 2-18, so a recording's
 # ids mean what the pose model's do).
-EXTRA_JOINTS = ("neck", "head_top", "mid_hip") + _FEET
+EXTRA_JOINTS = ("neck", "head_top", "mid_hip", *FEET)
 BLAZEPOSE = "BLAZEPOSE"  # mediapipe's 33 landmarks: the pose model's own BlazePose ids
 
 
