@@ -34,9 +34,9 @@ from .imu import ImuBuffer, InertialTerms, keyframe_preintegration, up_from_acce
 from .keyframe_tracker import KeyframeTracker
 from .layout import KIND_WALL, Layout, build_layout
 from .odometry import IMU_BRIDGED, RECOVERED, SKIPPED, TrackResult, frames_between_keyframes
-from .posegraph import MultiwayRegistration
+from .posegraph import MultiwayRegistration, MultiwayResult
 from .rgbd_odometry import OdometryImages
-from .scene import Rectification, find_floor, fuse_cloud, planar_patches, rectify, up_from_cameras
+from .scene import PlanarPatch, Rectification, find_floor, fuse_cloud, planar_patches, rectify, up_from_cameras
 from .visual_refinement import SceneMap, refine_keyframes
 
 
@@ -81,6 +81,18 @@ class EgoMapResult:
     @property
     def keyframe_stamps_ns(self) -> np.ndarray:
         return self.stamps_ns[self.keyframe_frames]
+
+
+@dataclass
+class _Cloud:
+    """The fused cloud (odometry frame) and what the floor and the layout are found in."""
+
+    points: np.ndarray  # (N, 3)
+    colors: np.ndarray  # (N, 3) in [0, 1]
+    cams: np.ndarray  # (K, 3) keyframe camera centres
+    patches: list[PlanarPatch]
+    small: np.ndarray  # (M, 3) the downsampled cloud the patches were found in
+    small_normals: np.ndarray  # (M, 3) oriented towards the nearest camera
 
 
 class EgoMapper:
@@ -241,6 +253,28 @@ class EgoMapper:
             o3d.utility.set_max_threads(self._open3d_threads)
 
     def _finish(self) -> EgoMapResult:
+        """What needs the whole recording, step by step (see the module docstring)."""
+        stats = self._finish_tracking()
+        c_finish = time.thread_time()
+        warnings = self._frame_warnings()
+        features = self._wait_for_features(stats)
+        self._tracking_stats(stats)
+        T_odometry = [k.T_odom_cam for k in self.tracker.keyframes]
+        mw = self._finish_multiway(stats, warnings)
+        T_kf = mw.T_odom_kf
+        T_bundle, scene_map, inertial_up, held = self._adjust(mw, features, T_kf, stats, warnings)
+        cloud, rect = self._cloud_and_rectification(T_bundle, inertial_up, stats, warnings)
+        W = rect.T_world_odom
+        trajectories = self._trajectories(W, T_odometry, T_kf, T_bundle)
+        points_w, layout = self._layout(W, cloud, stats)
+        stats["finish_cpu_s"] = time.thread_time() - c_finish
+        return self._result(
+            T_bundle, scene_map, held, rect, points_w, cloud.colors, layout, trajectories, stats, warnings
+        )
+
+    def _finish_tracking(self) -> dict[str, float]:
+        """Track the skipped frames at the end of the walk; the stats' first entries. ValueError
+        with fewer than two usable frames."""
         t0, c0 = time.perf_counter(), time.thread_time()
         self.tracker.flush()  # skipped frames at the end of the walk
         self._t_track += time.perf_counter() - t0
@@ -250,12 +284,14 @@ class EgoMapper:
                 f"ego camera: {len(self.tracker.results)} usable RGB-D frame(s); mapping needs at "
                 "least 2" + (f" (rejected: {self.rejected})" if self.rejected else "")
             )
-        stats: dict[str, float] = {
+        return {
             "frames": self.frames,
             "tracking_s": self._t_track,
             "tracking_cpu_s": self._cpu_track,
         }
-        c_finish = time.thread_time()
+
+    def _frame_warnings(self) -> list[str]:
+        """The warnings about the frames: those rejected, those tracked without texture."""
         warnings = [
             f"{n} frame(s) rejected, the first: {self.first_rejection.get(why, why)}"
             for why, n in self.rejected.items()
@@ -265,6 +301,10 @@ class EgoMapper:
                 f"{self.untextured} frame(s) without texture (covered lens, darkness or a bare wall close "
                 "up) tracked by their depth alone"
             )
+        return warnings
+
+    def _wait_for_features(self, stats: dict) -> list[KeyframeFeatures]:
+        """Every keyframe's features, once the worker thread is through (it is shut down)."""
         t0 = time.perf_counter()
         features: list[KeyframeFeatures] = [f.result() for f in self._features]
         self._features = []  # the list above holds them, until the adjustment
@@ -274,11 +314,13 @@ class EgoMapper:
             features_cpu_s=self._cpu_features,
             loops_online_cpu_s=self._cpu_loops,
         )
-        tr, p = self.tracker, self.params
-        keyframes = tr.keyframes
-        K = self.ideal.K
+        return features
+
+    def _tracking_stats(self, stats: dict) -> None:
+        """The tracker's counts: keyframes, breaks, how frames were tracked, skipped or not."""
+        tr = self.tracker
         stats.update(
-            keyframes=len(keyframes),
+            keyframes=len(tr.keyframes),
             breaks=tr.breaks,
             recovered=sum(r.status == RECOVERED for r in tr.results),
             imu_bridged=sum(r.status == IMU_BRIDGED for r in tr.results),
@@ -292,8 +334,10 @@ class EgoMapper:
         )
         if tr.imu is not None:
             stats["imu_samples"] = len(tr.imu)
-        T_odometry = [k.T_odom_cam for k in keyframes]
 
+    def _finish_multiway(self, stats: dict, warnings: list[str]) -> MultiwayResult:
+        """The multiway registration's pose-graph optimisation over the whole walk."""
+        tr = self.tracker
         t0 = time.perf_counter()
         mw = self._multiway.finish()
         self._multiway = None  # its features and pairs live on in `features` and mw
@@ -318,19 +362,37 @@ class EgoMapper:
             relocalised=mw.relocalised,
             loops_retrieved=mw.loops_retrieved,
         )
-        T_kf = mw.T_odom_kf
+        return mw
 
-        T_bundle, scene_map, inertial_up, held = T_kf, SceneMap.empty(), None, np.zeros(len(keyframes), bool)
-        if p.bundle_adjustment:
-            t0 = time.perf_counter()
-            inertial = self._inertial_terms(T_kf, stats, warnings) if p.inertial.bundle_factors else None
-            T_bundle, scene_map, inertial_up, held = refine_keyframes(
-                mw, features, keyframes, T_kf, self.ideal, tr.odometry.K, p, stats, warnings, inertial
-            )
-            stats["bundle_s"] = time.perf_counter() - t0
-
+    def _adjust(
+        self,
+        mw: MultiwayResult,
+        features: list[KeyframeFeatures],
+        T_kf: list[np.ndarray],
+        stats: dict,
+        warnings: list[str],
+    ) -> tuple[list[np.ndarray], SceneMap, np.ndarray | None, np.ndarray]:
+        """The visual refinement (``refine_keyframes``, with the IMU's factors where enabled);
+        without bundle adjustment the multiway poses, no map and no attitude held."""
+        tr, p = self.tracker, self.params
+        if not p.bundle_adjustment:
+            return T_kf, SceneMap.empty(), None, np.zeros(len(tr.keyframes), bool)
         t0 = time.perf_counter()
-        points, colors = fuse_cloud(keyframes, T_bundle, tr.odometry.K, p.cloud)
+        inertial = self._inertial_terms(T_kf, stats, warnings) if p.inertial.bundle_factors else None
+        refined = refine_keyframes(
+            mw, features, tr.keyframes, T_kf, self.ideal, tr.odometry.K, p, stats, warnings, inertial
+        )
+        stats["bundle_s"] = time.perf_counter() - t0
+        return refined
+
+    def _cloud_and_rectification(
+        self, T_bundle: list[np.ndarray], inertial_up: np.ndarray | None, stats: dict, warnings: list[str]
+    ) -> tuple[_Cloud, Rectification]:
+        """The TSDF cloud and its planar patches, the floor among them and the world frame
+        it defines (eq. rot_gp2w), checked against the IMU's gravity."""
+        tr, p = self.tracker, self.params
+        t0 = time.perf_counter()
+        points, colors = fuse_cloud(tr.keyframes, T_bundle, tr.odometry.K, p.cloud)
         cams = np.array([T[:3, 3] for T in T_bundle])
         patches, small, small_normals = planar_patches(points, cams, p.cloud)
         # The IMU's gravity where there is one: a head looking down much of the walk has its mean
@@ -345,9 +407,8 @@ class EgoMapper:
             c = small[np.argmin(small @ n)] if len(small) else cams[0] - 1.6 * n
             support = 0
         rect = rectify(n, c, T_bundle[0], support)
-        W = rect.T_world_odom
         if self._imu_usable():
-            self._check_gravity(W, T_bundle, inertial_up, stats, warnings)
+            self._check_gravity(rect.T_world_odom, T_bundle, inertial_up, stats, warnings)
         stats.update(
             cloud_s=time.perf_counter() - t0,
             cloud_points=len(points),
@@ -355,38 +416,63 @@ class EgoMapper:
             floor_points=support,
             camera_height_m=rect.camera_height_m,
         )
+        return _Cloud(points, colors, cams, patches, small, small_normals), rect
+
+    def _trajectories(
+        self, W: np.ndarray, T_odometry: list[np.ndarray], T_kf: list[np.ndarray], T_bundle: list[np.ndarray]
+    ) -> dict[str, np.ndarray]:
+        """Every frame's world pose after each stage: odometry, multiway, bundle (if adjusted)."""
+        tr = self.tracker
 
         def frame_poses(T_keyframes: list[np.ndarray]) -> np.ndarray:
-            return W @ frames_between_keyframes(tr.results, tr.edges, keyframes, T_keyframes)
+            return W @ frames_between_keyframes(tr.results, tr.edges, tr.keyframes, T_keyframes)
 
         trajectories = {"odometry": frame_poses(T_odometry), "multiway": frame_poses(T_kf)}
-        if p.bundle_adjustment:
+        if self.params.bundle_adjustment:
             trajectories["bundle"] = frame_poses(T_bundle)
-        final = trajectories["bundle" if p.bundle_adjustment else "multiway"]
-        points_w = transform_points(W, points)
+        return trajectories
+
+    def _layout(self, W: np.ndarray, cloud: _Cloud, stats: dict) -> tuple[np.ndarray, Layout]:
+        """The cloud in the world frame and the layout (walls, floor polygons, ceiling) built from it."""
+        points_w = transform_points(W, cloud.points)
         t0 = time.perf_counter()
         layout = build_layout(
             points_w,
-            transform_points(W, small),
-            small_normals @ W[:3, :3].T,
-            [q.transformed(W) for q in patches],
-            transform_points(W, cams),
-            p.layout,
+            transform_points(W, cloud.small),
+            cloud.small_normals @ W[:3, :3].T,
+            [q.transformed(W) for q in cloud.patches],
+            transform_points(W, cloud.cams),
+            self.params.layout,
         )
         stats.update(
             layout_s=time.perf_counter() - t0,
             walls=sum(q.kind == KIND_WALL for q in layout.planes),
             ceiling_height_m=layout.ceiling_height,
-            finish_cpu_s=time.thread_time() - c_finish,
         )
-        m = scene_map
-        # Observations back to raw pixels for other stages.
+        return points_w, layout
+
+    def _result(
+        self,
+        T_bundle: list[np.ndarray],
+        scene_map: SceneMap,
+        held: np.ndarray,
+        rect: Rectification,
+        points_w: np.ndarray,
+        colors: np.ndarray,
+        layout: Layout,
+        trajectories: dict[str, np.ndarray],
+        stats: dict[str, float],
+        warnings: list[str],
+    ) -> EgoMapResult:
+        """The map in the world frame, its observations back in raw pixels for other stages."""
+        tr, m, W = self.tracker, scene_map, rect.T_world_odom
+        K = self.ideal.K
         raw_uv = self.camera.project(backproject(m.obs_uv, np.ones(len(m.obs_uv)), K))[0] if len(m.obs_uv) else m.obs_uv
         return EgoMapResult(
             camera=self.camera,
             stamps_ns=np.array([r.stamp_ns for r in tr.results], dtype=np.int64),
-            T_world_cam=final,
-            keyframe_frames=np.array([k.frame_index for k in keyframes], dtype=int),
+            T_world_cam=trajectories["bundle" if self.params.bundle_adjustment else "multiway"],
+            keyframe_frames=np.array([k.frame_index for k in tr.keyframes], dtype=int),
             T_world_kf=np.array([W @ T for T in T_bundle]),
             landmarks=transform_points(W, m.landmarks) if len(m.landmarks) else m.landmarks,
             descriptors=m.descriptors,

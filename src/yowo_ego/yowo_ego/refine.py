@@ -298,17 +298,65 @@ def solve_bundle(
     """bundle_adjust on a BundleProblem; ``floor``: the keyframes' views of the floor, each an
     attitude factor (GTSAM's AttitudeFactorPose3, Huber) towards the up direction they share;
     ``walls``: their largest walls, each one towards the building's axis it belongs to."""
-    K = camera.K
-    lm, kf, uv, depth, points = problem.landmark, problem.keyframe, problem.uv, problem.depth, problem.points
+    depth = problem.depth
     cameras = [camera] * len(T_world_kf)
-    obs = Observations(kf, lm, uv, np.full(len(kf), params.sigma_px))
-    rays = np.linalg.norm(np.column_stack([(uv - K[:2, 2]) / np.diag(K)[:2], np.ones(len(uv))]), axis=1)
-    ranges = depth * rays  # camera centre -> point distance
-    T, P = list(T_world_kf), points
-    sigma, dropped, keep = params.sigma_px, 0, np.ones(len(kf), bool)
+    obs = Observations(problem.keyframe, problem.landmark, problem.uv, np.full(len(problem.keyframe), params.sigma_px))
+    ranges = depth * _ray_lengths(problem.uv, camera.K)  # camera centre -> point distance
+    vertical = _gauge_vertical(params, inertial, floor, walls)
+    T, P = list(T_world_kf), problem.points
+    sigma, dropped, keep = params.sigma_px, 0, np.ones(len(obs.camera), bool)
     initial_error = final_error = 0.0
     iterations = 0
     result = None
+    for rnd in range(params.rounds):
+        if rnd > 0:
+            sigma, dropped, keep = _drop_outliers(cameras, T, P, obs, keep, params)
+        current = _kept(obs, keep, sigma)
+        graph, values = _projection_graph(current, cameras, T, P, vertical, params)
+        _add_range_factors(graph, obs, keep, ranges, depth, params)
+        if params.pose_graph_factors:
+            for e in edges:
+                graph.add(edge_factor(e, params))
+        if inertial is not None and inertial.between:
+            add_inertial(graph, values, T, inertial, result)
+        _add_attitude_factors(graph, floor, walls, params)
+        result, e0, e1, its = optimize(graph, values, params.max_iterations)
+        if rnd == 0:
+            initial_error = e0
+        final_error, iterations = e1, iterations + its
+        T, P = _solved_states(result, len(T), P, current)
+    res = reprojection_residuals(cameras, T, P, obs)[keep]
+    velocities, biases = _imu_states(result, inertial)
+    return BundleOutput(
+        T_world_kf=T,
+        landmarks=P,
+        descriptors=problem.descriptors,
+        obs=_kept(obs, keep, sigma),
+        rmse_px=float(np.sqrt(np.nanmean(np.sum(res**2, axis=1)))) if len(res) else float("nan"),
+        sigma_px=sigma,
+        initial_error=initial_error,
+        final_error=final_error,
+        iterations=iterations,
+        dropped=dropped,
+        left_out=problem.left_out,
+        velocities=velocities,
+        biases=biases,
+    )
+
+
+def _ray_lengths(uv: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Length of each undistorted pixel's ray at unit depth: range = depth x this."""
+    return np.linalg.norm(np.column_stack([(uv - K[:2, 2]) / np.diag(K)[:2], np.ones(len(uv))]), axis=1)
+
+
+def _gauge_vertical(
+    params: BundleParams,
+    inertial: InertialTerms | None,
+    floor: FloorAttitudes | None,
+    walls: WallAttitudes | None,
+) -> tuple:
+    """gauge_model's arguments after the first pose: the vertical the other factors set (the
+    IMU's gravity, else the floor's, else the walls'), and the turn the walls allow."""
     vertical = (
         (inertial.up_odom, inertial.tilt_prior_deg)
         if inertial is not None and inertial.between
@@ -320,77 +368,114 @@ def solve_bundle(
     )
     if walls is not None:
         vertical += (params.walls.turn_prior_deg,)
-    for rnd in range(params.rounds):
-        if rnd > 0:
-            res = reprojection_residuals(cameras, T, P, obs)
-            sigma = max(robust_sigma(res[keep]), 0.1)
-            bad = ~np.isfinite(res).all(axis=1) | (np.linalg.norm(res, axis=1) > params.outlier_k * sigma)
-            dropped = int((keep & bad).sum())
-            keep &= ~bad
-        current = Observations(obs.camera[keep], obs.point[keep], obs.uv[keep], np.full(int(keep.sum()), sigma))
-        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        for i, Ti in enumerate(T):
-            values.insert(X(i), pose3(Ti))
-        graph.add(gtsam.PriorFactorPose3(X(0), pose3(T[0]), gauge_model(T[0], *vertical)))
-        for j in np.unique(current.point):
-            values.insert(L(int(j)), gtsam.Point3(*P[j]))
-        add_projection_factors(graph, current, cameras, X, L, params.huber_k)
-        huber = gtsam.noiseModel.mEstimator.Huber.Create(params.huber_k)
-        has = keep & np.isfinite(ranges)
-        # Range sigmas on a 0.5 mm grid share their noise models.
-        sigmas = np.maximum(np.round(depth_sigma(depth[has], params) / 5e-4), 1) * 5e-4
-        models = {
-            s: gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(1, float(s)))
-            for s in np.unique(sigmas)
-        }
-        for c, j, r, s in zip(obs.camera[has], obs.point[has], ranges[has], sigmas):
-            graph.add(gtsam.RangeFactor3D(X(int(c)), L(int(j)), float(r), models[s]))
-        if params.pose_graph_factors:
-            for e in edges:
-                graph.add(edge_factor(e, params))
-        if inertial is not None and inertial.between:
-            add_inertial(graph, values, T, inertial, result)
-        if floor is not None:
-            tilt = gtsam.noiseModel.Robust.Create(
-                huber, gtsam.noiseModel.Isotropic.Sigma(2, float(np.radians(params.floor.sigma_deg)))
-            )
-            for i, n in floor.normals.items():
-                graph.add(gtsam.AttitudeFactorPose3(X(i), gtsam.Unit3(floor.up_odom), tilt, gtsam.Unit3(n)))
-        if walls is not None:
-            turn = gtsam.noiseModel.Robust.Create(
-                huber, gtsam.noiseModel.Isotropic.Sigma(2, float(np.radians(params.walls.sigma_deg)))
-            )
-            for i, (n, axis) in walls.walls.items():
-                graph.add(gtsam.AttitudeFactorPose3(X(i), gtsam.Unit3(axis), turn, gtsam.Unit3(n)))
-        result, e0, e1, its = optimize(graph, values, params.max_iterations)
-        if rnd == 0:
-            initial_error = e0
-        final_error, iterations = e1, iterations + its
-        T = [result.atPose3(X(i)).matrix() for i in range(len(T))]
-        P = P.copy()
-        for j in np.unique(current.point):
-            P[j] = result.atPoint3(L(int(j)))
-    res = reprojection_residuals(cameras, T, P, obs)[keep]
-    rmse = float(np.sqrt(np.nanmean(np.sum(res**2, axis=1)))) if len(res) else float("nan")
-    final_obs = Observations(obs.camera[keep], obs.point[keep], obs.uv[keep], np.full(int(keep.sum()), sigma))
+    return vertical
+
+
+def _kept(obs: Observations, keep: np.ndarray, sigma: float) -> Observations:
+    """The observations still kept, all with the pixel sigma ``sigma``."""
+    return Observations(obs.camera[keep], obs.point[keep], obs.uv[keep], np.full(int(keep.sum()), sigma))
+
+
+def _drop_outliers(
+    cameras: list[CameraModel],
+    T: list[np.ndarray],
+    P: np.ndarray,
+    obs: Observations,
+    keep: np.ndarray,
+    params: BundleParams,
+) -> tuple[float, int, np.ndarray]:
+    """Between rounds: the pixel sigma re-estimated from the kept residuals (MAD), the
+    observations beyond ``params.outlier_k`` of it dropped. Returns (sigma, observations
+    dropped, what is kept now)."""
+    res = reprojection_residuals(cameras, T, P, obs)
+    sigma = max(robust_sigma(res[keep]), 0.1)
+    bad = ~np.isfinite(res).all(axis=1) | (np.linalg.norm(res, axis=1) > params.outlier_k * sigma)
+    return sigma, int((keep & bad).sum()), keep & ~bad
+
+
+def _projection_graph(
+    current: Observations,
+    cameras: list[CameraModel],
+    T: list[np.ndarray],
+    P: np.ndarray,
+    vertical: tuple,
+    params: BundleParams,
+) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    """A round's graph and initial values: the keyframe poses (the first's gauge prior), the
+    observed landmarks and the projection factors of the ``current`` observations."""
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for i, Ti in enumerate(T):
+        values.insert(X(i), pose3(Ti))
+    graph.add(gtsam.PriorFactorPose3(X(0), pose3(T[0]), gauge_model(T[0], *vertical)))
+    for j in np.unique(current.point):
+        values.insert(L(int(j)), gtsam.Point3(*P[j]))
+    add_projection_factors(graph, current, cameras, X, L, params.huber_k)
+    return graph, values
+
+
+def _add_range_factors(
+    graph: gtsam.NonlinearFactorGraph,
+    obs: Observations,
+    keep: np.ndarray,
+    ranges: np.ndarray,
+    depth: np.ndarray,
+    params: BundleParams,
+) -> None:
+    """A Huber-robust range factor per kept observation with depth (sigma: depth_sigma)."""
+    huber = gtsam.noiseModel.mEstimator.Huber.Create(params.huber_k)
+    has = keep & np.isfinite(ranges)
+    # Range sigmas on a 0.5 mm grid share their noise models.
+    sigmas = np.maximum(np.round(depth_sigma(depth[has], params) / 5e-4), 1) * 5e-4
+    models = {
+        s: gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(1, float(s)))
+        for s in np.unique(sigmas)
+    }
+    for c, j, r, s in zip(obs.camera[has], obs.point[has], ranges[has], sigmas):
+        graph.add(gtsam.RangeFactor3D(X(int(c)), L(int(j)), float(r), models[s]))
+
+
+def _add_attitude_factors(
+    graph: gtsam.NonlinearFactorGraph,
+    floor: FloorAttitudes | None,
+    walls: WallAttitudes | None,
+    params: BundleParams,
+) -> None:
+    """Huber-robust attitude factors: each keyframe's floor normal towards the shared up
+    direction, each one's wall normal towards the building's axis it belongs to."""
+    huber = gtsam.noiseModel.mEstimator.Huber.Create(params.huber_k)
+    if floor is not None:
+        tilt = gtsam.noiseModel.Robust.Create(
+            huber, gtsam.noiseModel.Isotropic.Sigma(2, float(np.radians(params.floor.sigma_deg)))
+        )
+        for i, n in floor.normals.items():
+            graph.add(gtsam.AttitudeFactorPose3(X(i), gtsam.Unit3(floor.up_odom), tilt, gtsam.Unit3(n)))
+    if walls is not None:
+        turn = gtsam.noiseModel.Robust.Create(
+            huber, gtsam.noiseModel.Isotropic.Sigma(2, float(np.radians(params.walls.sigma_deg)))
+        )
+        for i, (n, axis) in walls.walls.items():
+            graph.add(gtsam.AttitudeFactorPose3(X(i), gtsam.Unit3(axis), turn, gtsam.Unit3(n)))
+
+
+def _solved_states(
+    result: gtsam.Values, n_keyframes: int, P: np.ndarray, current: Observations
+) -> tuple[list[np.ndarray], np.ndarray]:
+    """The keyframe poses and landmarks of a round's solution (landmarks it did not see as they were)."""
+    T = [result.atPose3(X(i)).matrix() for i in range(n_keyframes)]
+    P = P.copy()
+    for j in np.unique(current.point):
+        P[j] = result.atPoint3(L(int(j)))
+    return T, P
+
+
+def _imu_states(
+    result: gtsam.Values | None, inertial: InertialTerms | None
+) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray]]:
+    """Each IMU-joined keyframe's velocity and (accelerometer, gyro) bias in the solution."""
     velocities, biases = {}, {}
     if inertial is not None and result is not None:
         for i in sorted({i for i in inertial.between} | {i + 1 for i in inertial.between}):
             velocities[i] = np.asarray(result.atVector(V(i)))
             b = result.atConstantBias(B(i))
             biases[i] = np.concatenate([b.accelerometer(), b.gyroscope()])
-    return BundleOutput(
-        T_world_kf=T,
-        landmarks=P,
-        descriptors=problem.descriptors,
-        obs=final_obs,
-        rmse_px=rmse,
-        sigma_px=sigma,
-        initial_error=initial_error,
-        final_error=final_error,
-        iterations=iterations,
-        dropped=dropped,
-        left_out=problem.left_out,
-        velocities=velocities,
-        biases=biases,
-    )
+    return velocities, biases

@@ -148,9 +148,31 @@ def _methods(cases: list[dict], key) -> list[str]:
 
 
 def markdown(results: dict, command: str, env: dict) -> str:
-    cases = results["cases"]
-    settings = _by_setting(cases)
+    """The document: one section after the other, each [] where the cases have nothing for it."""
+    settings = _by_setting(results["cases"])
+    full = {k: [c["full"] for c in cs if "full" in c] for k, cs in settings.items()}
+    full = {k: v for k, v in full.items() if v}
     lines = [
+        *_header(results, command, env),
+        *_relative_pose_section(settings),
+        *_clock_section(settings),
+        *_detector_section(settings),
+        *_registration_section(full),
+        *_verdict_section(full),
+        *_scene_map_section(full),
+        *_ablation_section(full),
+        *_speed_section(settings, full),
+        *_bound_section(settings),
+        *_efficient_estimator_section(settings),
+        *_failures_section(results),
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _header(results: dict, command: str, env: dict) -> list[str]:
+    """Title, the command, versions and machine, what the averages are over, the code's commits."""
+    cases = results["cases"]
+    return [
         "# BENCHMARKS",
         "",
         "Produced by:",
@@ -176,9 +198,11 @@ def markdown(results: dict, command: str, env: dict) -> str:
             if results.get("partial")
             else []
         ),
-        "## CMC relative pose (KU-aligned per group), paper Table relative_pose_eval",
-        "",
     ]
+
+
+def _relative_pose_section(settings: dict[tuple[str, str], list[dict]]) -> list[str]:
+    """Paper Table relative_pose_eval: every method's KU-aligned errors per setting."""
     rows = []
     for (preset, scenario), cs in settings.items():
         for m in _methods(cs, lambda c: c["relative"]):
@@ -190,207 +214,242 @@ def markdown(results: dict, command: str, env: dict) -> str:
                 )
                 + [f"{_mean(r['seconds'] for r in rs):.1f}"]
             )
-    lines += _table(["preset", "scenario", "method", *ERROR_COLUMNS, "calibrated / cameras", "time [s]"], rows)
+    return [
+        "## CMC relative pose (KU-aligned per group), paper Table relative_pose_eval",
+        "",
+    ] + _table(["preset", "scenario", "method", *ERROR_COLUMNS, "calibrated / cameras", "time [s]"], rows)
 
+
+def _clock_section(settings: dict[tuple[str, str], list[dict]]) -> list[str]:
+    """The CMC clock offsets' errors and the ratios to the synchronised case (settings with clock offsets)."""
     clocks = {
         k: cs for k, cs in settings.items() if any("clock_errors_ms" in c["relative"].get("YOWO", {}) for c in cs)
     }
-    if clocks:
-        lines += [
-            "",
-            "## CMC clock offsets (YOWO, estimated from the agent's motion and applied)",
-            "",
-            "Each calibrated camera's offset to its group's reference camera, and each registered camera's "
-            "offset to the ego clock, against the simulator's truth. The synchronised case is the same "
-            f"recording with every CMC stamp moved onto the ego clock by the truth and clock estimation off "
-            f"(`{TRUE_CLOCKS}`: same frames, same noise); the ratios are YOWO's avg eps_pos over it.",
-            "",
-        ]
-        rows = []
-        for (p, s), cs in clocks.items():
-            yowo = [c["relative"].get("YOWO", {}) for c in cs]
-            synced = [c["relative"].get(TRUE_CLOCKS, {}) for c in cs]
-            full = [c["full"] for c in cs if "full" in c]
-            rows.append(
-                [
-                    p,
-                    s,
-                    *_abs_errors(e for y in yowo for e in y.get("clock_errors_ms", {}).values()),
-                    *_abs_errors(e for f in full for e in f.get("clock_errors_to_ego_ms", {}).values()),
-                    _paired_ratio(
-                        (y.get("summary", {}).get("pos_avg"), t.get("summary", {}).get("pos_avg"))
-                        for y, t in zip(yowo, synced)
-                    ),
-                    _paired_ratio(
-                        (
-                            f["registration"].get("YOWO", {}).get("pos_avg"),
-                            f["registration"].get(TRUE_CLOCKS, {}).get("pos_avg"),
-                        )
-                        for f in full
-                    ),
-                ]
-            )
-        lines += _table(
-            [
-                "preset",
-                "scenario",
-                "members",
-                "median \\|error\\| to reference [ms]",
-                "max [ms]",
-                "within 2 ms",
-                "registered",
-                "median \\|error\\| to ego [ms]",
-                "max [ms]",
-                "within 2 ms",
-                "relative eps_pos / synchronised",
-                "registration eps_pos / synchronised",
-            ],
-            rows,
-        )
-
-    detected = [(k, [c["detector"] for c in cs if "detector" in c]) for k, cs in settings.items()]
-    if any(ds for _, ds in detected):
-        lines += [
-            "",
-            "## Image detector (model-free, on the rendered CMC images) vs simulator ground truth",
-            "",
-            "Full view: every body keypoint in the image and not hidden by the static scene. Detected: head "
-            "top and ground point both reported.",
-            "",
-        ]
-        rows = [
+    if not clocks:
+        return []
+    lines = [
+        "",
+        "## CMC clock offsets (YOWO, estimated from the agent's motion and applied)",
+        "",
+        "Each calibrated camera's offset to its group's reference camera, and each registered camera's "
+        "offset to the ego clock, against the simulator's truth. The synchronised case is the same "
+        f"recording with every CMC stamp moved onto the ego clock by the truth and clock estimation off "
+        f"(`{TRUE_CLOCKS}`: same frames, same noise); the ratios are YOWO's avg eps_pos over it.",
+        "",
+    ]
+    rows = []
+    for (p, s), cs in clocks.items():
+        yowo = [c["relative"].get("YOWO", {}) for c in cs]
+        synced = [c["relative"].get(TRUE_CLOCKS, {}) for c in cs]
+        full = [c["full"] for c in cs if "full" in c]
+        rows.append(
             [
                 p,
                 s,
-                str(sum(d["frames_full_view"] for d in ds)),
-                f"{sum(d['detected'] for d in ds) / max(sum(d['frames_full_view'] for d in ds), 1):.3f}",
-                f"{_mean(d['median_px'] for d in ds):.2f}",
+                *_abs_errors(e for y in yowo for e in y.get("clock_errors_ms", {}).values()),
+                *_abs_errors(e for f in full for e in f.get("clock_errors_to_ego_ms", {}).values()),
+                _paired_ratio(
+                    (y.get("summary", {}).get("pos_avg"), t.get("summary", {}).get("pos_avg"))
+                    for y, t in zip(yowo, synced)
+                ),
+                _paired_ratio(
+                    (
+                        f["registration"].get("YOWO", {}).get("pos_avg"),
+                        f["registration"].get(TRUE_CLOCKS, {}).get("pos_avg"),
+                    )
+                    for f in full
+                ),
             ]
-            + [
-                f"{_mean(d[q][k] for d in ds):.2f}"
-                for k in ("head_top", "ground")
-                for q in ("median_px_by_id", "p90_px_by_id")
-            ]
-            + [f"{sum(d['frames'] for d in ds) / sum(d['seconds'] for d in ds):.0f}"]
-            for (p, s), ds in detected
-            if ds
-        ]
-        lines += _table(
-            [
-                "preset",
-                "scenario",
-                "frames in full view",
-                "detection rate",
-                "median error [px]",
-                "head top median [px]",
-                "head top p90 [px]",
-                "ground median [px]",
-                "ground p90 [px]",
-                "frames / s",
-            ],
-            rows,
         )
+    return lines + _table(
+        [
+            "preset",
+            "scenario",
+            "members",
+            "median \\|error\\| to reference [ms]",
+            "max [ms]",
+            "within 2 ms",
+            "registered",
+            "median \\|error\\| to ego [ms]",
+            "max [ms]",
+            "within 2 ms",
+            "relative eps_pos / synchronised",
+            "registration eps_pos / synchronised",
+        ],
+        rows,
+    )
 
-    full = {k: [c["full"] for c in cs if "full" in c] for k, cs in settings.items()}
-    full = {k: v for k, v in full.items() if v}
-    if full:
-        lines += [
-            "",
-            "## CMC registration in the map frame (no alignment), paper Tables register_pose_eval_1/2 and ablation",
-            "",
-            "The map frame is YOWO's (defined by the first ego pose); ground truth is "
-            "expressed in it. Hloc-style: VLAD-over-RootSIFT retrieval of ego keyframes, SIFT matches lifted "
-            "with depth, PnP + RANSAC, on each CMC's background image; with prior: keyframes that see the "
-            "prior camera's view, matches gated near the prior's projection.",
-            "",
+
+def _detector_section(settings: dict[tuple[str, str], list[dict]]) -> list[str]:
+    """The image detector against the simulator's keypoints (cases that ran it)."""
+    detected = [(k, [c["detector"] for c in cs if "detector" in c]) for k, cs in settings.items()]
+    if not any(ds for _, ds in detected):
+        return []
+    lines = [
+        "",
+        "## Image detector (model-free, on the rendered CMC images) vs simulator ground truth",
+        "",
+        "Full view: every body keypoint in the image and not hidden by the static scene. Detected: head "
+        "top and ground point both reported.",
+        "",
+    ]
+    rows = [
+        [
+            p,
+            s,
+            str(sum(d["frames_full_view"] for d in ds)),
+            f"{sum(d['detected'] for d in ds) / max(sum(d['frames_full_view'] for d in ds), 1):.3f}",
+            f"{_mean(d['median_px'] for d in ds):.2f}",
         ]
-        rows = []
-        for (preset, scenario), fs in full.items():
-            for m in _methods(fs, lambda f: f["registration"]):
-                rs = [f["registration"][m] for f in fs if m in f["registration"]]
-                rows.append([preset, scenario, m] + _error_row(rs, "registered"))
-        lines += _table(["preset", "scenario", "method", *ERROR_COLUMNS, "registered / cameras"], rows)
-        verdicts = [_verdict_row(p, s, fs) for (p, s), fs in full.items()]
-        if any(verdicts):
-            lines += [
-                "",
-                "## Verdicts: each camera's own status against its error",
-                "",
-                "What YOWO says of each camera it registered (`ok`, `weak`: the registration rests on "
-                "something it could not check; `failed`), beside the camera's error in the map frame. An "
-                f"`ok` camera more than {OK_BAR_M} m off is a verdict that misled; counts summed over seeds.",
-                "",
-            ]
-            lines += _table(
-                [
-                    "preset",
-                    "scenario",
-                    "ok / weak / failed",
-                    "ok: avg eps_pos [m]",
-                    "ok: max eps_pos [m]",
-                    f"ok beyond {OK_BAR_M} m",
-                    "weak: avg eps_pos [m]",
-                ],
-                [v for v in verdicts if v],
+        + [
+            f"{_mean(d[q][k] for d in ds):.2f}"
+            for k in ("head_top", "ground")
+            for q in ("median_px_by_id", "p90_px_by_id")
+        ]
+        + [f"{sum(d['frames'] for d in ds) / sum(d['seconds'] for d in ds):.0f}"]
+        for (p, s), ds in detected
+        if ds
+    ]
+    return lines + _table(
+        [
+            "preset",
+            "scenario",
+            "frames in full view",
+            "detection rate",
+            "median error [px]",
+            "head top median [px]",
+            "head top p90 [px]",
+            "ground median [px]",
+            "ground p90 [px]",
+            "frames / s",
+        ],
+        rows,
+    )
+
+
+def _registration_section(full: dict[tuple[str, str], list[dict]]) -> list[str]:
+    """Paper Tables register_pose_eval_1/2: every method's errors in the map frame (full cases)."""
+    if not full:
+        return []
+    lines = [
+        "",
+        "## CMC registration in the map frame (no alignment), paper Tables register_pose_eval_1/2 and ablation",
+        "",
+        "The map frame is YOWO's (defined by the first ego pose); ground truth is "
+        "expressed in it. Hloc-style: VLAD-over-RootSIFT retrieval of ego keyframes, SIFT matches lifted "
+        "with depth, PnP + RANSAC, on each CMC's background image; with prior: keyframes that see the "
+        "prior camera's view, matches gated near the prior's projection.",
+        "",
+    ]
+    rows = []
+    for (preset, scenario), fs in full.items():
+        for m in _methods(fs, lambda f: f["registration"]):
+            rs = [f["registration"][m] for f in fs if m in f["registration"]]
+            rows.append([preset, scenario, m] + _error_row(rs, "registered"))
+    return lines + _table(["preset", "scenario", "method", *ERROR_COLUMNS, "registered / cameras"], rows)
+
+
+def _verdict_section(full: dict[tuple[str, str], list[dict]]) -> list[str]:
+    """YOWO's status of each registered camera beside its error (cases recorded with the statuses)."""
+    verdicts = [_verdict_row(p, s, fs) for (p, s), fs in full.items()]
+    if not any(verdicts):
+        return []
+    return [
+        "",
+        "## Verdicts: each camera's own status against its error",
+        "",
+        "What YOWO says of each camera it registered (`ok`, `weak`: the registration rests on "
+        "something it could not check; `failed`), beside the camera's error in the map frame. An "
+        f"`ok` camera more than {OK_BAR_M} m off is a verdict that misled; counts summed over seeds.",
+        "",
+    ] + _table(
+        [
+            "preset",
+            "scenario",
+            "ok / weak / failed",
+            "ok: avg eps_pos [m]",
+            "ok: max eps_pos [m]",
+            f"ok beyond {OK_BAR_M} m",
+            "weak: avg eps_pos [m]",
+        ],
+        [v for v in verdicts if v],
+    )
+
+
+def _scene_map_section(full: dict[tuple[str, str], list[dict]]) -> list[str]:
+    """Paper Table scene_map: the ego ATE after each stage and the layout IoU (full cases)."""
+    if not full:
+        return []
+    stages = _methods([f for fs in full.values() for f in fs], lambda f: f["ate"])
+    return [
+        "",
+        "## Scene mapping, paper Table scene_map",
+        "",
+        "ATE after each stage: ego-only odometry, + multiway registration, + bundle adjustment (the "
+        "ego-only baselines of the table), and after YOWO's joint optimisation.",
+        "",
+    ] + _table(
+        ["preset", "scenario"] + [f"ego ATE RMSE: {s} [m]" for s in stages] + ["layout IoU"],
+        [
+            [p, s]
+            + [f"{_mean(f['ate'].get(st) for f in fs):.4f}" for st in stages]
+            + [f"{_mean(f['layout_iou'] for f in fs):.3f}"]
+            for (p, s), fs in full.items()
+        ],
+    )
+
+
+def _ablation_section(full: dict[tuple[str, str], list[dict]]) -> list[str]:
+    """Paper Table ablation: the ego stage alone, then with the CMCs without and with the joint optimisation."""
+    if not full:
+        return []
+    return [
+        "",
+        "## Ablation, paper Table ablation",
+        "",
+        "(i) ego-camera processing, (ii) CMC processing, (iii) collaborative processing; JO: the joint "
+        "optimisation (eq. factor_graph_all). Without JO the ego map is the ego stage's (after its bundle "
+        "adjustment); with JO the trajectory and the layout come from the refined map. In brackets: the "
+        "change that JO makes.",
+        "",
+    ] + _table(
+        ["preset", "scenario", "setting", "avg eps_pos [m]", "avg eps_rot [deg]", "ego ATE RMSE [m]", "layout IoU"],
+        [row for (p, s), fs in full.items() for row in _ablation_rows(p, s, fs)],
+    )
+
+
+def _speed_section(settings: dict[tuple[str, str], list[dict]], full: dict[tuple[str, str], list[dict]]) -> list[str]:
+    """Each stage's time, the processing / recording time and the peak memory (full cases)."""
+    if not full:
+        return []
+    rows = []
+    for (preset, scenario), cs in settings.items():
+        fs = [c["full"] for c in cs if "full" in c]
+        if fs:
+            rows.append(
+                [preset, scenario, str(fs[0]["cmcs"]), f"{_mean(f['recording_s'] for f in fs):.0f}"]
+                + [f"{_mean(f['seconds'][k] for f in fs):.1f}" for k in ("ego", "cmc", "fusion")]
+                + [f"{_mean(f['realtime_factor'] for f in fs):.2f}", f"{max(c['peak_memory_mb'] for c in cs):.0f}"]
             )
-        stages = _methods([f for fs in full.values() for f in fs], lambda f: f["ate"])
-        lines += [
-            "",
-            "## Scene mapping, paper Table scene_map",
-            "",
-            "ATE after each stage: ego-only odometry, + multiway registration, + bundle adjustment (the "
-            "ego-only baselines of the table), and after YOWO's joint optimisation.",
-            "",
-        ]
-        lines += _table(
-            ["preset", "scenario"] + [f"ego ATE RMSE: {s} [m]" for s in stages] + ["layout IoU"],
-            [
-                [p, s]
-                + [f"{_mean(f['ate'].get(st) for f in fs):.4f}" for st in stages]
-                + [f"{_mean(f['layout_iou'] for f in fs):.3f}"]
-                for (p, s), fs in full.items()
-            ],
-        )
-        lines += [
-            "",
-            "## Ablation, paper Table ablation",
-            "",
-            "(i) ego-camera processing, (ii) CMC processing, (iii) collaborative processing; JO: the joint "
-            "optimisation (eq. factor_graph_all). Without JO the ego map is the ego stage's (after its bundle "
-            "adjustment); with JO the trajectory and the layout come from the refined map. In brackets: the "
-            "change that JO makes.",
-            "",
-        ]
-        lines += _table(
-            ["preset", "scenario", "setting", "avg eps_pos [m]", "avg eps_rot [deg]", "ego ATE RMSE [m]", "layout IoU"],
-            [row for (p, s), fs in full.items() for row in _ablation_rows(p, s, fs)],
-        )
-        lines += ["", "## Speed and scale (2 cores, offline API, one process per case)", ""]
-        rows = []
-        for (preset, scenario), cs in settings.items():
-            fs = [c["full"] for c in cs if "full" in c]
-            if fs:
-                rows.append(
-                    [preset, scenario, str(fs[0]["cmcs"]), f"{_mean(f['recording_s'] for f in fs):.0f}"]
-                    + [f"{_mean(f['seconds'][k] for f in fs):.1f}" for k in ("ego", "cmc", "fusion")]
-                    + [f"{_mean(f['realtime_factor'] for f in fs):.2f}", f"{max(c['peak_memory_mb'] for c in cs):.0f}"]
-                )
-        lines += _table(
-            [
-                "preset",
-                "scenario",
-                "CMCs",
-                "recording [s]",
-                "ego [s]",
-                "CMC [s]",
-                "fusion [s]",
-                "processing / recording time",
-                "peak memory [MB]",
-            ],
-            rows,
-        )
+    return ["", "## Speed and scale (2 cores, offline API, one process per case)", ""] + _table(
+        [
+            "preset",
+            "scenario",
+            "CMCs",
+            "recording [s]",
+            "ego [s]",
+            "CMC [s]",
+            "fusion [s]",
+            "processing / recording time",
+            "peak memory [MB]",
+        ],
+        rows,
+    )
 
-    lines += [
+
+def _bound_section(settings: dict[tuple[str, str], list[dict]]) -> list[str]:
+    """The Cramer-Rao bound of each CMC's pose in its group and YOWO's error over it (medians)."""
+    lines = [
         "",
         "## Achieved error / Cramer-Rao bound (CMC pose in its group)",
         "",
@@ -414,7 +473,7 @@ def markdown(results: dict, command: str, env: dict) -> str:
             bounds = _errors_and_bounds(cs, k, what)
             row += [f"{_median(b for _, b in bounds):{unit}}", f"{_median(e / b for e, b in bounds if b > 0):.2f}"]
         rows.append(row)
-    lines += _table(
+    return lines + _table(
         [
             "preset",
             "scenario",
@@ -426,7 +485,11 @@ def markdown(results: dict, command: str, env: dict) -> str:
         ],
         rows,
     )
-    lines += [
+
+
+def _efficient_estimator_section(settings: dict[tuple[str, str], list[dict]]) -> list[str]:
+    """The bound section's second table: an efficient estimator's mean error beside YOWO's."""
+    lines = [
         "",
         "Averages as in Table relative_pose_eval, over the cameras with a bound (all seeds): the mean "
         "error an efficient estimator would reach (the same Monte Carlo) beside YOWO's.",
@@ -439,7 +502,7 @@ def markdown(results: dict, command: str, env: dict) -> str:
             pairs = _errors_and_bounds(cs, k, what)
             row += [f"{_mean(b for _, b in pairs):{unit}}", f"{_mean(e for e, _ in pairs):{unit}}"]
         rows.append(row)
-    lines += _table(
+    return lines + _table(
         [
             "preset",
             "scenario",
@@ -450,8 +513,12 @@ def markdown(results: dict, command: str, env: dict) -> str:
         ],
         rows,
     )
-    if results.get("failures"):
-        lines += ["", "## Cases that failed", ""] + [
-            f"- {f['preset']} {f['scenario']} seed {f['seed']}: {f['error']}" for f in results["failures"]
-        ]
-    return "\n".join(lines) + "\n"
+
+
+def _failures_section(results: dict) -> list[str]:
+    """The cases that raised, with their errors."""
+    if not results.get("failures"):
+        return []
+    return ["", "## Cases that failed", ""] + [
+        f"- {f['preset']} {f['scenario']} seed {f['seed']}: {f['error']}" for f in results["failures"]
+    ]
