@@ -120,6 +120,11 @@ def launch_nodes(plan: RunPlan) -> list[dict]:
     ]
 
 
+def _stage(name: str, parameters: dict) -> NodeSpec:
+    """A stage's node (not a tracker: those are named per camera)."""
+    return NodeSpec(name=name, module=STAGE_MODULES[name], parameters=parameters)
+
+
 def new_run_id() -> str:
     return uuid.uuid4().hex[:12]
 
@@ -237,10 +242,9 @@ def plan_run(
     # inputs are durable), not for the slowest process of the graph to start.
     readers = [n.name for n in nodes if n.module not in DOWNSTREAM]
     nodes.append(
-        NodeSpec(
-            name=topics.REPLAY_STAGE,
-            module=STAGE_MODULES[topics.REPLAY_STAGE],
-            parameters={  # last: it waits for the stages' subscriptions
+        _stage(
+            topics.REPLAY_STAGE,
+            {  # last: it waits for the stages' subscriptions
                 "bag": str(bag),
                 "topics": played,
                 "wait_for_topics": played,
@@ -422,7 +426,7 @@ def _stage_nodes(
     ego_params = {"color_topic": ego[0], "depth_topic": ego[1], "info_topic": ego[2], **(imu or {})}
     if mode == EGO:  # the map alone: its stage publishes the map, path, cloud and layout
         return (
-            [NodeSpec(name=topics.EGO_STAGE, module=STAGE_MODULES[topics.EGO_STAGE], parameters=ego_params)],
+            [_stage(topics.EGO_STAGE, ego_params)],
             topics.EGO_STAGE,
             dict(EGO_OUTPUTS),
         )
@@ -435,24 +439,12 @@ def _stage_nodes(
         )
         for c, kind, roles in trackers
     ]
-    nodes.append(
-        NodeSpec(
-            name=topics.GROUP_SFM_STAGE,
-            module=STAGE_MODULES[topics.GROUP_SFM_STAGE],
-            parameters={"cameras": cameras, **unknown},
-        )
-    )
+    nodes.append(_stage(topics.GROUP_SFM_STAGE, {"cameras": cameras, **unknown}))
     final = topics.GROUP_SFM_STAGE
     outputs = {topics.GROUPS: "yowo_msgs/msg/CameraGroupArray"}
     if mode == FULL:
-        nodes.append(NodeSpec(name=topics.EGO_STAGE, module=STAGE_MODULES[topics.EGO_STAGE], parameters=ego_params))
-        nodes.append(
-            NodeSpec(
-                name=topics.FUSION_STAGE,
-                module=STAGE_MODULES[topics.FUSION_STAGE],
-                parameters={"cameras": cameras, **unknown},
-            )
-        )
+        nodes.append(_stage(topics.EGO_STAGE, ego_params))
+        nodes.append(_stage(topics.FUSION_STAGE, {"cameras": cameras, **unknown}))
         final = topics.FUSION_STAGE
         outputs.update(
             {

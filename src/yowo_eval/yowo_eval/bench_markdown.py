@@ -147,6 +147,11 @@ def _methods(cases: list[dict], key) -> list[str]:
     return seen
 
 
+def produced_by(command: str) -> list[str]:
+    """The lines of a generated section that name the command that produced it."""
+    return ["Produced by:", "", "```", command, "```", ""]
+
+
 def markdown(results: dict, command: str, env: dict) -> str:
     """The document: one section after the other, each [] where the cases have nothing for it."""
     settings = _by_setting(results["cases"])
@@ -175,12 +180,7 @@ def _header(results: dict, command: str, env: dict) -> list[str]:
     return [
         "# BENCHMARKS",
         "",
-        "Produced by:",
-        "",
-        "```",
-        command,
-        "```",
-        "",
+        *produced_by(command),
         f"Machine: {env['cpu']} ({env['cores']} cores); Python {env['python']}, numpy {env['numpy']}, "
         f"OpenCV {env.get('opencv-python-headless', env.get('opencv'))}, "
         f"Open3D {env.get('open3d-cpu', env.get('open3d'))}, GTSAM {env['gtsam']}; {env['date']}.",

@@ -15,6 +15,7 @@ from pathlib import Path
 import yaml
 
 from .bench import bag_for
+from .bench_markdown import produced_by
 from .bench_report import markers
 
 BEGIN, END = markers("graph-speed")
@@ -86,12 +87,7 @@ def speed_markdown(cases: list[dict], command: str) -> str:
         BEGIN,
         "## Speed of the real graph (`yowo run --rate 0`)",
         "",
-        "Produced by:",
-        "",
-        "```",
-        command,
-        "```",
-        "",
+        *produced_by(command),
         "Wall time of the whole `yowo run` (start-up, replay, every stage, results) over the recording's "
         "length; per stage the CPU seconds, the process lifetime and the peak RSS (sampled from /proc once a "
         "second; trackers: the mean and the largest peak over their processes). Graph memory: the largest sum of every "

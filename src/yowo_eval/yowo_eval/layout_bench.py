@@ -12,6 +12,7 @@ from yowo_sim.cmc_video import write_cmc_videos
 from yowo_sim.driver_layout import write_driver_layout
 
 from .bench import bag_for
+from .bench_markdown import produced_by
 from .bench_report import markers
 from .graph_bench import graph_case, write_cases
 
@@ -50,12 +51,7 @@ def layouts_markdown(cases: list[dict], command: str) -> str:
         BEGIN,
         "## One recording in each input layout (`yowo bench-layouts`)",
         "",
-        "Produced by:",
-        "",
-        "```",
-        command,
-        "```",
-        "",
+        *produced_by(command),
         "The same generated recording in YOWO's own layout, as realsense2_camera (split gyro/accelerometer "
         "streams, extrinsics on /tf_static), realsense2_camera with a united IMU, the Azure Kinect / Orbbec "
         "driver and the ZED wrapper write it (ceiling cameras under /cctv/<name>/, PNG-compressed), and with "

@@ -9,6 +9,7 @@ import shlex
 import sys
 from pathlib import Path
 
+from .bench_markdown import produced_by
 from .bench_report import markers
 from .graph_bench import graph_case, write_cases
 
@@ -67,12 +68,7 @@ def tum_markdown(cases: list[dict], command: str) -> str:
         begin,
         "## Real RGB-D sequences (TUM RGB-D), ego-only `yowo run --rate 0`",
         "",
-        "Produced by:",
-        "",
-        "```",
-        command,
-        "```",
-        "",
+        *produced_by(command),
         "Each sequence is imported with `yowo import-tum` (colour/depth pairs associated within 0.02 s, the TUM "
         "Kinect calibration) and run through the whole graph with no CMCs (replay and ego mapper). ATE RMSE of "
         "`ego_trajectory.tum` against the motion capture after an SE(3) alignment, as TUM's evaluate_ate.py "

@@ -15,6 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from yowo_cmc.pose_keypoints import MOVENET_JOINTS
 from yowo_common.geometry import rotation_aligning
 
 # Agent keypoint ids (docs/design.md §3): 0 and 1 are required, the rest optional.
@@ -316,26 +317,8 @@ def agent_keypoints_3d(position_xy, heading_rad: float, height_m: float, phase: 
     }
 
 
-# COCO-17 body joints (the order of yowo_cmc.pose_keypoints.MOVENET_JOINTS); person's left / right.
-BODY_JOINTS = (
-    "nose",
-    "left_eye",
-    "right_eye",
-    "left_ear",
-    "right_ear",
-    "left_shoulder",
-    "right_shoulder",
-    "left_elbow",
-    "right_elbow",
-    "left_wrist",
-    "right_wrist",
-    "left_hip",
-    "right_hip",
-    "left_knee",
-    "right_knee",
-    "left_ankle",
-    "right_ankle",
-)
+# COCO-17 body joints in MoveNet's order; person's left / right.
+BODY_JOINTS = MOVENET_JOINTS
 
 
 def agent_joints_3d(position_xy, heading_rad: float, height_m: float, phase: float) -> np.ndarray:
