@@ -299,3 +299,26 @@ def test_caliscope_bad_input_is_named(tmp_path, capsys):
     )
     code, err = run_cli(capsys, csv, "-o", tmp_path / "b2")
     assert code == 2 and "[cam_0]" in err and "rotation" in err
+
+
+def test_as_a_detector_publishes_them_and_a_declared_skeleton_restores_the_derived_points(tmp_path):
+    """--as-detector writes BODY_25B's own numbering + 2 without ids 0 and 1; a tracker that
+    declares body25b derives from them the same head top and ground point the importer does."""
+    from yowo_cmc.keypoint_input import frame_from_msg
+    from yowo_cmc.skeletons import load_skeleton
+
+    write_session(tmp_path / "s", frames=2)
+    import_multiview(tmp_path / "s", tmp_path / "derived", fps=25.0)
+    import_multiview(tmp_path / "s", tmp_path / "raw", fps=25.0, as_detector=True)
+
+    def frames(bag):
+        return [frame_from_msg(m) for t, _, m in read_messages(bag) if t.endswith("/agent_keypoints")]
+
+    skeleton, p = load_skeleton("body25b", "test"), PoseModelParams()
+    for derived, raw in zip(frames(tmp_path / "derived"), frames(tmp_path / "raw"), strict=True):
+        assert 0 not in raw.ids and 1 not in raw.ids
+        names = [skeleton.joints[int(i) - 2] for i in raw.ids]
+        assert names == [n for n in JOINTS if n != "left_small_toe"]  # the detector's order, unfound left out
+        done = skeleton.complete(raw, p)
+        for k in (0, 1):
+            np.testing.assert_allclose(done.uv[done.ids == k], derived.uv[derived.ids == k], atol=1e-4)

@@ -197,14 +197,18 @@ def import_multiview(
     max_frames: int | None = None,
     jpeg_quality: int = 90,
     progress=None,
+    as_detector: bool = False,
 ) -> ImportSummary:
-    """Write the session as a recording. Frame i of every camera is stamped START_NS + i / fps
+    """Write the session as a recording. `as_detector`: the agent's joints as the detector
+    numbers them (+ 2, Keypoint2D.msg) without the derived ids 0 and 1, as a detector
+    publishing on a topic gives them (declare its skeleton, cmc.keypoints, when calibrating). Frame i of every camera is stamped START_NS + i / fps
     (the cameras of these recordings are synchronised; the frame numbers say which images
     belong together). CameraInfo per frame (with --videos at the video's size, which may
     differ from the calibration's by the codec's padding: K stays); AgentKeypoints per
     keypoint frame (empty: nobody recognised); the reference poses latched on /gt/."""
     from std_msgs.msg import Header
 
+    from yowo_cmc.pose_keypoints import ID_OFFSET
     from yowo_common import topics
     from yowo_common.camera import CameraModel
     from yowo_common.rosconv import encode_color_jpeg, model_to_camera_info, ns_to_time
@@ -256,21 +260,15 @@ def import_multiview(
                     out.write(topics.cmc_info_topic(ref.name), model_to_camera_info(cam, header), stamp)
                     summary.frames += 1
                     if i in files:
-                        people = [
-                            person_pose(uv, c, keypoint_format, cam.width, cam.height)
-                            for uv, c in read_people(files[i], keypoint_format)
-                        ]
+                        raw = read_people(files[i], keypoint_format)
+                        people = [person_pose(uv, c, keypoint_format, cam.width, cam.height) for uv, c in raw]
                         agent = tracker.pick(people)
-                        summary.with_agent += int(
-                            bool(
-                                _write_keypoints(
-                                    out,
-                                    ref.name,
-                                    header,
-                                    *((agent.ids, agent.uv, agent.confidence) if agent else ([],) * 3),
-                                )
-                            )
-                        )
+                        if agent is not None and as_detector:
+                            uv, c = raw[next(j for j, p in enumerate(people) if p is agent)]
+                            keypoints = (np.arange(len(c)) + ID_OFFSET, uv, c)
+                        else:
+                            keypoints = (agent.ids, agent.uv, agent.confidence) if agent else ([],) * 3
+                        summary.with_agent += int(bool(_write_keypoints(out, ref.name, header, *keypoints)))
                     if progress:
                         progress(k + n / max(len(indices), 1), len(s.cameras))
                 summary.others = tracker.others
@@ -281,9 +279,10 @@ def import_multiview(
     return ImportSummary(bag, rate, summaries)
 
 
-def import_caliscope(xy_csv, bag, calibration=None, progress=None) -> ImportSummary:
+def import_caliscope(xy_csv, bag, calibration=None, progress=None, as_detector: bool = False) -> ImportSummary:
     """Write a caliscope recording (see the module docstring) as a recording: per camera and
-    frame CameraInfo and AgentKeypoints stamped by the frame's capture time."""
+    frame CameraInfo and AgentKeypoints stamped by the frame's capture time. `as_detector`:
+    every point as holistic numbers it (+ 2), without the derived ids 0 and 1."""
     from std_msgs.msg import Header
 
     from yowo_cmc.pose_keypoints import ID_OFFSET
@@ -314,18 +313,16 @@ def import_caliscope(xy_csv, bag, calibration=None, progress=None) -> ImportSumm
                 person = person_pose(pose_uv, pose_conf, BLAZEPOSE, cam.width, cam.height)
                 extra = ids >= n_pose
                 summary.frames += 1
-                summary.with_agent += int(
-                    bool(
-                        _write_keypoints(
-                            out,
-                            ref.name,
-                            header,
-                            np.concatenate([person.ids, ids[extra] + ID_OFFSET]),
-                            np.vstack([person.uv, uv[extra]]),
-                            np.concatenate([person.confidence, np.ones(extra.sum())]),
-                        )
+                keypoints = (
+                    (ids + ID_OFFSET, uv, np.ones(len(ids)))
+                    if as_detector
+                    else (
+                        np.concatenate([person.ids, ids[extra] + ID_OFFSET]),
+                        np.vstack([person.uv, uv[extra]]),
+                        np.concatenate([person.confidence, np.ones(extra.sum())]),
                     )
                 )
+                summary.with_agent += int(bool(_write_keypoints(out, ref.name, header, *keypoints)))
                 if progress:
                     progress(k + n / max(len(frames.get(cam_id, [])), 1), len(refs))
             summaries.append(summary)
@@ -338,7 +335,9 @@ def cmd_import_multiview(args) -> int:
 
     if str(args.session).lower().endswith(".csv"):
         s = with_progress(
-            lambda progress: import_caliscope(args.session, args.output, args.calibration, progress=progress)
+            lambda progress: import_caliscope(
+                args.session, args.output, args.calibration, progress=progress, as_detector=args.as_detector
+            )
         )
     else:
         s = with_progress(
@@ -351,6 +350,7 @@ def cmd_import_multiview(args) -> int:
                 args.fps,
                 args.max_frames,
                 progress=progress,
+                as_detector=args.as_detector,
             )
         )
     print(f"wrote {s.bag}: {len(s.cameras)} cameras at {s.fps:g} frames/s, reference poses on /gt/cmc/<name>/pose")
@@ -368,6 +368,7 @@ def cmd_import_multiview(args) -> int:
     print(
         f"next: yowo calibrate-cmc {s.bag} -o RESULTS"
         + ("  (--cmc-source pose: the pose model on the video)" if args.videos else "")
+        + (" --set cmc.keypoints.skeleton=FORMAT" if args.as_detector else "")
         + f", then yowo eval RESULTS --bag {s.bag}"
     )
     return 0
@@ -400,4 +401,10 @@ def add_verbs(verbs) -> None:
     p.add_argument("--videos", action="store_true", help="also import videos/* as the CMC images (JPEG)")
     p.add_argument("--fps", type=float, help="frame rate (default: Config.toml's frame_rate, else the videos')")
     p.add_argument("--max-frames", type=int, help="import only the first N frames of each camera")
+    p.add_argument(
+        "--as-detector",
+        action="store_true",
+        help="the joints as the detector numbers them (+ 2) without the derived head top and ground point; "
+        "calibrate with --set cmc.keypoints.skeleton=FORMAT (body25b, holistic, ...)",
+    )
     p.set_defaults(func=cmd_import_multiview)
