@@ -142,7 +142,7 @@ class FrameSkipping:
             if R_as_gyro is None:
                 R_as = Rotation.from_rotvec(alpha * Rotation.from_matrix(R_ab).as_rotvec()).as_matrix()
             else:
-                # A head turn is not uniform in 2 frames (a slerp was off by up to 1.8 deg on tiny s0).
+                # A head turn is not uniform over two frames: a slerp misses part of it.
                 correction = Rotation.from_matrix(R_ab_gyro.T @ R_ab).as_rotvec()
                 R_as = R_as_gyro @ Rotation.from_rotvec(alpha * correction).as_matrix()
             T = orthonormalize(se3(Ta[:3, :3] @ R_as, (1.0 - alpha) * Ta[:3, 3] + alpha * Tb[:3, 3]))

@@ -25,8 +25,7 @@ MAX_MEDIAN_DEPTH_M = 50.0
 # Colour images with fewer textured pixels than this fraction (a covered lens, a
 # failed exposure, a bare wall close up) give neither photometric odometry nor
 # features; indoor views have 10 % and more. They are tracked by their depth alone
-# (counted, not rejected): left out, they leave gaps the tracking has to jump (small
-# texture_poor s1 without the IMU: 36 such frames, ego ATE 0.65 -> 0.35 m when kept;
+# (counted, not rejected): left out, they leave gaps the tracking has to jump (docs/notes/ego.md;
 # a single plane's unobserved directions take the motion prediction, yowo_ego.degeneracy).
 MIN_TEXTURED_FRACTION = 0.01
 TEXTURE_MIN_GRADIENT = 8.0  # grey levels per pixel at 1/4 resolution (sensor noise averages out)

@@ -396,7 +396,7 @@ class EgoMapper:
         cams = np.array([T[:3, 3] for T in T_bundle])
         patches, small, small_normals = planar_patches(points, cams, p.cloud)
         # The IMU's gravity where there is one: a head looking down much of the walk has its mean
-        # image-up too far from the vertical for the floor's patches (tiny s0, split IMU: 5 deg off).
+        # image-up too far from the vertical for the floor's patches.
         up, up_from = self._up_guess(T_bundle, inertial_up)
         try:
             n, c, support = find_floor(patches, small, small_normals, cams, up, p.cloud)

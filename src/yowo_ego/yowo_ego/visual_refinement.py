@@ -77,7 +77,7 @@ def refine_keyframes(
     release_free_memory()
     floor, walls = _attitudes(keyframes, T_kf, K_odometry, p, stats, inertial)
     ba = solve_bundle(problem, T_kf, ideal, p.bundle, mw.edges, inertial, floor, walls)
-    # Its factor graph's GBs (a 25-minute floor: 3.9 -> 7.3 GB) back before the cloud is fused.
+    # Its factor graph's memory (gigabytes on a long floor) back before the cloud is fused.
     release_free_memory()
     return (
         ba.T_world_kf,

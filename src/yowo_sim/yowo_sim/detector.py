@@ -36,8 +36,8 @@ def visible_points(
     """(raw pixels, mask of points in the image and not hidden behind the static scene)."""
     P_cam = transform_points(inv_se3(T_world_cam), points_world)
     uv, _ = camera.project(P_cam)
-    # Not `in_front` alone: rays beyond the distortion's fold land in the image too (the
-    # `large` recording's corridor cameras "saw" the agent 70 deg off-axis, 11677 times).
+    # Not `in_front` alone: rays beyond the distortion's fold land in the image too (wide
+    # corridor cameras "saw" the agent far off-axis).
     visible = camera.within_model(P_cam) & camera.in_image(uv) & np.isfinite(uv).all(axis=1)
     safe = np.where(visible[:, None], uv, 0.0)  # points behind the camera project to NaN
     cols = np.clip(np.round(safe[:, 0]).astype(int), 0, camera.width - 1)

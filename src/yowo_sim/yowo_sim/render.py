@@ -233,7 +233,7 @@ class Renderer:
         shape = (grid.height, grid.width)
         T_world_cam = np.asarray(T_world_cam, dtype=np.float64)
         # Element-wise products, not matmul: OpenBLAS threads keep spinning after a
-        # BLAS call and slow Open3D's ray casting on the same cores by ~50 %.
+        # BLAS call and slow Open3D's ray casting on the same cores.
         R = T_world_cam[:3, :3].astype(np.float32)
         d = grid.dirs_cam_t
         rays = grid.rays
