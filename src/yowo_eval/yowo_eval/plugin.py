@@ -136,6 +136,7 @@ def cmd_bench_tum(args) -> int:
 def add_verbs(verbs) -> None:
     from yowo_bringup.cli import add_config_options
 
+    from .multiview_bench import add_verb as add_multiview_bench_verb
     from .multiview_import import add_verbs as add_multiview_verbs
     from .tum_import import add_verbs as add_import_verbs
 
@@ -232,3 +233,4 @@ def add_verbs(verbs) -> None:
 
     add_import_verbs(verbs)  # import-tum: it writes ground truth, which only evaluation reads
     add_multiview_verbs(verbs)  # import-multiview: likewise (the reference calibration)
+    add_multiview_bench_verb(verbs)  # bench-multiview: real recordings with a reference calibration
