@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from yowo_cmc.coverage import coverage_entry, group_coverage
 from yowo_cmc.group_sfm import CameraGroupResult
 from yowo_common import topics
 
@@ -30,7 +31,9 @@ class RunOutcome:
 def write_group_calibration(path: Path, groups: list[CameraGroupResult], ungrouped: dict[str, str]) -> None:
     """cameras.yaml of a CMC-only run: per camera its group and T_group_camera
     (pseudo-scale: the group's reference camera is the identity), the intrinsics the group
-    SfM used, clock and keypoint noise as a full run writes them."""
+    SfM used, clock and keypoint noise as a full run writes them, and each camera's coverage
+    (yowo_cmc.coverage, from its group's agent points; depths in the group's units)."""
+    coverage = group_coverage(groups, ungrouped)
     cams = []
     for g in groups:
         for n in g.names:
@@ -48,10 +51,20 @@ def write_group_calibration(path: Path, groups: list[CameraGroupResult], ungroup
                     **keypoint_noise_entry(g),
                     "reprojection_rmse_px": round(float(g.rmse_px[n]), 4),
                     "num_agent_observations": int(g.num_observations[n]),
+                    **coverage_entry(coverage.get(n)),
                 }
             )
     for n, why in ungrouped.items():
-        cams.append({"name": n, "group": "", "method": "none", "status": "failed", "reason": why})
+        cams.append(
+            {
+                "name": n,
+                "group": "",
+                "method": "none",
+                "status": "failed",
+                "reason": why,
+                **coverage_entry(coverage.get(n)),
+            }
+        )
     path.write_text(yaml.safe_dump({"cameras": sorted(cams, key=lambda c: c["name"])}, sort_keys=False))
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from .coverage import CoverageParams
 from .params import ClockParams, DetectorParams, KeypointFormatParams, PoseModelParams, SfmParams
 
 
@@ -19,6 +20,8 @@ class CmcParams:
     pose_min_frames: int = 5
     sfm: SfmParams = field(default_factory=SfmParams)  # groups, incremental SfM, group BA
     clock: ClockParams = field(default_factory=ClockParams)  # clock offsets from the agent's motion
+    # Thresholds of each camera's coverage verdict (yowo_cmc.coverage): `ok`, or what is missing and where.
+    coverage: CoverageParams = field(default_factory=CoverageParams)
     # The cameras' clock offsets are estimated from the agent's motion. Reported in cameras.yaml,
     # and applied to the stamps (clock.apply) before the group SfM.
     estimate_clock_offsets: bool = True
