@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from yowo_cmc.config import CmcParams
 from yowo_cmc.coverage import coverage_entry, group_coverage
 from yowo_cmc.group_sfm import CameraGroupResult
 from yowo_cmc.intrinsics import EstimatedCamera
@@ -125,17 +126,22 @@ def keypoint_noise_entry(group: CameraGroupResult | None) -> dict:
     }
 
 
-def write_cameras_yaml(path: Path, cameras: list[RegisteredCmc], groups: list[CameraGroupResult] = ()) -> None:
+def write_cameras_yaml(
+    path: Path, cameras: list[RegisteredCmc], groups: list[CameraGroupResult] = (), cmc: CmcParams = CmcParams()
+) -> None:
     """Per CMC: how it was registered, T_world_camera (map -> <name>_optical_frame),
     the 6x6 covariance (x, y, z, rx, ry, rz; m^2, rad^2), intrinsics and distortion, clock
     offset, its group's keypoint noise (from `groups`), RMSE, counts, and its coverage
-    (yowo_cmc.coverage, from its group's agent points: the tracks are not kept here)."""
+    (yowo_cmc.coverage with the run's cmc.coverage and cmc.sfm, from its group's agent points:
+    the tracks are not kept here)."""
     group_by_id = {g.group_id: g for g in groups}
     coverage = group_coverage(
         list(groups),
         {c.name: c.reason for c in cameras if not c.group},
         world_poses={c.name: c.T_world_cam for c in cameras if c.T_world_cam is not None},
         cameras={c.name: c.camera for c in cameras if c.camera is not None},
+        params=cmc.coverage,
+        sfm=cmc.sfm,
     )
     out = []
     for c in cameras:

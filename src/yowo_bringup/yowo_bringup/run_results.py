@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from yowo_cmc.config import CmcParams
 from yowo_cmc.coverage import coverage_entry, group_coverage
 from yowo_cmc.group_sfm import CameraGroupResult
 from yowo_common import topics
@@ -28,12 +29,14 @@ class RunOutcome:
     failure: str = ""  # why the run failed ('' when it did not)
 
 
-def write_group_calibration(path: Path, groups: list[CameraGroupResult], ungrouped: dict[str, str]) -> None:
+def write_group_calibration(
+    path: Path, groups: list[CameraGroupResult], ungrouped: dict[str, str], cmc: CmcParams = CmcParams()
+) -> None:
     """cameras.yaml of a CMC-only run: per camera its group and T_group_camera
     (pseudo-scale: the group's reference camera is the identity), the intrinsics the group
     SfM used, clock and keypoint noise as a full run writes them, and each camera's coverage
     (yowo_cmc.coverage, from its group's agent points; depths in the group's units)."""
-    coverage = group_coverage(groups, ungrouped)
+    coverage = group_coverage(groups, ungrouped, params=cmc.coverage, sfm=cmc.sfm)
     cams = []
     for g in groups:
         for n in g.names:
@@ -87,7 +90,7 @@ def write_run_results(
         groups, ungrouped = groups_from_msg(outputs[topics.GROUPS]) if topics.GROUPS in outputs else ([], {})
         cameras = groups
         if plan.mode == CMC and topics.GROUPS in outputs:
-            write_group_calibration(out / "cameras.yaml", groups, ungrouped)
+            write_group_calibration(out / "cameras.yaml", groups, ungrouped, plan.config.cmc)
             files.append(out / "cameras.yaml")
         if plan.mode in (FULL, EGO):
             cameras = _write_full_results(staged, outputs, files)
@@ -165,7 +168,7 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
         write_no_cameras_yaml(out / "cameras.yaml", f"ego-only run: {plan.mode_reason}", plan.cmc_problems)
         files.append(out / "cameras.yaml")
     elif cameras:
-        write_cameras_yaml(out / "cameras.yaml", cameras, groups)
+        write_cameras_yaml(out / "cameras.yaml", cameras, groups, plan.config.cmc)
         files.append(out / "cameras.yaml")
         ego = _export_ego_keyframes(outputs)
         files += write_exports(out / "export", cameras, groups, ego, _export_images(plan, outputs, ego))

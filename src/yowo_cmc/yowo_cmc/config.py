@@ -5,8 +5,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .coverage import CoverageParams
-from .params import ClockParams, DetectorParams, KeypointFormatParams, PoseModelParams, SfmParams
+from .params import (
+    ClockParams,
+    CoverageParams,
+    DetectorParams,
+    KeypointFormatParams,
+    PoseModelParams,
+    SfmParams,
+)
 
 
 @dataclass(frozen=True)

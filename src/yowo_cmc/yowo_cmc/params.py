@@ -257,3 +257,27 @@ class PoseModelParams:
     # Standing, a pair follows its last decided assignment in the same track if that is at most
     # this old; else it is dropped.
     lr_track_s: float = 1.0
+
+
+@dataclass(frozen=True)
+class CoverageParams:
+    # Share of the image grid's cells (cmc.sfm.grid_cols x grid_rows, the overlap score's grid)
+    # in which a camera must see the agent [share]. A pose and its intrinsics are fixed by
+    # points spread over the image; a fifth of the cells is a walk through much of the view.
+    min_cell_share: float = 0.2
+    # A third of the image (across or down) holding less than this share of a camera's
+    # observations counts as empty [share]. A few stray detections do not cover a region.
+    min_region_share: float = 0.02
+    # Agent keypoint observations (grid time x keypoint id) a camera needs [count]. Several
+    # seconds of a walker's skeleton; fewer leave the pose to a handful of poses of the agent.
+    min_observations: int = 200
+    # Nearest-to-farthest spread of the agent's depths (5th to 95th percentile) a camera
+    # needs, a share of the median depth [share]. One depth only couples the focal length
+    # with the distance along the optical axis.
+    min_depth_spread: float = 0.2
+    # Grid times at which another camera must see the agent too for the pair to count as
+    # co-visible [count]. The group SfM matches cameras through such shared times.
+    min_covisible_times: int = 30
+    # Reprojection RMSE above which a camera's pose is called poorly determined [px]. A few
+    # times a pose keypoint's noise.
+    max_rmse_px: float = 5.0
