@@ -1,4 +1,4 @@
-"""A coverage model per ceiling camera (issue #48, part 1): where in its image and from
+"""A coverage model per ceiling camera: where in its image and from
 which depths the agent was seen, with which other cameras at the same time, whether it is
 in a group and how well the group's bundle adjustment explains it; a verdict, `ok` or
 `needs more`, with the reasons in plain words naming what is missing and where.
@@ -17,7 +17,7 @@ import numpy as np
 
 from .params import CoverageParams, SfmParams
 
-# The configuration tree (config.py) holds CoverageParams: the scene graph's libraries
+# The configuration tree holds CoverageParams (params.py): the scene graph's libraries
 # (cv2, networkx) and the group SfM's are imported where coverage is computed, as a keypoint
 # tracker reads the tree but needs none of them.
 if TYPE_CHECKING:
