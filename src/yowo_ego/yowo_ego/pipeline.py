@@ -12,6 +12,10 @@ publishes that odometry online); each keyframe's features, edge check and loop
 closures run on a worker thread meanwhile; ``finish()`` runs what needs the
 whole recording (pose-graph optimisation, bundle adjustment, cloud, layout).
 ``map_recording()`` is the offline entry for an iterable of decoded frames.
+
+One module above the usual size: ``finish()``'s steps are methods that read and set the
+mapper's own state, in the order the docstring's diagram gives; the algorithms they call
+live in their own modules (posegraph, visual_refinement, scene, layout).
 """
 
 from __future__ import annotations

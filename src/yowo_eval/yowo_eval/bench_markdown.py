@@ -1,6 +1,8 @@
 """BENCHMARKS.md's text from `yowo bench`'s cases: the paper's tables (relative_pose_eval,
 register_pose_eval_1/2, scene_map, ablation) plus the clock offsets, the image detector, the
-verdicts, speed/scale and the Cramer-Rao bound, with the command, versions and machine."""
+verdicts, speed/scale and the Cramer-Rao bound, with the command, versions and machine.
+One function per section, in the document's order; kept in one module, above the usual size,
+so the generated document reads top to bottom here."""
 
 from __future__ import annotations
 
