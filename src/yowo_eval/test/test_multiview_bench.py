@@ -215,6 +215,7 @@ def test_markdown_from_results():
         case("r2", "derived", "derived", pos_pct_avg=3.0, pos_pct_max=9.0, rot_avg_deg=1.5, cameras_registered=3),
         case("r2", "detector", "detector", status="failed", reason="import: a | b", cameras_total=None, wall_s=None),
         case("r3", "derived", "derived", pos_pct_avg=2.0, pos_pct_max=4.0, rot_avg_deg=1.0, notes=["cam_4: no agent"]),
+        case("r3", "detector", "detector", status="failed", reason="cam_1: too few", cameras_registered=None),
     ]
     results = {"command": "yowo bench-multiview m.yaml -o w", "commit": "abc1234", "date": "2026-12-07"}
     text = multiview_markdown(results | {"config": ["--set", "cmc.x=1"], "recordings": recs, "cases": cases})
@@ -229,13 +230,14 @@ def test_markdown_from_results():
     assert "| derived | 3 / 4 | 3.00 / 9.00 | 1.50 |" in rows[2]
     assert "| detector | - | failed | - | - | import: a \\| b |" in rows[3]  # the reason, its | escaped
     assert rows[4].endswith("| not calibrated: cam_4: no agent |")
+    assert "| detector | 0 / 4 | failed | - | 60 | cam_1: too few |" in rows[5]  # calibrated none of 4
     summary = {s["variant"]: s for s in variant_summary(cases)}
     assert (summary["derived"]["ok"], summary["derived"]["all_cameras"]) == (3, 2)
     assert summary["derived"]["pos_pct_avg_median"] == 2.0 and summary["derived"]["pos_pct_avg_max"] == 3.0
     assert summary["derived"]["pos_pct_max_max"] == 9.0 and summary["derived"]["rot_avg_deg_median"] == 1.0
-    assert (summary["detector"]["ok"], summary["detector"]["failed"]) == (1, 1)
+    assert (summary["detector"]["ok"], summary["detector"]["failed"]) == (1, 2)
     assert "| derived | 3 / 3 (2) | 2.00 / 3.00 | 9.00 | 1.00 / 1.50 |" in text
-    assert "| detector | 1 / 2 (1) | 1.50 / 1.50 | 2.50 | 0.70 / 0.70 |" in text
+    assert "| detector | 1 / 3 (1) | 1.50 / 1.50 | 2.50 | 0.70 / 0.70 |" in text
 
 
 # ---------------------------------------------------------------- end to end

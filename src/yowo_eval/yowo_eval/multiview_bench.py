@@ -319,13 +319,10 @@ def _run(cmd: list[str], log: Path, timeout_s: float) -> tuple[int | None, str, 
     return code, out, err, wall
 
 
-def evaluate_case(case: Case, run: Path, bag: Path) -> None:
-    """Fill the case's numbers from the run's cameras.yaml against the bag's reference."""
-    from .ground_truth import read_ground_truth
+def evaluate_case(case: Case, run: Path, bag: Path, gt) -> None:
+    """Fill the case's numbers from the run's cameras.yaml against the bag's reference `gt`."""
     from .results_eval import evaluate
 
-    gt = read_ground_truth(bag)
-    case.cameras_total = len(gt.cameras)
     try:
         metrics = evaluate(run, bag, gt)
     except ValueError as exc:
@@ -360,6 +357,10 @@ def run_case(
     if imported[0] != 0:
         case.reason = f"import: {imported[1]}"
         return case
+    from .ground_truth import read_ground_truth
+
+    gt = read_ground_truth(bag)
+    case.cameras_total = len(gt.cameras)  # also for a calibration that fails: 0 of them
     cmd = calibrate_command(bag, run, variant, config, timeout_s)
     case.command = "yowo " + shlex.join(cmd[3:])
     code, out, err, wall = _run(cmd, run.parent / f"{run.name}.log", timeout_s + 120)
@@ -369,7 +370,7 @@ def run_case(
         if code is None:
             case.reason = f"timed out after {timeout_s + 120:.0f} s"
         return case
-    evaluate_case(case, run, bag)
+    evaluate_case(case, run, bag, gt)
     return case
 
 
