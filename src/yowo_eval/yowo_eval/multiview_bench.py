@@ -1,8 +1,10 @@
 """`yowo bench-multiview MANIFEST.yaml -o WORKDIR`: real multi-camera recordings of a person
-with a reference calibration (issue #45), each imported with `yowo import-multiview` and
+with a reference calibration, each imported with `yowo import-multiview` and
 calibrated with `yowo calibrate-cmc` in several variants, one configuration (`--set`) for
 all, the relative pose error after a per-group similarity alignment as `yowo eval` computes
 it -> WORKDIR/results.json and the markdown section `real-multiview`.
+One module above the usual size: the manifest's checks, the variants' runs and their table
+belong to this one command and change together.
 
 The manifest is a YAML list of recordings (or a mapping with the list under `recordings`);
 paths are relative to the manifest's folder:
