@@ -90,8 +90,10 @@ def residual_sigmas(ba: dict, class_bounds: tuple[int, ...], skeleton=None) -> d
     or more residuals)."""
     kp_ids = ba["keys"][ba["obs"].point] % MAX_IDS
     if skeleton is not None:
-        names = {k: i for i, k in enumerate(sorted({skeleton.noise_class(int(k)) for k in np.unique(kp_ids)}))}
-        classes = np.array([names[skeleton.noise_class(int(k))] for k in kp_ids], dtype=np.int64)
+        ids, where = np.unique(kp_ids, return_inverse=True)
+        kinds = [skeleton.noise_class(int(k)) for k in ids]
+        order = sorted(set(kinds))
+        classes = np.array([order.index(c) for c in kinds], dtype=np.int64)[where]
     else:
         classes = np.searchsorted(np.asarray(class_bounds, dtype=np.int64), kp_ids, side="right")
     sigma = {

@@ -95,7 +95,7 @@ def reconstruct_group(
     # temporal noise scale does not see), and the 6 px gate then keeps only the views that
     # agree with the first poses. Once the robust rounds have measured each class, the group
     # is reconstructed again with the incremental registration's gate of the noisier classes
-    # widened in proportion (the rounds' wider gate stays: widened too, caliscope got worse).
+    # widened in proportion (the rounds' wider gate stays as it is; docs/notes/real-data.md).
     # The wider gate also lets outliers in: the new poses are kept only if they register as
     # many cameras and explain the first reconstruction's own points nearly as well.
     scales = geometric_gate_scales(result.sigma_px_by_id, params) if result is not None else {}
