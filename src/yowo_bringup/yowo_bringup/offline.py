@@ -36,13 +36,15 @@ def read_cmc_inputs(
     params: CmcParams | None = None,
     backgrounds: bool = True,
     inputs: InputParams | None = None,
+    ego=None,
 ) -> tuple[list[CameraTracks], dict]:
     """What the keypoint trackers hand on, computed as they do in one pass over the
     recording: the run's plan says each CMC's source, topics and intrinsics, and the same
     yowo_cmc.keypoint_tracker runs on them. Returns each CMC's tracks (its validated frames
     as published messages, validated again on receipt) and, with `backgrounds`, its
     agent-free background. `inputs`: the configuration's inputs section (mapping, intrinsics
-    files); video files (inputs.videos) are the graph's only."""
+    files); video files (inputs.videos) are the graph's only. `ego`: the ego camera's
+    trajectory (yowo_cmc.walker.EgoMotion), which tells the walker among people in view."""
     from std_msgs.msg import Header
 
     from yowo_cmc.keypoint_tracker import KeypointTracker
@@ -90,7 +92,7 @@ def read_cmc_inputs(
             frames[n] += t.take_image(stamp_to_ns(msg.header.stamp), lambda m=msg: decode_color(m))[0]
     tracks = []
     for n, t in trackers.items():
-        frames[n] += t.flush()
+        frames[n] += t.flush(ego)
         if t.camera is None or not frames[n]:
             continue
         received = TrackAccumulator(n, t.camera)
@@ -143,6 +145,7 @@ def process(bag, config: YowoConfig | None = None, source: str = "auto") -> Offl
     """The whole method on one recording (what `yowo run` computes, with the same tree):
     ego map, CMC groups, collaborative processing."""
     from yowo_cmc.pipeline import calibrate_cmcs_apart
+    from yowo_cmc.walker import EgoMotion
     from yowo_ego.recording import map_bag
     from yowo_fusion.pipeline import fuse
     from yowo_fusion.records import CmcInput
@@ -153,7 +156,8 @@ def process(bag, config: YowoConfig | None = None, source: str = "auto") -> Offl
     ego, _ = map_bag(bag, config.ego)
     seconds["ego"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    tracks, backgrounds = read_cmc_inputs(bag, source, config.cmc, inputs=config.inputs)
+    walk = EgoMotion(stamps_ns=np.asarray(ego.stamps_ns), positions=np.asarray(ego.T_world_cam)[:, :3, 3])
+    tracks, backgrounds = read_cmc_inputs(bag, source, config.cmc, inputs=config.inputs, ego=walk)
     # Cameras without intrinsics: the group SfM estimates them, the fusion takes its estimate.
     estimated = frozenset(discover_inputs(bag, config.inputs).estimated_intrinsics)
     grouping = calibrate_cmcs_apart(tracks, config.cmc, estimated)

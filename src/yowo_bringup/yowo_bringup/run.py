@@ -431,11 +431,14 @@ def _stage_nodes(
             dict(EGO_OUTPUTS),
         )
     cameras = [c for c, _, _ in trackers]
+    # With an ego camera, the pose model's trackers tell the walker among the people in view
+    # by the ego camera's motion: they finish once its odometry is complete.
+    walker = {"ego_odometry_topic": topics.EGO_ODOMETRY} if mode == FULL else {}
     nodes = [
         NodeSpec(
             name=topics.tracker_stage(c),
             module=STAGE_MODULES[topics.TRACKER_STAGE],
-            parameters={"camera": c, "source": kind, **roles},
+            parameters={"camera": c, "source": kind, **roles, **(walker if kind == "pose" else {})},
         )
         for c, kind, roles in trackers
     ]

@@ -8,10 +8,10 @@ import cv2
 import numpy as np
 import pytest
 
-from yowo_cmc.params import PoseModelParams
+from yowo_cmc.params import PeopleParams, PoseModelParams
+from yowo_cmc.person_tracks import PersonTracker, appearance, appearance_distance
 from yowo_cmc.pose_keypoints import GROUND, HEAD_TOP, PersonPose
 from yowo_cmc.pose_model import PoseDetector
-from yowo_cmc.pose_source import pick_agent
 
 # Per photograph, per person: its height in the image (head top to soles, or the
 # visible extent for the upper-body photos) and hand-marked joints [px]. A tuple
@@ -239,14 +239,23 @@ def test_person_cut_by_the_border(movenet):
     assert ((frame.uv >= -0.5 - params.border_px) & (frame.uv <= np.array([w, h]) - 0.5 + params.border_px)).all()
 
 
-def test_pick_agent(movenet):
-    found = movenet.detect(photo("bus"))
+def test_people_in_a_photo_keep_their_tracks(movenet):
+    """The two pedestrians of a real photo, found again in the photo shifted by a few pixels,
+    each continue their own track; their clothes tell them apart."""
+    image = photo("bus")
+    tracker = PersonTracker(PeopleParams())
+    found = movenet.detect(image)
     coat, jacket = (match(found, person) for person in MARKS["bus"])
-    assert pick_agent([], None) is None
-    assert pick_agent(found, None) is found[0]
-    assert pick_agent(found, (290, 620)) is jacket
-    assert pick_agent(found, (140, 650)) is coat
-    assert pick_agent(found, (700, 100), max_jump_px=100) is None
+    first = {id(track): pose for track, pose, _ in tracker.update(0, image, [coat, jacket])}
+    shifted = np.roll(image, (4, 6), axis=(0, 1))
+    again = movenet.detect(shifted)
+    nose = [np.add(m["joints"]["nose"], (6, 4)) for m in MARKS["bus"]]
+    moved = {w: match(again, {"joints": {"nose": n}}) for w, n in zip(("coat", "jacket"), nose)}
+    for track, pose, _ in tracker.update(100_000_000, shifted, [moved["jacket"], moved["coat"]]):
+        before = first[id(track)]
+        assert (before is coat) == (pose is moved["coat"])
+    assert len(tracker.tracks) == 2
+    assert appearance_distance(appearance(image, coat.box), appearance(image, jacket.box)) > 0.3
 
 
 def test_unknown_model_is_named():

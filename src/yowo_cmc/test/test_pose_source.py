@@ -8,7 +8,7 @@ import pytest
 
 from yowo_bringup.offline import read_cmc_tracks
 from yowo_bringup.run import cmc_source
-from yowo_cmc.params import DetectorParams, PoseModelParams
+from yowo_cmc.params import DetectorParams, PeopleParams, PoseModelParams
 from yowo_cmc.pose_source import PoseOrDetectorSource
 from yowo_common.camera import CameraModel
 from yowo_common.ros.bag import read_messages
@@ -82,7 +82,7 @@ def test_the_head_top_lands_near_its_true_projection(video_only):
 
 def test_a_camera_showing_nobody_falls_back_to_the_model_free_detector():
     cam = CameraModel.from_fov(320, 240, 70.0)
-    source = PoseOrDetectorSource("empty", PoseModelParams(), 5, DetectorParams(), 300)
+    source = PoseOrDetectorSource("empty", PoseModelParams(), 5, DetectorParams(), 300, PeopleParams())
     assert source.set_camera(cam) == []
     rng = np.random.default_rng(0)
     wall = rng.integers(90, 110, (240, 320, 3), dtype=np.uint8)
@@ -90,11 +90,13 @@ def test_a_camera_showing_nobody_falls_back_to_the_model_free_detector():
         assert source.push(1_000_000_000 + i * 100_000_000, wall) == []
     assert not source.uses_pose
     source.flush()
-    assert source.summary().startswith("source: model-free detector (pose model movenet: the agent in 0 of 30")
+    assert source.summary().startswith("source: model-free detector (pose model movenet: people in 0 of 30")
 
 
 def test_an_unusable_pose_model_is_named_and_the_model_free_detector_serves():
-    source = PoseOrDetectorSource("c9", PoseModelParams(model="no_such_model"), 5, DetectorParams(), 300)
+    source = PoseOrDetectorSource(
+        "c9", PoseModelParams(model="no_such_model"), 5, DetectorParams(), 300, PeopleParams()
+    )
     assert source.pose is None and "camera 'c9': pose model unavailable" in source.problem
     assert "no_such_model" in source.problem
     source.set_camera(CameraModel.from_fov(320, 240, 70.0))

@@ -10,6 +10,7 @@ from .params import (
     CoverageParams,
     DetectorParams,
     KeypointFormatParams,
+    PeopleParams,
     PoseModelParams,
     SfmParams,
 )
@@ -24,6 +25,8 @@ class CmcParams:
     # Images with the agent after which a camera uses the pose model [count]. Before, and for a
     # camera where the model recognises nobody, the model-free detector's keypoints.
     pose_min_frames: int = 5
+    # Every person in view tracked, and the walker among them told by their motion (source pose).
+    people: PeopleParams = field(default_factory=PeopleParams)
     sfm: SfmParams = field(default_factory=SfmParams)  # groups, incremental SfM, group BA
     clock: ClockParams = field(default_factory=ClockParams)  # clock offsets from the agent's motion
     # Thresholds of each camera's coverage verdict (yowo_cmc.coverage): `ok`, or what is missing and where.

@@ -18,6 +18,7 @@ from .config import CmcParams
 from .keypoint_input import ImageKeypointSource, KeypointFrame, TrackAccumulator
 from .pose_source import PoseOrDetectorSource
 from .skeletons import camera_skeleton
+from .walker import EgoMotion
 
 SOURCES = ("keypoints", "pose", "images")
 
@@ -54,7 +55,7 @@ class KeypointTracker:
             ImageKeypointSource(camera, params.detector, params.max_pending_frames)
             if source == "images"
             else PoseOrDetectorSource(
-                camera, params.pose, params.pose_min_frames, params.detector, params.max_pending_frames
+                camera, params.pose, params.pose_min_frames, params.detector, params.max_pending_frames, params.people
             )
             if source == "pose"
             else None
@@ -115,9 +116,18 @@ class KeypointTracker:
             frame = self.skeleton.complete(frame, self.pose_params)
         return self.acc.add(frame)
 
-    def flush(self) -> list[KeypointFrame]:
-        """The frames the image detectors still hold (at the end of the recording)."""
-        return self._keep(self.detector.flush()) if self.detector is not None else []
+    @property
+    def needs_ego(self) -> bool:
+        """Whether `flush` wants the ego camera's trajectory (the pose model tells the walker
+        among the people in view by it)."""
+        return self.source == "pose"
+
+    def flush(self, ego: EgoMotion | None = None) -> list[KeypointFrame]:
+        """The frames the image detectors still hold (at the end of the recording); with the
+        pose model the walker's, chosen with `ego`, the ego camera's trajectory (None: none)."""
+        if self.detector is None:
+            return []
+        return self._keep(self.detector.flush(ego) if self.source == "pose" else self.detector.flush())
 
     def background(self) -> np.ndarray | None:
         """The agent-free background (RGB): the detector's model, else sampled images' median."""

@@ -19,6 +19,8 @@ intrinsics file), those; or, with `info_topic:=""` (no CameraInfo at all), a nom
 
 from __future__ import annotations
 
+import numpy as np
+from nav_msgs.msg import Odometry
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Header
 
@@ -39,6 +41,7 @@ from yowo_msgs.msg import AgentKeypoints
 from .config import CmcParams
 from .keypoint_input import KeypointFrame, frame_from_msg, frame_to_msg
 from .keypoint_tracker import KeypointTracker
+from .walker import EgoMotion
 
 
 class KeypointTrackerNode(StageNode):
@@ -77,6 +80,12 @@ class KeypointTrackerNode(StageNode):
             self.stream_input(CameraInfo, self.info_topic, self.on_info)
         if self.tracker.detector is None:
             self.stream_input(AgentKeypoints, keypoints_topic, self.on_keypoints)
+        # The ego camera's odometry (a run with one, source pose): which person is the walker.
+        self.ego_stamps_ns: list[int] = []
+        self.ego_positions: list[tuple[float, float, float]] = []
+        odometry_topic = self.declare_parameter("ego_odometry_topic", "").value
+        if odometry_topic and self.tracker.needs_ego:
+            self.stream_input(Odometry, odometry_topic, self.on_odometry, upstream=topics.EGO_STAGE)
         # With external keypoints, images (when recorded) only give the background for scene keypoints.
         if image_topic:
             msg_type = CompressedImage if image_topic.endswith("/compressed") else Image
@@ -88,6 +97,11 @@ class KeypointTrackerNode(StageNode):
         if nominal is not None:
             self.publish_info(nominal)
         self.publish_frames(frames)
+
+    def on_odometry(self, msg: Odometry) -> None:
+        p = msg.pose.pose.position
+        self.ego_stamps_ns.append(stamp_to_ns(msg.header.stamp))
+        self.ego_positions.append((p.x, p.y, p.z))
 
     def on_info(self, msg: CameraInfo) -> None:
         if not self.tracker.wants_camera_info:
@@ -121,7 +135,13 @@ class KeypointTrackerNode(StageNode):
             self.pub.publish(frame_to_msg(f, self.camera, self.frame_id))
 
     def finalize(self) -> str:
-        self.publish_frames(self.tracker.flush())
+        ego = None
+        if self.ego_stamps_ns:
+            order = np.argsort(self.ego_stamps_ns)
+            ego = EgoMotion(
+                stamps_ns=np.asarray(self.ego_stamps_ns)[order], positions=np.asarray(self.ego_positions)[order]
+            )
+        self.publish_frames(self.tracker.flush(ego))
         summary, background = self.tracker.summary(), self.tracker.background()
         if background is None:
             return summary

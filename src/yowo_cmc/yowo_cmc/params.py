@@ -260,6 +260,50 @@ class PoseModelParams:
 
 
 @dataclass(frozen=True)
+class PeopleParams:
+    """Every person a camera sees (yowo_cmc.person_tracks) and which of them is the walker
+    (yowo_cmc.walker), for the pose model's source."""
+
+    # A person's box centre may move this far from where its track heads, in body heights
+    # (its box's height), plus max_speed_heights_s per second since the track's last image.
+    max_move_heights: float = 0.3
+    max_speed_heights_s: float = 1.5  # a fast walk's pace in body heights [1/s]
+    max_size_change: float = 0.5  # largest |log| of a box height ratio between images [log]
+    # Largest clothes-colour (Bhattacharyya) distance at which a person may continue a track
+    # [distance]. Two people in different clothes are far apart; one person's own look changes
+    # with the view and the light.
+    max_appearance_distance: float = 0.6
+    appearance_weight: float = 1.0  # weight of the colour distance against the move [body heights]
+    appearance_rate: float = 0.1  # share of each new image in a track's appearance [share]
+    lost_after_s: float = 1.5  # a track not seen for this long ends; a later person starts a new one
+    # Persons whose boxes overlap at least this much are crowded: their keypoints may be each
+    # other's, so neither image is used as the walker's [IoU].
+    crowded_iou: float = 0.1
+    # Walker evidence: each track's stops and walks against the ego camera's, the walker's
+    # moving and standing in step with the head camera's.
+    smooth_s: float = 1.0  # speeds are averaged over this window before moving/standing is read
+    grid_s: float = 0.1  # time step on which tracks and the ego trajectory are compared
+    track_moving_heights_s: float = 0.15  # a track faster than this is walking [body heights/s]
+    ego_moving_mps: float = 0.25  # the head camera faster than this is walking [m/s]
+    # Largest clock offset between a ceiling camera and the ego camera searched [s]; an NVR's
+    # clock can be seconds off.
+    max_clock_offset_s: float = 10.0
+    min_track_s: float = 2.0  # shorter tracks are no candidates for the walker
+    # A track's evidence counts when the ego camera both walked and stood for at least this
+    # share of the time they overlap: moving all along tells nobody apart [share].
+    min_state_share: float = 0.1
+    # Agreement (balanced over the ego's walking and standing) a track needs to be the walker
+    # [share]; an unrelated person agrees half of the time.
+    accept_agreement: float = 0.75
+    # Lead over any other person seen at the same time in the same camera [share]. Less: no
+    # track is clearly the walker, and the camera is not registered from a guess.
+    min_margin: float = 0.15
+    # The one person a camera ever sees is not the walker when its agreement is below this
+    # [share] (it moves unlike the head camera).
+    reject_agreement: float = 0.6
+
+
+@dataclass(frozen=True)
 class CoverageParams:
     # Share of the image grid's cells (cmc.sfm.grid_cols x grid_rows, the overlap score's grid)
     # in which a camera must see the agent [share]. A pose and its intrinsics are fixed by

@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from .params import PoseModelParams
+from .person_tracks import box_iou
 from .pose_keypoints import ID_OFFSET, JOINTS, PersonPose, derive_top_and_ground
 
 # Where each model's file is: (distribution, file inside it, member inside a zip or None).
@@ -147,7 +148,7 @@ class PoseDetector:
         shift = np.array([x0, y0, x0, y0], float)
         best, best_iou = None, 0.3
         for _, cbox, uv, conf in self._movenet(crop, net):
-            iou = _iou(cbox + shift, box)
+            iou = box_iou(cbox + shift, box)
             if iou >= best_iou:
                 best, best_iou = (cbox + shift, uv + shift[:2], conf), iou
         if best is None:
@@ -256,16 +257,6 @@ class PoseDetector:
         all_uv = np.vstack([top[:2], ground[:2], uv])
         all_conf = np.concatenate([[top[2], ground[2]], np.clip(conf, 0.0, 1.0)])
         return PersonPose(score=score, box=np.asarray(box, float), ids=ids, uv=all_uv, confidence=all_conf)
-
-
-def _iou(a: np.ndarray, b: np.ndarray) -> float:
-    """Intersection over union of two boxes (x_min, y_min, x_max, y_max)."""
-    iw = min(a[2], b[2]) - max(a[0], b[0])
-    ih = min(a[3], b[3]) - max(a[1], b[1])
-    if iw <= 0 or ih <= 0:
-        return 0.0
-    inter = iw * ih
-    return float(inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter))
 
 
 def _box(uv: np.ndarray, conf: np.ndarray, min_conf: float) -> np.ndarray:

@@ -90,10 +90,11 @@ def person_pose(uv: np.ndarray, conf: np.ndarray, fmt: str, width: int, height: 
 
 @dataclass
 class AgentTracker:
-    """The agent among several people per frame, as the pose source keeps it
-    (yowo_cmc.pose_source.pick_agent: the best-scored person to start, then the one nearest
-    the agent's last box centre within max_jump of the image diagonal; lost after
-    lost_after frames without it). Counts the others."""
+    """The agent among several people per frame: the best-scored person to start, then the
+    one nearest the agent's last box centre within max_jump of the image diagonal (the
+    nearest rather than the best: others may score higher); lost after lost_after frames
+    without it. Counts the others. A recording without an ego camera has no walker's motion
+    to tell people apart (yowo_cmc.walker)."""
 
     diagonal_px: float
     max_jump: float = 0.15
@@ -103,10 +104,13 @@ class AgentTracker:
     _missed: int = 0
 
     def pick(self, people):
-        from yowo_cmc.pose_source import pick_agent
-
         people = sorted(people, key=lambda p: -p.score)
-        agent = pick_agent(people, self._previous, self.max_jump * self.diagonal_px)
+        agent = people[0] if people and self._previous is None else None
+        if people and self._previous is not None:
+            centres = np.array([(p.box[:2] + p.box[2:]) / 2 for p in people])
+            d = np.hypot(*(centres - self._previous).T)
+            k = int(np.argmin(d))
+            agent = people[k] if d[k] <= self.max_jump * self.diagonal_px else None
         if agent is None:
             self._missed += 1
             if self._missed >= self.lost_after:

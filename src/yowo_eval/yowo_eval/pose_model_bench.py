@@ -39,7 +39,7 @@ import time
 import cv2
 import numpy as np
 
-from yowo_cmc.params import PoseModelParams
+from yowo_cmc.params import PeopleParams, PoseModelParams
 from yowo_cmc.pose_keypoints import ID_OFFSET, MOVENET_JOINTS
 from yowo_cmc.pose_model import PoseDetector
 from yowo_cmc.pose_source import PoseKeypointSource
@@ -164,7 +164,7 @@ def run_source(bag, params: PoseModelParams):
         if not kind.startswith("image"):
             continue
         if name not in sources:
-            sources[name] = PoseKeypointSource(name, params)
+            sources[name] = PoseKeypointSource(name, params, 1, PeopleParams())
             detect = sources[name].detector.detect
 
             def counting(rgb, detect=detect, name=name, **kw):  # records what the model found, unchanged
@@ -174,12 +174,10 @@ def run_source(bag, params: PoseModelParams):
 
             sources[name].detector.detect = counting
         stamp = stamp_to_ns(msg.header.stamp)
-        frames, _ = sources[name].push(stamp, decode_color(msg))
-        for f in frames:
-            emitted[name][f.stamp_ns] = f
+        sources[name].push(stamp, decode_color(msg))
         n += 1
     for name, source in sources.items():
-        for f in source.flush():
+        for f in source.flush(None):
             emitted[name][f.stamp_ns] = f
     return emitted, persons, sources, (time.perf_counter() - t0) / max(n, 1)
 
@@ -309,11 +307,10 @@ def multiview(args):
             f = frame_from_msg(msg)
             frames[name][f.stamp_ns] = f
         elif kind.startswith("image") and not args.recorded:
-            source = sources.setdefault(name, PoseKeypointSource(name, params))
-            for f in source.push(stamp_to_ns(msg.header.stamp), decode_color(msg))[0]:
-                frames[name][f.stamp_ns] = f
+            source = sources.setdefault(name, PoseKeypointSource(name, params, 1, PeopleParams()))
+            source.push(stamp_to_ns(msg.header.stamp), decode_color(msg))
     for name, source in sources.items():
-        for f in source.flush():
+        for f in source.flush(None):
             frames[name][f.stamp_ns] = f
     names = sorted(frames)
     P = {n: models[n].K @ np.linalg.inv(poses[n])[:3] for n in names}  # ideal pinhole projections
