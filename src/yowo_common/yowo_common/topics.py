@@ -81,6 +81,12 @@ GT_PREFIX = "/gt/"  # ground truth: read by evaluation only, never played
 GT_EGO_POSE = "/gt/ego/pose"
 GT_FLOOR = "/gt/layout/floor"
 GT_AGENT_KEYPOINTS = "/gt/agent/keypoints"  # geometry_msgs/PoseArray: poses[k].position = keypoint id k in map
+# Bystanders (simulator, issue #46), recorded only when there are any: a PoseArray at each
+# CMC frame's true stamp (as GT_AGENT_KEYPOINTS) with, per bystander i in order, poses[2 i]
+# its head top and poses[2 i + 1] its ground point (keypoint ids 0 and 1) in map; and a
+# latched std_msgs/String YAML with each one's height and clothes.
+GT_BYSTANDER_KEYPOINTS = "/gt/bystanders/keypoints"
+GT_BYSTANDER_INFO = "/gt/bystanders/info"
 # sensor_msgs/Imu, one per /ego/imu message (same stamp): angular_velocity / linear_acceleration
 # hold the true gyro / accelerometer biases (measured = true + bias + white noise).
 GT_EGO_IMU_BIAS = "/gt/ego/imu_bias"

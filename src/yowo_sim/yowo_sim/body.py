@@ -31,6 +31,21 @@ SKIN_SHADE = (200, 148, 118)  # nose and ears: skin a little darker
 EYES = (35, 25, 25)
 LIPS = (150, 70, 70)
 
+
+class Clothing(NamedTuple):
+    """A person's colours (RGB): the agent's are the module's constants; bystanders get
+    others (yowo_sim.bystanders) so a detector that tracks the agent can tell them apart."""
+
+    shirt: tuple[int, int, int] = SHIRT
+    trousers: tuple[int, int, int] = TROUSERS
+    shoes: tuple[int, int, int] = SHOES
+    skin: tuple[int, int, int] = SKIN
+    skin_shade: tuple[int, int, int] = SKIN_SHADE
+    hair: tuple[int, int, int] = HAIR
+
+
+AGENT_CLOTHING = Clothing()
+
 LEG_SWING = 0.15  # foot fore/aft amplitude, fraction of H
 FOOT_LIFT = 0.05  # swing-foot clearance, fraction of H
 ARM_SWING = 0.35  # rad
@@ -219,12 +234,14 @@ def _head_points(p: _Pose, H: float) -> dict[str, np.ndarray]:
     }
 
 
-def agent_mesh(position_xy, heading_rad: float, height_m: float, phase: float) -> AgentMesh:
+def agent_mesh(
+    position_xy, heading_rad: float, height_m: float, phase: float, clothing: Clothing = AGENT_CLOTHING
+) -> AgentMesh:
     """Body mesh of the agent standing at ``position_xy`` facing ``heading_rad``
     (from +x towards +y) at gait ``phase`` (rad; one stride per 2 pi): a person in a
     short-sleeved shirt, trousers and shoes, with a face, hair, hands, bent knees and
     elbows, left and right alike (a pose model must tell them apart by the body's
-    shape, as on a real person)."""
+    shape, as on a real person). ``clothing``: its colours (a bystander's differ)."""
     H = float(height_m)
     p = _pose(position_xy, heading_rad, H, phase)
     up = np.array([0.0, 0.0, 1.0])
@@ -245,21 +262,21 @@ def agent_mesh(position_xy, heading_rad: float, height_m: float, phase: float) -
         fwd, z = m @ f, m[:, 2]
         # Hair: the crown, and the back of the head down to the nape.
         hair = (z > 0.035 * H) | ((fwd < 0.012 * H) & (z > -0.045 * H))
-        return np.where(hair[:, None], HAIR, SKIN).astype(np.uint8)
+        return np.where(hair[:, None], clothing.hair, clothing.skin).astype(np.uint8)
 
     add(*_ellipsoid(hc, (f, lf, up), [x * H for x in HEAD_RADII]), head_colour)
     for side in ("left_eye", "right_eye"):
         add(*_ellipsoid(head[side] - 0.004 * H * f, (f, lf, up), (0.007 * H, 0.011 * H, 0.006 * H), 8, 4), solid(EYES))
         brow = head[side] + 0.016 * H * up - 0.004 * H * f
-        add(*_ellipsoid(brow, (f, lf, up), (0.006 * H, 0.014 * H, 0.003 * H), 8, 4), solid(HAIR))
+        add(*_ellipsoid(brow, (f, lf, up), (0.006 * H, 0.014 * H, 0.003 * H), 8, 4), solid(clothing.hair))
     add(
         *_ellipsoid(head["nose"] - 0.01 * H * f + 0.008 * H * up, (f, lf, up), (0.013 * H, 0.009 * H, 0.016 * H), 8, 4),
-        solid(SKIN_SHADE),
+        solid(clothing.skin_shade),
     )
     add(*_ellipsoid(head["mouth"] - 0.004 * H * f, (f, lf, up), (0.006 * H, 0.016 * H, 0.004 * H), 8, 4), solid(LIPS))
     for side in ("left_ear", "right_ear"):
-        add(*_ellipsoid(head[side], (f, lf, up), (0.014 * H, 0.006 * H, 0.02 * H), 8, 4), solid(SKIN_SHADE))
-    add(*_capsule(p.centre + 0.80 * H * up, p.centre + 0.885 * H * up, 0.026 * H), solid(SKIN))
+        add(*_ellipsoid(head[side], (f, lf, up), (0.014 * H, 0.006 * H, 0.02 * H), 8, 4), solid(clothing.skin_shade))
+    add(*_capsule(p.centre + 0.80 * H * up, p.centre + 0.885 * H * up, 0.026 * H), solid(clothing.skin))
     # Torso: hips to shoulders in elliptical sections (half width, half depth; Winter).
     sections = [
         (0.49, 0.082, 0.058),
@@ -275,21 +292,30 @@ def agent_mesh(position_xy, heading_rad: float, height_m: float, phase: float) -
     ]
     v, t = _loft([(p.centre + z * H * up, hw * H, hd * H) for z, hw, hd in sections], f, lf)
     belt = 0.585 * H
-    add(v, t, lambda v, t: np.where((v[t][:, :, 2].mean(axis=1) > belt)[:, None], SHIRT, TROUSERS).astype(np.uint8))
+    add(
+        v,
+        t,
+        lambda v, t: np.where((v[t][:, :, 2].mean(axis=1) > belt)[:, None], clothing.shirt, clothing.trousers).astype(
+            np.uint8
+        ),
+    )
     for i in range(2):
         s, e, w = p.shoulders[i], p.elbows[i], p.hands[i]
         sleeve = s + 0.6 * (e - s)
-        add(*_capsule(s, sleeve, 0.034 * H), solid(SHIRT))  # short sleeve over the upper arm
-        add(*_capsule(sleeve, e, 0.026 * H), solid(SKIN))
-        add(*_capsule(e, w, 0.021 * H), solid(SKIN))
+        add(*_capsule(s, sleeve, 0.034 * H), solid(clothing.shirt))  # short sleeve over the upper arm
+        add(*_capsule(sleeve, e, 0.026 * H), solid(clothing.skin))
+        add(*_capsule(e, w, 0.021 * H), solid(clothing.skin))
         # Hand: a flat mitten from the wrist on along the forearm.
         d = (w - e) / np.linalg.norm(w - e)
-        add(*_ellipsoid(w + 0.5 * HAND * H * d, (f, lf, d), (0.016 * H, 0.028 * H, 0.5 * HAND * H), 8, 4), solid(SKIN))
-        add(*_capsule(p.hips[i], p.knees[i], 0.043 * H), solid(TROUSERS))
-        add(*_capsule(p.knees[i], p.ankles[i], 0.032 * H), solid(TROUSERS))
+        add(
+            *_ellipsoid(w + 0.5 * HAND * H * d, (f, lf, d), (0.016 * H, 0.028 * H, 0.5 * HAND * H), 8, 4),
+            solid(clothing.skin),
+        )
+        add(*_capsule(p.hips[i], p.knees[i], 0.043 * H), solid(clothing.trousers))
+        add(*_capsule(p.knees[i], p.ankles[i], 0.032 * H), solid(clothing.trousers))
         # Shoe: a box whose flat sole is exactly at the foot keypoint's height.
         shoe_centre = p.feet[i] + 0.03 * H * p.forward + 0.02 * H * up
-        add(*_box(shoe_centre, (p.forward, p.left, up), (0.075 * H, 0.028 * H, 0.02 * H)), solid(SHOES))
+        add(*_box(shoe_centre, (p.forward, p.left, up), (0.075 * H, 0.028 * H, 0.02 * H)), solid(clothing.shoes))
     verts, tris, cols, offset = [], [], [], 0
     for v, t, colour in parts:
         verts.append(v)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 from geometry_msgs.msg import Point32, Polygon, PolygonStamped, Pose, PoseArray, PoseStamped
-from std_msgs.msg import Float64, Header
+from std_msgs.msg import Float64, Header, String
 
 from yowo_common import topics
 from yowo_common.camera import CameraModel
@@ -29,13 +29,14 @@ from yowo_common.rosconv import (
 from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
 from .body import agent_keypoints_3d, agent_mesh
+from .bystanders import GT_KEYPOINT_IDS, Bystander, info_yaml, plan_bystanders
 from .detector import detect
 from .imu import ImuData, bias_message, calibration_messages, imu_message, simulate_imu
 from .presets import CapturePreset, DepthNoise
 from .render import Renderer
 from .rig import Cmc, place_cmc
 from .scene import Scene, build_scene
-from .walk import Walk, plan_walk
+from .walk import FloorRoutes, Walk, plan_walk
 
 START_NS = 1_700_000_000 * 10**9  # recordings start at a fixed epoch: deterministic stamps
 EGO_FRAME = "ego_optical_frame"
@@ -52,6 +53,7 @@ class CaptureSummary:
     render_seconds: float
     rendered_frames: int
     imu_samples: int = 0
+    bystanders: int = 0
 
 
 def place_cmcs(scene: Scene, preset: CapturePreset, rng: np.random.Generator) -> list[Cmc]:
@@ -126,6 +128,8 @@ def _schedule(duration_s: float, preset: CapturePreset, n_cmc: int, rng) -> list
 
 
 def agent_in_view(cmc: Cmc, keypoints: dict[int, np.ndarray], margin_px: float = 80.0) -> bool:
+    """Whether a person (the agent or a bystander) with these keypoints may show in the
+    CMC's image (walls not considered): a frame with nobody in view is the background."""
     uv, ok = cmc.camera.project_world(cmc.T_world_cam, np.array(list(keypoints.values())))
     lo, hi = -margin_px, np.array([cmc.camera.width, cmc.camera.height]) + margin_px
     return bool(np.any(ok & np.all((uv > lo) & (uv < hi), axis=1)))
@@ -142,6 +146,7 @@ class CaptureSetup:
     ego_camera: CameraModel
     rng: np.random.Generator
     clock_offsets_ns: dict[str, int] = field(default_factory=dict)  # CMC clock - ego clock (preset's option)
+    bystanders: list[Bystander] = field(default_factory=list)  # other people walking about (preset's option)
 
 
 def clock_offsets(preset: CapturePreset, seed: int, cmcs: list[Cmc]) -> dict[str, int]:
@@ -157,9 +162,11 @@ def build_capture(preset: CapturePreset, seed: int) -> CaptureSetup:
     rng = np.random.default_rng(seed)
     scene = build_scene(replace(preset.scene, seed=seed))
     cmcs = place_cmcs(scene, preset, rng)
-    walk = plan_walk(
-        scene.free_space_polygon(), scene.rooms[0].center_xy(), [c.target_xy for c in cmcs], preset.walk, rng
-    )
+    routes = FloorRoutes(scene.free_space_polygon())
+    walk = plan_walk(routes, scene.rooms[0].center_xy(), [c.target_xy for c in cmcs], preset.walk, rng)
+    # After the agent's walk and from their own generator: nothing of the agent's changes.
+    places = [c.target_xy for c in cmcs] + [r.center_xy() for r in scene.rooms]
+    bystanders = plan_bystanders(preset.bystanders, routes, places, walk, seed)
     ego_cam = CameraModel.from_fov(preset.ego_width, preset.ego_height, preset.ego_hfov_deg)
     return CaptureSetup(
         preset=preset,
@@ -169,14 +176,20 @@ def build_capture(preset: CapturePreset, seed: int) -> CaptureSetup:
         ego_camera=ego_cam,
         rng=rng,
         clock_offsets_ns=clock_offsets(preset, seed, cmcs),
+        bystanders=bystanders,
     )
 
 
 def generate(
     preset: CapturePreset, seed: int, out_path, progress: Callable[[int, int], None] | None = None
 ) -> CaptureSummary:
+    """Render and record the capture of ``preset`` for ``seed`` into the rosbag2 ``out_path``.
+    The simulated detector's keypoints (/cmc/<name>/agent_keypoints) are the agent's only,
+    as from a detector that already tracks it; bystanders show in the images and in the
+    ground truth (/gt/bystanders/...)."""
     setup = build_capture(preset, seed)
     scene, cmcs, walk, ego_cam, rng = setup.scene, setup.cmcs, setup.walk, setup.ego_camera, setup.rng
+    bystanders = setup.bystanders
     renderer = Renderer(scene)
     render_s, rendered = 0.0, 0
 
@@ -196,15 +209,20 @@ def generate(
     with BagWriter(out_path) as bag:
         rec = _Recorder(bag, preset)
         _write_static_ground_truth(bag, scene, cmcs, setup.clock_offsets_ns)
+        if bystanders:
+            bag.write(topics.GT_BYSTANDER_INFO, String(data=info_yaml(bystanders)), START_NS, latched=True)
         imu_writer = _ImuWriter(bag, imu, preset) if imu is not None else None
         for n, (stamp, kind, idx) in enumerate(events):
             if imu_writer:
                 imu_writer.until(stamp)
             t = (stamp - START_NS) / 1e9
             xy, heading, phase = walk.state_at(t)
+            others = [b.keypoints(t) for b in bystanders]
             if kind == "ego":
                 T = walk.ego_pose_at(t)
-                rgb, depth, _ = render(ego_cam, T)
+                # The renderer skips whoever is behind the camera or outside its image.
+                seen = [b.mesh(t) for b in bystanders] if preset.bystanders_in_ego_view else []
+                rgb, depth, _ = render(ego_cam, T, agent=seen or None)
                 header = Header(stamp=ns_to_time(stamp), frame_id=EGO_FRAME)
                 rec.color(
                     topics.EGO_COLOR,
@@ -228,11 +246,9 @@ def generate(
                 header = Header(stamp=ns_to_time(stamp), frame_id=f"{cmc.name}_optical_frame")
                 visible = agent_in_view(cmc, kps)
                 if preset.cmc_images:
-                    rgb = (
-                        render(cmc.camera, cmc.T_world_cam, agent_mesh(xy, heading, walk.height_m, phase))[0]
-                        if visible
-                        else backgrounds[idx][0]
-                    )
+                    people = [agent_mesh(xy, heading, walk.height_m, phase)] if visible else []
+                    people += [b.mesh(t) for b, k in zip(bystanders, others) if agent_in_view(cmc, k)]
+                    rgb = render(cmc.camera, cmc.T_world_cam, people)[0] if people else backgrounds[idx][0]
                     rec.color(
                         topics.cmc_image_topics(cmc.name),
                         topics.cmc_info_topic(cmc.name),
@@ -265,6 +281,18 @@ def generate(
                     ),
                     truth_stamp,
                 )
+                if bystanders:
+                    bag.write(
+                        topics.GT_BYSTANDER_KEYPOINTS,
+                        PoseArray(
+                            header=Header(stamp=ns_to_time(truth_stamp), frame_id="map"),
+                            poses=[
+                                Pose(position=p)
+                                for p in array_to_points([k[i] for k in others for i in GT_KEYPOINT_IDS])
+                            ],
+                        ),
+                        truth_stamp,
+                    )
                 counts["cmc"] += 1
                 counts["agent"] += int(len(det.ids) > 0)
             if progress:
@@ -281,6 +309,7 @@ def generate(
         render_seconds=render_s,
         rendered_frames=rendered,
         imu_samples=0 if imu is None else len(imu.stamps_ns),
+        bystanders=len(bystanders),
     )
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
+from .bystanders import BystanderSpec
 from .detector import DetectorSpec
 from .imu import ImuParams
 from .rig import CmcSpec
@@ -50,6 +51,10 @@ class CapturePreset:
     # generator of its own, so turning it off changes nothing else of the recording.
     imu: bool = True
     imu_params: ImuParams = field(default_factory=ImuParams)
+    # Other people walking about (issue #46), from a generator of their own: with count 0
+    # the recording is the agent's alone, as before.
+    bystanders: BystanderSpec = field(default_factory=BystanderSpec)
+    bystanders_in_ego_view: bool = True  # the ego images show the bystanders in view (as a real head camera)
 
 
 PRESETS = {

@@ -40,7 +40,8 @@ def render_preview(setup: CaptureSetup, path) -> None:
     scene, walk = setup.scene, setup.walk
     renderer = Renderer(scene)
     t_ego = walk.duration_s * 0.3
-    ego_rgb = renderer.render(setup.ego_camera, walk.ego_pose_at(t_ego))[0]
+    others = [b.mesh(t_ego) for b in setup.bystanders] if setup.preset.bystanders_in_ego_view else []
+    ego_rgb = renderer.render(setup.ego_camera, walk.ego_pose_at(t_ego), others)[0]
     # A CMC frame with the agent in view: the first camera and time that show it.
     cmc_rgb, cmc_title = None, ""
     for t in np.linspace(0, walk.duration_s, 200):
@@ -49,7 +50,8 @@ def render_preview(setup: CaptureSetup, path) -> None:
             kps = agent_keypoints_3d(xy, heading, walk.height_m, phase)
             uv, ok = cmc.camera.project_world(cmc.T_world_cam, np.array([kps[0], kps[1]]))
             if ok.all() and cmc.camera.in_image(uv, margin=20).all():
-                frame = renderer.render(cmc.camera, cmc.T_world_cam, agent_mesh(xy, heading, walk.height_m, phase))
+                people = [agent_mesh(xy, heading, walk.height_m, phase)] + [b.mesh(t) for b in setup.bystanders]
+                frame = renderer.render(cmc.camera, cmc.T_world_cam, people)
                 if frame.agent_mask.mean() > 0.01:  # visible, not behind a wall
                     cmc_rgb, cmc_title = frame.rgb, f"CMC {cmc.name} at t = {t:.1f} s"
                     break
@@ -74,6 +76,8 @@ def render_preview(setup: CaptureSetup, path) -> None:
         x0, y0, x1, y1 = f.bounds
         ax.fill([x0, x1, x1, x0], [y0, y0, y1, y1], color="tan", alpha=0.7)
     ax.plot(*walk.xy.T, color="tab:blue", lw=1, label="agent walk")
+    for i, b in enumerate(setup.bystanders):
+        ax.plot(*b.walk.xy.T, color=np.array(b.clothing.shirt) / 255, lw=0.7, ls="--", label=f"bystander {i}")
     colors = plt.cm.tab10(np.linspace(0, 1, max(len(setup.cmcs), 2)))
     for cmc, col in zip(setup.cmcs, colors):
         room = next(r for r in scene.rooms if r.name == cmc.room)

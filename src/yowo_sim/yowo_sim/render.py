@@ -16,6 +16,7 @@ texture; only the agent is shaded per pixel.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import cv2
@@ -227,8 +228,12 @@ class Renderer:
             self._grids[key] = grid
         return grid
 
-    def render(self, camera: CameraModel, T_world_cam: np.ndarray, agent: AgentMesh | None = None) -> RenderedFrame:
-        """Colour, z-depth and agent mask of ``camera`` at pose ``T_world_cam`` (4x4)."""
+    def render(
+        self, camera: CameraModel, T_world_cam: np.ndarray, agent: AgentMesh | Sequence[AgentMesh] | None = None
+    ) -> RenderedFrame:
+        """Colour, z-depth and agent mask of ``camera`` at pose ``T_world_cam`` (4x4).
+        ``agent``: one person's mesh or several (the agent and bystanders), each in
+        front of or behind the scene and the others pixel by pixel; the mask shows them all."""
         grid = self._grid(camera)
         shape = (grid.height, grid.width)
         T_world_cam = np.asarray(T_world_cam, dtype=np.float64)
@@ -266,8 +271,9 @@ class Renderer:
         shade = np.where(n_dot_d < 0, both_sides[:, 0], both_sides[:, 1])
         rgb = albedo * shade[:, None]
         agent_mask = np.zeros(len(depth), bool)
-        if agent is not None:
-            self._compose_agent(agent, T_world_cam, grid, depth, rgb, agent_mask)
+        # One person at a time: each keeps the nearer of itself and what is drawn so far.
+        for person in [agent] if isinstance(agent, AgentMesh) else agent or ():
+            self._compose_agent(person, T_world_cam, grid, depth, rgb, agent_mask)
         depth[miss & ~agent_mask] = np.nan
         rgb = np.clip(rgb + 0.5, 0.0, 255.0).astype(np.uint8)  # +0.5: round, not truncate
         return RenderedFrame(rgb.reshape(*shape, 3), depth.reshape(shape), agent_mask.reshape(shape))
@@ -303,6 +309,8 @@ class Renderer:
         nearer of agent and scene (in place)."""
         R, t = T_world_cam[:3, :3], T_world_cam[:3, 3]
         v_cam = np.einsum("ij,ik->jk", R, (np.asarray(agent.vertices, dtype=np.float64) - t).T).T  # no BLAS
+        if (v_cam[:, 2] <= 1e-3).all():  # behind the camera (a bystander behind the ego camera)
+            return
         if (v_cam[:, 2] > 1e-3).all():
             # The agent's image lies in the bounding box of its vertices' normalised
             # coordinates (a central projection keeps convex hulls), and the ray

@@ -4,6 +4,7 @@ by yowo_bringup.plugins): `simulate` and `demo`."""
 from __future__ import annotations
 
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 # --layout choices: YOWO's own names, or a real driver's (yowo_sim.driver_layout.LAYOUTS).
@@ -50,6 +51,8 @@ def cmd_simulate(args) -> int:
         overrides["cmc_clock_offset_s"] = args.cmc_clock_offset
     if args.no_imu:
         overrides["imu"] = False
+    if args.bystanders:
+        overrides["bystanders"] = replace(get_preset(args.preset).bystanders, count=args.bystanders)
     preset = get_preset(args.preset, **overrides)
     with Progress() as bar:
         task = bar.add_task(f"simulating '{args.preset}' (seed {args.seed})", total=None)
@@ -80,7 +83,9 @@ def cmd_simulate(args) -> int:
     print(
         f"wrote {output} ({args.layout} layout): {summary.duration_s:.1f} s walk, {summary.ego_frames} ego frames, "
         f"{summary.cmc_frames} CMC frames ({summary.cmc_frames_with_agent} with the agent detected), "
-        f"{len(summary.cmcs)} CMCs, {summary.imu_samples} IMU samples; rendering {fps:.1f} frames/s"
+        f"{len(summary.cmcs)} CMCs, {summary.imu_samples} IMU samples"
+        + (f", {summary.bystanders} bystanders" if summary.bystanders else "")
+        + f"; rendering {fps:.1f} frames/s"
     )
     return 0
 
@@ -120,6 +125,14 @@ def add_verbs(verbs) -> None:
         help="unsynchronised CMC clocks: each off the ego's by up to +-S seconds (default 0)",
     )
     p.add_argument("--no-imu", action="store_true", help="record no /ego/imu (an RGB-D camera without an IMU)")
+    p.add_argument(
+        "--bystanders",
+        type=int,
+        default=0,
+        metavar="N",
+        help="N other people walking about, some passing the agent; their keypoints only in /gt/bystanders/ "
+        "(default 0)",
+    )
     p.add_argument("--preview", metavar="PNG", help="also write a picture: ego frame, CMC frame, top view")
     p.add_argument(
         "--layout",

@@ -200,25 +200,51 @@ def _nearest_free(free: Polygon, p) -> np.ndarray:
     return np.array([q.x, q.y])
 
 
-def plan_walk(free: Polygon, start_xy, targets_xy: list, spec: WalkSpec, rng: np.random.Generator) -> Walk:
+class FloorRoutes:
+    """Shortest paths through the walkable floor (already shrunk by the body's clearance):
+    one visibility graph shared by every walk planned on it (the agent's, the bystanders')."""
+
+    def __init__(self, free):
+        self.free = free if isinstance(free, Polygon) else max(free.geoms, key=lambda g: g.area)
+        self.graph = _VisibilityGraph(self.free, _corner_nodes(self.free))
+
+    def nearest_free(self, p) -> np.ndarray:
+        return _nearest_free(self.free, p)
+
+    def path(self, a, b) -> np.ndarray:
+        """Corner points of the shortest path from a to b (both in the free floor)."""
+        return self.graph.path(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
+
+    def walk_through(self, waypoints: list, pauses: list, spec: WalkSpec, rng: np.random.Generator) -> Walk:
+        """Walk the waypoints in their order (the first is the start), standing pauses[i]
+        seconds at waypoints[i] (pauses[0]: before setting off)."""
+        points = [self.nearest_free(w) for w in waypoints]
+        legs, stops = [points[0][None]], [float(pauses[0])]
+        for a, b, pause in zip(points[:-1], points[1:], pauses[1:]):
+            leg = self.path(a, b)
+            legs.append(leg[1:])
+            stops += [0.0] * (len(leg) - 2) + [float(pause)]
+        return _timeline(np.vstack(legs), np.array(stops), spec, rng)
+
+
+def plan_walk(
+    free: Polygon | FloorRoutes, start_xy, targets_xy: list, spec: WalkSpec, rng: np.random.Generator
+) -> Walk:
     """Walk from start through every target (nearest-first order), pausing at each;
-    `free` is the walkable floor already shrunk by the body's clearance."""
-    free = free if isinstance(free, Polygon) else max(free.geoms, key=lambda g: g.area)
-    graph = _VisibilityGraph(free, _corner_nodes(free))
-    current = _nearest_free(free, start_xy)
-    remaining = [_nearest_free(free, t) for t in targets_xy]
-    legs, pauses = [current[None]], [0.0]
+    `free` is the walkable floor already shrunk by the body's clearance (or its routes)."""
+    routes = free if isinstance(free, FloorRoutes) else FloorRoutes(free)
+    current = routes.nearest_free(start_xy)
+    remaining = [routes.nearest_free(t) for t in targets_xy]
+    order, pauses = [current], [0.0]
     long_pause_at = int(rng.integers(len(remaining))) if remaining and spec.long_pause_s > 0 else -1
     visit = 0
     while remaining:
         k = int(np.argmin([np.linalg.norm(r - current) for r in remaining]))
-        target = remaining.pop(k)
-        leg = graph.path(current, target)
-        legs.append(leg[1:])
-        pauses += [0.0] * (len(leg) - 2) + [spec.pause_s + (spec.long_pause_s if visit == long_pause_at else 0.0)]
-        current, visit = target, visit + 1
-    corners = np.vstack(legs)
-    return _timeline(corners, np.array(pauses), spec, rng)
+        current = remaining.pop(k)
+        order.append(current)
+        pauses.append(spec.pause_s + (spec.long_pause_s if visit == long_pause_at else 0.0))
+        visit += 1
+    return routes.walk_through(order, pauses, spec, rng)
 
 
 def _resample(polyline: np.ndarray, spacing: float) -> np.ndarray:
@@ -275,9 +301,11 @@ def _leg_profile(length_m: float, spec: WalkSpec, dt: float) -> tuple[np.ndarray
 
 def _timeline(corners: np.ndarray, pauses: np.ndarray, spec: WalkSpec, rng: np.random.Generator) -> Walk:
     """Walk the corner path with rounded corners, speeding up from and slowing down to a
-    stand, standing still for pauses[i] seconds at corners[i]; sampled at SAMPLE_HZ."""
+    stand, standing still for pauses[i] seconds at corners[i] (pauses[0]: before setting
+    off); sampled at SAMPLE_HZ."""
     dt = 1.0 / SAMPLE_HZ
-    xy, moving, speed_frac = [corners[:1]], [np.array([False])], [np.zeros(1)]
+    n_wait = 1 + int(round(pauses[0] * SAMPLE_HZ))
+    xy, moving, speed_frac = [np.repeat(corners[:1], n_wait, axis=0)], [np.zeros(n_wait, bool)], [np.zeros(n_wait)]
     stops = [0] + [i for i in range(1, len(corners)) if pauses[i] > 0 or i == len(corners) - 1]
     for a, b in zip(stops[:-1], stops[1:]):
         path = _rounded(corners[a : b + 1])
