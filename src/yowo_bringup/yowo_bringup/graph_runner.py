@@ -73,7 +73,7 @@ def execute(
         # Ctrl-C (and SIGTERM) as KeyboardInterrupt, not rclpy's shutdown: the nodes are stopped
         # and the run log says the run was interrupted.
         with ros_context([], signal_handlers=False), _interrupted(lambda: time.monotonic() - t0) as stop:
-            monitor = RunMonitor(plan.stages, plan.outputs, plan.run_id)
+            monitor = RunMonitor(plan.stages, plan.outputs, plan.run_id, plan.streams)
             try:
                 for spec in plan.local_processes:  # replay last: it waits for the stages' subscriptions
                     sup.start(spec)

@@ -52,6 +52,8 @@ class RunPlan:
     nodes: list[NodeSpec]
     final_stage: str
     outputs: dict[str, str] = field(default_factory=dict)  # latched topic -> type the runner collects
+    # Stage streams the runner records whole into result.mcap (each camera's agent keypoints).
+    streams: dict[str, str] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     run_id: str = ""  # in every status: nodes ignore other runs' (see ros_domain.py)
     local: list[str] = field(default_factory=lambda: ["*"])  # patterns of the nodes this host starts
@@ -264,6 +266,7 @@ def plan_run(
         nodes=nodes,
         final_stage=final,
         outputs=outputs,
+        streams=keypoint_streams(mode, cameras),
         warnings=problems,
         run_id=run_id,
         config=config,
@@ -397,9 +400,18 @@ def plan_live(
         nodes=nodes,
         final_stage=final,
         outputs=outputs,
+        streams=keypoint_streams(mode, cameras),
         run_id=run_id,
         config=config,
     )
+
+
+def keypoint_streams(mode: str, cameras: list[str]) -> dict[str, str]:
+    """The agent keypoints each camera's tracker handed on (which person it took for the
+    walker, frame by frame): recorded into result.mcap."""
+    if mode == EGO:
+        return {}
+    return {topics.tracker_keypoints(c): "yowo_msgs/msg/AgentKeypoints" for c in cameras}
 
 
 # What the ego mapper publishes at the end of the walk (latched), collected by every run with a map.

@@ -11,7 +11,7 @@ from rclpy.node import Node
 from yowo_common import topics
 from yowo_common.ros.bag import message_class
 from yowo_common.ros.context import ros_context
-from yowo_common.ros.stage import LATCHED, RunFilter
+from yowo_common.ros.stage import DURABLE_STREAM, LATCHED, RunFilter
 from yowo_msgs.msg import ReplayStatus, StageStatus
 
 from .progress import DONE, FAILED, RUNNING, WAITING, RunProgress
@@ -47,7 +47,9 @@ def silent_inputs(
 
 
 class RunMonitor(Node):
-    def __init__(self, stages: list[str], outputs: dict[str, str], run_id: str = ""):
+    def __init__(
+        self, stages: list[str], outputs: dict[str, str], run_id: str = "", streams: dict[str, str] | None = None
+    ):
         super().__init__("yowo_run")
         self.run_id = run_id
         self.runs = RunFilter(run_id)
@@ -65,6 +67,14 @@ class RunMonitor(Node):
         for topic, msgtype in outputs.items():
             self.create_subscription(
                 message_class(msgtype), topic, lambda m, t=topic: self.outputs.__setitem__(t, m), LATCHED
+            )
+        # Streams: every message, in `outputs` as a list (the stages publish them durable).
+        for topic, msgtype in (streams or {}).items():
+            self.create_subscription(
+                message_class(msgtype),
+                topic,
+                lambda m, t=topic: self.outputs.setdefault(t, []).append(m),
+                DURABLE_STREAM,
             )
 
     def _on_status(self, stage: str, msg: StageStatus) -> None:

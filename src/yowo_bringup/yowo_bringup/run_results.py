@@ -220,10 +220,15 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
             shutil.rmtree(old)
         elif old.exists():
             old.unlink()
+    streams = {t: m for t, m in outputs.items() if isinstance(m, list)}
+    outputs = {t: m for t, m in outputs.items() if t not in streams}
     stamp = max((stamp_to_ns(m.header.stamp) for m in outputs.values() if hasattr(m, "header")), default=0)
     with BagWriter(staging) as bag:
         for topic, msg in outputs.items():
             bag.write(topic, msg, stamp, latched=True)  # every collected output is latched
+        for topic, msgs in streams.items():  # a stream's messages at their own stamps
+            for msg in msgs:
+                bag.write(topic, msg, stamp_to_ns(msg.header.stamp))
         # Each registered camera's intrinsics in its optical frame: Foxglove / RViz draw its frustum.
         for c in cameras:
             if c.camera is not None and c.T_world_cam is not None:

@@ -55,8 +55,17 @@ class GroupSfmNode(StageNode):
         self.acc[camera].add(frame)
 
     def finalize(self) -> str:
-        usable = [a for a in self.acc.values() if a.camera is not None]
+        usable = [a for a in self.acc.values() if a.camera is not None and a.frames]
         unusable = {a.name: a.unusable_reason() for a in self.acc.values() if a.camera is None}
+        # A tracker that found no walker (or nobody) says why in its summary.
+        unusable.update(
+            {
+                a.name: "its tracker published no agent keypoints: "
+                + self.upstream_summaries.get(topics.tracker_stage(a.name), "")
+                for a in self.acc.values()
+                if a.camera is not None and not a.frames
+            }
+        )
         tracks = [a.tracks() for a in usable]
         result = calibrate_cmcs_apart(tracks, self.cmc, self.estimate)
         result.ungrouped.update(unusable)

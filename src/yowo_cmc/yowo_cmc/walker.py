@@ -64,7 +64,7 @@ class WalkerChoice:
 
         head = f"walker: track {', '.join(map(str, self.track_ids))}" if self.track_ids else f"no walker: {self.reason}"
         if self.clock_offset_s is not None:
-            head += f" (motions agree at clock offset {self.clock_offset_s:+.1f} s)"
+            head += f" (motions agree at clock offset {round(self.clock_offset_s, 1) + 0.0:+.1f} s)"
         return head + ("; " + "; ".join(one(e) for e in self.evidence) if self.evidence else "")
 
 

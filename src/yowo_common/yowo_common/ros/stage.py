@@ -87,6 +87,7 @@ class StageNode(Node):
         self._replay_readers: list = []
         self._status_pub = self.create_publisher(StageStatus, topics.status(self.stage), LATCHED, **OWN_PUB)
         self._watched: set[str] = set()
+        self.upstream_summaries: dict[str, str] = {}  # upstream stage -> its final summary or failure
         self._finalized = False
         self._announced = False
         self.create_timer(0.2, self._check)
@@ -175,6 +176,7 @@ class StageNode(Node):
         if not self.runs.accept(msg):
             return
         if msg.state in (StageStatus.STATE_FINISHED, StageStatus.STATE_FAILED):
+            self.upstream_summaries[upstream] = msg.message
             self.completion.on_upstream_finished(upstream, msg.topics, msg.published_counts)
 
     # --- lifecycle ----------------------------------------------------------------
