@@ -75,9 +75,8 @@ def test_the_walker_is_the_person_who_stops_when_the_head_camera_stops():
     choice = choose_walker(tracks, ego, PeopleParams())
     assert [names[k] for k in choice.track_ids] == ["walker"], choice.summary()
     assert choice.clock_offset_s == pytest.approx(offset_s, abs=0.25)
-    by_id = {e.track_id: e for e in choice.evidence}
-    walker = by_id[choice.track_ids[0]]
-    other = next(e for e in choice.evidence if names[e.track_id] == "other")
+    walker = next(e for e in choice.evidence if names[e.track_ids[0]] == "walker")
+    other = next(e for e in choice.evidence if names[e.track_ids[0]] == "other")
     assert walker.agreement > 0.9 and other.agreement < 0.7 and not walker.alone
     assert "walker: track" in choice.summary()
 

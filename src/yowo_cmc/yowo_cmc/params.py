@@ -272,7 +272,10 @@ class PeopleParams:
     # Largest clothes-colour (Bhattacharyya) distance at which a person may continue a track
     # [distance]. Two people in different clothes are far apart; one person's own look changes
     # with the view and the light.
-    max_appearance_distance: float = 0.6
+    max_appearance_distance: float = 0.45
+    # Largest clothes-colour distance at which two tracks of one camera, never in view at once,
+    # are joined as one person's [distance].
+    link_appearance_distance: float = 0.4
     appearance_weight: float = 1.0  # weight of the colour distance against the move [body heights]
     appearance_rate: float = 0.1  # share of each new image in a track's appearance [share]
     lost_after_s: float = 1.5  # a track not seen for this long ends; a later person starts a new one
@@ -295,9 +298,10 @@ class PeopleParams:
     # Agreement (balanced over the ego's walking and standing) a track needs to be the walker
     # [share]; an unrelated person agrees half of the time.
     accept_agreement: float = 0.75
-    # Lead over any other person seen at the same time in the same camera [share]. Less: no
-    # track is clearly the walker, and the camera is not registered from a guess.
-    min_margin: float = 0.15
+    # Lead of the agreement's lower confidence bound over that of any other person seen at the
+    # same time in the same camera [share]. Less: no track is clearly the walker, and the camera
+    # is not registered from a guess.
+    min_margin: float = 0.05
     # The one person a camera ever sees is not the walker when its agreement is below this
     # [share] (it moves unlike the head camera).
     reject_agreement: float = 0.6

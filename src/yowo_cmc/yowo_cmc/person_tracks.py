@@ -127,8 +127,8 @@ class PersonTracker:
                     look = appearance_distance(t.look, looks[j])
                     if move > p.max_move_heights + p.max_speed_heights_s * dt or size > p.max_size_change:
                         continue
-                    if look > p.max_appearance_distance:
-                        continue
+                    if t.look is not None and looks[j] is not None and look > p.max_appearance_distance:
+                        continue  # unknown (crowded) looks neither continue nor break a track
                     cost[i, j] = move + size + p.appearance_weight * look
             finite = np.where(np.isfinite(cost), cost, 1e9)
             for i, j in zip(*linear_sum_assignment(finite)):
@@ -156,3 +156,27 @@ class PersonTracker:
         t.crowded.append(crowded)
         if look is not None:
             t.look = look if t.look is None else (1 - self.p.appearance_rate) * t.look + self.p.appearance_rate * look
+
+
+def identities(tracks: list[PersonTrack], params: PeopleParams) -> list[list[PersonTrack]]:
+    """Tracks of one person joined: a person who leaves the view (or is hidden for longer than
+    lost_after_s) comes back as a new track. Two groups join when no two of their tracks were
+    in view at once and every pair of their tracks' clothes is within link_appearance_distance
+    (complete linkage: no chain of small steps from one person to another); closest first."""
+    n = len(tracks)
+    seen = [set(t.stamps_ns) for t in tracks]
+    D = np.full((n, n), np.inf)  # between two tracks: inf when both were in view at once
+    for i in range(n):
+        for j in range(i + 1, n):
+            if tracks[i].look is not None and tracks[j].look is not None and not seen[i] & seen[j]:
+                D[i, j] = D[j, i] = appearance_distance(tracks[i].look, tracks[j].look)
+    groups = [[i] for i in range(n)]
+    while len(groups) > 1:
+        d, a, b = min(
+            (D[np.ix_(g, h)].max(), a, b) for a, g in enumerate(groups) for b, h in enumerate(groups) if a < b
+        )
+        if d > params.link_appearance_distance:
+            break
+        groups[a] = groups[a] + groups.pop(b)
+    groups = [[tracks[i] for i in g] for g in groups]
+    return [sorted(g, key=lambda t: t.stamps_ns[0]) for g in groups]

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .params import PeopleParams
-from .person_tracks import PersonTrack, box_height
+from .person_tracks import PersonTrack, appearance_distance, box_height, identities
 
 
 @dataclass(kw_only=True)
@@ -40,12 +40,14 @@ class EgoMotion:
 
 
 @dataclass(kw_only=True)
-class TrackEvidence:
-    track_id: int
+class PersonEvidence:
+    track_ids: list[int]  # one person's tracks in this camera (person_tracks.identities)
     images: int
     seconds: float
     agreement: float | None  # None: not informative (too short, or the ego camera only walked or stood)
-    alone: bool  # nobody else was in view while this track was
+    # The agreement's lower confidence bound: its samples a smoothing window apart count as independent.
+    confidence: float | None
+    alone: bool  # nobody else was in view while this person was
     walker: bool
     why: str
 
@@ -54,13 +56,16 @@ class TrackEvidence:
 class WalkerChoice:
     track_ids: list[int]  # the walker's tracks (a walker leaving the view and coming back: several)
     clock_offset_s: float | None  # camera clock - ego clock at which the motions agreed best
-    evidence: list[TrackEvidence] = field(default_factory=list)
+    evidence: list[PersonEvidence] = field(default_factory=list)
     reason: str = ""  # why no track is the walker
 
     def summary(self) -> str:
-        def one(e: TrackEvidence) -> str:
-            score = "no evidence" if e.agreement is None else f"agreement {e.agreement:.2f}"
-            return f"track {e.track_id} ({e.seconds:.1f} s, {score}{'' if e.alone else ', others in view'}: {e.why})"
+        def one(e: PersonEvidence) -> str:
+            score = "no evidence" if e.agreement is None else f"agreement {e.agreement:.2f} (>= {e.confidence:.2f})"
+            return (
+                f"person of track {'+'.join(map(str, e.track_ids))} ({e.seconds:.1f} s, {score}"
+                f"{'' if e.alone else ', others in view'}: {e.why})"
+            )
 
         head = f"walker: track {', '.join(map(str, self.track_ids))}" if self.track_ids else f"no walker: {self.reason}"
         if self.clock_offset_s is not None:
@@ -101,33 +106,36 @@ def _agreement(moving: np.ndarray, ego_moving: np.ndarray, p: PeopleParams) -> t
     return 0.5 * (float(m[e].mean()) + float((~m[~e]).mean())), n
 
 
-def _overlaps(a: PersonTrack, b: PersonTrack) -> bool:
-    """Whether two tracks share images (both people in view at once)."""
-    return bool(set(a.stamps_ns) & set(b.stamps_ns))
+def _overlaps(a: list[PersonTrack], b: list[PersonTrack]) -> bool:
+    """Whether two people's tracks share images (both in view at once)."""
+    seen = set().union(*(t.stamps_ns for t in a))
+    return any(not seen.isdisjoint(t.stamps_ns) for t in b)
 
 
 def choose_walker(tracks: list[PersonTrack], ego: EgoMotion | None, params: PeopleParams) -> WalkerChoice:
     p = params
-    candidates = [t for t in tracks if t.seconds() >= p.min_track_s]
-    if not candidates:
+    everyone = identities(tracks, p)
+    people = [g for g in everyone if sum(t.seconds() for t in g) >= p.min_track_s]
+    if not people:
         return WalkerChoice(track_ids=[], clock_offset_s=None, reason="no person seen long enough")
-    alone = {t.track_id: not any(_overlaps(t, o) for o in tracks if o is not t) for t in candidates}
+    alone = [not any(_overlaps(g, o) for o in everyone if o is not g) for g in people]
     if ego is None or len(ego.stamps_ns) < 2:
-        return _without_ego(candidates, alone)
-    # Walking/standing of each candidate on its own grid, and the ego camera's at every offset.
+        return _without_ego(people, alone)
+    # Walking/standing of each person on its tracks' grids, and the ego camera's at every offset.
     lags_s = np.arange(-p.max_clock_offset_s, p.max_clock_offset_s + 1e-9, p.grid_s)
-    scores = np.full((len(candidates), len(lags_s)), np.nan)
+    scores = np.full((len(people), len(lags_s)), np.nan)
     shared = np.zeros_like(scores)
-    for i, t in enumerate(candidates):
-        grid = np.arange(t.stamps_ns[0], t.stamps_ns[-1] + 1, p.grid_s * 1e9)
-        moving = _track_speed(t, grid, p.smooth_s)
-        moving = np.where(np.isnan(moving), np.nan, moving > p.track_moving_heights_s)
+    for i, g in enumerate(people):
+        grids = [np.arange(t.stamps_ns[0], t.stamps_ns[-1] + 1, p.grid_s * 1e9) for t in g]
+        v = np.concatenate([_track_speed(t, grid, p.smooth_s) for t, grid in zip(g, grids)])
+        moving = np.where(np.isnan(v), np.nan, v > p.track_moving_heights_s)
+        grid = np.concatenate(grids)
         for k, lag in enumerate(lags_s):
             ego_v = ego.speed_mps(grid - lag * 1e9, p.smooth_s)
             ego_m = np.where(np.isnan(ego_v), np.nan, ego_v > p.ego_moving_mps)
             a, shared[i, k] = _agreement(moving, ego_m, p)
             scores[i, k] = np.nan if a is None else a
-    # The camera's offset: where the tracks together agree most beyond chance, over the most
+    # The camera's offset: where its people together agree most beyond chance, over the most
     # shared time (ties: nearest 0).
     gain = np.nansum(np.clip(scores - 0.5, 0, None) * shared, axis=0)
     if not np.any(gain > 0):
@@ -135,58 +143,85 @@ def choose_walker(tracks: list[PersonTrack], ego: EgoMotion | None, params: Peop
     else:
         best = np.flatnonzero(gain >= gain.max() - 1e-12)
         k = int(best[np.argmin(np.abs(lags_s[best]))])
-    at = {t.track_id: (None if np.isnan(scores[i, k]) else float(scores[i, k])) for i, t in enumerate(candidates)}
+    at = [None if np.isnan(scores[i, k]) else float(scores[i, k]) for i in range(len(people))]
+    sure = [None if a is None else _lower_bound(a, shared[i, k] * p.grid_s / p.smooth_s) for i, a in enumerate(at)]
     evidence = []
-    for t in candidates:
-        a = at[t.track_id]
-        others = [at[o.track_id] for o in candidates if o is not t and _overlaps(t, o)]
-        others = [x for x in others if x is not None]
-        if alone[t.track_id]:
+    for i, g in enumerate(people):
+        a = at[i]
+        others = [sure[j] for j, o in enumerate(people) if j != i and sure[j] is not None and _overlaps(g, o)]
+        if alone[i]:
             walker = a is None or a >= p.reject_agreement
             why = "alone in view" if walker else "alone in view, but moves unlike the head camera"
         elif a is None:
             walker, why = False, "others in view and no motion evidence to tell them apart"
         elif a < p.accept_agreement:
             walker, why = False, "moves unlike the head camera"
-        elif others and a < max(others) + p.min_margin:
+        elif others and sure[i] < max(others) + p.min_margin:
             walker, why = False, "another person in view moves as much like the head camera"
         else:
             walker, why = True, "moves like the head camera"
-        evidence.append(
-            TrackEvidence(
-                track_id=t.track_id,
-                images=len(t.stamps_ns),
-                seconds=t.seconds(),
-                agreement=a,
-                alone=alone[t.track_id],
-                walker=walker,
-                why=why,
-            )
-        )
-    chosen = [e.track_id for e in evidence if e.walker]
+        evidence.append(_evidence(g, a, alone[i], walker, why, sure[i]))
+    _one_walker(people, evidence, p)
+    chosen = sorted(t.track_id for g, e in zip(people, evidence) if e.walker for t in g)
     reason = "" if chosen else "no track is clearly the walker"
     offset = float(lags_s[k]) if np.any(gain > 0) else None
     return WalkerChoice(track_ids=chosen, clock_offset_s=offset, evidence=evidence, reason=reason)
 
 
-def _without_ego(candidates: list[PersonTrack], alone: dict[int, bool]) -> WalkerChoice:
-    """No ego trajectory (a CMC-only calibration): the people alone in view, else the
-    longest track."""
-    ids = [t.track_id for t in candidates if alone[t.track_id]]
+def _one_walker(people: list[list[PersonTrack]], evidence: list[PersonEvidence], p: PeopleParams) -> None:
+    """One person in a camera is the walker: of several accepted, the one agreeing most surely
+    (no evidence counts as chance), then the longest; the others are kept only when
+    their clothes look like it (one person split where its look changed across the view)."""
+    accepted = [i for i, e in enumerate(evidence) if e.walker]
+    if len(accepted) < 2:
+        return
+    best = max(accepted, key=lambda i: (evidence[i].confidence or 0.5, evidence[i].seconds))
+    for i in accepted:
+        if i != best and _look_distance(people[i], people[best]) > p.max_appearance_distance:
+            evidence[i].walker = False
+            evidence[i].why += "; but another person here moves more like the head camera"
+
+
+def _look_distance(a: list[PersonTrack], b: list[PersonTrack]) -> float:
+    looks = [[t.look for t in g if t.look is not None] for g in (a, b)]
+    if not looks[0] or not looks[1]:
+        return 0.5
+    return appearance_distance(*(np.mean(x, axis=0) for x in looks))
+
+
+def _lower_bound(agreement: float, n: float, z: float = 1.645) -> float:
+    """Wilson's lower bound (one-sided 95 %) of an agreement over n independent samples: a
+    short track that agrees by chance is less sure than a long one that agrees as well."""
+    if n <= 0:
+        return 0.0
+    centre = agreement + z * z / (2 * n)
+    spread = z * np.sqrt(agreement * (1 - agreement) / n + z * z / (4 * n * n))
+    return float((centre - spread) / (1 + z * z / n))
+
+
+def _evidence(g: list[PersonTrack], agreement, alone: bool, walker: bool, why: str, sure=None) -> PersonEvidence:
+    return PersonEvidence(
+        track_ids=[t.track_id for t in g],
+        images=sum(len(t.stamps_ns) for t in g),
+        seconds=sum(t.seconds() for t in g),
+        agreement=agreement,
+        confidence=sure,
+        alone=alone,
+        walker=walker,
+        why=why,
+    )
+
+
+def _without_ego(people: list[list[PersonTrack]], alone: list[bool]) -> WalkerChoice:
+    """No ego trajectory (a CMC-only calibration): the people alone in view, else the person
+    seen longest."""
+    chosen = [i for i in range(len(people)) if alone[i]]
     why = "alone in view (no ego trajectory to check)"
-    if not ids:
-        ids = [max(candidates, key=lambda t: len(t.stamps_ns)).track_id]
-        why = "the longest track among others in view (no ego trajectory to tell them apart)"
+    if not chosen:
+        chosen = [max(range(len(people)), key=lambda i: sum(len(t.stamps_ns) for t in people[i]))]
+        why = "seen longest among others in view (no ego trajectory to tell them apart)"
     evidence = [
-        TrackEvidence(
-            track_id=t.track_id,
-            images=len(t.stamps_ns),
-            seconds=t.seconds(),
-            agreement=None,
-            alone=alone[t.track_id],
-            walker=t.track_id in ids,
-            why=why if t.track_id in ids else "not chosen",
-        )
-        for t in candidates
+        _evidence(g, None, alone[i], i in chosen, why if i in chosen else "not chosen") for i, g in enumerate(people)
     ]
+    ids = sorted(t.track_id for i in chosen for t in people[i])
     return WalkerChoice(track_ids=ids, clock_offset_s=None, evidence=evidence)
