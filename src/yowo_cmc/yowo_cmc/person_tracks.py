@@ -92,7 +92,7 @@ class PersonTrack:
 
 class PersonTracker:
     """Tracks of every person one camera sees. `update` per image returns, for each person
-    assigned to a track, (track, pose, crowded)."""
+    assigned to a track, (track, pose, the boxes of the others overlapping it)."""
 
     def __init__(self, params: PeopleParams = PeopleParams()):
         self.p = params
@@ -106,10 +106,11 @@ class PersonTracker:
         self, stamp_ns: int, rgb: np.ndarray, people: list[PersonPose]
     ) -> list[tuple[PersonTrack, PersonPose, bool]]:
         p = self.p
-        crowded = [
-            any(box_iou(q.box, o.box) >= p.crowded_iou for j, o in enumerate(people) if j != i)
+        overlapping = [
+            [o.box for j, o in enumerate(people) if j != i and box_iou(q.box, o.box) >= p.crowded_iou]
             for i, q in enumerate(people)
         ]
+        crowded = [bool(o) for o in overlapping]
         # An overlapped box's colours are partly the other person's: no evidence either way.
         looks = [None if c else appearance(rgb, q.box) for q, c in zip(people, crowded)]
         live = self.active(stamp_ns)
@@ -142,7 +143,7 @@ class PersonTracker:
                 self._next_id += 1
                 self.tracks.append(track)
             self._extend(track, stamp_ns, q, crowded[j], looks[j])
-            out.append((track, q, crowded[j]))
+            out.append((track, q, np.array(overlapping[j]).reshape(-1, 4)))
         return out
 
     def _extend(self, t: PersonTrack, stamp_ns: int, q: PersonPose, crowded: bool, look) -> None:

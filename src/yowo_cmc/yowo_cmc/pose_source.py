@@ -19,8 +19,8 @@ class PoseKeypointSource:
     """The pose model on one camera's image stream: every person tracked
     (person_tracks.PersonTracker), left and right of each track made right or absent by its
     own LeftRight, and at the end of the stream the walker's tracks chosen (walker) from
-    the ego camera's motion. Images where another person's box overlaps the walker's are
-    left out: their keypoints may be the other person's. `committed` once the model has
+    the ego camera's motion. Where another person's box overlaps the walker's, the walker's
+    keypoints inside it are left out: they may be the other person's. `committed` once the model has
     seen someone in `min_frames` images (a camera whose images hold nobody the model
     recognises falls back to the model-free detector; a few false detections must not
     decide it)."""
@@ -33,7 +33,7 @@ class PoseKeypointSource:
         self.choice: WalkerChoice | None = None
         self._left_right: dict[int, LeftRight] = {}
         self._resolved: dict[int, list[tuple[int, PersonPose]]] = {}  # track -> (stamp, pose) in order
-        self._crowded: dict[int, set[int]] = {}  # track -> stamps where another box overlapped it
+        self._crowded: dict[int, dict[int, np.ndarray]] = {}  # track -> stamp -> others' boxes over it
 
     @property
     def committed(self) -> bool:
@@ -46,13 +46,13 @@ class PoseKeypointSource:
         if not people:
             return False
         self.with_people += 1
-        for track, pose, crowded in self.tracker.update(stamp_ns, rgb, people):
+        for track, pose, others in self.tracker.update(stamp_ns, rgb, people):
             k = track.track_id
             if k not in self._left_right:
                 self._left_right[k] = LeftRight(lr_pairs(self.detector.joints), self.detector.params)
-                self._resolved[k], self._crowded[k] = [], set()
-            if crowded:
-                self._crowded[k].add(stamp_ns)
+                self._resolved[k], self._crowded[k] = [], {}
+            if len(others):
+                self._crowded[k][stamp_ns] = others
             self._resolved[k] += self._left_right[k].push(stamp_ns, k, pose)
         return True
 
@@ -64,12 +64,11 @@ class PoseKeypointSource:
         self.choice = choose_walker(self.tracker.tracks, ego, self.people)
         min_score = self.detector.params.min_keypoint_score
         frames = [
-            pose.frame(stamp, min_score)
+            _outside(pose.frame(stamp, min_score), self._crowded[k].get(stamp))
             for k in self.choice.track_ids
             for stamp, pose in self._resolved[k]
-            if stamp not in self._crowded[k]
         ]
-        return sorted(frames, key=lambda f: f.stamp_ns)
+        return sorted((f for f in frames if len(f.ids)), key=lambda f: f.stamp_ns)
 
     def summary(self) -> str:
         p = self.detector.params
@@ -83,6 +82,17 @@ class PoseKeypointSource:
         if self.choice is not None:
             out += f"; {self.choice.summary()}"
         return out + f"; left/right pairs {kept} kept, {swapped} swapped, {dropped} dropped"
+
+
+def _outside(frame: KeypointFrame, boxes: np.ndarray | None) -> KeypointFrame:
+    """The frame's keypoints outside other people's boxes (inside one, a keypoint may be
+    the other person's)."""
+    if boxes is None:
+        return frame
+    u, v = frame.uv[:, 0:1], frame.uv[:, 1:2]
+    inside = ((u >= boxes[:, 0]) & (u <= boxes[:, 2]) & (v >= boxes[:, 1]) & (v <= boxes[:, 3])).any(axis=1)
+    keep = ~inside
+    return KeypointFrame(frame.stamp_ns, frame.ids[keep], frame.uv[keep], frame.confidence[keep])
 
 
 class PoseOrDetectorSource:
