@@ -276,6 +276,29 @@ def _metrics_html(metrics: dict) -> str:
     return "\n".join(parts)
 
 
+def _walkers_html(walkers: dict[str, dict]) -> str:
+    """Per camera, each person its pose model tracked: tracks, time in view, agreement of its
+    walking and standing with the head camera's, and the decision."""
+    rows = []
+    for name, w in sorted(walkers.items()):
+        people = w.get("people") or [{}]
+        for k, e in enumerate(people):
+            agreement = "-" if e.get("agreement") is None else f"{e['agreement']:.2f} (&ge; {e['confidence']:.2f})"
+            cells = [
+                html.escape(name) if k == 0 else "",
+                ", ".join(map(str, e.get("tracks", []))) or "-",
+                f"{e['seconds']:.1f}" if "seconds" in e else "-",
+                agreement,
+                "<b>walker</b>" if e.get("walker") else "",
+                html.escape(e.get("why") or w.get("reason", "")),
+            ]
+            rows.append("<tr>" + "".join(f"<td>{x}</td>" for x in cells) + "</tr>")
+    return (
+        "<table><tr><th>camera</th><th>tracks</th><th>seen [s]</th><th>agreement with the head camera</th>"
+        "<th></th><th>why</th></tr>" + "".join(rows) + "</table>"
+    )
+
+
 def write_report(
     path: Path,
     title: str,
@@ -288,9 +311,11 @@ def write_report(
     walls: list[np.ndarray] | None = None,
     fits=(),
     no_cameras: str = "",
+    walkers: dict[str, dict] | None = None,
 ) -> None:
     """`fits`: (AgentFit, (width, height), background RGB or None) per grouped camera;
-    `no_cameras`: why the run registered none (an ego-only run), shown instead of the table."""
+    `no_cameras`: why the run registered none (an ego-only run), shown instead of the table;
+    `walkers`: per camera of the pose model, the person taken for the walker and the evidence."""
     png = base64.b64encode(top_view_png(cameras, ego_xy, floors, gt_cameras, walls)).decode()
     doc = f"""<!doctype html><html><head><meta charset="utf-8"><title>YOWO report: {html.escape(title)}</title>
 <style>body{{font-family:sans-serif;margin:2em}} table{{border-collapse:collapse}}
@@ -299,6 +324,7 @@ td,th{{border:1px solid #ccc;padding:3px 8px;font-size:13px}}</style></head><bod
 <img src="data:image/png;base64,{png}" alt="top view">
 <h2>Cameras</h2>{f"<p>{html.escape(no_cameras)}</p>" if no_cameras else _camera_table(cameras)}
 {"<h2>Per camera: the agent track in its view</h2>" + _panels_html(fits) if fits else ""}
+{"<h2>Who is the walker</h2>" + _walkers_html(walkers) if walkers else ""}
 {"<h2>Metrics against ground truth</h2>" + _metrics_html(metrics) if metrics else ""}
 {"<h2>Notes</h2><ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>" if notes else ""}
 </body></html>"""

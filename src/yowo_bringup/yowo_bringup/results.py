@@ -127,13 +127,19 @@ def keypoint_noise_entry(group: CameraGroupResult | None) -> dict:
 
 
 def write_cameras_yaml(
-    path: Path, cameras: list[RegisteredCmc], groups: list[CameraGroupResult] = (), cmc: CmcParams = CmcParams()
+    path: Path,
+    cameras: list[RegisteredCmc],
+    groups: list[CameraGroupResult] = (),
+    cmc: CmcParams = CmcParams(),
+    walkers: dict[str, dict] | None = None,
 ) -> None:
     """Per CMC: how it was registered, T_world_camera (map -> <name>_optical_frame),
     the 6x6 covariance (x, y, z, rx, ry, rz; m^2, rad^2), intrinsics and distortion, clock
-    offset, its group's keypoint noise (from `groups`), RMSE, counts, and its coverage
+    offset, its group's keypoint noise (from `groups`), RMSE, counts, its coverage
     (yowo_cmc.coverage with the run's cmc.coverage and cmc.sfm, from its group's agent points:
-    the tracks are not kept here)."""
+    the tracks are not kept here) and, for the pose model's cameras, which person was taken
+    for the walker and why (`walkers`, yowo_cmc.walker.WalkerChoice.as_dict)."""
+    walkers = walkers or {}
     group_by_id = {g.group_id: g for g in groups}
     coverage = group_coverage(
         list(groups),
@@ -164,6 +170,7 @@ def write_cameras_yaml(
                 "num_agent_observations": int(c.num_agent),
                 "num_scene_observations": int(c.num_scene),
                 **coverage_entry(coverage.get(c.name)),
+                **({"walker": walkers[c.name]} if c.name in walkers else {}),
             }
         )
         out.append(entry)

@@ -168,7 +168,7 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
         write_no_cameras_yaml(out / "cameras.yaml", f"ego-only run: {plan.mode_reason}", plan.cmc_problems)
         files.append(out / "cameras.yaml")
     elif cameras:
-        write_cameras_yaml(out / "cameras.yaml", cameras, groups, plan.config.cmc)
+        write_cameras_yaml(out / "cameras.yaml", cameras, groups, plan.config.cmc, walkers(plan, outputs))
         files.append(out / "cameras.yaml")
         ego = _export_ego_keyframes(outputs)
         files += write_exports(out / "export", cameras, groups, ego, _export_images(plan, outputs, ego))
@@ -260,6 +260,7 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
         walls,
         [(f, size, decode_color(bg) if bg is not None else None) for f, size, bg in fits],
         no_cameras=f"No camera registered (ego-only run): {plan.mode_reason}" if plan.mode == EGO else "",
+        walkers=walkers(plan, outputs),
     )
     files.append(out / "report.html")
     if metrics:
@@ -304,3 +305,12 @@ def _export_ego_keyframes(outputs: dict):
         if all(int(s) in refined for s in ego.stamps_ns):
             ego = replace(ego, T_world_ego=np.array([refined[int(s)] for s in ego.stamps_ns]).reshape(-1, 4, 4))
     return ego
+
+
+def walkers(plan: RunPlan, outputs: dict) -> dict[str, dict]:
+    """Per camera of the pose model, which person its tracker took for the walker and why."""
+    return {
+        c: yaml.safe_load(outputs[topics.tracker_walker(c)].data)
+        for c in plan.cameras
+        if topics.tracker_walker(c) in outputs
+    }

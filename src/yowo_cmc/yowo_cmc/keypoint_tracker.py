@@ -129,6 +129,16 @@ class KeypointTracker:
             return []
         return self._keep(self.detector.flush(ego) if self.source == "pose" else self.detector.flush())
 
+    def walker(self) -> dict | None:
+        """Which person the pose model's source took for the walker and why (after `flush`);
+        None for the other sources."""
+        if self.source != "pose":
+            return None
+        pose = self.detector.pose
+        if self.detector.uses_pose and pose.choice is not None:
+            return pose.choice.as_dict()
+        return {"tracks": [], "clock_offset_s": None, "reason": self.detector.summary(), "people": []}
+
     def background(self) -> np.ndarray | None:
         """The agent-free background (RGB): the detector's model, else sampled images' median."""
         if self.detector is not None and self.detector.background is not None:

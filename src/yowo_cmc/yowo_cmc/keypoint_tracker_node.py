@@ -20,9 +20,10 @@ intrinsics file), those; or, with `info_topic:=""` (no CameraInfo at all), a nom
 from __future__ import annotations
 
 import numpy as np
+import yaml
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
-from std_msgs.msg import Header
+from std_msgs.msg import Header, String
 
 from yowo_common import topics
 from yowo_common.camera import CameraModel
@@ -71,6 +72,7 @@ class KeypointTrackerNode(StageNode):
         self.pub = self.output(AgentKeypoints, topics.tracker_keypoints(camera))
         self.pub_background = self.output(Image, topics.tracker_background(camera), LATCHED)
         self.pub_info = self.output(CameraInfo, topics.tracker_camera_info(camera), LATCHED)
+        self.pub_walker = self.output(String, topics.tracker_walker(camera), LATCHED)
         for problem in (self.tracker.problem, getattr(self.tracker.detector, "problem", "")):
             if problem:
                 self.get_logger().error(problem)
@@ -142,6 +144,9 @@ class KeypointTrackerNode(StageNode):
                 stamps_ns=np.asarray(self.ego_stamps_ns)[order], positions=np.asarray(self.ego_positions)[order]
             )
         self.publish_frames(self.tracker.flush(ego))
+        walker = self.tracker.walker()
+        if walker is not None:
+            self.pub_walker.publish(String(data=yaml.safe_dump(walker, sort_keys=False)))
         summary, background = self.tracker.summary(), self.tracker.background()
         if background is None:
             return summary

@@ -59,6 +59,26 @@ class WalkerChoice:
     evidence: list[PersonEvidence] = field(default_factory=list)
     reason: str = ""  # why no track is the walker
 
+    def as_dict(self) -> dict:
+        """For cameras.yaml: the walker's tracks, the clock offset and each person's evidence."""
+        return {
+            "tracks": list(self.track_ids),
+            "clock_offset_s": None if self.clock_offset_s is None else round(self.clock_offset_s, 2) + 0.0,
+            "reason": self.reason,
+            "people": [
+                {
+                    "tracks": e.track_ids,
+                    "seconds": round(e.seconds, 2),
+                    "agreement": None if e.agreement is None else round(e.agreement, 3),
+                    "confidence": None if e.confidence is None else round(e.confidence, 3),
+                    "alone": e.alone,
+                    "walker": e.walker,
+                    "why": e.why,
+                }
+                for e in self.evidence
+            ],
+        }
+
     def summary(self) -> str:
         def one(e: PersonEvidence) -> str:
             score = "no evidence" if e.agreement is None else f"agreement {e.agreement:.2f} (>= {e.confidence:.2f})"

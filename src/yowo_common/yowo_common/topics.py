@@ -134,6 +134,12 @@ def tracker_keypoints(camera: str) -> str:
     return f"/yowo/cmc/{camera}/agent_keypoints"
 
 
+def tracker_walker(camera: str) -> str:
+    """Which person in the CMC's view the pose model's tracker took for the walker, and the
+    evidence (std_msgs/String YAML, yowo_cmc.walker.WalkerChoice.as_dict), latched."""
+    return f"/yowo/cmc/{camera}/walker"
+
+
 def tracker_camera_info(camera: str) -> str:
     """The CMC's first valid CameraInfo (or the invalid one, relayed: the stages downstream
     name its fault), latched: only the tracker reads the replayed /cmc/<name>/ topics, so a
