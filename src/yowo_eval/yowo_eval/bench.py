@@ -43,6 +43,9 @@ SCENARIOS = {
     "kp_outliers_5pct": {"kp_sigma_px": 1.0, "outlier_rate": 0.05, "every_preset": True},
     # CMC clocks up to 1 s off the ego clock (yowo_cmc.clock estimates and applies them).
     "clock_offsets": {"cmc_clock_offset_s": 1.0},
+    # Other people walking the same rooms (issue #46): images only, for the pose model to find
+    # everyone; run by `yowo bench-bystanders`, not by `yowo bench`.
+    **{f"bystanders_{n}": {"cmc_images": True, "bystanders": n} for n in (0, 1, 3)},
 }
 # Presets that only feed the speed/scale table: rendering 42 CMC image streams over the
 # long walks of the floor presets would take hours here, so they record keypoints only, run
@@ -83,6 +86,8 @@ def scenario_preset(preset: str, scenario: str):
     p = get_preset(preset, cmc_images=images)
     if "texture" in spec or "light_intensity" in spec:
         p = replace(p, scene=replace(p.scene, **{k: v for k, v in spec.items() if k in ("texture", "light_intensity")}))
+    if "bystanders" in spec:
+        p = replace(p, cmc_keypoints=False, bystanders=replace(p.bystanders, count=spec["bystanders"]))
     if "cmc_clock_offset_s" in spec:
         p = replace(p, cmc_clock_offset_s=spec["cmc_clock_offset_s"])
     if "long_pause_s" in spec:

@@ -119,6 +119,21 @@ def cmd_bench_layouts(args) -> int:
     return 0 if all(c["exit"] == 0 for c in cases) else 1
 
 
+def cmd_bench_bystanders(args) -> int:
+    """One generated walk with 0 / 1 / 3 bystanders through `yowo run --cmc-source pose`."""
+    from .bystander_bench import run_bystander_bench
+
+    cases = run_bystander_bench(
+        args.preset,
+        args.seeds,
+        args.bystanders,
+        Path(args.output),
+        Path(args.markdown) if args.markdown else None,
+        _config_arguments(args),
+    )
+    return 0 if all(c["exit"] == 0 for c in cases) else 1
+
+
 def cmd_bench_tum(args) -> int:
     """TUM RGB-D sequences through the real graph with no CMCs: ATE beside published numbers."""
     from .tum_bench import run_tum_bench
@@ -188,6 +203,19 @@ def add_verbs(verbs) -> None:
     p.add_argument("--markdown", help="put the table into this file (e.g. BENCHMARKS.md), replacing an earlier one")
     add_config_options(p)
     p.set_defaults(func=cmd_bench_layouts)
+
+    p = verbs.add_parser(
+        "bench-bystanders",
+        help="one generated walk with other people in view (0, 1, 3) through yowo run --cmc-source pose: "
+        "registration and walker identification per camera -> BENCHMARKS.md",
+    )
+    p.add_argument("--preset", default="standard")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0])
+    p.add_argument("--bystanders", type=int, nargs="+", default=[0, 1, 3], choices=(0, 1, 3))
+    p.add_argument("-o", "--output", default="bench/bystanders", help="directory for the recordings and runs")
+    p.add_argument("--markdown", help="put the table into this file (e.g. BENCHMARKS.md), replacing an earlier one")
+    add_config_options(p)
+    p.set_defaults(func=cmd_bench_bystanders)
 
     p = verbs.add_parser("bench-graph", help="the real graph's speed (yowo run --rate 0) per stage -> BENCHMARKS.md")
     p.add_argument("--preset", nargs="+", default=["small"])
