@@ -163,3 +163,13 @@ def test_appearance_tells_clothes_apart():
     shifted = appearance(np.roll(image, 2, axis=1), p.box)
     assert appearance_distance(a, shifted) < 0.2 < 0.8 < appearance_distance(a, b)
     assert appearance_distance(a, None) == 0.5
+
+
+def test_keypoints_inside_another_persons_box_are_left_out():
+    from yowo_cmc.keypoint_input import KeypointFrame
+    from yowo_cmc.pose_source import _outside
+
+    frame = KeypointFrame(5, np.array([0, 1, 2]), np.array([[10.0, 10.0], [50.0, 60.0], [12.0, 90.0]]), np.ones(3))
+    kept = _outside(frame, np.array([[40.0, 40.0, 80.0, 100.0]]))
+    assert kept.ids.tolist() == [0, 2] and kept.stamp_ns == 5
+    assert _outside(frame, None) is frame

@@ -265,7 +265,8 @@ class PeopleParams:
     (yowo_cmc.walker), for the pose model's source."""
 
     # A person's box centre may move this far from where its track heads, in body heights
-    # (its box's height), plus max_speed_heights_s per second since the track's last image.
+    # (its box's height), plus max_speed_heights_s per second since the track's last image
+    # [body heights].
     max_move_heights: float = 0.3
     max_speed_heights_s: float = 1.5  # a fast walk's pace in body heights [1/s]
     max_size_change: float = 0.5  # largest |log| of a box height ratio between images [log]
@@ -295,15 +296,15 @@ class PeopleParams:
     # A track's evidence counts when the ego camera both walked and stood for at least this
     # share of the time they overlap: moving all along tells nobody apart [share].
     min_state_share: float = 0.1
-    # Agreement (balanced over the ego's walking and standing) a track needs to be the walker
-    # [share]; an unrelated person agrees half of the time.
+    # Agreement (balanced over the ego's walking and standing) a track needs to be the walker;
+    # an unrelated person agrees half of the time [share].
     accept_agreement: float = 0.75
     # Lead of the agreement's lower confidence bound over that of any other person seen at the
     # same time in the same camera [share]. Less: no track is clearly the walker, and the camera
     # is not registered from a guess.
     min_margin: float = 0.05
-    # The one person a camera ever sees is not the walker when its agreement is below this
-    # [share] (it moves unlike the head camera).
+    # The one person a camera ever sees is not the walker when its agreement is below this (it
+    # moves unlike the head camera) [share].
     reject_agreement: float = 0.6
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 from .bench import bag_for
 from .bench_markdown import produced_by
 from .bench_report import markers
-from .graph_bench import graph_case, write_cases
+from .graph_bench import graph_case, registration_cell, write_cases
 from .walker_id import identify_run
 
 SECTION = "bystanders"
@@ -70,11 +70,7 @@ def bystanders_markdown(cases: list[dict], command: str) -> str:
         "|---|---|---|---|---|---|---|",
     ]
     for c in cases:
-        reg = (
-            f"{c['registration_pos_avg_m']:.4f} / {c['registration_rot_avg_deg']:.3f}"
-            if c.get("registration_pos_avg_m") is not None
-            else "-"
-        )
+        reg = registration_cell(c)
         cams = c["cameras"].values()
         shown = f"{sum(x['walker'] for x in cams)} / {sum(x['walker_in_view'] for x in cams)}" if cams else "-"
         lines.append(

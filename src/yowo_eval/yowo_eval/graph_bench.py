@@ -73,6 +73,13 @@ def graph_case(bag: Path, out: Path, source: str, extra: list[str], timeout_s: f
     }
 
 
+def registration_cell(case: dict) -> str:
+    """A graph case's average registration error, position / rotation, or - without one."""
+    if case.get("registration_pos_avg_m") is None:
+        return "-"
+    return f"{case['registration_pos_avg_m']:.4f} / {case['registration_rot_avg_deg']:.3f}"
+
+
 def _is_tracker(name: str) -> bool:
     # Trackers: one per process, or several per process on many cameras (supervisor.tracker_processes).
     return name.startswith("keypoint_tracker")
@@ -108,11 +115,7 @@ def speed_markdown(cases: list[dict], command: str) -> str:
             cpu = sum(r["cpu_s"] for r in rs) / len(rs)
             wall = sum(r["wall_s"] for r in rs) / len(rs)
             cells.append(f"{name}: {cpu:.1f} / {wall:.0f} / {max(r['peak_rss_mb'] for r in rs):.0f}")
-        reg = (
-            f"{c['registration_pos_avg_m']:.4f} / {c['registration_rot_avg_deg']:.3f}"
-            if c.get("registration_pos_avg_m") is not None
-            else "-"
-        )
+        reg = registration_cell(c)
         ate = f"{c['ego_ate_m']:.4f}" if c.get("ego_ate_m") is not None else "-"
         status = f"{c['ratio']:.2f}" if c["exit"] == 0 else f"failed (exit {c['exit']})"
         memory = f"{c['peak_memory_mb']:.0f}" if c.get("peak_memory_mb") is not None else "-"

@@ -14,7 +14,7 @@ from yowo_sim.driver_layout import write_driver_layout
 from .bench import bag_for
 from .bench_markdown import produced_by
 from .bench_report import markers
-from .graph_bench import graph_case, write_cases
+from .graph_bench import graph_case, registration_cell, write_cases
 
 SECTION = "layouts"
 BEGIN, END = markers(SECTION)
@@ -63,11 +63,7 @@ def layouts_markdown(cases: list[dict], command: str) -> str:
         "|---|---|---|---|---|",
     ]
     for c in cases:
-        reg = (
-            f"{c['registration_pos_avg_m']:.4f} / {c['registration_rot_avg_deg']:.3f}"
-            if c.get("registration_pos_avg_m") is not None
-            else "-"
-        )
+        reg = registration_cell(c)
         ate = f"{c['ego_ate_m']:.4f}" if c.get("ego_ate_m") is not None else "-"
         lines.append(f"| {c['layout']} | {c['exit']} | {reg} | {ate} | {c['ratio']:.2f} |")
     return "\n".join(lines + [END, ""])

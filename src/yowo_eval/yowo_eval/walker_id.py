@@ -64,6 +64,7 @@ def identify(
         cam = models[name]
         T_cam_map = np.linalg.inv(gt.cameras[name])
         T_cam_sim = T_cam_map @ gt.T_map_sim
+
         def at(stamp_ns: int) -> np.ndarray | None:
             truth = gt.true_time_ns(name, stamp_ns)  # noqa: B023 (this camera's, used in its loop)
             k = int(np.clip(np.searchsorted(stamps, truth), 0, len(stamps) - 1))
