@@ -19,6 +19,8 @@ intrinsics file), those; or, with `info_topic:=""` (no CameraInfo at all), a nom
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import yaml
 from nav_msgs.msg import Odometry
@@ -28,7 +30,7 @@ from std_msgs.msg import Header, String
 from yowo_common import topics
 from yowo_common.camera import CameraModel
 from yowo_common.ros.context import spin_node
-from yowo_common.ros.stage import LATCHED, StageNode
+from yowo_common.ros.stage import DURABLE_STREAM, LATCHED, OWN_SUB, StageNode
 from yowo_common.rosconv import (
     camera_info_to_model,
     decode_color,
@@ -37,7 +39,7 @@ from yowo_common.rosconv import (
     ns_to_time,
     stamp_to_ns,
 )
-from yowo_msgs.msg import AgentKeypoints
+from yowo_msgs.msg import AgentKeypoints, StageStatus
 
 from .config import CmcParams
 from .keypoint_input import KeypointFrame, frame_from_msg, frame_to_msg
@@ -60,10 +62,11 @@ class KeypointTrackerNode(StageNode):
         # camera_calibration_parsers YAML text of an intrinsics file; used instead of info_topic.
         info_text = self.declare_parameter("camera_info", "").value
         keypoints_topic = self.declare_parameter("keypoints_topic", topics.cmc_keypoints_topic(camera)).value
+        cmc = self.section(CmcParams, "cmc")
         self.tracker = KeypointTracker(
             camera=camera,
             source=source,
-            params=self.section(CmcParams, "cmc"),
+            params=cmc,
             has_images=bool(image_topic),
             camera_info=info_text,
             nominal=not info_text and not self.info_topic,
@@ -83,11 +86,21 @@ class KeypointTrackerNode(StageNode):
         if self.tracker.detector is None:
             self.stream_input(AgentKeypoints, keypoints_topic, self.on_keypoints)
         # The ego camera's odometry (a run with one, source pose): which person is the walker.
-        self.ego_stamps_ns: list[int] = []
-        self.ego_positions: list[tuple[float, float, float]] = []
+        # Not a counted input: the tracker needs the walk's odometry, not the ego stage's end
+        # (its final adjustment runs meanwhile); it waits until the odometry reaches its last
+        # image, the ego stage ends, or the odometry stops coming for cmc.people.ego_wait_s.
+        self.ego: dict[int, tuple[float, float, float]] = {}  # stamp -> ego camera position
+        self.ego_done = False
+        self.ego_wait_s = cmc.people.ego_wait_s
+        self._ego_heard = time.monotonic()
+        self.last_image_ns = 0
         odometry_topic = self.declare_parameter("ego_odometry_topic", "").value
-        if odometry_topic and self.tracker.needs_ego:
-            self.stream_input(Odometry, odometry_topic, self.on_odometry, upstream=topics.EGO_STAGE)
+        self.wants_ego = bool(odometry_topic) and self.tracker.needs_ego
+        if self.wants_ego:
+            self.create_subscription(Odometry, odometry_topic, self.on_odometry, DURABLE_STREAM, **OWN_SUB)
+            self.create_subscription(
+                StageStatus, topics.status(topics.EGO_STAGE), self.on_ego_status, LATCHED, **OWN_SUB
+            )
         # With external keypoints, images (when recorded) only give the background for scene keypoints.
         if image_topic:
             msg_type = CompressedImage if image_topic.endswith("/compressed") else Image
@@ -95,6 +108,7 @@ class KeypointTrackerNode(StageNode):
 
     def on_image(self, msg) -> None:
         self.frame_id = msg.header.frame_id or self.frame_id
+        self.last_image_ns = max(self.last_image_ns, stamp_to_ns(msg.header.stamp))
         frames, nominal = self.tracker.take_image(stamp_to_ns(msg.header.stamp), lambda: decode_color(msg))
         if nominal is not None:
             self.publish_info(nominal)
@@ -102,8 +116,24 @@ class KeypointTrackerNode(StageNode):
 
     def on_odometry(self, msg: Odometry) -> None:
         p = msg.pose.pose.position
-        self.ego_stamps_ns.append(stamp_to_ns(msg.header.stamp))
-        self.ego_positions.append((p.x, p.y, p.z))
+        self.ego[stamp_to_ns(msg.header.stamp)] = (p.x, p.y, p.z)  # a restarted ego stage repeats stamps
+        self._ego_heard = time.monotonic()
+
+    def on_ego_status(self, msg: StageStatus) -> None:
+        if self.runs.accept(msg) and msg.state in (StageStatus.STATE_FINISHED, StageStatus.STATE_FAILED):
+            self.ego_done = True
+
+    def ready(self) -> bool:
+        if not self.wants_ego or self.ego_done:
+            return True
+        if self.ego and max(self.ego) >= self.last_image_ns:
+            return True
+        if time.monotonic() - self._ego_heard > self.ego_wait_s:
+            self.get_logger().warning(
+                f"no ego odometry for {self.ego_wait_s:.0f} s: the walker is told by the odometry so far"
+            )
+            return True
+        return False
 
     def on_info(self, msg: CameraInfo) -> None:
         if not self.tracker.wants_camera_info:
@@ -138,11 +168,9 @@ class KeypointTrackerNode(StageNode):
 
     def finalize(self) -> str:
         ego = None
-        if self.ego_stamps_ns:
-            order = np.argsort(self.ego_stamps_ns)
-            ego = EgoMotion(
-                stamps_ns=np.asarray(self.ego_stamps_ns)[order], positions=np.asarray(self.ego_positions)[order]
-            )
+        if self.ego:
+            stamps = sorted(self.ego)
+            ego = EgoMotion(stamps_ns=np.asarray(stamps), positions=np.asarray([self.ego[s] for s in stamps]))
         self.publish_frames(self.tracker.flush(ego))
         walker = self.tracker.walker()
         if walker is not None:

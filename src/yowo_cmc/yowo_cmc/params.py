@@ -289,6 +289,9 @@ class PeopleParams:
     grid_s: float = 0.1  # time step on which tracks and the ego trajectory are compared
     track_moving_heights_s: float = 0.15  # a track faster than this is walking [body heights/s]
     ego_moving_mps: float = 0.25  # the head camera faster than this is walking [m/s]
+    # A tracker in a graph run waits for the ego camera's odometry to reach its last image; it
+    # stops waiting when none has come for this long (an ego stage that stalled).
+    ego_wait_s: float = 60.0
     # Largest clock offset between a ceiling camera and the ego camera searched [s]; an NVR's
     # clock can be seconds off.
     max_clock_offset_s: float = 10.0

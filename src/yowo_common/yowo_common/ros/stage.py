@@ -184,7 +184,7 @@ class StageNode(Node):
         if not self._announced:  # the first tick: wired (the replay waits for this status)
             self._announced = True
             self.publish_status(StageStatus.STATE_RUNNING)
-        if self._finalized or not self.completion.inputs or not self.completion.complete:
+        if self._finalized or not self.completion.inputs or not self.completion.complete or not self.ready():
             return
         self._finalized = True
         self.timing.mark("finalize_start")
@@ -201,6 +201,11 @@ class StageNode(Node):
         self.get_logger().info(f"{self.stage} finished. {summary}")
         # The process stays until the run ends, next to the stages still working.
         release_free_memory()
+
+    def ready(self) -> bool:
+        """Whether finalize may run once the counted inputs are complete (a subclass may wait
+        for an uncounted input too)."""
+        return True
 
     def finalize(self) -> str | None:
         raise NotImplementedError
