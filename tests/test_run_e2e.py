@@ -21,8 +21,12 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
     bag = tmp_path / "tiny_s5"
     generate(get_preset("tiny"), 5, bag)
     out = tmp_path / "results"
-    r = yowo("run", bag, "-o", out, env=ros_env, timeout=700)
+    cache = tmp_path / "cache"  # the history of the stages' final steps (the next runs' ETA)
+    r = yowo("run", bag, "-o", out, env={**ros_env, "XDG_CACHE_HOME": str(cache)}, timeout=700)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    history = yaml.safe_load((cache / "yowo" / "final_steps.yaml").read_text())
+    assert set(history) == {"keypoint_tracker", "ego_mapper", "group_sfm", "fusion"}, history
+    assert all(len(v) == 1 and 0 <= v[0] < 1.0 for v in history.values()), history
     for name in (
         "cameras.yaml",
         "ego_trajectory.tum",

@@ -1,4 +1,15 @@
-from yowo_bringup.progress import DONE, FAILED, RUNNING, WAITING, ProgressLines, RunProgress
+import yaml
+
+from yowo_bringup.progress import (
+    DONE,
+    FAILED,
+    RUNNING,
+    WAITING,
+    ProgressLines,
+    RunProgress,
+    final_step_rates,
+    record_final_steps,
+)
 
 
 def test_share_eta_and_states():
@@ -107,3 +118,42 @@ def test_a_stage_that_receives_nothing_of_a_played_topic_is_named_once():
     (said,) = silent_inputs(replay, statuses, seen, told, now_s=71.0, after_s=60.0)
     assert "keypoint_tracker_a" in said and "none of the 40 messages" in said and "/cmc/a/image_raw" in said
     assert silent_inputs(replay, statuses, seen, told, now_s=200.0, after_s=60.0) == []  # said once
+
+
+def test_the_eta_adds_the_final_steps_along_the_graph():
+    rates = {"keypoint_tracker": 0.01, "ego_mapper": 0.05, "group_sfm": 0.02, "fusion": 0.03}  # s per message
+    p = RunProgress(
+        elapsed_s=30.0,
+        played=1000,
+        total=1000,
+        playing_since_s=10.0,
+        stages={"keypoint_tracker_a": RUNNING, "ego_mapper": RUNNING, "group_sfm": WAITING, "fusion": WAITING},
+        consumed={"keypoint_tracker_a": 1.0, "ego_mapper": 1.0},
+        final_rates=rates,
+        finishing_since_s={"keypoint_tracker_a": 25.0, "ego_mapper": 28.0},
+    )
+    # Trackers 10 s from 25 s: 5 s left; ego 50 s from 28 s: 48 s; group SfM 20 s after the
+    # trackers: 25 s; fusion 30 s after all of them: 78 s.
+    assert p.eta_covers_final_steps and abs(p.eta_s - 78.0) < 1e-9
+    assert "ETA 78 s;" in p.line() and p.eta_text() == "ETA 1:18"
+    # Without a history for the fusion, the intake alone, marked.
+    partial = RunProgress(**{**p.__dict__, "final_rates": {k: v for k, v in rates.items() if k != "fusion"}})
+    assert partial.eta_s is None
+    busy = RunProgress(**{**partial.__dict__, "played": 500})
+    assert busy.eta_s == 20.0 and "+ final steps" in busy.line() and busy.eta_text().endswith("+")
+
+
+def test_the_final_step_history(tmp_path):
+    path = tmp_path / "yowo" / "final_steps.yaml"
+    assert final_step_rates(path) == {}
+    record_final_steps({"keypoint_tracker_a": 3.0, "keypoint_tracker_b": 5.0, "ego_mapper": 10.0}, 1000, path)
+    record_final_steps({"keypoint_tracker_a": 1.0, "ego_mapper": 30.0}, 1000, path)
+    record_final_steps({"ego_mapper": 20.0}, 1000, path)
+    rates = final_step_rates(path)
+    # The trackers' slowest per run (0.005, then 0.001): median 0.003; the ego's median of three.
+    assert abs(rates["keypoint_tracker"] - 0.003) < 1e-12 and abs(rates["ego_mapper"] - 0.02) < 1e-12
+    for _ in range(15):
+        record_final_steps({"fusion": 1.0}, 1000, path)
+    assert len(yaml.safe_load(path.read_text())["fusion"]) == 10
+    path.write_text("{not yaml: [")
+    assert final_step_rates(path) == {}

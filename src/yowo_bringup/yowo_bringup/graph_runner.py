@@ -18,7 +18,7 @@ from yowo_msgs.msg import ReplayStatus, StageStatus
 
 from .config import CONFIG_PARAMETERS, params_document
 from .profiling import summary_markdown
-from .progress import ProgressLines
+from .progress import ProgressLines, record_final_steps
 from .ros_domain import PRIVATE, GraphNetwork, graph_network
 from .run import RunPlan
 from .run_monitor_node import RunMonitor
@@ -78,6 +78,9 @@ def execute(
                 for spec in plan.local_processes:  # replay last: it waits for the stages' subscriptions
                     sup.start(spec)
                 failure = _follow(plan, monitor, sup, log, progress, t0, timeout_s)
+                if not failure and plan.bag is not None:  # the next runs' ETA (a live walk has no length)
+                    monitor.progress(plan.stages, time.monotonic() - t0, plan.replay_messages)  # the last ends
+                    record_final_steps(monitor.final_steps(), plan.replay_messages)
                 if linger_s > 0 and not failure:
                     outcome = write_run_results(
                         plan,

@@ -14,7 +14,7 @@ from yowo_common.ros.context import ros_context
 from yowo_common.ros.stage import DURABLE_STREAM, LATCHED, RunFilter
 from yowo_msgs.msg import ReplayStatus, StageStatus
 
-from .progress import DONE, FAILED, RUNNING, WAITING, RunProgress
+from .progress import DONE, FAILED, RUNNING, WAITING, RunProgress, final_step_rates, stage_kind
 
 # A stage that receives none of a replayed topic's messages this long is named on the console.
 SILENT_INPUT_S = 60.0
@@ -56,6 +56,10 @@ class RunMonitor(Node):
         self.status: dict[str, StageStatus] = {}
         self.replay: ReplayStatus | None = None
         self.outputs: dict[str, object] = {}
+        self.final_rates = final_step_rates()  # this machine's history of the stages' final steps
+        self.finishing_since: dict[str, float] = {}
+        self.replayed_at: float | None = None  # elapsed time when the replay was seen finished
+        self.done_at: dict[str, float] = {}
         for s in stages:
             self.create_subscription(StageStatus, topics.status(s), lambda m, s=s: self._on_status(s, m), LATCHED)
         self.create_subscription(ReplayStatus, topics.REPLAY_STATUS, self._on_replay, LATCHED)
@@ -122,6 +126,7 @@ class RunMonitor(Node):
                 mine = [(int(n), published[t]) for t, n in zip(msg.input_topics, msg.received_counts) if t in published]
                 if sum(p for _, p in mine):
                     consumed[s] = min(1.0, sum(n for n, _ in mine) / sum(p for _, p in mine))
+        self._note_final_steps(states, consumed, elapsed_s)
         return RunProgress(
             elapsed_s=elapsed_s,
             played=played,
@@ -130,7 +135,33 @@ class RunMonitor(Node):
             playing_since_s=self._playing_since,
             stages=states,
             consumed=consumed,
+            final_rates=self.final_rates,
+            finishing_since_s={s: t for s, t in self.finishing_since.items() if states.get(s) == RUNNING},
         )
+
+    def _note_final_steps(self, states: dict[str, str], consumed: dict[str, float], elapsed_s: float) -> None:
+        """When each stage's final step began (a replay-fed stage: it had taken in every
+        replayed message; a stage fed by stages: they had all ended) and when it ended."""
+        if self.replay is not None and self.replay.state == ReplayStatus.STATE_FINISHED and self.replayed_at is None:
+            self.replayed_at = elapsed_s
+        for s, state in states.items():
+            fed_by_stages = s in (topics.GROUP_SFM_STAGE, topics.FUSION_STAGE)
+            upstream = [
+                u for u in states if u != s and (s == topics.FUSION_STAGE or stage_kind(u) == topics.TRACKER_STAGE)
+            ]
+            if fed_by_stages:
+                began = all(states[u] in (DONE, FAILED) for u in upstream)
+            else:  # a stage that ended before a status showed all its input taken in began at the replay's end
+                began = self.replayed_at is not None and (consumed.get(s, 0.0) >= 1.0 or state in (DONE, FAILED))
+            if state != WAITING and began:
+                ended_unseen = not fed_by_stages and state in (DONE, FAILED)
+                self.finishing_since.setdefault(s, self.replayed_at if ended_unseen else elapsed_s)
+            if state in (DONE, FAILED):
+                self.done_at.setdefault(s, elapsed_s)
+
+    def final_steps(self) -> dict[str, float]:
+        """Each stage's final step [s], as seen from here (for the history)."""
+        return {s: self.done_at[s] - t for s, t in self.finishing_since.items() if s in self.done_at}
 
     def spin_once(self, timeout_s: float) -> None:
         rclpy.spin_once(self, timeout_sec=timeout_s)
