@@ -43,13 +43,17 @@ def ego_from(walking: np.ndarray, t: np.ndarray) -> EgoMotion:
     return EgoMotion(stamps_ns=np.round(t * 1e9).astype(np.int64), positions=positions)
 
 
-def tracks_of(people: dict[str, tuple[np.ndarray, np.ndarray]], stamps_ns: np.ndarray, params=PeopleParams()):
-    """Tracks of people given as (x, y) pixel paths (NaN: not in view) on a blank image."""
+def tracks_of(people: dict[str, np.ndarray], stamps_ns: np.ndarray, params=PeopleParams(), clothes=None):
+    """Tracks of people given as (x, y) pixel paths (NaN: not in view); `clothes`: name ->
+    (shirt, trousers) colours drawn at their boxes (else a blank image: everyone looks alike)."""
     tracker = PersonTracker(params)
-    image = np.full((480, 2000, 3), 128, np.uint8)
     names = {}
     for i, stamp in enumerate(stamps_ns):
         seen = [(n, xy[i]) for n, xy in people.items() if np.isfinite(xy[i]).all()]
+        image = np.full((480, 2000, 3), 128, np.uint8)
+        for n, (x, y) in seen:
+            if clothes and n in clothes:
+                dressed(image, pose_at(x, y), *clothes[n])
         for (n, _), (track, _, _) in zip(seen, tracker.update(int(stamp), image, [pose_at(*xy) for _, xy in seen])):
             names.setdefault(track.track_id, n)
     return tracker.tracks, names
@@ -173,3 +177,24 @@ def test_keypoints_inside_another_persons_box_are_left_out():
     kept = _outside(frame, np.array([[40.0, 40.0, 80.0, 100.0]]))
     assert kept.ids.tolist() == [0, 2] and kept.stamp_ns == 5
     assert _outside(frame, None) is frame
+
+
+def test_glimpses_too_short_to_judge_are_the_walkers_only_where_nobody_else_was_seen():
+    walking = schedule(40, WALKER_LEGS, T)
+    ego = ego_from(walking, T)
+    x = 100 + path(walking, 0.5 * H_PX, 1 / HZ)
+    xy = np.column_stack([x, np.full_like(T, 300.0)])
+    xy[T > 15] = np.nan
+    glimpse = np.full_like(xy, np.nan)
+    glimpse[(T > 20) & (T < 21)] = [1500.0, 300.0]  # 1 s at the view's edge, half seen: too short to judge
+    clothes = {"walker": ((220, 40, 40), (40, 40, 200)), "glimpse": ((40, 160, 40), (200, 200, 40))}
+    tracks, names = tracks_of({"walker": xy, "glimpse": glimpse}, np.round(T * 1e9), clothes=clothes)
+    assert len(tracks) == 2 and min(t.seconds() for t in tracks) < PeopleParams().min_track_s
+    assert len(choose_walker(tracks, ego, PeopleParams()).track_ids) == 2
+    # With someone else in view at some time, a glimpse is nobody's.
+    other = np.full_like(xy, np.nan)
+    other[(T > 1) & (T < 6)] = [1900.0, 420.0]
+    clothes["other"] = ((200, 200, 200), (30, 30, 30))
+    people = {"walker": xy, "glimpse": glimpse, "other": other}
+    tracks, names = tracks_of(people, np.round(T * 1e9), clothes=clothes)
+    assert [names[k] for k in choose_walker(tracks, ego, PeopleParams()).track_ids] == ["walker"]

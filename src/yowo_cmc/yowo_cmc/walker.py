@@ -140,7 +140,9 @@ def choose_walker(tracks: list[PersonTrack], ego: EgoMotion | None, params: Peop
         return WalkerChoice(track_ids=[], clock_offset_s=None, reason="no person seen long enough")
     alone = [not any(_overlaps(g, o) for o in everyone if o is not g) for g in people]
     if ego is None or len(ego.stamps_ns) < 2:
-        return _without_ego(people, alone)
+        choice = _without_ego(people, alone)
+        choice.track_ids = _with_glimpses(choice.track_ids, everyone, people) if choice.track_ids else []
+        return choice
     # Walking/standing of each person on its tracks' grids, and the ego camera's at every offset.
     lags_s = np.arange(-p.max_clock_offset_s, p.max_clock_offset_s + 1e-9, p.grid_s)
     scores = np.full((len(people), len(lags_s)), np.nan)
@@ -183,6 +185,8 @@ def choose_walker(tracks: list[PersonTrack], ego: EgoMotion | None, params: Peop
         evidence.append(_evidence(g, a, alone[i], walker, why, sure[i]))
     _one_walker(people, evidence, p)
     chosen = sorted(t.track_id for g, e in zip(people, evidence) if e.walker for t in g)
+    if chosen and all(e.walker for e in evidence):
+        chosen = _with_glimpses(chosen, everyone, people)
     reason = "" if chosen else "no track is clearly the walker"
     offset = float(lags_s[k]) if np.any(gain > 0) else None
     return WalkerChoice(track_ids=chosen, clock_offset_s=offset, evidence=evidence, reason=reason)
@@ -217,6 +221,14 @@ def _lower_bound(agreement: float, n: float, z: float = 1.645) -> float:
     centre = agreement + z * z / (2 * n)
     spread = z * np.sqrt(agreement * (1 - agreement) / n + z * z / (4 * n * n))
     return float((centre - spread) / (1 + z * z / n))
+
+
+def _with_glimpses(chosen: list[int], everyone: list[list[PersonTrack]], people: list[list[PersonTrack]]) -> list[int]:
+    """Where nobody else was ever in a camera's view (no two tracks in one image), its tracks
+    too short to judge are the walker's glimpses too."""
+    if any(_overlaps(g, o) for i, g in enumerate(everyone) for o in everyone[i + 1 :]):
+        return chosen
+    return sorted(chosen + [t.track_id for g in everyone if not any(g is h for h in people) for t in g])
 
 
 def _evidence(g: list[PersonTrack], agreement, alone: bool, walker: bool, why: str, sure=None) -> PersonEvidence:
