@@ -133,6 +133,8 @@ def _overlaps(a: list[PersonTrack], b: list[PersonTrack]) -> bool:
 
 
 def choose_walker(tracks: list[PersonTrack], ego: EgoMotion | None, params: PeopleParams) -> WalkerChoice:
+    """The walker's tracks among one camera's person tracks, with each person's evidence; `ego`:
+    the ego camera's trajectory (None: a CMC-only calibration, no motion to compare)."""
     p = params
     everyone = identities(tracks, p)
     people = [g for g in everyone if sum(t.seconds() for t in g) >= p.min_track_s]
@@ -143,7 +145,30 @@ def choose_walker(tracks: list[PersonTrack], ego: EgoMotion | None, params: Peop
         choice = _without_ego(people, alone)
         choice.track_ids = _with_glimpses(choice.track_ids, everyone, people) if choice.track_ids else []
         return choice
-    # Walking/standing of each person on its tracks' grids, and the ego camera's at every offset.
+    lags_s, scores, shared = _agreements(people, ego, p)
+    # The camera's offset: where its people together agree most beyond chance, over the most
+    # shared time (ties: nearest 0).
+    gain = np.nansum(np.clip(scores - 0.5, 0, None) * shared, axis=0)
+    if not np.any(gain > 0):
+        k = int(np.argmin(np.abs(lags_s)))
+    else:
+        best = np.flatnonzero(gain >= gain.max() - 1e-12)
+        k = int(best[np.argmin(np.abs(lags_s[best]))])
+    at = [None if np.isnan(scores[i, k]) else float(scores[i, k]) for i in range(len(people))]
+    sure = [None if a is None else _lower_bound(a, shared[i, k] * p.grid_s / p.smooth_s) for i, a in enumerate(at)]
+    evidence = [_judge(i, people, alone, at, sure, p) for i in range(len(people))]
+    _one_walker(people, evidence, p)
+    chosen = sorted(t.track_id for g, e in zip(people, evidence) if e.walker for t in g)
+    if chosen and all(e.walker for e in evidence):
+        chosen = _with_glimpses(chosen, everyone, people)
+    reason = "" if chosen else "no track is clearly the walker"
+    offset = float(lags_s[k]) if np.any(gain > 0) else None
+    return WalkerChoice(track_ids=chosen, clock_offset_s=offset, evidence=evidence, reason=reason)
+
+
+def _agreements(people: list[list[PersonTrack]], ego: EgoMotion, p: PeopleParams):
+    """(clock offsets searched, agreement per person and offset (NaN: not informative), samples
+    shared): each person's walking/standing on its tracks' grids against the ego camera's."""
     lags_s = np.arange(-p.max_clock_offset_s, p.max_clock_offset_s + 1e-9, p.grid_s)
     scores = np.full((len(people), len(lags_s)), np.nan)
     shared = np.zeros_like(scores)
@@ -157,39 +182,26 @@ def choose_walker(tracks: list[PersonTrack], ego: EgoMotion | None, params: Peop
             ego_m = np.where(np.isnan(ego_v), np.nan, ego_v > p.ego_moving_mps)
             a, shared[i, k] = _agreement(moving, ego_m, p)
             scores[i, k] = np.nan if a is None else a
-    # The camera's offset: where its people together agree most beyond chance, over the most
-    # shared time (ties: nearest 0).
-    gain = np.nansum(np.clip(scores - 0.5, 0, None) * shared, axis=0)
-    if not np.any(gain > 0):
-        k = int(np.argmin(np.abs(lags_s)))
+    return lags_s, scores, shared
+
+
+def _judge(i: int, people, alone: list[bool], at: list, sure: list, p: PeopleParams) -> PersonEvidence:
+    """Person i's verdict at the camera's offset: alone in view, it is the walker unless it moves
+    unlike the head camera; among others, it must agree clearly and more surely than them."""
+    g, a = people[i], at[i]
+    others = [sure[j] for j, o in enumerate(people) if j != i and sure[j] is not None and _overlaps(g, o)]
+    if alone[i]:
+        walker = a is None or a >= p.reject_agreement
+        why = "alone in view" if walker else "alone in view, but moves unlike the head camera"
+    elif a is None:
+        walker, why = False, "others in view and no motion evidence to tell them apart"
+    elif a < p.accept_agreement:
+        walker, why = False, "moves unlike the head camera"
+    elif others and sure[i] < max(others) + p.min_margin:
+        walker, why = False, "another person in view moves as much like the head camera"
     else:
-        best = np.flatnonzero(gain >= gain.max() - 1e-12)
-        k = int(best[np.argmin(np.abs(lags_s[best]))])
-    at = [None if np.isnan(scores[i, k]) else float(scores[i, k]) for i in range(len(people))]
-    sure = [None if a is None else _lower_bound(a, shared[i, k] * p.grid_s / p.smooth_s) for i, a in enumerate(at)]
-    evidence = []
-    for i, g in enumerate(people):
-        a = at[i]
-        others = [sure[j] for j, o in enumerate(people) if j != i and sure[j] is not None and _overlaps(g, o)]
-        if alone[i]:
-            walker = a is None or a >= p.reject_agreement
-            why = "alone in view" if walker else "alone in view, but moves unlike the head camera"
-        elif a is None:
-            walker, why = False, "others in view and no motion evidence to tell them apart"
-        elif a < p.accept_agreement:
-            walker, why = False, "moves unlike the head camera"
-        elif others and sure[i] < max(others) + p.min_margin:
-            walker, why = False, "another person in view moves as much like the head camera"
-        else:
-            walker, why = True, "moves like the head camera"
-        evidence.append(_evidence(g, a, alone[i], walker, why, sure[i]))
-    _one_walker(people, evidence, p)
-    chosen = sorted(t.track_id for g, e in zip(people, evidence) if e.walker for t in g)
-    if chosen and all(e.walker for e in evidence):
-        chosen = _with_glimpses(chosen, everyone, people)
-    reason = "" if chosen else "no track is clearly the walker"
-    offset = float(lags_s[k]) if np.any(gain > 0) else None
-    return WalkerChoice(track_ids=chosen, clock_offset_s=offset, evidence=evidence, reason=reason)
+        walker, why = True, "moves like the head camera"
+    return _evidence(g, a, alone[i], walker, why, sure[i])
 
 
 def _one_walker(people: list[list[PersonTrack]], evidence: list[PersonEvidence], p: PeopleParams) -> None:
