@@ -198,3 +198,22 @@ def test_glimpses_too_short_to_judge_are_the_walkers_only_where_nobody_else_was_
     people = {"walker": xy, "glimpse": glimpse, "other": other}
     tracks, names = tracks_of(people, np.round(T * 1e9), clothes=clothes)
     assert [names[k] for k in choose_walker(tracks, ego, PeopleParams()).track_ids] == ["walker"]
+
+
+def test_a_bystander_walking_the_walkers_way_later_does_not_move_the_cameras_offset():
+    """A bystander who stops and walks as the walker did 2 s earlier agrees at offset +2 s; with
+    the walker's own partial agreement there (long stops), a sum over people picked that offset.
+    (Seen longer than the walker, such a copy would win: motion alone cannot tell them apart.)"""
+    legs = [(8.0, True), (5.0, False), (9.0, True), (4.0, False), (7.0, True), (6.0, False)]
+    walking = schedule(40, legs, T)
+    ego = ego_from(walking, T)
+    walker = np.column_stack([100 + path(walking, 0.5 * H_PX, 1 / HZ), np.full_like(T, 250.0)])
+    walker[T > 25] = np.nan
+    later = schedule(40, legs, T - 2.0)
+    follower = np.column_stack([1900 - path(later, 0.5 * H_PX, 1 / HZ), np.full_like(T, 420.0)])
+    follower[T < 12] = np.nan
+    clothes = {"walker": ((220, 40, 40), (40, 40, 200)), "follower": ((40, 160, 40), (200, 200, 40))}
+    tracks, names = tracks_of({"walker": walker, "follower": follower}, np.round(T * 1e9), clothes=clothes)
+    choice = choose_walker(tracks, ego, PeopleParams())
+    assert [names[k] for k in choice.track_ids] == ["walker"], choice.summary()
+    assert abs(choice.clock_offset_s) < 0.15

@@ -146,23 +146,26 @@ def choose_walker(tracks: list[PersonTrack], ego: EgoMotion | None, params: Peop
         choice.track_ids = _with_glimpses(choice.track_ids, everyone, people) if choice.track_ids else []
         return choice
     lags_s, scores, shared = _agreements(people, ego, p)
-    # The camera's offset: where its people together agree most beyond chance, over the most
-    # shared time (ties: nearest 0).
-    gain = np.nansum(np.clip(scores - 0.5, 0, None) * shared, axis=0)
-    if not np.any(gain > 0):
+    bounds = np.where(np.isnan(scores), np.nan, _lower_bound(np.nan_to_num(scores), shared * p.grid_s / p.smooth_s))
+    # The camera's offset: where one person agrees most surely (ties: nearest 0). Not the sum over
+    # people: a bystander who walks the walker's way a little later agrees at another offset, and
+    # summed with the walker's partial agreement there it could outweigh the walker's own.
+    gain = np.nanmax(np.where(np.isnan(bounds), -np.inf, bounds), axis=0)
+    informative = bool(np.any(np.isfinite(gain)))
+    if not informative:
         k = int(np.argmin(np.abs(lags_s)))
     else:
         best = np.flatnonzero(gain >= gain.max() - 1e-12)
         k = int(best[np.argmin(np.abs(lags_s[best]))])
     at = [None if np.isnan(scores[i, k]) else float(scores[i, k]) for i in range(len(people))]
-    sure = [None if a is None else _lower_bound(a, shared[i, k] * p.grid_s / p.smooth_s) for i, a in enumerate(at)]
+    sure = [None if np.isnan(bounds[i, k]) else float(bounds[i, k]) for i in range(len(people))]
     evidence = [_judge(i, people, alone, at, sure, p) for i in range(len(people))]
     _one_walker(people, evidence, p)
     chosen = sorted(t.track_id for g, e in zip(people, evidence) if e.walker for t in g)
     if chosen and all(e.walker for e in evidence):
         chosen = _with_glimpses(chosen, everyone, people)
     reason = "" if chosen else "no track is clearly the walker"
-    offset = float(lags_s[k]) if np.any(gain > 0) else None
+    offset = float(lags_s[k]) if informative else None
     return WalkerChoice(track_ids=chosen, clock_offset_s=offset, evidence=evidence, reason=reason)
 
 
@@ -225,14 +228,13 @@ def _look_distance(a: list[PersonTrack], b: list[PersonTrack]) -> float:
     return appearance_distance(*(np.mean(x, axis=0) for x in looks))
 
 
-def _lower_bound(agreement: float, n: float, z: float = 1.645) -> float:
-    """Wilson's lower bound (one-sided 95 %) of an agreement over n independent samples: a
-    short track that agrees by chance is less sure than a long one that agrees as well."""
-    if n <= 0:
-        return 0.0
+def _lower_bound(agreement, n, z: float = 1.645):
+    """Wilson's lower bound (one-sided 95 %) of an agreement over n independent samples (arrays
+    alike): a short track that agrees by chance is less sure than a long one that agrees as well."""
+    n = np.maximum(np.asarray(n, float), 1e-9)
     centre = agreement + z * z / (2 * n)
     spread = z * np.sqrt(agreement * (1 - agreement) / n + z * z / (4 * n * n))
-    return float((centre - spread) / (1 + z * z / n))
+    return (centre - spread) / (1 + z * z / n)
 
 
 def _with_glimpses(chosen: list[int], everyone: list[list[PersonTrack]], people: list[list[PersonTrack]]) -> list[int]:
