@@ -90,6 +90,7 @@ class KeypointTrackerNode(StageNode):
         # (its final adjustment runs meanwhile); it waits until the odometry reaches its last
         # image, the ego stage ends, or the odometry stops coming for cmc.people.ego_wait_s.
         self.ego: dict[int, tuple[float, float, float]] = {}  # stamp -> ego camera position
+        self.ego_last_ns = 0  # the latest odometry stamp (ready() asks every tick)
         self.ego_done = False
         self.ego_wait_s = cmc.people.ego_wait_s
         self._ego_heard = time.monotonic()
@@ -116,7 +117,9 @@ class KeypointTrackerNode(StageNode):
 
     def on_odometry(self, msg: Odometry) -> None:
         p = msg.pose.pose.position
-        self.ego[stamp_to_ns(msg.header.stamp)] = (p.x, p.y, p.z)  # a restarted ego stage repeats stamps
+        stamp = stamp_to_ns(msg.header.stamp)
+        self.ego[stamp] = (p.x, p.y, p.z)  # a restarted ego stage repeats stamps
+        self.ego_last_ns = max(self.ego_last_ns, stamp)
         self._ego_heard = time.monotonic()
 
     def on_ego_status(self, msg: StageStatus) -> None:
@@ -126,7 +129,7 @@ class KeypointTrackerNode(StageNode):
     def ready(self) -> bool:
         if not self.wants_ego or self.ego_done:
             return True
-        if self.ego and max(self.ego) >= self.last_image_ns:
+        if self.ego and self.ego_last_ns >= self.last_image_ns:
             return True
         if time.monotonic() - self._ego_heard > self.ego_wait_s:
             self.get_logger().warning(
