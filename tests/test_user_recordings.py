@@ -191,3 +191,22 @@ def _eval_cameras(out, bag, env):
     r = yowo("eval", out, "--bag", bag, "--metrics", out / "metrics.json", env=env)
     assert r.returncode == 0, r.stderr
     return json.loads((out / "metrics.json").read_text())["registration"]["cameras"]
+
+
+def test_the_offline_api_maps_a_driver_layout_with_its_split_imu(recordings):
+    """yowo_bringup.offline takes the ego camera's and IMU's topics from the run's plan, as the
+    graph does: the realsense layout's colour, depth, split gyro/accelerometer and /tf_static
+    extrinsics give the map the own layout gives."""
+    from yowo_bringup.config import YowoConfig
+    from yowo_bringup.offline import ego_topics
+    from yowo_ego.recording import map_bag
+
+    topics = ego_topics(recordings / "realsense", YowoConfig())
+    assert topics.color.startswith("/camera/camera/color/") and topics.gyro and topics.accel
+    assert "T_cam_imu" in topics.imu_calibration_text
+    ego, recording = map_bag(recordings / "realsense", topics=topics)
+    own, _ = map_bag(recordings / "own")
+    assert ego.imu and own.imu and not recording.problems, recording.problems
+    assert len(ego.stamps_ns) == len(own.stamps_ns)
+    gap = np.linalg.norm(np.asarray(ego.T_world_cam)[:, :3, 3] - np.asarray(own.T_world_cam)[:, :3, 3], axis=1)
+    assert gap.max() < 0.02, gap.max()

@@ -104,6 +104,20 @@ def read_cmc_inputs(
     return tracks, {n: decode_color(encode_raw(img, "rgb8", Header())) for n, img in found.items() if img is not None}
 
 
+def ego_topics(bag, config: YowoConfig):
+    """The ego camera's and its IMU's recorded topics as the run's plan maps them (a
+    driver's layout, the configuration's mapping, Kalibr files or /tf_static for the IMU)."""
+    from yowo_ego.recording import EgoTopics
+
+    from .run import FULL, STAGE_MODULES, plan_run
+
+    plan = plan_run(
+        bag, ".", mode=FULL, config=replace(config, inputs=replace(config.inputs, videos=(), video_list=""))
+    )
+    ego = next(n for n in plan.nodes if n.module == STAGE_MODULES[topics.EGO_STAGE])
+    return EgoTopics.from_node_parameters(ego.parameters)
+
+
 def ego_map_data(ego):
     """yowo_ego's EgoMapResult -> the fusion's input: every frame's pose (the a2e factor
     needs the dense trajectory), observations re-indexed from keyframes to frames, and the
@@ -153,7 +167,7 @@ def process(bag, config: YowoConfig | None = None, source: str = "auto") -> Offl
     config = config or YowoConfig()
     seconds = {}
     t0 = time.perf_counter()
-    ego, _ = map_bag(bag, config.ego)
+    ego, _ = map_bag(bag, config.ego, ego_topics(bag, config))
     seconds["ego"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     walk = EgoMotion(stamps_ns=np.asarray(ego.stamps_ns), positions=np.asarray(ego.T_world_cam)[:, :3, 3])

@@ -19,7 +19,7 @@ from yowo_common.topics import EGO_COLOR, EGO_DEPTH, EGO_IMU, EGO_IMU_CALIBRATIO
 
 from .config import EgoParams
 from .frames import StampPairer
-from .imu import CoverageWait, ImuBuffer, ImuCalibration
+from .imu import CoverageWait, ImuBuffer, ImuCalibration, ImuUniter
 from .pipeline import EgoMapResult, map_recording
 
 COLOR_TOPICS, DEPTH_TOPICS, INFO_TOPIC = EGO_COLOR, EGO_DEPTH, EGO_INFO
@@ -30,8 +30,29 @@ class EgoTopics:
     color: str
     depth: str
     info: str = INFO_TOPIC
-    imu: str = ""  # "" when the recording has no usable IMU
-    imu_calibration: str = ""
+    imu: str = ""  # one sensor_msgs/Imu topic; "" when the recording has no usable united IMU
+    gyro: str = ""  # separate gyro and accelerometer streams (a driver's), united as read
+    accel: str = ""
+    imu_calibration: str = ""  # the topic with the IMU's calibration (String YAML)
+    imu_calibration_text: str = ""  # or the calibration itself (Kalibr files, /tf_static)
+
+    @property
+    def has_imu(self) -> bool:
+        return bool(self.imu or (self.gyro and self.accel)) and bool(self.imu_calibration or self.imu_calibration_text)
+
+    @classmethod
+    def from_node_parameters(cls, parameters: dict) -> EgoTopics:
+        """The topics the run's plan gives the ego mapper node (yowo_bringup.run)."""
+        return cls(
+            color=parameters["color_topic"],
+            depth=parameters["depth_topic"],
+            info=parameters["info_topic"],
+            imu=parameters.get("imu_topic", ""),
+            gyro=parameters.get("gyro_topic", ""),
+            accel=parameters.get("accel_topic", ""),
+            imu_calibration=parameters.get("imu_calibration_topic", "") or EGO_IMU_CALIBRATION,
+            imu_calibration_text=parameters.get("imu_calibration", ""),
+        )
 
 
 @dataclass
@@ -76,7 +97,15 @@ def read_ego_frames(
     pending: list[tuple[int, np.ndarray, np.ndarray]] = []
     imu = recording.imu
     wait = CoverageWait(imu, int(imu_wait_s * 1e9))
-    wanted = [t.color, t.depth, t.info] + ([t.imu, t.imu_calibration] if imu is not None else [])
+    uniter = ImuUniter()
+    streams = [s for s in (t.imu, t.gyro, t.accel) if s]
+    wanted = [t.color, t.depth, t.info] + (streams + [t.imu_calibration] if imu is not None else [])
+    if imu is not None and t.imu_calibration_text:
+        try:
+            imu.calibration = ImuCalibration.from_yaml(t.imu_calibration_text, "the run's IMU calibration")
+        except ValueError as exc:
+            recording.problems.append(f"{exc}; the IMU is not used")
+            wait.imu = None
     for topic, _, msg in read_messages(bag, wanted):
         if topic == t.info:
             if recording.camera is None:
@@ -87,9 +116,18 @@ def read_ego_frames(
                     if problem not in recording.problems:
                         recording.problems.append(problem)
             continue
-        if topic == t.imu:
-            v, a = msg.angular_velocity, msg.linear_acceleration
-            imu.add(stamp_to_ns(msg.header.stamp), (v.x, v.y, v.z), (a.x, a.y, a.z))
+        if topic in streams:
+            stamp, v, a = stamp_to_ns(msg.header.stamp), msg.angular_velocity, msg.linear_acceleration
+            if topic == t.imu:
+                samples = [(stamp, (v.x, v.y, v.z), (a.x, a.y, a.z))]
+            else:
+                samples = (
+                    uniter.add_gyro(stamp, (v.x, v.y, v.z))
+                    if topic == t.gyro
+                    else uniter.add_accel(stamp, (a.x, a.y, a.z))
+                )
+            for sample in samples:
+                imu.add(*sample)
             released = wait.ready()
         elif topic == t.imu_calibration:
             if imu.calibration is None and wait.imu is not None:
@@ -160,14 +198,16 @@ def prefetch(items: Iterator, depth: int = 8) -> Iterator:
                 thread.join(0.01)
 
 
-def map_bag(bag, params: EgoParams = EgoParams()) -> tuple[EgoMapResult, EgoRecording]:
-    """``map_recording`` on a recording's ego frames, with its IMU (/ego/imu and its
-    calibration) when recorded and ``params.odometry.use_imu``. Raises ValueError naming
-    the topic when nothing usable exists (no ego topics, no valid CameraInfo, no frames)."""
-    recording = EgoRecording(find_ego_topics(bag))
-    if recording.topics.imu and params.odometry.use_imu:
+def map_bag(bag, params: EgoParams = EgoParams(), topics: EgoTopics | None = None) -> tuple[EgoMapResult, EgoRecording]:
+    """``map_recording`` on a recording's ego frames, with its IMU (and its calibration)
+    when recorded and ``params.odometry.use_imu``. `topics`: which recorded topics are the
+    ego camera's and its IMU's (a driver's layout, as the run's plan maps it); default
+    YOWO's own names. Raises ValueError naming the topic when nothing usable exists (no
+    ego topics, no valid CameraInfo, no frames)."""
+    recording = EgoRecording(topics or find_ego_topics(bag))
+    if recording.topics.has_imu and params.odometry.use_imu:
         recording.imu = ImuBuffer()
-    elif EGO_IMU in {t.name for t in list_topics(bag) if t.count > 0} and not recording.topics.imu:
+    elif EGO_IMU in {t.name for t in list_topics(bag) if t.count > 0} and not recording.topics.has_imu:
         recording.problems.append(
             f"{EGO_IMU} without {EGO_IMU_CALIBRATION}: the IMU's extrinsics are unknown; tracking without it"
         )
