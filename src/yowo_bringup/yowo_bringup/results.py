@@ -73,7 +73,8 @@ def clock_entry(name: str, group: CameraGroupResult | None, camera: RegisteredCm
 
 def intrinsics_entry(camera: CameraModel | None) -> dict:
     """The intrinsics a camera was registered with: its CameraInfo's (None: no CameraInfo
-    arrived), or those its group SfM estimated (intrinsics.EstimatedCamera) with their sigmas."""
+    arrived), or those estimated (intrinsics.EstimatedCamera: by its group SfM, refined by the
+    joint optimisation) with their sigmas."""
     if camera is None:
         return {
             "image_width": None,
@@ -93,14 +94,17 @@ def intrinsics_entry(camera: CameraModel | None) -> dict:
     if isinstance(camera, EstimatedCamera):
         entry["focal_sigma_px"] = round(camera.focal_sigma_px, 4)
         entry["k1_sigma"] = round(camera.k1_sigma, 6) if np.isfinite(camera.k1_sigma) else None
+        entry["k2_sigma"] = round(camera.k2_sigma, 6) if np.isfinite(camera.k2_sigma) else None
     return entry
 
 
 def group_intrinsics(camera: CameraModel | None, group: CameraGroupResult | None, name: str) -> CameraModel | None:
-    """A registered camera's intrinsics: its group's estimate if the group SfM made one
-    (registration messages carry a plain CameraInfo), else `camera`."""
+    """A registered camera's intrinsics: `camera` (the registration's: estimated ones as the
+    joint optimisation refined them), else its group SfM's estimate where it made one."""
     estimated = group.cameras.get(name) if group is not None else None
-    return estimated if isinstance(estimated, EstimatedCamera) else camera
+    if isinstance(camera, EstimatedCamera) or not isinstance(estimated, EstimatedCamera):
+        return camera
+    return estimated
 
 
 def keypoint_noise_entry(group: CameraGroupResult | None) -> dict:

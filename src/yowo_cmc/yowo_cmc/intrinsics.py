@@ -25,12 +25,13 @@ class EstimatedCamera(CameraModel):
 
     focal_sigma_px: float = float("nan")
     k1_sigma: float = float("nan")  # nan: k1 was not estimated (held at 0)
+    k2_sigma: float = float("nan")  # nan: k2 was not estimated (held at 0)
 
 
-def centred(width: int, height: int, f: float, k1: float = 0.0) -> CameraModel:
+def centred(width: int, height: int, f: float, k1: float = 0.0, k2: float = 0.0) -> CameraModel:
     """The estimated model: focal f (px) for both axes, principal point at the image centre."""
     K = np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
-    return CameraModel(width, height, K, np.array([k1, 0.0, 0.0, 0.0, 0.0]))
+    return CameraModel(width, height, K, np.array([k1, k2, 0.0, 0.0, 0.0]))
 
 
 def focal_range(width: int, hfov_deg: tuple[float, float], steps: int) -> np.ndarray:
@@ -132,14 +133,14 @@ def solve_with_intrinsics(
     `unknown` (its current estimate): the observations of those cameras are raw pixels
     (`raw_uv`, parallel to problem.obs). k2 is held at 0, and k1 too unless estimate_k1."""
     graph, values = problem_graph(problem)
-    _add_calibrations(graph, values, unknown, estimate_k1)
+    add_calibrations(graph, values, unknown, estimate_k1)
     _add_observations(graph, problem, unknown, raw_uv)
     result, initial_error, final_error, iterations = optimize(graph, values, max_iterations)
     T_out = [result.atPose3(X(i)).matrix() for i in range(len(problem.T_world_cam))]
     points = problem.points.copy()
     for j in np.unique(problem.obs.point):
         points[j] = result.atPoint3(L(int(j)))
-    estimated = _estimated_cameras(graph, result, unknown, estimate_k1)
+    estimated = estimated_cameras(result, unknown, estimate_k1, gtsam.Marginals(graph, result))
     cameras = [estimated.get(i, c) for i, c in enumerate(problem.cameras)]
     obs = problem.obs
     residuals = np.full((len(obs), 2), np.nan)
@@ -153,23 +154,24 @@ def solve_with_intrinsics(
     return BundleResult(T_out, points, residuals, initial_error, final_error, iterations), estimated
 
 
-def _add_calibrations(graph, values, unknown: dict[int, CameraModel], estimate_k1: bool) -> None:
-    """A calibration variable per unknown camera, from its current estimate."""
+def add_calibrations(
+    graph, values, unknown: dict[int, CameraModel], estimate_k1: bool, k2_prior_sigma: float = 0.0
+) -> None:
+    """A calibration variable K(i) per unknown camera i, from its current estimate (for
+    GeneralSFMFactor2Cal3Bundler on its raw pixels). k2 is held at 0 unless k2_prior_sigma > 0:
+    then it is estimated with that prior around 0."""
     # Cal3Bundler: (f, k1, k2) with the principal point fixed at the centre; the prior pins
     # what is not estimated (k2, and k1 unless asked) and leaves f free.
     free = 1e6
     for i, cam in unknown.items():
-        cal = gtsam.Cal3Bundler(cam.K[0, 0], cam.D[0] if estimate_k1 else 0.0, 0.0, cam.K[0, 2], cam.K[1, 2])
-        values.insert(CAL(i), cal)
-        graph.add(
-            gtsam.PriorFactorCal3Bundler(
-                CAL(i),
-                cal,
-                gtsam.noiseModel.Diagonal.Sigmas(
-                    np.array([free * cam.K[0, 0], free if estimate_k1 else FIXED_SIGMA, FIXED_SIGMA])
-                ),
-            )
+        k1 = cam.D[0] if estimate_k1 else 0.0
+        mean = gtsam.Cal3Bundler(cam.K[0, 0], k1, 0.0, cam.K[0, 2], cam.K[1, 2])
+        values.insert(
+            CAL(i),
+            gtsam.Cal3Bundler(cam.K[0, 0], k1, cam.D[1] if k2_prior_sigma > 0 else 0.0, cam.K[0, 2], cam.K[1, 2]),
         )
+        sigmas = [free * cam.K[0, 0], free if estimate_k1 else FIXED_SIGMA, k2_prior_sigma or FIXED_SIGMA]
+        graph.add(gtsam.PriorFactorCal3Bundler(CAL(i), mean, gtsam.noiseModel.Diagonal.Sigmas(np.array(sigmas))))
 
 
 def _add_observations(graph, problem: BundleProblem, unknown: dict[int, CameraModel], raw_uv: np.ndarray) -> None:
@@ -192,14 +194,21 @@ def _add_observations(graph, problem: BundleProblem, unknown: dict[int, CameraMo
             graph.add(gtsam.GenericProjectionFactorCal3_S2(gtsam.Point2(*uv), model, X(c), L(j), cals[c]))
 
 
-def _estimated_cameras(graph, result, unknown: dict[int, CameraModel], estimate_k1: bool) -> dict[int, EstimatedCamera]:
-    """Each unknown camera's solved intrinsics with their marginal sigmas."""
-    marginals = gtsam.Marginals(graph, result)
+def estimated_cameras(
+    result,
+    unknown: dict[int, CameraModel],
+    estimate_k1: bool,
+    marginals: gtsam.Marginals | None,
+    estimate_k2: bool = False,
+) -> dict[int, EstimatedCamera]:
+    """Each unknown camera's solved intrinsics with their marginal sigmas (NaN without marginals)."""
     estimated = {}
     for i, cam in unknown.items():
         cal = result.atCal3Bundler(CAL(i))
-        cov = marginals.marginalCovariance(CAL(i))
-        base = centred(cam.width, cam.height, cal.fx(), cal.k1() if estimate_k1 else 0.0)
+        cov = marginals.marginalCovariance(CAL(i)) if marginals is not None else np.full((3, 3), np.nan)
+        base = centred(
+            cam.width, cam.height, cal.fx(), cal.k1() if estimate_k1 else 0.0, cal.k2() if estimate_k2 else 0.0
+        )
         estimated[i] = EstimatedCamera(
             base.width,
             base.height,
@@ -207,5 +216,6 @@ def _estimated_cameras(graph, result, unknown: dict[int, CameraModel], estimate_
             base.D,
             focal_sigma_px=float(np.sqrt(cov[0, 0])),
             k1_sigma=float(np.sqrt(cov[1, 1])) if estimate_k1 else float("nan"),
+            k2_sigma=float(np.sqrt(cov[2, 2])) if estimate_k2 else float("nan"),
         )
     return estimated

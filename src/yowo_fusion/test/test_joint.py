@@ -302,3 +302,46 @@ def test_a_gyro_tracked_ego_map_keeps_its_rotation():
         worst_attitude_deg(plain),
     )
     assert max_pos_err(gyro.T_world_cmc, truth["T_cmc"]) < 0.02
+
+
+def test_estimated_intrinsics_are_refined_with_the_ego_anchored_points():
+    """A camera without CameraInfo: the group SfM's estimate (focal 6 % short, k1 too weak,
+    no k2, as where a wide lens's k2 went into its focal) is refined by the joint solution to
+    the lens's focal, k1 and k2; held as estimated, the camera's pose keeps the error."""
+    from yowo_cmc.intrinsics import EstimatedCamera, centred
+
+    problem, truth = make_problem(seed=3, drift_scale=0.3)
+    rng = np.random.default_rng(3)
+    ideal = problem.cmc_cameras[0]
+    f = ideal.K[0, 0]
+    lens = centred(640, 480, f, -0.15, 0.035)
+    guess = centred(640, 480, 0.94 * f, -0.07)
+    guess = EstimatedCamera(guess.width, guess.height, guess.K, guess.D, focal_sigma_px=8.0, k1_sigma=0.02)
+
+    def through_lens(obs, points):
+        """Camera 0's observations as the lens saw them, then as the guessed model's ideal pixels."""
+        sel = obs.camera == 0
+        raw, _ = lens.project_world(truth["T_cmc"][0], points[obs.point[sel]])
+        uv = obs.uv.copy()
+        uv[sel] = guess.undistort_pixels(raw + rng.normal(size=raw.shape) * 0.7)
+        return replace(obs, uv=uv)
+
+    problem = replace(
+        problem,
+        cmc_cameras=[CameraModel(640, 480, guess.K)] + problem.cmc_cameras[1:],
+        cmc_scene_obs=through_lens(problem.cmc_scene_obs, truth["landmarks"]),
+        cmc_agent_obs=through_lens(problem.cmc_agent_obs, truth["agent"]),
+        cmc_estimated={0: guess},
+    )
+    refined = solve_joint(problem)
+    held = solve_joint(problem, JointParams(refine_estimated_intrinsics=False))
+    cam = refined.cmc_intrinsics[0]
+    assert isinstance(cam, EstimatedCamera) and held.cmc_intrinsics == {}
+    assert abs(cam.K[0, 0] / f - 1) < 0.01, cam.K[0, 0] / f
+    assert abs(cam.D[0] + 0.15) < 0.02 and abs(cam.D[1] - 0.035) < 0.02, cam.D[:2]
+    assert 0 < cam.focal_sigma_px < 0.01 * f and np.isfinite(cam.k2_sigma)
+    err = [np.linalg.norm(r.T_world_cmc[0][:3, 3] - truth["T_cmc"][0][:3, 3]) for r in (refined, held)]
+    assert err[0] < 0.5 * err[1] and err[0] < 0.03, err
+    # Its residuals are ideal pixels of the refined model: as small as the others'.
+    res = refined.cmc_agent_residuals[problem.cmc_agent_obs.camera == 0]
+    assert np.sqrt(np.nanmean(res**2)) < 2.0

@@ -40,7 +40,9 @@ from dataclasses import dataclass, field, replace
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import A, C, D, H, L, M, O, Q, X
+from gtsam.symbol_shorthand import K as CAL
 
+from yowo_cmc.intrinsics import EstimatedCamera, add_calibrations, estimated_cameras
 from yowo_common.bundle import (
     FIXED_SIGMA,
     Observations,
@@ -95,6 +97,14 @@ class JointParams:
     max_a2e_gap_s: float = 0.2  # ego poses further apart than this are not interpolated
     max_anchor_gap_s: float = 0.5  # frames without ego observations: an anchor at least this often
     estimate_head_offset: bool = True  # the head offset estimated; False: the paper's model, head top = ego camera
+    # The intrinsics a group SfM estimated (a camera without CameraInfo) refined here too: the
+    # agent track the ego map places metrically observes the focal length the group alone
+    # could only infer from its own views.
+    refine_estimated_intrinsics: bool = True
+    # Sigma of the prior around 0 on k2 of such a camera, estimated here [1]: wide CCTV lenses
+    # have one, and the ego-anchored agent and scene points spread over the image observe it;
+    # held at 0 its share goes into the focal length. 0: k2 held at 0.
+    estimated_k2_prior_sigma: float = 0.05
     iterations: int = 200  # Levenberg-Marquardt iterations at most [count]
     # LM stops once an iteration lowers the error by less than this [share]. Ceres' default
     # function tolerance: past it the Huber weights creep for iterations that move no result,
@@ -127,6 +137,9 @@ class JointProblem:
     # (F,) True where the ego map held the frame's attitude to the building; None: nowhere
     ego_attitude_held: np.ndarray | None = None
     ego_imu: bool = False  # the ego map was tracked with the gyro (ego_between_sigma_imu)
+    # CMC index -> the intrinsics (with distortion) its group SfM estimated: the camera's
+    # observations are ideal pixels of this model, and the solution refines it.
+    cmc_estimated: dict[int, EstimatedCamera] = field(default_factory=dict)
 
 
 @dataclass(kw_only=True)
@@ -145,6 +158,9 @@ class JointResult:
     covariance_failure: str = ""  # why cmc_covariances are NaN (unknown): an indeterminate system
     ego_breaks: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # frames of unflagged breaks found
     held_points: list[str] = field(default_factory=list)  # indeterminate points held for the covariances
+    # CMC index -> refined intrinsics of the cameras in JointProblem.cmc_estimated; their
+    # residuals above are ideal pixels of these.
+    cmc_intrinsics: dict[int, EstimatedCamera] = field(default_factory=dict)
 
 
 def ros_covariance(cov_gtsam: np.ndarray, R_world_cam: np.ndarray) -> np.ndarray:
@@ -265,8 +281,14 @@ def _solve(p: JointProblem, params: JointParams) -> JointResult:
         )
 
     add_projection_factors(graph, p.ego_obs, [p.ego_camera] * len(p.T_world_ego), X, L, params.huber_k)
-    add_projection_factors(graph, p.cmc_scene_obs, p.cmc_cameras, C, L, params.huber_k)
-    add_projection_factors(graph, p.cmc_agent_obs, p.cmc_cameras, C, A, params.huber_k)
+    unknown = p.cmc_estimated if params.refine_estimated_intrinsics else {}
+    estimate_k1 = all(np.isfinite(c.k1_sigma) for c in unknown.values())
+    k2_sigma = params.estimated_k2_prior_sigma
+    add_calibrations(graph, values, unknown, estimate_k1, k2_sigma)
+    for obs, point_key in ((p.cmc_scene_obs, L), (p.cmc_agent_obs, A)):
+        calibrated = np.isin(obs.camera, list(unknown))
+        add_projection_factors(graph, obs.subset(~calibrated), p.cmc_cameras, C, point_key, params.huber_k)
+        _add_uncalibrated_projections(graph, obs.subset(calibrated), unknown, point_key, params.huber_k)
     _add_a2e(graph, values, p, params, anchors)
     for k in np.flatnonzero(p.agent_ids == BOTTOM):
         # z of the ground point is 0 (the ego map's floor): linear in the point, exact.
@@ -284,7 +306,7 @@ def _solve(p: JointProblem, params: JointParams) -> JointResult:
         landmarks[j] = result.atPoint3(L(j))
     T_cmc = [result.atPose3(C(i)).matrix() for i in range(len(p.T_world_cmc))]
     agent = np.array([result.atPoint3(A(k)) for k in range(len(p.agent_points))]).reshape(-1, 3)
-    covs, failure, held = [UNKNOWN_COVARIANCE] * len(T_cmc), "", []
+    covs, failure, held, marginals = [UNKNOWN_COVARIANCE] * len(T_cmc), "", [], None
     try:
         marginals, held = _marginals(graph, result, params)
         covs = [ros_covariance(marginals.marginalCovariance(C(i)), T[:3, :3]) for i, T in enumerate(T_cmc)]
@@ -292,6 +314,9 @@ def _solve(p: JointProblem, params: JointParams) -> JointResult:
         # The optimiser damps a (nearly) indeterminate system, the marginals cannot: the poses
         # stand, their covariance is unknown.
         failure = covariance_unavailable(exc)
+    refined = estimated_cameras(result, unknown, estimate_k1, marginals, k2_sigma > 0)
+    cameras = [CameraModel(c.width, c.height, refined[i].K) if i in refined else c for i, c in enumerate(p.cmc_cameras)]
+    agent_obs, scene_obs = (reidealised(o, unknown, refined) for o in (p.cmc_agent_obs, p.cmc_scene_obs))
     return JointResult(
         T_world_ego=T_ego,
         landmarks=landmarks,
@@ -299,15 +324,40 @@ def _solve(p: JointProblem, params: JointParams) -> JointResult:
         agent_points=agent,
         head_offset=np.asarray(result.atPoint3(O(0))),
         cmc_covariances=covs,
-        cmc_agent_residuals=reprojection_residuals(p.cmc_cameras, T_cmc, agent, p.cmc_agent_obs),
-        cmc_scene_residuals=reprojection_residuals(p.cmc_cameras, T_cmc, landmarks, p.cmc_scene_obs),
+        cmc_agent_residuals=reprojection_residuals(cameras, T_cmc, agent, agent_obs),
+        cmc_scene_residuals=reprojection_residuals(cameras, T_cmc, landmarks, scene_obs),
         initial_error=initial_error,
         final_error=final_error,
         anchors=anchors,
         covariance_failure=failure,
         ego_breaks=_broken_steps(p, params, anchors, result),
         held_points=held,
+        cmc_intrinsics=refined,
     )
+
+
+def reidealised(obs: Observations, before: dict[int, CameraModel], after: dict[int, CameraModel]) -> Observations:
+    """Observations whose camera's intrinsics changed from `before` to `after` (index ->
+    model with distortion) as ideal pixels of the new model; the others unchanged."""
+    uv = obs.uv.copy()
+    for c, new in after.items():
+        sel = obs.camera == c
+        uv[sel] = new.undistort_pixels(before[c].distort_pixels(uv[sel]))
+    return replace(obs, uv=uv)
+
+
+def _add_uncalibrated_projections(graph, obs: Observations, unknown: dict[int, CameraModel], point_key, huber_k):
+    """Projection factors of cameras whose intrinsics are variables (K(i), add_calibrations):
+    their raw pixels, from the ideal ones through the current model."""
+    huber = gtsam.noiseModel.mEstimator.Huber.Create(huber_k)
+    for c in np.unique(obs.camera):
+        sel = obs.camera == c
+        raw = unknown[int(c)].distort_pixels(obs.uv[sel])
+        for j, uv, s in zip(obs.point[sel], raw, obs.sigma_px[sel]):
+            model = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(2, float(s)))
+            graph.add(
+                gtsam.GeneralSFMFactor2Cal3Bundler(gtsam.Point2(*uv), model, C(int(c)), point_key(int(j)), CAL(int(c)))
+            )
 
 
 def _marginals(graph, result, params: JointParams) -> tuple[gtsam.Marginals, list[str]]:

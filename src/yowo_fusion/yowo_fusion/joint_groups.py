@@ -4,17 +4,18 @@ group, which keeps its alignment."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from yowo_cmc.intrinsics import EstimatedCamera
 from yowo_common.bundle import Observations, reprojection_residuals
 from yowo_common.camera import CameraModel
 
 from .alignment import head_top_rms
 from .config import FusionParams
 from .grouped import GroupedCmcs
-from .joint import JointProblem, JointResult, solve_joint, solver_failure
+from .joint import JointProblem, JointResult, reidealised, solve_joint, solver_failure
 from .records import AgentTrack, EgoMapData
 from .verdict import reprojection_rmse
 
@@ -30,6 +31,18 @@ class JointOutcome:
     agent_points: np.ndarray
     left_out: dict[str, str]  # group -> why it was left out of the solution
     failure: str = ""
+    intrinsics: dict[str, EstimatedCamera] = field(default_factory=dict)  # camera -> estimated intrinsics refined
+
+
+def with_intrinsics(
+    grouped: GroupedCmcs, refined: dict[str, EstimatedCamera], estimated: dict[str, CameraModel]
+) -> GroupedCmcs:
+    """The grouped cameras with the refined intrinsics of those whose group SfM estimated
+    them (`estimated`: the group's models): their ideal cameras and agent observations."""
+    index = {grouped.names.index(n): c for n, c in refined.items()}
+    before = {grouped.names.index(n): estimated[n] for n in refined}
+    cams = [CameraModel(c.width, c.height, index[i].K) if i in index else c for i, c in enumerate(grouped.cams)]
+    return replace(grouped, cams=cams, agent_obs=reidealised(grouped.agent_obs, before, index))
 
 
 def solve_groups(
@@ -39,11 +52,14 @@ def solve_groups(
     ideal_ego: CameraModel,
     weak: tuple[np.ndarray, np.ndarray],
     params: FusionParams,
+    estimated: dict[str, EstimatedCamera] | None = None,
 ) -> JointOutcome:
     """The joint optimisation of every group; a solution a group cannot be reconciled with
     (its agent reprojection diverged, or its track does not fit the ego trajectory the
     solution made) is solved again without that group, which keeps its alignment: one wrong group
-    (rooms joined through a doorway) must not cost the others theirs."""
+    (rooms joined through a doorway) must not cost the others theirs. `estimated`: the
+    intrinsics group SfMs estimated (camera -> model), refined by the solution."""
+    estimated = estimated or {}
     n_cams = len(grouped.names)
     none = JointOutcome(
         result=None,
@@ -59,7 +75,8 @@ def solve_groups(
         chains = [c for g, (c, _) in grouped.chains.items() if g not in left_out]
         points = np.isin(grouped.agent_chain, chains)
         try:
-            res = solve_joint(_problem(grouped, cams, points, scene_obs, ego, ideal_ego, ego_obs, weak), params.joint)
+            problem = _problem(grouped, cams, points, scene_obs, ego, ideal_ego, ego_obs, weak, estimated)
+            res = solve_joint(problem, params.joint)
         except RuntimeError as exc:  # GTSAM gave up on the system: keep the aligned poses
             return replace(
                 none, left_out=left_out, failure=f"joint optimisation failed ({solver_failure(exc)}): pose without JO"
@@ -68,10 +85,16 @@ def solve_groups(
         for i, T in zip(np.flatnonzero(cams), res.T_world_cmc):
             T_world_cmc[i] = T
         agent_points[points] = res.agent_points
+        names = [n for n, k in zip(grouped.names, cams) if k]
         out = JointOutcome(
-            result=res, in_jo=cams, T_world_cmc=T_world_cmc, agent_points=agent_points, left_out=left_out
+            result=res,
+            in_jo=cams,
+            T_world_cmc=T_world_cmc,
+            agent_points=agent_points,
+            left_out=left_out,
+            intrinsics={names[i]: c for i, c in res.cmc_intrinsics.items()},
         )
-        why, group = _diverged(grouped, out, params)
+        why, group = _diverged(with_intrinsics(grouped, out.intrinsics, estimated), out, grouped, params)
         if not why:
             why, group = _unreconciled(grouped, out, ego, params)
         if not why:
@@ -91,9 +114,11 @@ def _problem(
     ideal_ego: CameraModel,
     ego_obs: Observations,
     weak: tuple[np.ndarray, np.ndarray],
+    estimated: dict[str, EstimatedCamera],
 ) -> JointProblem:
     """The joint problem of the ego map with the cameras and agent points kept (cams, points: bool masks)."""
     cam_index, point_index = np.cumsum(cams) - 1, np.cumsum(points) - 1
+    kept = [n for n, k in zip(grouped.names, cams) if k]
     agent_obs = grouped.agent_obs.subset(cams[grouped.agent_obs.camera])  # a camera sees its group's points
     agent_obs = replace(agent_obs, camera=cam_index[agent_obs.camera], point=point_index[agent_obs.point])
     scene = scene_obs.subset(cams[scene_obs.camera])
@@ -116,15 +141,19 @@ def _problem(
         ego_weak_frames=weak[0],
         ego_attitude_held=ego.attitude_held,
         ego_imu=bool(ego.imu),
+        cmc_estimated={i: estimated[n] for i, n in enumerate(kept) if n in estimated},
     )
 
 
-def _diverged(grouped: GroupedCmcs, jo: JointOutcome, params: FusionParams) -> tuple[str, str | None]:
+def _diverged(
+    solved: GroupedCmcs, jo: JointOutcome, grouped: GroupedCmcs, params: FusionParams
+) -> tuple[str, str | None]:
     """Why the joint optimisation's result is rejected: a camera's agent reprojection RMSE
     above ok_rmse_px and worse than before it (on a badly broken ego map it can end in a
-    minimum where the group no longer fits its own views), and the camera's group; or ''."""
+    minimum where the group no longer fits its own views), and the camera's group; or ''.
+    `solved`: `grouped` with the intrinsics the solution refined."""
     obs = grouped.agent_obs
-    after = reprojection_residuals(grouped.cams, jo.T_world_cmc, jo.agent_points, obs)
+    after = reprojection_residuals(solved.cams, jo.T_world_cmc, jo.agent_points, solved.agent_obs)
     before = reprojection_residuals(grouped.cams, grouped.T_init, grouped.agent.points, obs)
     for c in np.flatnonzero(jo.in_jo):
         a, b = reprojection_rmse(after[obs.camera == c]), reprojection_rmse(before[obs.camera == c])

@@ -12,6 +12,7 @@ from std_msgs.msg import ColorRGBA, Header
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
+from yowo_cmc.intrinsics import EstimatedCamera
 from yowo_common.camera import CameraModel
 from yowo_common.rosconv import (
     camera_info_to_model,
@@ -118,9 +119,31 @@ def registered_to_msg(cameras: list[RegisteredCmc], stamp_ns: int) -> Registered
                 clock_offset_s=float("nan") if c.clock_offset_s is None else float(c.clock_offset_s),
                 clock_sigma_s=float("nan") if c.clock_sigma_s is None else float(c.clock_sigma_s),
                 clock_note=c.clock_note,
+                intrinsics_estimated=isinstance(c.camera, EstimatedCamera),
+                focal_sigma_px=float(getattr(c.camera, "focal_sigma_px", float("nan"))),
+                k1_sigma=float(getattr(c.camera, "k1_sigma", float("nan"))),
+                k2_sigma=float(getattr(c.camera, "k2_sigma", float("nan"))),
             )
         )
     return out
+
+
+def _camera_from_msg(c: RegisteredCamera) -> CameraModel | None:
+    """The intrinsics a registration used: its CameraInfo, marked estimated with their sigmas."""
+    if not c.camera_info.width:
+        return None
+    camera = camera_info_to_model(c.camera_info)
+    if not c.intrinsics_estimated:
+        return camera
+    return EstimatedCamera(
+        camera.width,
+        camera.height,
+        camera.K,
+        camera.D,
+        focal_sigma_px=c.focal_sigma_px,
+        k1_sigma=c.k1_sigma,
+        k2_sigma=c.k2_sigma,
+    )
 
 
 def tf_static(cameras: list[RegisteredCmc], stamp_ns: int) -> TFMessage:
@@ -249,7 +272,7 @@ def registered_from_msg(msg: RegisteredCameraArray) -> list[RegisteredCmc]:
                 reason=c.reason,
                 T_world_cam=None if failed else pose_to_matrix(c.pose_world_camera.pose),
                 covariance=None if failed else np.asarray(c.pose_world_camera.covariance).reshape(6, 6),
-                camera=camera_info_to_model(c.camera_info) if c.camera_info.width else None,
+                camera=_camera_from_msg(c),
                 rmse_px=c.reprojection_rmse_px,
                 num_agent=c.num_agent_observations,
                 num_scene=c.num_scene_observations,

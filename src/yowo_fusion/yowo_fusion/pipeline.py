@@ -22,7 +22,7 @@ from .alignment import head_top_rms
 from .config import FusionParams, UpstreamParams
 from .grouped import GroupedCmcs, gather_groups
 from .isolated import PnpResult, ego_agent_track, merge_tracks, refine_pose, register_over_clock
-from .joint_groups import JointOutcome, solve_groups
+from .joint_groups import JointOutcome, solve_groups, with_intrinsics
 from .records import (
     GROUP_SFM,
     ISOLATED_PNP,
@@ -58,7 +58,8 @@ def fuse(
 ) -> FusionResult:
     """Every camera registered in the ego map's world frame, with its verdict, and the ego map
     refined by the joint optimisation."""
-    cmcs = _with_estimated_intrinsics(cmcs, groups)
+    estimated = {n: c for g in groups for n, c in g.cameras.items() if isinstance(c, EstimatedCamera)}
+    cmcs = _with_cameras(cmcs, estimated)
     weak = weak_ego_frames(ego, params)
     grouped = gather_groups(ego, groups, ungrouped, cmcs, params, weak, upstream.tracks)
     scene_obs, scene_count = _scene_observations(grouped, cmcs, ego, params)
@@ -78,7 +79,8 @@ def fuse(
     fits: list[AgentFit] = []
     if grouped.names:
         ideal_ego = CameraModel(ego.camera.width, ego.camera.height, ego.camera.K)
-        jo = solve_groups(grouped, scene_obs, ego, ideal_ego, weak, params)
+        jo = solve_groups(grouped, scene_obs, ego, ideal_ego, weak, params, estimated)
+        grouped, cmcs = with_intrinsics(grouped, jo.intrinsics, estimated), _with_cameras(cmcs, jo.intrinsics)
         result, weak = _refine_map(result, jo, ego, ideal_ego, weak, upstream)
         registered, fits = _register_grouped(grouped, jo, result, ego, weak, scene_count, cmcs, params)
     registered += _register_isolated_cameras(grouped, result, ego, weak, cmcs, params, upstream.tracks)
@@ -86,12 +88,10 @@ def fuse(
     return replace(result, cameras=sorted(registered, key=lambda r: r.name), agent_fits=fits)
 
 
-def _with_estimated_intrinsics(cmcs: dict[str, CmcInput], groups: list[CameraGroupResult]) -> dict[str, CmcInput]:
-    """A camera without CameraInfo is projected with the intrinsics its group SfM estimated."""
-    estimated = {n: c for g in groups for n, c in g.cameras.items() if isinstance(c, EstimatedCamera)}
-    return {
-        n: replace(c, tracks=replace(c.tracks, camera=estimated[n])) if n in estimated else c for n, c in cmcs.items()
-    }
+def _with_cameras(cmcs: dict[str, CmcInput], cameras: dict[str, CameraModel]) -> dict[str, CmcInput]:
+    """The cameras' inputs with other intrinsics: a camera without CameraInfo is projected with
+    those its group SfM estimated, then with those the joint optimisation refined."""
+    return {n: replace(c, tracks=replace(c.tracks, camera=cameras[n])) if n in cameras else c for n, c in cmcs.items()}
 
 
 def _scene_observations(
