@@ -97,14 +97,12 @@ class JointParams:
     max_a2e_gap_s: float = 0.2  # ego poses further apart than this are not interpolated
     max_anchor_gap_s: float = 0.5  # frames without ego observations: an anchor at least this often
     estimate_head_offset: bool = True  # the head offset estimated; False: the paper's model, head top = ego camera
-    # The intrinsics a group SfM estimated (a camera without CameraInfo) refined here too: the
-    # agent track the ego map places metrically observes the focal length the group alone
-    # could only infer from its own views.
-    refine_estimated_intrinsics: bool = True
-    # Sigma of the prior around 0 on k2 of such a camera, estimated here [1]: wide CCTV lenses
-    # have one, and the ego-anchored agent and scene points spread over the image observe it;
-    # held at 0 its share goes into the focal length. 0: k2 held at 0.
-    estimated_k2_prior_sigma: float = 0.05
+    # Why: the agent track the ego map places metrically, and the scene points, observe the
+    # focal length the group alone could only infer from its own views.
+    refine_estimated_intrinsics: bool = True  # intrinsics a group SfM estimated (no CameraInfo) refined here
+    # Wide CCTV lenses have a k2, and the ego-anchored points spread over the image observe it;
+    # held at 0 its share goes into the focal length.
+    estimated_k2_prior_sigma: float = 0.05  # sigma of the prior around 0 on such a camera's k2; 0: k2 held at 0 [1]
     iterations: int = 200  # Levenberg-Marquardt iterations at most [count]
     # LM stops once an iteration lowers the error by less than this [share]. Ceres' default
     # function tolerance: past it the Huber weights creep for iterations that move no result,
