@@ -115,6 +115,7 @@ def cmd_bench_layouts(args) -> int:
         Path(args.output),
         Path(args.markdown) if args.markdown else None,
         _config_arguments(args),
+        args.no_camera_info,
     )
     return 0 if all(c["exit"] == 0 for c in cases) else 1
 
@@ -200,6 +201,14 @@ def add_verbs(verbs) -> None:
         help="CMC keypoints for every layout (video files carry none): the pose model or the detector",
     )
     p.add_argument("-o", "--output", default="bench/layouts", help="directory for the recordings and runs")
+    p.add_argument(
+        "--no-camera-info",
+        nargs="+",
+        default=[],
+        metavar="CAM",
+        help="also the realsense layout with this camera's CameraInfo left out, one run per camera: its "
+        "estimated intrinsics against the truth",
+    )
     p.add_argument("--markdown", help="put the table into this file (e.g. BENCHMARKS.md), replacing an earlier one")
     add_config_options(p)
     p.set_defaults(func=cmd_bench_layouts)
