@@ -52,7 +52,8 @@ class RunPlan:
     nodes: list[NodeSpec]
     final_stage: str
     outputs: dict[str, str] = field(default_factory=dict)  # latched topic -> type the runner collects
-    # Stage streams the runner records whole into result.mcap (each camera's agent keypoints).
+    # Stage streams the runner records whole into result.mcap (each camera's agent keypoints,
+    # the walk guidance).
     streams: dict[str, str] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     run_id: str = ""  # in every status: nodes ignore other runs' (see ros_domain.py)
@@ -266,7 +267,7 @@ def plan_run(
         nodes=nodes,
         final_stage=final,
         outputs=outputs,
-        streams=keypoint_streams(mode, cameras),
+        streams=stage_streams(mode, cameras),
         warnings=problems,
         run_id=run_id,
         config=config,
@@ -400,10 +401,18 @@ def plan_live(
         nodes=nodes,
         final_stage=final,
         outputs=outputs,
-        streams=keypoint_streams(mode, cameras),
+        streams=stage_streams(mode, cameras),
         run_id=run_id,
         config=config,
     )
+
+
+def stage_streams(mode: str, cameras: list[str]) -> dict[str, str]:
+    """The stage streams recorded into result.mcap: every camera's agent keypoints and the walk
+    guidance the group SfM published during the walk."""
+    if mode == EGO:
+        return {}
+    return {**keypoint_streams(mode, cameras), topics.GUIDANCE: "yowo_msgs/msg/WalkGuidance"}
 
 
 def keypoint_streams(mode: str, cameras: list[str]) -> dict[str, str]:

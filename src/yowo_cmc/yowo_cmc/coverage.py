@@ -30,6 +30,10 @@ if TYPE_CHECKING:
 OK, NEEDS_MORE = "ok", "needs more"
 ROWS, COLS = ("top", "middle", "bottom"), ("left", "centre", "right")
 FROM_TRACKS = "the agent's keypoint tracks sampled on the group SfM's time grid"
+FROM_RECEIVED = (
+    "the agent keypoints received so far during the walk (raw pixels; co-visibility on the fastest "
+    "camera's frame period)"
+)
 FROM_GROUP = (
     "the group's triangulated agent points projected into the image (the keypoint tracks are not "
     "kept with the results): co-visibility is where they project into both images"
@@ -47,6 +51,7 @@ class Coverage:
     regions_missing: list[str] = field(default_factory=list)  # the image's ninths holding none
     covisible: dict[str, int] = field(default_factory=dict)  # other camera -> shared grid times
     group: str = ""  # its group ('' none)
+    groups_known: bool = True  # False during the walk: the groups are formed at its end
     ungrouped_reason: str = ""
     depth: tuple[float, float] | None = None  # the agent's depths, 5th and 95th percentile
     depth_median: float | None = None
@@ -129,7 +134,7 @@ def group_scale(group: CameraGroupResult, world_poses: dict[str, np.ndarray]) ->
     return float(np.median(ratios)) if ratios else None
 
 
-def _judge(cov: Coverage, params: CoverageParams, region: str) -> Coverage:
+def judge(cov: Coverage, params: CoverageParams, region: str) -> Coverage:
     """Fill the verdict and its reasons from the measured coverage."""
     reasons = []
     if cov.observations is not None and cov.observations < params.min_observations:
@@ -144,11 +149,11 @@ def _judge(cov: Coverage, params: CoverageParams, region: str) -> Coverage:
         near, far = cov.depth
         if far - near < params.min_depth_spread * cov.depth_median:
             reasons.append(f"seen from one depth only ({near:.1f}-{far:.1f} {cov.depth_unit})")
-    if not cov.group:
+    if not cov.group and cov.groups_known:
         why = f": {cov.ungrouped_reason}" if cov.ungrouped_reason else ""
         reasons.append(f"in no group of cameras{why}")
     best = max(cov.covisible.values(), default=0)
-    if cov.source == FROM_TRACKS or cov.group:
+    if cov.source in (FROM_TRACKS, FROM_RECEIVED) or cov.group:
         if best == 0:
             reasons.append("no other camera saw the agent at the same time")
         elif best < params.min_covisible_times:
@@ -238,7 +243,7 @@ def camera_coverage(
             scale = (scales or {}).get(group.group_id)
             for k, v in _depth_fields(group, name, keep, scale).items():
                 setattr(cov, k, v)
-        out.append(_judge(cov, params, region))
+        out.append(judge(cov, params, region))
     return out
 
 
@@ -290,7 +295,7 @@ def group_coverage(
                     group=g.group_id,
                     rmse_px=float(g.rmse_px.get(n, np.nan)),
                 )
-                out[n] = _judge(cov, params, "")
+                out[n] = judge(cov, params, "")
                 continue
             seen, uv, model = inside[n]
             shared = {m: len(np.unique(g.point_stamps_ns[seen & inside[m][0]])) for m in inside if m != n}
@@ -307,13 +312,13 @@ def group_coverage(
             )
             for k, v in _depth_fields(g, n, seen, scale).items():
                 setattr(cov, k, v)
-            out[n] = _judge(cov, params, region)
+            out[n] = judge(cov, params, region)
     for n, why in ungrouped.items():
         if n not in out:
             cov = Coverage(
                 name=n, source=FROM_GROUP, observations=None, cell_share=None, overlap=None, ungrouped_reason=why
             )
-            out[n] = _judge(cov, params, "")
+            out[n] = judge(cov, params, "")
     return out
 
 

@@ -1,23 +1,30 @@
 """group_sfm_node: gathers every CMC's validated agent keypoints and CameraInfo,
 and when the streams are complete computes the CMC groups and their relative
 calibration; publishes yowo_msgs/CameraGroupArray on /yowo/cmc/groups (latched).
+During the walk it publishes the walk guidance (yowo_msgs/WalkGuidance on /yowo/guidance:
+every camera's coverage on the keypoints received so far, walk_guidance.WalkGuide) every
+cmc.coverage.guidance_period_s, and a final one with the groups once they are computed.
 Parameter `estimate_intrinsics`: the cameras without intrinsics (their tracker published a
 nominal model); the group SfM estimates their focal length (and k1)."""
 
 from __future__ import annotations
 
+import time
+
+import numpy as np
 from sensor_msgs.msg import CameraInfo
 
 from yowo_common import topics
 from yowo_common.ros.context import spin_node
 from yowo_common.ros.stage import LATCHED, StageNode
-from yowo_msgs.msg import AgentKeypoints, CameraGroupArray
+from yowo_msgs.msg import AgentKeypoints, CameraGroupArray, WalkGuidance
 
 from .config import CmcParams
 from .intrinsics import EstimatedCamera
 from .keypoint_input import TrackAccumulator, frame_from_msg
-from .messages import groups_to_msg
+from .messages import groups_to_msg, guidance_to_msg
 from .pipeline import calibrate_cmcs_apart
+from .walk_guidance import WalkGuide
 
 
 class GroupSfmNode(StageNode):
@@ -35,11 +42,15 @@ class GroupSfmNode(StageNode):
         self.acc = {c: TrackAccumulator(c) for c in cameras}
         self.last_stamp = 0
         self.pub = self.output(CameraGroupArray, topics.GROUPS, LATCHED)
+        self.guide = WalkGuide(cameras, self.cmc.coverage, self.params)
+        self.guidance_pub = self.output(WalkGuidance, topics.GUIDANCE)
+        self.guidance_ms: list[float] = []  # how long each update of the guidance took
+        self.guidance_timer = self.create_timer(self.cmc.coverage.guidance_period_s, self.publish_guidance)
         for cam in cameras:
             self.stream_input(
                 CameraInfo,
                 topics.tracker_camera_info(cam),
-                self.acc[cam].take_camera_info,
+                lambda m, c=cam: self.on_camera_info(c, m),
                 upstream=topics.tracker_stage(cam),
             )
             self.stream_input(
@@ -49,10 +60,26 @@ class GroupSfmNode(StageNode):
                 upstream=topics.tracker_stage(cam),
             )
 
+    def on_camera_info(self, camera: str, msg: CameraInfo) -> None:
+        self.acc[camera].take_camera_info(msg)
+        self.guide.set_camera(camera, self.acc[camera].camera)
+
     def on_keypoints(self, camera: str, msg: AgentKeypoints) -> None:
         frame = frame_from_msg(msg)
         self.last_stamp = max(self.last_stamp, frame.stamp_ns)
-        self.acc[camera].add(frame)
+        kept = self.acc[camera].add(frame)
+        if kept is not None:
+            self.guide.add(camera, kept.stamp_ns, kept.uv)
+
+    def publish_guidance(self, grouping=None) -> None:
+        """The walk guidance on what was received so far (none before the first keypoints);
+        `grouping`: the final one, with the group SfM's result."""
+        if self.guide.last_stamp_ns == 0 or (self.finished and grouping is None):
+            return
+        started = time.perf_counter()
+        coverages = self.guide.coverages(grouping)
+        self.guidance_ms.append((time.perf_counter() - started) * 1e3)
+        self.guidance_pub.publish(guidance_to_msg(coverages, self.guide.last_stamp_ns, final=grouping is not None))
 
     def finalize(self) -> str:
         usable = [a for a in self.acc.values() if a.camera is not None and a.frames]
@@ -69,6 +96,8 @@ class GroupSfmNode(StageNode):
         tracks = [a.tracks() for a in usable]
         result = calibrate_cmcs_apart(tracks, self.cmc, self.estimate)
         result.ungrouped.update(unusable)
+        self.destroy_timer(self.guidance_timer)
+        self.publish_guidance(result)
         self.pub.publish(groups_to_msg(result, self.last_stamp))
         lines = [
             f"{g.group_id}: {', '.join(g.names)} (initial pair {'/'.join(g.initial_pair)}, RMSE "
@@ -79,6 +108,11 @@ class GroupSfmNode(StageNode):
             for g in result.groups
         ]
         lines += [f"{name}: {why}" for name, why in result.ungrouped.items()]
+        if self.guidance_ms:
+            lines.append(
+                f"walk guidance: {len(self.guidance_ms)} updates, longest {max(self.guidance_ms):.1f} ms, "
+                f"median {float(np.median(self.guidance_ms)):.1f} ms"
+            )
         return "; ".join(lines)
 
 

@@ -1,4 +1,4 @@
-"""CameraGroupArray <-> CMC group results (message classes only, no rclpy)."""
+"""CameraGroupArray <-> CMC group results, WalkGuidance <-> coverages (message classes only, no rclpy)."""
 
 from __future__ import annotations
 
@@ -16,8 +16,9 @@ from yowo_common.rosconv import (
     pose_to_matrix,
     stamp_to_ns,
 )
-from yowo_msgs.msg import CameraGroup, CameraGroupArray
+from yowo_msgs.msg import CameraGroup, CameraGroupArray, CameraGuidance, WalkGuidance
 
+from .coverage import NEEDS_MORE, Coverage
 from .group_sfm import CameraGroupResult, GroupingResult
 from .intrinsics import EstimatedCamera
 
@@ -108,3 +109,68 @@ def groups_from_msg(msg: CameraGroupArray) -> tuple[list[CameraGroupResult], dic
 def _or_nan(values, names) -> list[float]:
     """A per-camera array, NaN for every camera when the message has none (an older one)."""
     return list(values) if len(values) == len(names) else [NAN] * len(names)
+
+
+def guidance_to_msg(coverages: list[Coverage], stamp_ns: int, final: bool) -> WalkGuidance:
+    """The walk guidance (walk_guidance.WalkGuide.coverages) as yowo_msgs/WalkGuidance."""
+
+    def number(v) -> float:
+        return NAN if v is None else float(v)
+
+    cameras = [
+        CameraGuidance(
+            name=c.name,
+            verdict=c.verdict,
+            reasons=list(c.reasons),
+            regions_missing=list(c.regions_missing),
+            regions_seen=list(c.regions_seen),
+            observations=int(c.observations or 0),
+            grid_cell_share=number(c.cell_share),
+            overlap_score=number(c.overlap),
+            depth_near=number(c.depth[0] if c.depth else None),
+            depth_far=number(c.depth[1] if c.depth else None),
+            depth_unit=c.depth_unit if c.depth else "",
+            covisible_cameras=list(c.covisible),
+            covisible_times=[int(n) for n in c.covisible.values()],
+            in_group=bool(c.group),
+            group_id=c.group,
+        )
+        for c in coverages
+    ]
+    return WalkGuidance(
+        header=Header(stamp=ns_to_time(stamp_ns)),
+        final=final,
+        source=coverages[0].source if coverages else "",
+        needs_more=sum(c.verdict == NEEDS_MORE for c in coverages),
+        cameras=cameras,
+    )
+
+
+def guidance_from_msg(msg: WalkGuidance) -> list[Coverage]:
+    """yowo_msgs/WalkGuidance -> one Coverage per camera (the fields the message carries)."""
+
+    def value(v: float) -> float | None:
+        return float(v) if np.isfinite(v) else None
+
+    out = []
+    for c in msg.cameras:
+        near, far = value(c.depth_near), value(c.depth_far)
+        out.append(
+            Coverage(
+                name=c.name,
+                source=msg.source,
+                observations=int(c.observations),
+                cell_share=value(c.grid_cell_share),
+                overlap=value(c.overlap_score),
+                regions_seen=list(c.regions_seen),
+                regions_missing=list(c.regions_missing),
+                covisible=dict(zip(c.covisible_cameras, map(int, c.covisible_times))),
+                group=c.group_id,
+                groups_known=msg.final,
+                depth=None if near is None or far is None else (near, far),
+                depth_unit=c.depth_unit or "m",
+                verdict=c.verdict,
+                reasons=list(c.reasons),
+            )
+        )
+    return out

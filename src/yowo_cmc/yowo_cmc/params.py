@@ -333,3 +333,4 @@ class CoverageParams:
     # Reprojection RMSE above which a camera's pose is called poorly determined [px]. A few
     # times a pose keypoint's noise.
     max_rmse_px: float = 5.0
+    guidance_period_s: float = 1.0  # how often the group SfM publishes the walk guidance during the walk [s]
