@@ -13,6 +13,7 @@ from .alignment import AlignParams
 from .isolated import IsolatedParams
 from .joint import JointParams
 from .scene_matching import SceneMatchParams
+from .weak_places import WeakPlaceParams
 
 
 @dataclass(frozen=True)
@@ -38,6 +39,7 @@ class FusionParams:
     joint: JointParams = JointParams()  # the joint optimisation's factors and solver (joint.py)
     scene: SceneMatchParams = SceneMatchParams()  # scene keypoints matched with pose priors
     isolated: IsolatedParams = IsolatedParams()  # a camera of no group registered alone
+    weak_places: WeakPlaceParams = WeakPlaceParams()  # the ego map's weak places, for walk guidance
     # Scene keypoints on each camera's background matched to the ego map's landmarks, for the
     # joint optimisation and the isolated cameras' refinement.
     use_scene_keypoints: bool = True

@@ -46,6 +46,7 @@ from .verdict import (
     residual_verdict,
     weak_ego_frames,
 )
+from .weak_places import weak_places
 
 
 def fuse(
@@ -85,7 +86,17 @@ def fuse(
         registered, fits = _register_grouped(grouped, jo, result, ego, weak, scene_count, cmcs, params)
     registered += _register_isolated_cameras(grouped, result, ego, weak, cmcs, params, upstream.tracks)
     registered = _refuse_absurd_poses(registered, grouped, result, params)
-    return replace(result, cameras=sorted(registered, key=lambda r: r.name), agent_fits=fits)
+    places = weak_places(
+        ego.stamps_ns,
+        result.T_world_ego,
+        weak,
+        result.agent,
+        grouped.fit_chain,
+        {g: c for g, (c, _) in grouped.chains.items()},
+        result.head_offset,
+        params.weak_places,
+    )
+    return replace(result, cameras=sorted(registered, key=lambda r: r.name), agent_fits=fits, weak_places=places)
 
 
 def _with_cameras(cmcs: dict[str, CmcInput], cameras: dict[str, CameraModel]) -> dict[str, CmcInput]:

@@ -118,3 +118,5 @@ class FusionResult:
     layout: Layout | None  # rebuilt from point_cloud (the ego stage's without JO)
     alignments: dict[str, Sim3] = field(default_factory=dict)
     agent_fits: list[AgentFit] = field(default_factory=list)
+    # The walk's weak places (yowo_fusion.weak_places.WeakPlace), for walk guidance.
+    weak_places: list = field(default_factory=list)
