@@ -71,6 +71,7 @@ def _execute(args, mode: str):
 
     args.started = time.monotonic()
     from .graph_runner import RunFailed, execute
+    from .guidance import GuidanceLines
     from .outdir import claimed_output
     from .progress import console_progress
     from .ros_domain import PRIVATE, SHARED, graph_network
@@ -134,6 +135,8 @@ def _execute(args, mode: str):
                 linger_s=getattr(args, "linger", 0.0),
                 progress=progress,
                 profile_dir=Path(args.profile) if args.profile else None,
+                # Live, the walker is told which camera needs more while walking.
+                guidance=GuidanceLines() if args.verb == "live" else None,
             )
         except RunFailed as exc:
             failure = exc

@@ -17,6 +17,7 @@ from yowo_common.ros.timing import relative_to
 from yowo_msgs.msg import ReplayStatus, StageStatus
 
 from .config import CONFIG_PARAMETERS, params_document
+from .guidance import guidance_log
 from .profiling import summary_markdown
 from .progress import ProgressLines, record_final_steps
 from .ros_domain import PRIVATE, GraphNetwork, graph_network
@@ -49,6 +50,7 @@ def execute(
     linger_s: float = 0.0,
     progress=None,
     profile_dir: Path | None = None,
+    guidance=None,
 ) -> RunOutcome:
     """Run the graph (the plan's local nodes; the others run on other hosts) and write the
     results directory. Raises RunFailed with the reason (after writing whatever partial
@@ -56,7 +58,8 @@ def execute(
     `linger_s`: after a successful run, keep the graph up this long with the results
     written (late /tf_static subscribers); `progress`: called with a RunProgress several
     times a second (default: a line every 5 s through `log`); `profile_dir`: a py-spy
-    recording of every node process there and summary.md, their top functions."""
+    recording of every node process there and summary.md, their top functions; `guidance`:
+    called with the newest walk guidance (yowo_msgs/WalkGuidance) whenever one arrives."""
     progress = progress or ProgressLines(log)
     network = network or graph_network(PRIVATE)
     sup = Supervisor(
@@ -77,7 +80,7 @@ def execute(
             try:
                 for spec in plan.local_processes:  # replay last: it waits for the stages' subscriptions
                     sup.start(spec)
-                failure = _follow(plan, monitor, sup, log, progress, t0, timeout_s)
+                failure = _follow(plan, monitor, sup, log, progress, t0, timeout_s, guidance)
                 if not failure and plan.bag is not None:  # the next runs' ETA (a live walk has no length)
                     monitor.progress(plan.stages, time.monotonic() - t0, plan.replay_messages)  # the last ends
                     record_final_steps(monitor.final_steps(), plan.replay_messages)
@@ -158,13 +161,19 @@ def _dds_environment(network: GraphNetwork):
         network.release()
 
 
-def _follow(plan: RunPlan, monitor: RunMonitor, sup: Supervisor, log, progress, t0: float, timeout_s: float) -> str:
+def _follow(
+    plan: RunPlan, monitor: RunMonitor, sup: Supervisor, log, progress, t0: float, timeout_s: float, guidance=None
+) -> str:
     """Follow the graph until its final stage has finished and its outputs arrived (or a
     grace period passed), a node cannot be restarted, or the timeout: the failure ('' when
     none)."""
-    finished_at, last_sample, last_memory, notes = None, 0.0, 0.0, set()
+    finished_at, last_sample, last_memory, notes, guided = None, 0.0, 0.0, set(), 0
     while True:
         monitor.spin_once(0.1)
+        updates = monitor.outputs.get(topics.GUIDANCE, [])
+        if guidance is not None and len(updates) > guided:
+            guided = len(updates)
+            guidance(updates[-1])
         if plan.bag is None:
             monitor.relay_end_of_walk()
         failure = _restart_dead(sup, plan.config.supervisor.max_restarts, log)
@@ -237,6 +246,17 @@ def _graph_log(plan: RunPlan, network: GraphNetwork, sup: Supervisor, monitor: R
         # at one sample: what the graph held of the machine's memory at its peak.
         "peak_memory_mb": round(sup.peak_memory_mb, 1),
         "peak_memory_by_process_mb": {k: round(v, 1) for k, v in sup.peak_memory_by_process.items()},
+        # The walk guidance the run monitor received (yowo_msgs/WalkGuidance): how often, what it said last.
+        **(
+            {
+                "guidance": guidance_log(
+                    monitor.outputs.get(topics.GUIDANCE, []),
+                    monitor.arrivals.get(topics.GUIDANCE, []),
+                )
+            }
+            if topics.GUIDANCE in plan.streams
+            else {}
+        ),
         # Seconds since the run started; queue waits and handling per input topic.
         "timing": node_timing(sup, t0_wall),
     }

@@ -72,14 +72,18 @@ class RunMonitor(Node):
             self.create_subscription(
                 message_class(msgtype), topic, lambda m, t=topic: self.outputs.__setitem__(t, m), LATCHED
             )
-        # Streams: every message, in `outputs` as a list (the stages publish them durable).
+        # Streams: every message, in `outputs` as a list (the stages publish them durable), and
+        # when each arrived here (seconds since this node started).
+        self.arrivals: dict[str, list[float]] = {}
+        self._started = time.monotonic()
         for topic, msgtype in (streams or {}).items():
             self.create_subscription(
-                message_class(msgtype),
-                topic,
-                lambda m, t=topic: self.outputs.setdefault(t, []).append(m),
-                DURABLE_STREAM,
+                message_class(msgtype), topic, lambda m, t=topic: self._on_stream(t, m), DURABLE_STREAM
             )
+
+    def _on_stream(self, topic: str, msg) -> None:
+        self.outputs.setdefault(topic, []).append(msg)
+        self.arrivals.setdefault(topic, []).append(time.monotonic() - self._started)
 
     def _on_status(self, stage: str, msg: StageStatus) -> None:
         if self.runs.accept(msg):

@@ -1,0 +1,79 @@
+"""The walk guidance (yowo_msgs/WalkGuidance on /yowo/guidance) for people: one line per camera
+that needs more on the console of `yowo live`, printed when what it says changes; and its account
+in the run log (how often it came, what it said last). No ROS here: the run monitor collects the
+messages."""
+
+from __future__ import annotations
+
+import re
+import time
+
+import numpy as np
+
+from yowo_common.rosconv import stamp_to_ns
+
+NEEDS_MORE = "needs more"
+REASONS_SHOWN = 2  # reasons on a camera's console line; the rest are counted
+_NUMBER = re.compile(r"\d+(\.\d+)?")
+
+
+def camera_line(cam, final: bool = False) -> str:
+    """A camera's console line: its name, its verdict and what is missing."""
+    head = f"guidance{' (end of walk)' if final else ''}: {cam.name}"
+    if cam.verdict != NEEDS_MORE:
+        return f"{head} ok"
+    reasons = list(cam.reasons)
+    more = f" (+{len(reasons) - REASONS_SHOWN} more)" if len(reasons) > REASONS_SHOWN else ""
+    return f"{head} needs more: {'; '.join(reasons[:REASONS_SHOWN])}{more}"
+
+
+def _gist(cam) -> tuple:
+    """What a camera's guidance says, its counts left out: a count that grows is no news."""
+    return cam.verdict, tuple(_NUMBER.sub("#", r) for r in cam.reasons)
+
+
+class GuidanceLines:
+    """Prints each camera's guidance line when its gist changes: a camera that needs more when
+    first heard of, one whose reasons change, one that became ok, each at most every `period_s`;
+    the final guidance (the walk is over) for every camera at once."""
+
+    def __init__(self, log=print, period_s: float = 5.0, clock=time.monotonic):
+        self.log, self.period_s, self.clock = log, period_s, clock
+        self._said: dict[str, tuple] = {}  # camera -> the gist last printed
+        self._at: dict[str, float] = {}  # camera -> when
+
+    def __call__(self, msg) -> None:
+        now = self.clock()
+        for cam in msg.cameras:
+            gist = _gist(cam)
+            said = self._said.get(cam.name)
+            if not msg.final:
+                if gist == said or (said is None and cam.verdict != NEEDS_MORE):
+                    continue  # unchanged, or ok from the start: nothing to do there
+                if now - self._at.get(cam.name, -np.inf) < self.period_s:
+                    continue  # changed again too soon: the next guidance tells it
+            self._said[cam.name], self._at[cam.name] = gist, now
+            self.log(camera_line(cam, msg.final))
+
+
+def guidance_log(msgs: list, arrivals_s: list[float]) -> dict:
+    """The run log's account of the walk guidance: how many updates, their spacing in the walk's
+    time (stamps) and on arrival at the run monitor (`arrivals_s`: seconds, one per message), and the last one's verdicts."""
+    if not msgs:
+        return {"updates": 0}
+    during = [m for m in msgs if not m.final]
+    stamps = np.array([stamp_to_ns(m.header.stamp) for m in during], dtype=np.int64) / 1e9
+    arrived = np.array([t for t, m in zip(arrivals_s, msgs) if not m.final])
+
+    def gaps(x: np.ndarray) -> dict | None:
+        d = np.diff(x)
+        return None if len(d) == 0 else {"median": round(float(np.median(d)), 3), "max": round(float(d.max()), 3)}
+
+    last = msgs[-1]
+    return {
+        "updates": len(during),
+        "final": bool(last.final),
+        "walk_time_between_updates_s": gaps(stamps),
+        "wall_time_between_updates_s": gaps(arrived),
+        "cameras": {c.name: {"verdict": c.verdict, "reasons": list(c.reasons)} for c in last.cameras},
+    }
