@@ -37,8 +37,14 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
         "ego_trajectory_ego.tum",
         "map_ego.ply",
         "layout_ego.json",
+        "weak_places.yaml",
     ):
         assert (out / name).exists(), name
+    # The walk's weak places: tiny's 10 s walk never returns to where it went.
+    weak = yaml.safe_load((out / "weak_places.yaml").read_text())["weak_places"]
+    assert "walked once" in {w["kind"] for w in weak}, weak
+    assert all(w["why"] and w["end_s"] >= w["start_s"] >= 0 for w in weak), weak
+    assert "Weak places of the walk" in (out / "report.html").read_text()
     check_result_bag(out / "result.mcap")
     check_report(out / "report.html", ["cam00", "cam01", "cam02"])
     check_exports(out)
@@ -68,7 +74,14 @@ def test_yowo_run_registers_cameras_on_tiny(tmp_path, ros_env):
         )
         stdout, stderr = run.communicate(timeout=120)
     assert run.returncode == 0, stdout[-3000:] + stderr[-3000:] + log_tails(again, ["replay", "ego_mapper"])
-    for name in ("cameras.yaml", "ego_trajectory.tum", "layout.json", "map.ply", "ego_trajectory_ego.tum"):
+    for name in (
+        "cameras.yaml",
+        "ego_trajectory.tum",
+        "layout.json",
+        "map.ply",
+        "ego_trajectory_ego.tum",
+        "weak_places.yaml",
+    ):
         assert (again / name).read_bytes() == (out / name).read_bytes(), name
     log_again = yaml.safe_load((again / "run_log.yaml").read_text())
     assert log_again["restarts"] == {"ego_mapper": [-9]} and log_again["replay_resent"] > 0, log_again["restarts"]

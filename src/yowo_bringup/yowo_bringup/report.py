@@ -73,8 +73,9 @@ def top_view_png(
     floors: list[np.ndarray],
     gt_cameras: dict[str, np.ndarray] | None = None,
     walls: list[np.ndarray] | None = None,
+    weak_places: list[dict] | None = None,
 ) -> bytes:
-    from matplotlib.patches import Ellipse, Polygon
+    from matplotlib.patches import Circle, Ellipse, Polygon
     from matplotlib.path import Path as MplPath
 
     fig, ax = plt.subplots(figsize=(10, 7))
@@ -126,6 +127,11 @@ def top_view_png(
         if gt_cameras and c.name in gt_cameras:
             G = gt_cameras[c.name][:3, 3]
             ax.plot(G[0], G[1], "x", color="k", ms=6)
+    for i, w in enumerate(weak_places or []):
+        # A circle over the place (at least half a metre across), numbered as in the table.
+        col = _WEAK_COLOURS.get(w["kind"], _UNKNOWN)
+        ax.add_patch(Circle((w["x_m"], w["y_m"]), max(w["extent_m"] / 2, 0.25), fill=False, ls="--", color=col, lw=1.5))
+        ax.annotate(f"W{i + 1}", (w["x_m"], w["y_m"]), color=col, fontsize=8, ha="center", va="center")
     if ego_xy is not None and len(ego_xy):
         extent.append(ego_xy)
     pts = np.vstack(extent) if extent else np.zeros((1, 2))  # nothing to draw: an empty metre around 0
@@ -276,6 +282,23 @@ def _metrics_html(metrics: dict) -> str:
     return "\n".join(parts)
 
 
+_WEAK_COLOURS = {"weak tracking": "#d62728", "walked once": "#9467bd", "track misses the walk": "#ff7f0e"}
+
+
+def _weak_places_html(places: list[dict]) -> str:
+    if not places:
+        return "<p>None found: every stretch was tracked well, walked more than once, and fits the groups' tracks.</p>"
+    rows = "".join(
+        f"<tr><td>W{i + 1}</td><td>{html.escape(w['kind'])}</td><td>{w['start_s']:.1f}-{w['end_s']:.1f} s</td>"
+        f"<td>({w['x_m']:.1f}, {w['y_m']:.1f}) m</td><td>{html.escape(w['why'])}</td></tr>"
+        for i, w in enumerate(places)
+    )
+    return (
+        "<p>Where a second walk would help the map (dashed circles in the top view; also in weak_places.yaml).</p>"
+        f"<table><tr><th></th><th>kind</th><th>when</th><th>where</th><th>why</th></tr>{rows}</table>"
+    )
+
+
 def _walkers_html(walkers: dict[str, dict]) -> str:
     """Per camera, each person its pose model tracked: tracks, time in view, agreement of its
     walking and standing with the head camera's, and the decision."""
@@ -312,11 +335,13 @@ def write_report(
     fits=(),
     no_cameras: str = "",
     walkers: dict[str, dict] | None = None,
+    weak_places: list[dict] | None = None,
 ) -> None:
     """`fits`: (AgentFit, (width, height), background RGB or None) per grouped camera;
     `no_cameras`: why the run registered none (an ego-only run), shown instead of the table;
-    `walkers`: per camera of the pose model, the person taken for the walker and the evidence."""
-    png = base64.b64encode(top_view_png(cameras, ego_xy, floors, gt_cameras, walls)).decode()
+    `walkers`: per camera of the pose model, the person taken for the walker and the evidence;
+    `weak_places`: the walk's weak places (None: the run has no fusion)."""
+    png = base64.b64encode(top_view_png(cameras, ego_xy, floors, gt_cameras, walls, weak_places)).decode()
     doc = f"""<!doctype html><html><head><meta charset="utf-8"><title>YOWO report: {html.escape(title)}</title>
 <style>body{{font-family:sans-serif;margin:2em}} table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:3px 8px;font-size:13px}}</style></head><body>
@@ -325,6 +350,7 @@ td,th{{border:1px solid #ccc;padding:3px 8px;font-size:13px}}</style></head><bod
 <h2>Cameras</h2>{f"<p>{html.escape(no_cameras)}</p>" if no_cameras else _camera_table(cameras)}
 {"<h2>Per camera: the agent track in its view</h2>" + _panels_html(fits) if fits else ""}
 {"<h2>Who is the walker</h2>" + _walkers_html(walkers) if walkers else ""}
+{"<h2>Weak places of the walk</h2>" + _weak_places_html(weak_places) if weak_places is not None else ""}
 {"<h2>Metrics against ground truth</h2>" + _metrics_html(metrics) if metrics else ""}
 {"<h2>Notes</h2><ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>" if notes else ""}
 </body></html>"""

@@ -248,3 +248,17 @@ def write_layout_json(path: Path, layout) -> None:
 
 def read_floor_polygons(path: Path) -> list[np.ndarray]:
     return [np.asarray(p, dtype=float) for p in json.loads(Path(path).read_text())["floor_polygons"]]
+
+
+WEAK_PLACES_HEADER = """\
+# The walk's weak places (yowo_fusion.weak_places): where a second walk would help the map.
+#   weak tracking: the ego camera tracked weakly or lost track (walk it again, slower, facing texture);
+#   walked once: never returned to, nothing checks its drift (walk back through it);
+#   track misses the walk: a group's agent track and the ego map disagree (walk it again in view of the group).
+# start_s / end_s: seconds from the walk's first frame; x_m / y_m: the place's centre in the map frame;
+# extent_m: the stretch's path length, or the walked-once area's diagonal.
+"""
+
+
+def write_weak_places_yaml(path: Path, places: list[dict]) -> None:
+    path.write_text(WEAK_PLACES_HEADER + yaml.safe_dump({"weak_places": places}, sort_keys=False))

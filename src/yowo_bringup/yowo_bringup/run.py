@@ -478,6 +478,7 @@ def _stage_nodes(
                 topics.LAYOUT_MARKERS: "visualization_msgs/msg/MarkerArray",
                 **EGO_OUTPUTS,
                 topics.REFINED_LAYOUT: "yowo_msgs/msg/SceneLayout",
+                topics.WEAK_PLACES: "std_msgs/msg/String",
                 topics.REFINED_MAP_POINTS: "sensor_msgs/msg/PointCloud2",
                 topics.REFINED_EGO_PATH: "nav_msgs/msg/Path",
                 topics.AGENT_FIT: "yowo_msgs/msg/CameraAgentFitArray",

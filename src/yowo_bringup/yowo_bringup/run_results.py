@@ -154,12 +154,18 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
         stamp_to_ns,
     )
     from yowo_common.trajectory import Trajectory, write_tum
-    from yowo_fusion.messages import agent_fits_from_msg, ego_map_from_msg, registered_from_msg
+    from yowo_fusion.messages import agent_fits_from_msg, ego_map_from_msg, registered_from_msg, weak_places_from_msg
 
     from .exports import write_exports
     from .plugins import evaluator
     from .report import wall_segments, write_report
-    from .results import write_cameras_yaml, write_layout_json, write_no_cameras_yaml, write_ply
+    from .results import (
+        write_cameras_yaml,
+        write_layout_json,
+        write_no_cameras_yaml,
+        write_ply,
+        write_weak_places_yaml,
+    )
 
     out = plan.out_dir
     cameras = registered_from_msg(outputs[topics.CMC_POSES]) if topics.CMC_POSES in outputs else []
@@ -248,6 +254,10 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     metrics, gt_cams = evaluated or (None, None)
     walls = wall_segments(final_layout.planes) if final_layout else []
     fits = agent_fits_from_msg(outputs[topics.AGENT_FIT]) if topics.AGENT_FIT in outputs else []
+    weak = weak_places_from_msg(outputs[topics.WEAK_PLACES]) if topics.WEAK_PLACES in outputs else None
+    if weak is not None:
+        write_weak_places_yaml(out / "weak_places.yaml", weak)
+        files.append(out / "weak_places.yaml")
     write_report(
         out / "report.html",
         str(plan.bag or "live"),
@@ -261,6 +271,7 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
         [(f, size, decode_color(bg) if bg is not None else None) for f, size, bg in fits],
         no_cameras=f"No camera registered (ego-only run): {plan.mode_reason}" if plan.mode == EGO else "",
         walkers=walkers(plan, outputs),
+        weak_places=weak,
     )
     files.append(out / "report.html")
     if metrics:

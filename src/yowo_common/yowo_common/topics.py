@@ -115,6 +115,8 @@ REFINED_MAP_POINTS = "/yowo/fusion/map/points"  # sensor_msgs/PointCloud2, latch
 REFINED_LAYOUT = "/yowo/fusion/layout"  # yowo_msgs/SceneLayout, latched
 REFINED_EGO_PATH = "/yowo/fusion/path"  # nav_msgs/Path, latched: the ego trajectory after JO
 AGENT_FIT = "/yowo/fusion/agent_fit"  # yowo_msgs/CameraAgentFitArray, latched: the report's panels
+# std_msgs/String, latched: the walk's weak places as a YAML list (yowo_fusion.weak_places).
+WEAK_PLACES = "/yowo/fusion/weak_places"
 # yowo_msgs/WalkGuidance, a durable stream: per ceiling camera "ok" or what is missing and where,
 # published by the group SfM during the walk (every cmc.coverage.guidance_period_s) and at its end.
 GUIDANCE = "/yowo/guidance"

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from nav_msgs.msg import Path
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
@@ -30,7 +31,14 @@ from yowo_msgs.msg import (
 )
 
 from .config import UPSTREAM_HOMES, FusionParams, UpstreamParams
-from .messages import agent_fits_to_msg, ego_map_from_msg, layout_markers, registered_to_msg, tf_static
+from .messages import (
+    agent_fits_to_msg,
+    ego_map_from_msg,
+    layout_markers,
+    registered_to_msg,
+    tf_static,
+    weak_places_msg,
+)
 from .pipeline import fuse
 from .records import CmcInput
 
@@ -59,6 +67,7 @@ class FusionNode(StageNode):
         self.pub_layout = self.output(SceneLayout, topics.REFINED_LAYOUT, LATCHED)
         self.pub_path = self.output(Path, topics.REFINED_EGO_PATH, LATCHED)
         self.pub_fits = self.output(CameraAgentFitArray, topics.AGENT_FIT, LATCHED)
+        self.pub_weak = self.output(String, topics.WEAK_PLACES, LATCHED)
         self.stream_input(EgoMap, topics.EGO_MAP, lambda m: setattr(self, "ego_map", m), upstream=topics.EGO_STAGE)
         self.stream_input(SceneLayout, topics.LAYOUT, lambda m: setattr(self, "layout", m), upstream=topics.EGO_STAGE)
         self.stream_input(
@@ -119,6 +128,7 @@ class FusionNode(StageNode):
         self.pub_fits.publish(
             agent_fits_to_msg(result.agent_fits, {n: c.tracks.camera for n, c in cmcs.items()}, self.backgrounds, stamp)
         )
+        self.pub_weak.publish(weak_places_msg(result.weak_places))
         return "; ".join(
             f"{c.name}: {c.method} {c.status}" + (f" ({c.reason})" if c.reason else "") for c in result.cameras
         )

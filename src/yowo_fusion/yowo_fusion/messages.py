@@ -5,10 +5,11 @@ rclpy)."""
 from __future__ import annotations
 
 import numpy as np
+import yaml
 from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import Point, PoseWithCovariance, TransformStamped
 from sensor_msgs.msg import CameraInfo, Image
-from std_msgs.msg import ColorRGBA, Header
+from std_msgs.msg import ColorRGBA, Header, String
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -282,3 +283,12 @@ def registered_from_msg(msg: RegisteredCameraArray) -> list[RegisteredCmc]:
             )
         )
     return out
+
+
+def weak_places_msg(places) -> String:
+    """The walk's weak places (weak_places.WeakPlace) as a YAML list."""
+    return String(data=yaml.safe_dump([w.as_dict() for w in places], sort_keys=False))
+
+
+def weak_places_from_msg(msg: String) -> list[dict]:
+    return yaml.safe_load(msg.data) or []
