@@ -131,3 +131,26 @@ def test_report_renders_in_headless_chromium(tmp_path):
     assert pixels(_COLOURS["ok"]) > 100 and pixels(_COLOURS["weak"]) > 100
     assert pixels("#404040", tol=6) > 300
     assert pixels("#d62728", tol=30) > 300 and pixels("#1f77b4", tol=30) > 300
+
+
+def test_the_walks_weak_places_are_listed_and_numbered_as_drawn(tmp_path):
+    cams = [camera("cam00", [0.5, 0.5, 2.8], [3, 2, 0])]
+    ego = np.column_stack([np.linspace(0, 6, 50), np.full(50, 2.0)])
+    place = {
+        "kind": "walked once",
+        "start_s": 12.0,
+        "end_s": 20.5,
+        "x_m": 4.5,
+        "y_m": 2.0,
+        "extent_m": 3.2,
+        "why": "walked once (3.4 m of path), never returned to",
+        "group": "",
+    }
+    write_report(tmp_path / "with.html", "synthetic", cams, ego, [], weak_places=[place])
+    page = (tmp_path / "with.html").read_text()
+    assert "Weak places of the walk" in page
+    assert "<td>W1</td><td>walked once</td><td>12.0-20.5 s</td><td>(4.5, 2.0) m</td>" in page
+    write_report(tmp_path / "none.html", "synthetic", cams, ego, [], weak_places=[])
+    assert "None found" in (tmp_path / "none.html").read_text()
+    write_report(tmp_path / "cmc_only.html", "synthetic", cams, None, [])  # no fusion: no section
+    assert "Weak places" not in (tmp_path / "cmc_only.html").read_text()
