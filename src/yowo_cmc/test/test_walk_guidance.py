@@ -10,7 +10,7 @@ import numpy as np
 from yowo_cmc.coverage import FROM_RECEIVED, NEEDS_MORE, OK
 from yowo_cmc.group_sfm import CameraGroupResult, GroupingResult
 from yowo_cmc.messages import guidance_from_msg, guidance_to_msg
-from yowo_cmc.walk_guidance import NO_CAMERA_INFO, WalkGuide
+from yowo_cmc.walk_guidance import NO_CAMERA_INFO, NOTHING_YET, WalkGuide
 from yowo_common.camera import CameraModel
 from yowo_msgs.msg import CameraGuidance
 
@@ -97,6 +97,9 @@ def test_a_faster_camera_counts_a_slower_ones_frame_on_each_slot_it_spans():
 def test_without_camera_info_it_says_so_and_counts_the_keypoints_once_it_comes():
     guide = WalkGuide(["a", "b"])
     guide.set_camera("b", CAMERA)
+    guide.add("b", 0, np.zeros((0, 2)))
+    a, b = guide.coverages()
+    assert a.reasons == [NOTHING_YET] and NOTHING_YET not in b.reasons
     for stamp, uv in _walk()["wide"]:
         guide.add("a", stamp, uv)
         guide.add("b", stamp, uv)

@@ -28,6 +28,7 @@ if TYPE_CHECKING:
 # Frames whose stamps give a camera's frame period (the median of their differences).
 PERIOD_FRAMES = 50
 NO_CAMERA_INFO = "no usable CameraInfo received yet: where in the image the agent was seen is unknown"
+NOTHING_YET = "nothing received from this camera yet (no keypoints, no CameraInfo)"
 
 
 @dataclass
@@ -156,7 +157,10 @@ class WalkGuide:
             cov.depth, cov.depth_median, cov.depth_unit = grouped.depth, grouped.depth_median, grouped.depth_unit
         if cam.model is None:
             judge(cov, self.params, "")
-            cov.reasons.insert(0, NO_CAMERA_INFO)
+            if cam.first_stamps or final:
+                cov.reasons.insert(0, NO_CAMERA_INFO)
+            else:  # its tracker has not started, or its camera sends nothing
+                cov.reasons = [NOTHING_YET]
             cov.verdict = NEEDS_MORE
             return cov
         occupied = cam.cells > 0
