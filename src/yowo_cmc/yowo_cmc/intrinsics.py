@@ -27,6 +27,22 @@ class EstimatedCamera(CameraModel):
     k1_sigma: float = float("nan")  # nan: k1 was not estimated (held at 0)
     k2_sigma: float = float("nan")  # nan: k2 was not estimated (held at 0)
 
+    @classmethod
+    def of(
+        cls, camera: CameraModel, focal_sigma_px: float, k1_sigma: float = float("nan"), k2_sigma: float = float("nan")
+    ) -> EstimatedCamera:
+        """`camera`'s intrinsics marked as estimated, with their sigmas."""
+        return cls(
+            camera.width,
+            camera.height,
+            camera.K,
+            camera.D,
+            camera.distortion_model,
+            focal_sigma_px=focal_sigma_px,
+            k1_sigma=k1_sigma,
+            k2_sigma=k2_sigma,
+        )
+
 
 def centred(width: int, height: int, f: float, k1: float = 0.0, k2: float = 0.0) -> CameraModel:
     """The estimated model: focal f (px) for both axes, principal point at the image centre."""
@@ -209,13 +225,10 @@ def estimated_cameras(
         base = centred(
             cam.width, cam.height, cal.fx(), cal.k1() if estimate_k1 else 0.0, cal.k2() if estimate_k2 else 0.0
         )
-        estimated[i] = EstimatedCamera(
-            base.width,
-            base.height,
-            base.K,
-            base.D,
-            focal_sigma_px=float(np.sqrt(cov[0, 0])),
-            k1_sigma=float(np.sqrt(cov[1, 1])) if estimate_k1 else float("nan"),
-            k2_sigma=float(np.sqrt(cov[2, 2])) if estimate_k2 else float("nan"),
+        estimated[i] = EstimatedCamera.of(
+            base,
+            float(np.sqrt(cov[0, 0])),
+            float(np.sqrt(cov[1, 1])) if estimate_k1 else float("nan"),
+            float(np.sqrt(cov[2, 2])) if estimate_k2 else float("nan"),
         )
     return estimated

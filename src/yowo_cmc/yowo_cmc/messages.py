@@ -29,15 +29,7 @@ def _estimated(camera: CameraModel, focal_sigma_px: float, k1_sigma: float) -> C
     """The camera as the group SfM estimated it, when its focal has a sigma (NaN: from CameraInfo)."""
     if not np.isfinite(focal_sigma_px):
         return camera
-    return EstimatedCamera(
-        camera.width,
-        camera.height,
-        camera.K,
-        camera.D,
-        camera.distortion_model,
-        focal_sigma_px=focal_sigma_px,
-        k1_sigma=k1_sigma,
-    )
+    return EstimatedCamera.of(camera, focal_sigma_px, k1_sigma)
 
 
 def groups_to_msg(result: GroupingResult, stamp_ns: int) -> CameraGroupArray:

@@ -136,15 +136,7 @@ def _camera_from_msg(c: RegisteredCamera) -> CameraModel | None:
     camera = camera_info_to_model(c.camera_info)
     if not c.intrinsics_estimated:
         return camera
-    return EstimatedCamera(
-        camera.width,
-        camera.height,
-        camera.K,
-        camera.D,
-        focal_sigma_px=c.focal_sigma_px,
-        k1_sigma=c.k1_sigma,
-        k2_sigma=c.k2_sigma,
-    )
+    return EstimatedCamera.of(camera, c.focal_sigma_px, c.k1_sigma, c.k2_sigma)
 
 
 def tf_static(cameras: list[RegisteredCmc], stamp_ns: int) -> TFMessage:
