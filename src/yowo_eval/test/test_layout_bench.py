@@ -50,7 +50,10 @@ def test_the_camera_without_camera_info_gets_its_focal_error_and_ratio_row():
             "others_pos_avg_m": 0.0091,
         },
     }
-    text = layouts_markdown([case, {**case, "layout": "zed", "estimated": {"camera": "cam01"}}], "yowo bench-layouts")
+    failed = {"camera": "cam04", "status": "failed", "reason": "in no group"}
+    others = [{**case, "layout": "zed", "estimated": {"camera": "cam01"}}, {**case, "estimated": failed}]
+    text = layouts_markdown([case, *others], "yowo bench-layouts")
     row = "| cam00 | ok | 330.8 / 330.0 | +0.23 % | 3.09 | -0.162, 0.041 / -0.150, 0.034 | 0.0171 / 0.642 | 0.0091 | 1.88 |"
     assert row in text, text
     assert "| cam01 |" not in text  # a run that gave no numbers has no row
+    assert "| cam04 | failed: in no group | - |" in text  # a camera left unregistered says why

@@ -77,7 +77,9 @@ def estimated_intrinsics_case(run: Path, own: Path, camera: str) -> dict:
     errors = {e["name"]: e for e in json.loads(metrics.read_text())["registration"]["cameras"]}
     entry = next((c for c in yaml.safe_load(cams_file.read_text())["cameras"] if c["name"] == camera), {})
     others = [e["eps_pos_m"] for n, e in errors.items() if n != camera]
-    focal = entry.get("K", [[float("nan")]])[0][0]
+    if not entry.get("K"):  # not registered: no intrinsics to compare
+        return {"camera": camera, "status": entry.get("status"), "reason": entry.get("reason", "")}
+    focal = entry["K"][0][0]
     return {
         "camera": camera,
         "status": entry.get("status"),
@@ -120,7 +122,7 @@ def layouts_markdown(cases: list[dict], command: str) -> str:
 def _estimated_markdown(cases: list[dict]) -> list[str]:
     """The cameras whose CameraInfo was left out: the estimated focal against the truth and
     the camera's registration against the other cameras' (issue bars: 3 %, 1.5x)."""
-    rows = [c["estimated"] for c in cases if c.get("estimated", {}).get("pos_m") is not None]
+    rows = [c["estimated"] for c in cases if c.get("estimated", {}).get("status")]
     if not rows:
         return []
     lines = [
@@ -134,6 +136,9 @@ def _estimated_markdown(cases: list[dict]) -> list[str]:
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for e in rows:
+        if e.get("pos_m") is None:
+            lines.append(f"| {e['camera']} | {e['status']}: {e.get('reason', '')} | - | - | - | - | - | - | - |")
+            continue
         k_est = ", ".join(f"{v:.3f}" for v in e["k1_k2"])
         k_true = ", ".join(f"{v:.3f}" for v in e["k1_k2_true"])
         lines.append(
