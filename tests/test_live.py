@@ -53,6 +53,7 @@ def test_live_cmc_calibration_ends_on_end_walk(tmp_path, ros_env):
         assert r.returncode == 0, r.stderr
         stdout, stderr = live.communicate(timeout=240)
     assert live.returncode == 0, stdout[-3000:] + stderr[-3000:]
+    assert "(3 of 3 cameras calibrated;" in stdout, stdout[-2000:]  # cameras, not groups
     doc = yaml.safe_load((out / "cameras.yaml").read_text())["cameras"]
     assert sorted(c["name"] for c in doc if c["status"] == "ok") == ["a1", "a2", "a3"], [
         (c["name"], c["status"], c.get("reason")) for c in doc

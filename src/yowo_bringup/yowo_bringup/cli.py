@@ -196,7 +196,13 @@ def cmd_live(args) -> int:
     out = _execute(args, CMC if args.cmc_only else FULL)
     if out is None:
         return 1
-    print(f"{_elapsed(args)}results: {args.output}/ ({len(out.cameras)} of the cameras calibrated; see cameras.yaml)")
+    if args.cmc_only:  # the groups and the cameras in none
+        done = sum(len(g.names) for g in out.cameras)
+        total = done + len(out.ungrouped)
+    else:
+        done = sum(c.T_world_cam is not None for c in out.cameras)
+        total = len(out.cameras)
+    print(f"{_elapsed(args)}results: {args.output}/ ({done} of {total} cameras calibrated; see cameras.yaml)")
     return 0
 
 
