@@ -112,3 +112,17 @@ def test_cameras_yaml_entry_from_the_group_result_alone():
     alone = coverage_entry(cov["alone"])["coverage"]
     assert alone["verdict"] == NEEDS_MORE and not alone["in_group"] and alone["grid_cell_share"] is None
     assert any("in no group of cameras" in r for r in alone["reasons"])
+
+
+def test_a_share_just_short_of_the_bar_does_not_read_as_reaching_it():
+    from yowo_cmc.coverage import NEEDS_MORE, Coverage, judge
+    from yowo_cmc.params import CoverageParams
+
+    params = CoverageParams()
+    short = Coverage(
+        name="cam00", source="test", observations=1000, cell_share=params.min_cell_share - 0.004, overlap=None
+    )
+    judged = judge(short, params, "")
+    assert judged.verdict == NEEDS_MORE
+    low = f"{round(params.min_cell_share * 100) - 1}%"
+    assert any(f"seen in {low} of the image's grid cells" in r for r in judged.reasons), judged.reasons

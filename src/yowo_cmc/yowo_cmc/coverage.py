@@ -143,7 +143,9 @@ def judge(cov: Coverage, params: CoverageParams, region: str) -> Coverage:
         reasons.append(region)
     if cov.cell_share is not None and cov.cell_share < params.min_cell_share:
         reasons.append(
-            f"agent seen in {cov.cell_share:.0%} of the image's grid cells (needs {params.min_cell_share:.0%})"
+            # Rounded down: a share just short of the bar must not read as reaching it.
+            f"agent seen in {np.floor(cov.cell_share * 100):.0f}% of the image's grid cells "
+            f"(needs {params.min_cell_share:.0%})"
         )
     if cov.depth is not None and cov.depth_median:
         near, far = cov.depth
