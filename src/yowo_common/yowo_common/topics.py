@@ -87,6 +87,9 @@ GT_AGENT_KEYPOINTS = "/gt/agent/keypoints"  # geometry_msgs/PoseArray: poses[k].
 # latched std_msgs/String YAML with each one's height and clothes.
 GT_BYSTANDER_KEYPOINTS = "/gt/bystanders/keypoints"
 GT_BYSTANDER_INFO = "/gt/bystanders/info"
+# A walk deficient on purpose (simulator, issue #48), recorded only then: a latched std_msgs/String
+# YAML, `deficient:` a list of {kind: corner, camera, corner, ...} or {kind: doorway, door_x_m, ...}.
+GT_DEFICIENT = "/gt/deficient"
 # sensor_msgs/Imu, one per /ego/imu message (same stamp): angular_velocity / linear_acceleration
 # hold the true gyro / accelerometer biases (measured = true + bias + white noise).
 GT_EGO_IMU_BIAS = "/gt/ego/imu_bias"

@@ -30,6 +30,7 @@ from yowo_msgs.msg import AgentKeypoints, Keypoint2D
 
 from .body import agent_keypoints_3d, agent_mesh
 from .bystanders import GT_KEYPOINT_IDS, Bystander, info_yaml, plan_bystanders
+from .deficient import plan_deficient_walk, truth_yaml
 from .detector import detect
 from .imu import ImuData, bias_message, calibration_messages, imu_message, simulate_imu
 from .presets import CapturePreset, DepthNoise
@@ -147,6 +148,7 @@ class CaptureSetup:
     rng: np.random.Generator
     clock_offsets_ns: dict[str, int] = field(default_factory=dict)  # CMC clock - ego clock (preset's option)
     bystanders: list[Bystander] = field(default_factory=list)  # other people walking about (preset's option)
+    deficient: list[dict] = field(default_factory=list)  # what the walk made deficient (preset's option)
 
 
 def clock_offsets(preset: CapturePreset, seed: int, cmcs: list[Cmc]) -> dict[str, int]:
@@ -163,7 +165,12 @@ def build_capture(preset: CapturePreset, seed: int) -> CaptureSetup:
     scene = build_scene(replace(preset.scene, seed=seed))
     cmcs = place_cmcs(scene, preset, rng)
     routes = FloorRoutes(scene.free_space_polygon())
-    walk = plan_walk(routes, scene.rooms[0].center_xy(), [c.target_xy for c in cmcs], preset.walk, rng)
+    deficient = []
+    if preset.deficient.active:
+        start = scene.rooms[0].center_xy()
+        walk, deficient = plan_deficient_walk(scene, cmcs, routes.free, start, preset, seed, rng)
+    else:
+        walk = plan_walk(routes, scene.rooms[0].center_xy(), [c.target_xy for c in cmcs], preset.walk, rng)
     # After the agent's walk and from their own generator: nothing of the agent's changes.
     places = [c.target_xy for c in cmcs] + [r.center_xy() for r in scene.rooms]
     bystanders = plan_bystanders(preset.bystanders, routes, places, walk, seed)
@@ -177,6 +184,7 @@ def build_capture(preset: CapturePreset, seed: int) -> CaptureSetup:
         rng=rng,
         clock_offsets_ns=clock_offsets(preset, seed, cmcs),
         bystanders=bystanders,
+        deficient=deficient,
     )
 
 
@@ -211,6 +219,8 @@ def generate(
         _write_static_ground_truth(bag, scene, cmcs, setup.clock_offsets_ns)
         if bystanders:
             bag.write(topics.GT_BYSTANDER_INFO, String(data=info_yaml(bystanders)), START_NS, latched=True)
+        if setup.deficient:
+            bag.write(topics.GT_DEFICIENT, String(data=truth_yaml(setup.deficient)), START_NS, latched=True)
         imu_writer = _ImuWriter(bag, imu, preset) if imu is not None else None
         for n, (stamp, kind, idx) in enumerate(events):
             if imu_writer:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 from .bystanders import BystanderSpec
+from .deficient import DeficientSpec
 from .detector import DetectorSpec
 from .imu import ImuParams
 from .rig import CmcSpec
@@ -55,6 +56,9 @@ class CapturePreset:
     # the recording is the agent's alone, as before.
     bystanders: BystanderSpec = field(default_factory=BystanderSpec)
     bystanders_in_ego_view: bool = True  # the ego images show the bystanders in view (as a real head camera)
+    # A walk deficient on purpose (issue #48: a camera seeing the walker in one corner only, or
+    # two rooms joined by one pass through a doorway): off, the walk is the seed's as before.
+    deficient: DeficientSpec = field(default_factory=DeficientSpec)
 
 
 PRESETS = {

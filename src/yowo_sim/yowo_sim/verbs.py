@@ -53,6 +53,10 @@ def cmd_simulate(args) -> int:
         overrides["imu"] = False
     if args.bystanders:
         overrides["bystanders"] = replace(get_preset(args.preset).bystanders, count=args.bystanders)
+    if args.deficient:
+        from yowo_sim.deficient import parse_deficient
+
+        overrides["deficient"] = parse_deficient(args.deficient)
     preset = get_preset(args.preset, **overrides)
     with Progress() as bar:
         task = bar.add_task(f"simulating '{args.preset}' (seed {args.seed})", total=None)
@@ -132,6 +136,15 @@ def add_verbs(verbs) -> None:
         metavar="N",
         help="N other people walking about, some passing the agent; their keypoints only in /gt/bystanders/ "
         "(default 0)",
+    )
+    p.add_argument(
+        "--deficient",
+        nargs="+",
+        default=[],
+        metavar="KIND",
+        help="a walk deficient on purpose, recorded on /gt/deficient: 'corner' (a camera drawn from the seed), "
+        "'corner:CAM' or 'corner:CAM:top-left' (that camera sees the walker only in one corner of its image: "
+        "a ninth, else a quadrant), 'doorway' (two rooms joined by one pass through a doorway)",
     )
     p.add_argument("--preview", metavar="PNG", help="also write a picture: ego frame, CMC frame, top view")
     p.add_argument(
