@@ -135,6 +135,33 @@ def cmd_bench_bystanders(args) -> int:
     return 0 if all(c["exit"] == 0 for c in cases) else 1
 
 
+def cmd_bench_guidance(args) -> int:
+    """Walks deficient on purpose and sufficient ones through `yowo run`: the guidance scored."""
+    import datetime
+
+    from .guidance_bench import KINDS, run_guidance_bench
+
+    unknown = [k for k in args.kinds if k not in KINDS]
+    if unknown:
+        raise ValueError(f"unknown walk(s) {', '.join(unknown)} (choose from {', '.join(KINDS)})")
+    stop_at = None
+    if args.until:
+        hour, minute = (int(v) for v in args.until.split(":"))
+        now = datetime.datetime.now()
+        stop_at = now.replace(hour=hour, minute=minute, second=0, microsecond=0).timestamp()
+    cases = run_guidance_bench(
+        args.preset,
+        args.seeds,
+        args.kinds,
+        Path(args.output),
+        Path(args.markdown) if args.markdown else None,
+        _config_arguments(args),
+        stop_at,
+    )
+    print(f"wrote {Path(args.output) / 'results.json'} and {Path(args.output) / 'GUIDANCE.md'}")
+    return 0 if all(c.get("exit", 0) == 0 for c in cases) else 1
+
+
 def cmd_bench_tum(args) -> int:
     """TUM RGB-D sequences through the real graph with no CMCs: ATE beside published numbers."""
     from .tum_bench import run_tum_bench
@@ -225,6 +252,26 @@ def add_verbs(verbs) -> None:
     p.add_argument("--markdown", help="put the table into this file (e.g. BENCHMARKS.md), replacing an earlier one")
     add_config_options(p)
     p.set_defaults(func=cmd_bench_bystanders)
+
+    p = verbs.add_parser(
+        "bench-guidance",
+        help="generated walks deficient on purpose (a camera seeing the walker in one corner, one pass through a "
+        "doorway) and sufficient ones through yowo run: the walk guidance's precision and recall -> markdown",
+    )
+    p.add_argument("--preset", default="small")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument(
+        "--kinds",
+        nargs="+",
+        default=["sufficient", "corner", "doorway"],
+        help="walks per seed: sufficient (the seed's usual walk), corner (a camera drawn from the seed sees the "
+        "walker only in one corner of its image), doorway (one pass between two rooms)",
+    )
+    p.add_argument("-o", "--output", default="bench/guidance", help="directory for the recordings and runs")
+    p.add_argument("--markdown", help="put the section into this file (e.g. BENCHMARKS.md), replacing an earlier one")
+    p.add_argument("--until", metavar="HH:MM", help="start no new case after this local time")
+    add_config_options(p)
+    p.set_defaults(func=cmd_bench_guidance)
 
     p = verbs.add_parser("bench-graph", help="the real graph's speed (yowo run --rate 0) per stage -> BENCHMARKS.md")
     p.add_argument("--preset", nargs="+", default=["small"])
