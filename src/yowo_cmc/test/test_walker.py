@@ -115,6 +115,23 @@ def test_a_person_alone_in_view_without_motion_evidence_is_the_walker():
     assert choose_walker(tracks, None, PeopleParams()).track_ids == [tracks[0].track_id]
 
 
+def test_a_recording_shorter_than_a_judgeable_track_still_has_its_one_person_as_the_walker():
+    """A real 1.5 s recording (a lab trial): one person, too short to compare with any motion."""
+    t = T[T < 1.5]
+    x = 100 + path(np.ones(len(t), bool), 0.5 * H_PX, 1 / HZ)
+    tracks, _ = tracks_of({"walker": np.column_stack([x, np.full_like(t, 300.0)])}, np.round(t * 1e9))
+    assert sum(tr.seconds() for tr in tracks) < PeopleParams().min_track_s
+    ids = [tr.track_id for tr in tracks]
+    assert choose_walker(tracks, None, PeopleParams()).track_ids == ids  # CMC-only
+    with_ego = choose_walker(tracks, ego_from(np.ones(len(T), bool), T), PeopleParams())
+    assert with_ego.track_ids == ids and "too briefly" in with_ego.evidence[0].why
+    # Two people that briefly: which one walked cannot be told.
+    both = {"a": np.column_stack([x, np.full_like(t, 300.0)]), "b": np.column_stack([x + 900, np.full_like(t, 420.0)])}
+    tracks, _ = tracks_of(both, np.round(t * 1e9))
+    choice = choose_walker(tracks, ego_from(np.ones(len(T), bool), T), PeopleParams())
+    assert choice.track_ids == [] and choice.reason == "no person seen long enough"
+
+
 def test_a_walker_leaving_and_coming_back_is_one_walker_in_several_tracks():
     walking = schedule(40, WALKER_LEGS, T)
     ego = ego_from(walking, T)

@@ -137,11 +137,15 @@ def choose_walker(tracks: list[PersonTrack], ego: EgoMotion | None, params: Peop
     the ego camera's trajectory (None: a CMC-only calibration, no motion to compare)."""
     p = params
     everyone = identities(tracks, p)
-    people = [g for g in everyone if sum(t.seconds() for t in g) >= p.min_track_s]
+    no_ego = ego is None or len(ego.stamps_ns) < 2
+    # Without an ego trajectory no motion is compared: a short recording's one person is the walker.
+    people = everyone if no_ego else [g for g in everyone if sum(t.seconds() for t in g) >= p.min_track_s]
     if not people:
+        if everyone and not any(_overlaps(g, o) for i, g in enumerate(everyone) for o in everyone[i + 1 :]):
+            return _too_short_alone(everyone)
         return WalkerChoice(track_ids=[], clock_offset_s=None, reason="no person seen long enough")
     alone = [not any(_overlaps(g, o) for o in everyone if o is not g) for g in people]
-    if ego is None or len(ego.stamps_ns) < 2:
+    if no_ego:
         choice = _without_ego(people, alone)
         choice.track_ids = _with_glimpses(choice.track_ids, everyone, people) if choice.track_ids else []
         return choice
@@ -255,6 +259,16 @@ def _evidence(g: list[PersonTrack], agreement, alone: bool, walker: bool, why: s
         alone=alone,
         walker=walker,
         why=why,
+    )
+
+
+def _too_short_alone(everyone: list[list[PersonTrack]]) -> WalkerChoice:
+    """Nobody seen long enough to compare with the ego camera's motion, and never two people in
+    view at once: what was seen is taken for the walker, as a person alone in view is."""
+    why = "alone in view, seen too briefly to compare with the ego camera's motion"
+    evidence = [_evidence(g, None, True, True, why) for g in everyone]
+    return WalkerChoice(
+        track_ids=sorted(t.track_id for g in everyone for t in g), clock_offset_s=None, evidence=evidence
     )
 
 
