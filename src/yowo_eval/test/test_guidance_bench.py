@@ -117,3 +117,20 @@ def test_the_verdicts_and_weak_places_are_read_from_the_results(tmp_path):
     places = [{"kind": "walked once", "x_m": 1.0, "y_m": 2.0}]
     (tmp_path / "weak_places.yaml").write_text(yaml.safe_dump({"weak_places": places}))
     assert read_weak_places(tmp_path) == places
+
+
+def test_the_true_coverage_of_a_corner_walk():
+    """Where each camera truly saw the walker (the simulator's walk again): the corner walk's camera
+    in its corner only, and the same recording's truth as the simulator recorded it."""
+    from yowo_eval.guidance_bench import true_coverage
+    from yowo_sim.capture import build_capture
+    from yowo_sim.deficient import parse_deficient
+    from yowo_sim.presets import get_preset
+
+    (truth,) = build_capture(get_preset("small", deficient=parse_deficient(["corner:cam00"])), 1).deficient
+    cov = true_coverage("small", "corner:cam00", 1)
+    assert truth["corner"] == "top-left" and truth["region"] == "ninth"
+    ninths = cov["cam00"]["ninths"]
+    assert ninths[0][0] > 50 and sum(map(sum, ninths)) == ninths[0][0]
+    assert cov["cam00"]["region_reason"] == "agent seen only in the image's top-left corner"
+    assert set(cov) == {"cam00", "cam01", "cam02", "cam03", "cam04"}

@@ -133,8 +133,12 @@ def score_case(case: dict, bag: Path, run: Path) -> dict:
         name: {**g, "deficient": name in deficient, "needs_more": g["verdict"] == NEEDS_MORE}
         for name, g in guidance.items()
     }
+    for name, cov in true_coverage(case["preset"], case["kind"], case["seed"]).items():
+        if name in case["cameras"]:
+            case["cameras"][name]["true_region_reason"] = cov["region_reason"]
+            case["cameras"][name]["true_ninths"] = cov["ninths"]
     for t in truth:
-        if t["kind"] == "corner" and t["camera"] in guidance:
+        if t["kind"] == "corner" and t["camera"] in guidance and t.get("region") == "ninth":
             case["corner_named"] = corner_named(guidance[t["camera"]]["reasons"], t["corner"])
         if t["kind"] == "doorway":
             door = (T_map_sim @ [t["door_x_m"], t["door_y_m"], 0.0, 1.0])[:2]
@@ -142,7 +146,49 @@ def score_case(case: dict, bag: Path, run: Path) -> dict:
     return case
 
 
+def true_coverage(preset: str, kind: str, seed: int, step_s: float = 0.1) -> dict[str, dict]:
+    """Per camera, where in its image the walker truly was (the simulator's walk again, its
+    keypoints as the simulated detector sees them: in the image, not hidden by the scene): the
+    count per ninth and the coverage model's region reason on them ('' every third reached).
+    Walks deficient on purpose change what other cameras see too; this tells those apart."""
+    from yowo_cmc.coverage import region_reason
+    from yowo_cmc.params import CoverageParams
+    from yowo_sim.body import agent_keypoints_3d
+    from yowo_sim.capture import build_capture
+    from yowo_sim.detector import visible_points
+    from yowo_sim.render import Renderer
+
+    setup = build_capture(_preset(preset, kind), seed)
+    renderer = Renderer(setup.scene)
+    times = np.arange(0.0, setup.walk.duration_s, step_s)
+    kps = []
+    for t in times:
+        xy, heading, phase = setup.walk.state_at(t)
+        kps += list(agent_keypoints_3d(xy, heading, setup.walk.height_m, phase).values())
+    kps = np.array(kps)
+    out = {}
+    for cmc in setup.cmcs:
+        depth = renderer.render(cmc.camera, cmc.T_world_cam).depth
+        uv, ok = visible_points(cmc.camera, cmc.T_world_cam, kps, depth, 0.05)
+        uv = uv[ok]
+        counts = np.zeros((3, 3), int)
+        rows = np.clip((uv[:, 1] * 3 // cmc.camera.height).astype(int), 0, 2)
+        cols = np.clip((uv[:, 0] * 3 // cmc.camera.width).astype(int), 0, 2)
+        np.add.at(counts, (rows, cols), 1)
+        reason = region_reason(counts, CoverageParams()) if len(uv) else "agent never seen in the image"
+        out[cmc.name] = {"ninths": counts.tolist(), "region_reason": reason}
+    return out
+
+
 # ------------------------------------------------------------------------ the bench
+
+
+def _preset(preset: str, kind: str):
+    from yowo_sim.deficient import parse_deficient
+    from yowo_sim.presets import get_preset
+
+    deficient = parse_deficient([kind] if kind != "sufficient" else [])
+    return get_preset(preset, cmc_images=False, deficient=deficient)
 
 
 def guidance_bag(preset: str, kind: str, seed: int, bags_dir: Path, log=print) -> Path:
@@ -151,17 +197,14 @@ def guidance_bag(preset: str, kind: str, seed: int, bags_dir: Path, log=print) -
     import shutil
 
     from yowo_sim.capture import generate
-    from yowo_sim.deficient import parse_deficient
-    from yowo_sim.presets import get_preset
 
     path = bags_dir / f"{preset}_guidance_{kind}_s{seed}"
     if (path / "metadata.yaml").exists():
         return path
     shutil.rmtree(path, ignore_errors=True)  # an interrupted generation
     bags_dir.mkdir(parents=True, exist_ok=True)
-    deficient = parse_deficient([kind]) if kind != "sufficient" else parse_deficient([])
     t0 = time.perf_counter()
-    summary = generate(get_preset(preset, cmc_images=False, deficient=deficient), seed, path)
+    summary = generate(_preset(preset, kind), seed, path)
     log(f"generated {path.name}: {summary.duration_s:.0f} s walk in {time.perf_counter() - t0:.0f} s")
     return path
 
@@ -175,9 +218,11 @@ def guidance_cases(
     log=print,
     stop_at=None,
     on_case=None,
+    previous: dict | None = None,
 ) -> list[dict]:
     """Every (seed, kind) case, in seed order; `stop_at`: a time.time() after which no case starts;
-    `on_case`: called with the cases so far after each."""
+    `on_case`: called with the cases so far after each; `previous`: cases of an earlier bench by
+    (seed, kind), reused where their recording and run are still there."""
     cases = []
     for seed in seeds:
         for kind in kinds:
@@ -185,6 +230,15 @@ def guidance_cases(
                 log(f"stopping before seed {seed} {kind}: time is up")
                 return cases
             case = {"preset": preset, "seed": seed, "kind": kind}
+            done = (previous or {}).get((seed, kind))
+            if done and done.get("exit") == 0 and (out_dir / "bags" / done["bag"] / "metadata.yaml").exists():
+                run = out_dir / "runs" / done["bag"]
+                if (run / "cameras.yaml").exists():
+                    cases.append(score_case(done, out_dir / "bags" / done["bag"], run))
+                    log(f"{done['bag']}: the earlier run, scored again")
+                    if on_case:
+                        on_case(cases)
+                    continue
             try:
                 bag = guidance_bag(preset, kind, seed, out_dir / "bags", log)
             except ValueError as e:
@@ -225,6 +279,15 @@ def summary(cases: list[dict]) -> dict:
             for k in KINDS
             if any(c["kind"] == k for c in scored)
         },
+        # Against where each camera truly saw the walker: thin when its image's thirds are not all reached.
+        "against_true_regions": precision_recall(
+            [
+                (bool(x["true_region_reason"]), x["needs_more"])
+                for c in scored
+                for x in c["cameras"].values()
+                if "true_region_reason" in x
+            ]
+        ),
         "corner_named": {"walks": len(named), "named": sum(named)},
         "doorway": hit_rate(scored),
     }
@@ -236,7 +299,7 @@ def _pct(v) -> str:
 
 def guidance_markdown(cases: list[dict], command: str) -> str:
     s = summary(cases)
-    a, door, named = s["all"], s["doorway"], s["corner_named"]
+    a, door, named, t = s["all"], s["doorway"], s["corner_named"], s["against_true_regions"]
     lines = [
         BEGIN,
         "## Walk guidance on deficient walks (`yowo bench-guidance`)",
@@ -256,27 +319,47 @@ def guidance_markdown(cases: list[dict], command: str) -> str:
         f"{named['walks']} corner walks; doorway named by a weak place in {door['hits']} of {door['walks']} "
         f"doorway walks ({_pct(door['rate'])}).",
         "",
-        "| recording | walk | exit | deficient (truth) | `needs more` (final guidance) | corner named | "
+        "The deficient walks change what the other cameras see too (a corner walk keeps off much of a room). "
+        "Against where each camera truly saw the walker (the simulator's walk again: its keypoints in the image "
+        "and not hidden, by ninths; *thin* when the coverage model's region test on them fails): "
+        f"precision {_pct(t['precision'])} ({t['tp']} of {t['tp'] + t['fp']}), recall {_pct(t['recall'])} "
+        f"({t['tp']} of {t['tp'] + t['fn']}).",
+        "",
+        "| recording | walk | exit | deficient (truth) | `needs more` (final guidance) | thin in truth | corner named | "
         "doorway: nearest weak place [m] | processing / recording |",
-        "|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for c in cases:
         if c.get("skipped"):
-            lines.append(f"| {c['preset']} seed {c['seed']} | {c['kind']} | - | no such walk: {c['skipped']} | | | | |")
+            lines.append(
+                f"| {c['preset']} seed {c['seed']} | {c['kind']} | - | no such walk: {c['skipped']} | | | | | |"
+            )
             continue
         cams = c.get("cameras", {})
         truth = ", ".join(
             f"{t['camera']} ({t['corner']} {t['region']})" for t in c.get("truth", []) if t["kind"] == "corner"
         )
         said = ", ".join(n for n, x in cams.items() if x["needs_more"]) or "none"
+        thin = ", ".join(n for n, x in cams.items() if x.get("true_region_reason")) or "none"
         corner = {True: "yes", False: "no"}.get(c.get("corner_named"), "")
         d = c.get("doorway")
         door_cell = "" if not d else f"{d['nearest_m']} ({d['kind']}){' hit' if d['hit'] else ''}"
         lines.append(
-            f"| {c['bag']} | {c['kind']} | {c['exit']} | {truth or '-'} | {said} | {corner} | {door_cell} "
+            f"| {c['bag']} | {c['kind']} | {c['exit']} | {truth or '-'} | {said} | {thin} | {corner} | {door_cell} "
             f"| {c['ratio']:.2f} |"
         )
     return "\n".join(lines + [END, ""])
+
+
+def rescore(out_dir: Path, log=print) -> list[dict]:
+    """The cases of an earlier bench in out_dir scored again from their recordings and runs."""
+    cases = json.loads((out_dir / "guidance_cases.json").read_text())
+    for case in cases:
+        if case.get("exit") == 0 and not case.get("skipped"):
+            bag = out_dir / "bags" / case["bag"]
+            score_case(case, bag, out_dir / "runs" / bag.name)
+            log(f"scored {case['bag']} again")
+    return cases
 
 
 def run_guidance_bench(
@@ -287,8 +370,11 @@ def run_guidance_bench(
     markdown_path: Path | None,
     extra: list[str],
     stop_at=None,
+    rescore_only: bool = False,
+    resume: bool = False,
     log=print,
 ) -> list[dict]:
+    """The bench (or with `rescore_only` the earlier cases in out_dir scored again: no runs)."""
     command = "yowo " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     out_dir.mkdir(parents=True, exist_ok=True)
 
@@ -298,6 +384,14 @@ def run_guidance_bench(
         results = {"command": command, "summary": summary(cases), "cases": cases}
         (out_dir / "results.json").write_text(json.dumps(results, indent=1))
 
-    cases = guidance_cases(preset, seeds, kinds, out_dir, extra, log, stop_at, on_case=write)
+    if rescore_only:
+        cases = rescore(out_dir, log)
+        command = json.loads((out_dir / "results.json").read_text())["command"]
+    else:
+        previous = None
+        if resume and (out_dir / "guidance_cases.json").exists():
+            earlier = json.loads((out_dir / "guidance_cases.json").read_text())
+            previous = {(c["seed"], c["kind"]): c for c in earlier if c.get("preset") == preset}
+        cases = guidance_cases(preset, seeds, kinds, out_dir, extra, log, stop_at, write, previous)
     write(cases)
     return cases

@@ -157,6 +157,8 @@ def cmd_bench_guidance(args) -> int:
         Path(args.markdown) if args.markdown else None,
         _config_arguments(args),
         stop_at,
+        args.rescore,
+        args.resume,
     )
     print(f"wrote {Path(args.output) / 'results.json'} and {Path(args.output) / 'GUIDANCE.md'}")
     return 0 if all(c.get("exit", 0) == 0 for c in cases) else 1
@@ -270,6 +272,12 @@ def add_verbs(verbs) -> None:
     p.add_argument("-o", "--output", default="bench/guidance", help="directory for the recordings and runs")
     p.add_argument("--markdown", help="put the section into this file (e.g. BENCHMARKS.md), replacing an earlier one")
     p.add_argument("--until", metavar="HH:MM", help="start no new case after this local time")
+    p.add_argument(
+        "--rescore", action="store_true", help="run nothing: score the cases already in OUTPUT again (after a change)"
+    )
+    p.add_argument(
+        "--resume", action="store_true", help="reuse the cases already run in OUTPUT (their recording and run there)"
+    )
     add_config_options(p)
     p.set_defaults(func=cmd_bench_guidance)
 

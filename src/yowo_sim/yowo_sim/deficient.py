@@ -32,6 +32,8 @@ GRID_M = 0.1  # floor grid on which the corner camera's view is mapped
 FEET_SLACK_M = 0.05  # the feet's ring is this much wider than their reach from the axis
 KEEP_OFF_M = 0.15  # the walk keeps this far from floor where the walker would show elsewhere
 CORNER_MARGIN_PX = 6.0  # the corner ninth shrunk by this (keypoint noise stays inside)
+AXIS_SAMPLES = 4  # the first body samples: keypoints on the walker's axis, whatever its heading
+MIN_AXIS_SEEN = 2  # the corner's floor: where at least this many of them show in the corner
 CORNER_SHARES = (1 / 3, 1 / 2)  # a corner ninth is tried first, then a corner quadrant
 MIN_CORNER_AREA_M2 = 0.2  # a corner whose floor area (reachable) is smaller is not chosen
 
@@ -81,7 +83,7 @@ def _body_samples(xy: np.ndarray, height_m: float) -> np.ndarray:
     H = height_m
     reach = float(np.hypot(0.06 * H, LEG_SWING * H)) + FEET_SLACK_M
     ring = [(reach * np.cos(a), reach * np.sin(a)) for a in np.linspace(0, 2 * np.pi, 12, endpoint=False)]
-    offsets = [(0.0, 0.0, z) for z in (0.0, 0.53 * H, 0.845 * H, H)]
+    offsets = [(0.0, 0.0, z) for z in (0.0, 0.53 * H, 0.845 * H, H)]  # AXIS_SAMPLES: ground, pelvis, neck, head top
     offsets += [(dx, dy, z) for dx, dy in ring for z in (0.0, FOOT_LIFT * H)]
     off = np.array(offsets)
     return np.column_stack([xy, np.zeros(len(xy))])[:, None, :] + off[None]
@@ -106,13 +108,12 @@ def _cells(xy: np.ndarray):
 
 def corner_box(camera, corner: str, share: float) -> tuple[float, float, float, float]:
     """(u0, v0, u1, v1) of the image's corner `share` of its width and height wide (a ninth:
-    a third; a quadrant: a half), shrunk by CORNER_MARGIN_PX."""
+    a third; a quadrant: a half), its two inner sides moved in by CORNER_MARGIN_PX."""
     r, c = CORNERS[corner]
-    w, h = camera.width * share, camera.height * share
-    u0 = 0.0 if c == 0 else camera.width - w
-    v0 = 0.0 if r == 0 else camera.height - h
-    m = CORNER_MARGIN_PX
-    return u0 + m, v0 + m, u0 + w - m, v0 + h - m
+    w, h, m = camera.width * share, camera.height * share, CORNER_MARGIN_PX
+    u = (-0.5, w - m) if c == 0 else (camera.width - w + m, camera.width - 0.5)  # the image spans -0.5 .. w - 0.5
+    v = (-0.5, h - m) if r == 0 else (camera.height - h + m, camera.height - 0.5)
+    return u[0], v[0], u[1], v[1]
 
 
 def _corner_floor(cmc, depth: np.ndarray, free, height_m: float, share: float) -> dict:
@@ -133,7 +134,7 @@ def _corner_floor(cmc, depth: np.ndarray, free, height_m: float, share: float) -
         u0, v0, u1, v1 = corner_box(cmc.camera, name, share)
         inside = (uv[..., 0] >= u0) & (uv[..., 0] <= u1) & (uv[..., 1] >= v0) & (uv[..., 1] <= v1)
         bad = (vis & ~inside).any(axis=1)
-        seen = vis.any(axis=1) & ~bad
+        seen = (vis[:, :AXIS_SAMPLES].sum(axis=1) >= MIN_AXIS_SEEN) & ~bad  # keypoints on its axis in view
         blocked = _cells(xy[bad])
         allowed = free.difference(blocked.buffer(KEEP_OFF_M))
         out[name] = (allowed, xy[seen])
