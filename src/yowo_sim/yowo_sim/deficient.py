@@ -1,10 +1,11 @@
 """Deficient walks on purpose (issue #48, the walk guidance's benchmark): a walk whose
 shortcomings are known by construction, so the guidance can be scored against them.
 
-- corner: one ceiling camera sees the walker only in one corner ninth of its image. The walk
-  keeps off every floor point from which any part of the walker would show elsewhere in that
-  camera's image (depth-tested against the camera's agent-free view, as the simulated
-  detector does) and stands once in the floor area that the corner ninth sees.
+- corner: one ceiling camera sees the walker only in one corner ninth of its image (where no
+  camera's ninth is reachable, a corner quadrant). The walk keeps off every floor point from
+  which the walker's keypoints would show elsewhere in that camera's image (depth-tested against
+  the camera's agent-free view, as the simulated detector does) and stands once in the floor
+  area that the corner sees.
 - doorway: two rooms are joined by one pass through a doorway. The walk visits every target
   outside a room that has a single door first, then crosses that door once and visits the
   room's targets; it ends there.
@@ -28,21 +29,19 @@ from .walk import CORNER_CLEARANCE_M, FloorRoutes, Walk, WalkSpec, _timeline, pl
 
 RNG_STREAM = 48  # default_rng([seed, RNG_STREAM]): the camera drawn for "any"
 CORNERS = {"top-left": (0, 0), "top-right": (0, 2), "bottom-left": (2, 0), "bottom-right": (2, 2)}
-GRID_M = 0.1  # floor grid on which the corner camera's view is mapped
-FEET_SLACK_M = 0.05  # the feet's ring is this much wider than their reach from the axis
-KEEP_OFF_M = 0.15  # the walk keeps this far from floor where the walker would show elsewhere
-CORNER_MARGIN_PX = 6.0  # the corner ninth shrunk by this (keypoint noise stays inside)
+GRID_M = 0.1  # floor grid on which the corner camera's view is mapped [m]
+FEET_SLACK_M = 0.05  # the feet's ring is this much wider than their reach from the axis [m]
+KEEP_OFF_M = 0.15  # the walk keeps this far from floor where the walker would show elsewhere [m]
+CORNER_MARGIN_PX = 6.0  # the corner's inner sides moved in by this, so keypoint noise stays inside [px]
 AXIS_SAMPLES = 4  # the first body samples: keypoints on the walker's axis, whatever its heading
 MIN_AXIS_SEEN = 2  # the corner's floor: where at least this many of them show in the corner
 CORNER_SHARES = (1 / 3, 1 / 2)  # a corner ninth is tried first, then a corner quadrant
-MIN_CORNER_AREA_M2 = 0.2  # a corner whose floor area (reachable) is smaller is not chosen
+MIN_CORNER_AREA_M2 = 0.2  # a corner whose reachable floor area is smaller is not chosen [m^2]
 
 
 @dataclass(frozen=True, kw_only=True)
 class DeficientSpec:
-    corner_camera: str = (
-        ""  # this camera sees the walker only in one corner of its image ('' none, 'any': drawn) [name]
-    )
+    corner_camera: str = ""  # this camera sees the walker in one image corner only ('' none, 'any': drawn) [name]
     corner: str = ""  # that corner: top-left, top-right, bottom-left or bottom-right ('' the best reachable) [name]
     doorway: bool = False  # the walk crosses once between two rooms joined by a doorway [flag]
 
@@ -185,7 +184,10 @@ def plan_corner(scene, cmcs, spec: DeficientSpec, free, height_m: float, seed: i
                     best = (key, CornerPlan(camera=cmc.name, corner=name, share=share, free=piece, spot=spot))
             if best is not None:
                 return best[1]
-    raise ValueError(f"no camera of {', '.join(c.name for c in order)} has a reachable corner of its image")
+    raise ValueError(
+        f"no camera of {', '.join(c.name for c in order)} has a corner of its image that the walk can reach "
+        "without crossing the rest of its view (another seed may have one)"
+    )
 
 
 def camera_of(cmcs, name: str):

@@ -58,7 +58,7 @@ class CapturePreset:
     bystanders_in_ego_view: bool = True  # the ego images show the bystanders in view (as a real head camera)
     # A walk deficient on purpose (issue #48: a camera seeing the walker in one corner only, or
     # two rooms joined by one pass through a doorway): off, the walk is the seed's as before.
-    deficient: DeficientSpec = field(default_factory=DeficientSpec)
+    deficient: DeficientSpec = field(default_factory=DeficientSpec)  # a deficient walk's kind [-]
 
 
 PRESETS = {
