@@ -466,8 +466,9 @@ def _stage_nodes(
     nodes.append(_stage(topics.GROUP_SFM_STAGE, {"cameras": cameras, **unknown}))
     final = topics.GROUP_SFM_STAGE
     outputs = {topics.GROUPS: "yowo_msgs/msg/CameraGroupArray"}
+    # Which person each pose-model tracker took for the walker, and why (cameras.yaml, the report).
+    outputs.update({topics.tracker_walker(c): "std_msgs/msg/String" for c, kind, _ in trackers if kind == "pose"})
     if mode == FULL:
-        outputs.update({topics.tracker_walker(c): "std_msgs/msg/String" for c, kind, _ in trackers if kind == "pose"})
         nodes.append(_stage(topics.EGO_STAGE, ego_params))
         nodes.append(_stage(topics.FUSION_STAGE, {"cameras": cameras, **unknown}))
         final = topics.FUSION_STAGE

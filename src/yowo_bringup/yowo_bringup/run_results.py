@@ -30,23 +30,31 @@ class RunOutcome:
 
 
 def write_group_calibration(
-    path: Path, groups: list[CameraGroupResult], ungrouped: dict[str, str], cmc: CmcParams = CmcParams()
+    path: Path,
+    groups: list[CameraGroupResult],
+    ungrouped: dict[str, str],
+    cmc: CmcParams = CmcParams(),
+    walkers: dict[str, dict] | None = None,
 ) -> None:
     """cameras.yaml of a CMC-only run: per camera its group and T_group_camera
     (pseudo-scale: the group's reference camera is the identity), the intrinsics the group
     SfM used, clock and keypoint noise as a full run writes them, and each camera's coverage
-    (yowo_cmc.coverage, from its group's agent points; depths in the group's units)."""
+    (yowo_cmc.coverage, from its group's agent points; depths in the group's units).
+    `walkers`: per pose-model camera, whom its tracker took for the walker; a camera whose
+    walker was a guess among several people is `weak` (the group may join different people)."""
     coverage = group_coverage(groups, ungrouped, params=cmc.coverage, sfm=cmc.sfm)
+    walkers = walkers or {}
     cams = []
     for g in groups:
         for n in g.names:
+            doubt = (walkers.get(n) or {}).get("doubt", "")
             cams.append(
                 {
                     "name": n,
                     "group": g.group_id,
                     "method": "group_sfm",
-                    "status": "ok",
-                    "reason": "",
+                    "status": "weak" if doubt else "ok",
+                    "reason": doubt,
                     "frame": f"{g.group_id} (reference camera {g.reference}, arbitrary scale)",
                     "T_group_camera": pose_entry(g.T_local_cam[n]),
                     **intrinsics_entry(g.cameras.get(n)),
@@ -55,6 +63,7 @@ def write_group_calibration(
                     "reprojection_rmse_px": round(float(g.rmse_px[n]), 4),
                     "num_agent_observations": int(g.num_observations[n]),
                     **coverage_entry(coverage.get(n)),
+                    **({"walker": walkers[n]} if n in walkers else {}),
                 }
             )
     for n, why in ungrouped.items():
@@ -90,7 +99,7 @@ def write_run_results(
         groups, ungrouped = groups_from_msg(outputs[topics.GROUPS]) if topics.GROUPS in outputs else ([], {})
         cameras = groups
         if plan.mode == CMC and topics.GROUPS in outputs:
-            write_group_calibration(out / "cameras.yaml", groups, ungrouped, plan.config.cmc)
+            write_group_calibration(out / "cameras.yaml", groups, ungrouped, plan.config.cmc, walkers(plan, outputs))
             files.append(out / "cameras.yaml")
         if plan.mode in (FULL, EGO):
             cameras = _write_full_results(staged, outputs, files)

@@ -130,6 +130,11 @@ def test_a_recording_shorter_than_a_judgeable_track_still_has_its_one_person_as_
     tracks, _ = tracks_of(both, np.round(t * 1e9))
     choice = choose_walker(tracks, ego_from(np.ones(len(T), bool), T), PeopleParams())
     assert choice.track_ids == [] and choice.reason == "no person seen long enough"
+    # CMC-only, one of them is taken, and the choice says it is a guess (the camera is then weak).
+    guess = choose_walker(tracks, None, PeopleParams())
+    assert len(guess.track_ids) == 1 and "nothing tells them apart" in guess.doubt
+    assert guess.as_dict()["doubt"] == guess.doubt
+    assert choose_walker(tracks[:1], None, PeopleParams()).doubt == ""  # alone in view: no doubt
 
 
 def test_a_walker_leaving_and_coming_back_is_one_walker_in_several_tracks():

@@ -58,6 +58,7 @@ class WalkerChoice:
     clock_offset_s: float | None  # camera clock - ego clock at which the motions agreed best
     evidence: list[PersonEvidence] = field(default_factory=list)
     reason: str = ""  # why no track is the walker
+    doubt: str = ""  # why the walker taken may be someone else ('' where the evidence decided)
 
     def as_dict(self) -> dict:
         """For cameras.yaml: the walker's tracks, the clock offset and each person's evidence."""
@@ -65,6 +66,7 @@ class WalkerChoice:
             "tracks": list(self.track_ids),
             "clock_offset_s": None if self.clock_offset_s is None else round(self.clock_offset_s, 2) + 0.0,
             "reason": self.reason,
+            "doubt": self.doubt,
             "people": [
                 {
                     "tracks": e.track_ids,
@@ -276,12 +278,16 @@ def _without_ego(people: list[list[PersonTrack]], alone: list[bool]) -> WalkerCh
     """No ego trajectory (a CMC-only calibration): the people alone in view, else the person
     seen longest."""
     chosen = [i for i in range(len(people)) if alone[i]]
-    why = "alone in view (no ego trajectory to check)"
+    why, doubt = "alone in view (no ego trajectory to check)", ""
     if not chosen:
         chosen = [max(range(len(people)), key=lambda i: sum(len(t.stamps_ns) for t in people[i]))]
         why = "seen longest among others in view (no ego trajectory to tell them apart)"
+        doubt = (
+            f"the walker was taken for the person seen longest of {len(people)} in view together: without an "
+            "ego camera nothing tells them apart, and another camera may have taken another person"
+        )
     evidence = [
         _evidence(g, None, alone[i], i in chosen, why if i in chosen else "not chosen") for i, g in enumerate(people)
     ]
     ids = sorted(t.track_id for i in chosen for t in people[i])
-    return WalkerChoice(track_ids=ids, clock_offset_s=None, evidence=evidence)
+    return WalkerChoice(track_ids=ids, clock_offset_s=None, evidence=evidence, doubt=doubt)
