@@ -348,11 +348,16 @@ def _add_uncalibrated_projections(graph, obs: Observations, unknown: dict[int, C
     """Projection factors of cameras whose intrinsics are variables (K(i), add_calibrations):
     their raw pixels, from the ideal ones through the current model."""
     huber = gtsam.noiseModel.mEstimator.Huber.Create(huber_k)
+    models: dict[float, gtsam.noiseModel.Base] = {}  # one per pixel sigma, as add_projection_factors
     for c in np.unique(obs.camera):
         sel = obs.camera == c
         raw = unknown[int(c)].distort_pixels(obs.uv[sel])
         for j, uv, s in zip(obs.point[sel], raw, obs.sigma_px[sel]):
-            model = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(2, float(s)))
+            model = models.get(float(s))
+            if model is None:
+                model = models[float(s)] = gtsam.noiseModel.Robust.Create(
+                    huber, gtsam.noiseModel.Isotropic.Sigma(2, float(s))
+                )
             graph.add(
                 gtsam.GeneralSFMFactor2Cal3Bundler(gtsam.Point2(*uv), model, C(int(c)), point_key(int(j)), CAL(int(c)))
             )

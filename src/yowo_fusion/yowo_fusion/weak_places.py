@@ -5,7 +5,7 @@ doorway between rooms the groups see apart). Each is placed on the floor and sai
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 from scipy import ndimage
@@ -131,7 +131,7 @@ def walked_once(stamps_ns: np.ndarray, xy: np.ndarray, params: WeakPlaceParams) 
         box = np.ptp(xy[idx], axis=0)
         why = f"walked once ({length:.1f} m of path), never returned to: nothing checks this part's drift"
         place = _place(WALKED_ONCE, stamps_ns, stamps_ns[0], xy, a, b, why)
-        out.append(WeakPlace(**{**asdict(place), "extent_m": float(np.hypot(*box))}))
+        out.append(replace(place, extent_m=float(np.hypot(*box))))
     return out
 
 
