@@ -1,5 +1,6 @@
 """The report's geometry (each camera's view of the floor, walls, ellipse scale) and the
-page as a browser shows it: headless Chromium renders report.html to a screenshot."""
+pages as a browser shows them: headless Chromium renders report.html and the guidance's
+floor-plan page guidance.html to screenshots."""
 
 import shutil
 import subprocess
@@ -7,7 +8,18 @@ import subprocess
 import numpy as np
 from geometry_msgs.msg import Point
 
-from yowo_bringup.report import _COLOURS, _ellipse_scale, floor_footprint, wall_segments, write_report
+from yowo_bringup.report import (
+    _COLOURS,
+    AREA_COLOUR,
+    SECOND_WALK_COLOUR,
+    WALK_COLOUR,
+    _ellipse_scale,
+    floor_footprint,
+    wall_segments,
+    write_guidance_page,
+    write_report,
+)
+from yowo_bringup.second_walk import CameraVerdict, plan_second_walk
 from yowo_common.camera import CameraModel
 from yowo_common.geometry import look_at
 from yowo_fusion.records import AgentFit, RegisteredCmc, unregistered
@@ -75,8 +87,38 @@ def test_walls_are_the_extent_of_their_outline_and_the_ellipses_are_enlarged_to_
     assert _ellipse_scale([camera("a", (0, 0, 3), (1, 1, 0), sigma_m=0.0005)]) == 50.0
 
 
-def test_report_renders_in_headless_chromium(tmp_path):
+def screenshot(page, size: tuple[int, int]) -> np.ndarray:
+    """(height, width, 3) RGB of the page as headless Chromium renders it."""
     assert shutil.which("chromium"), "chromium not found: `make setup` installs it (apt)"
+    shot = page.with_suffix(".png")
+    subprocess.run(
+        [
+            "chromium",
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--hide-scrollbars",
+            f"--window-size={size[0]},{size[1]}",
+            f"--screenshot={shot}",
+            page.as_uri(),
+        ],
+        capture_output=True,
+        timeout=120,
+        check=True,
+    )
+    import cv2
+
+    img = cv2.imread(str(shot))[:, :, ::-1].astype(int)
+    assert img.shape[:2] == (size[1], size[0])
+    return img
+
+
+def colour_pixels(img: np.ndarray, hex_colour: str, tol: int = 12) -> int:
+    rgb = np.array([int(hex_colour[i : i + 2], 16) for i in (1, 3, 5)])
+    return int((np.abs(img - rgb).max(axis=2) <= tol).sum())
+
+
+def test_report_renders_in_headless_chromium(tmp_path):
     floor = np.array([[0.0, 0.0], [6.0, 0.0], [6.0, 4.0], [0.0, 4.0]])
     cams = [
         camera("c1", (0.3, 0.3, 3.0), (3.0, 2.0, 0.0)),
@@ -101,30 +143,10 @@ def test_report_renders_in_headless_chromium(tmp_path):
     ]
     ego = np.column_stack([np.linspace(1, 5, 50), 2 + np.sin(np.linspace(0, 3, 50))])
     write_report(tmp_path / "report.html", "synthetic", cams, ego, [floor], walls=walls, fits=fits)
-    shot = tmp_path / "shot.png"
-    subprocess.run(
-        [
-            "chromium",
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--hide-scrollbars",
-            "--window-size=1250,2400",
-            f"--screenshot={shot}",
-            (tmp_path / "report.html").as_uri(),
-        ],
-        capture_output=True,
-        timeout=120,
-        check=True,
-    )
-    import cv2
-
-    img = cv2.imread(str(shot))[:, :, ::-1].astype(int)
-    assert img.shape[:2] == (2400, 1250)
+    img = screenshot(tmp_path / "report.html", (1250, 2400))
 
     def pixels(hex_colour, tol=12):
-        rgb = np.array([int(hex_colour[i : i + 2], 16) for i in (1, 3, 5)])
-        return int((np.abs(img - rgb).max(axis=2) <= tol).sum())
+        return colour_pixels(img, hex_colour, tol)
 
     # What the browser shows: both registered cameras (verdict colours: markers, rays, ellipses,
     # the verdict cells), the walls' dark grey, the panels' red reprojections and blue observations.
@@ -154,3 +176,63 @@ def test_the_walks_weak_places_are_listed_and_numbered_as_drawn(tmp_path):
     assert "None found" in (tmp_path / "none.html").read_text()
     write_report(tmp_path / "cmc_only.html", "synthetic", cams, None, [])  # no fusion: no section
     assert "Weak places" not in (tmp_path / "cmc_only.html").read_text()
+
+
+def guidance_scene(with_second_walk: bool):
+    """Two rooms joined by a doorway, the first walk in the left one; cam00 over the right one
+    never saw the walker in two of its image's corners, cam01 over the left one is ok."""
+    rooms = [
+        np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 4.0], [0.0, 4.0]]),
+        np.array([[4.0, 1.5], [5.0, 1.5], [5.0, 2.5], [4.0, 2.5]]),
+        np.array([[5.0, 0.0], [9.0, 0.0], [9.0, 4.0], [5.0, 4.0]]),
+    ]
+    walls = [np.array([[0.0, 4.0], [9.0, 4.0]]), np.array([[0.0, 0.0], [9.0, 0.0]])]
+    cams = [camera("cam00", (7.0, 0.2, 3.0), (7.0, 2.5, 0.0)), camera("cam01", (2.0, 0.2, 3.0), (2.0, 2.5, 0.0))]
+    missing = ("top-left corner", "bottom-right corner") if with_second_walk else ()
+    verdicts = [
+        CameraVerdict(
+            name="cam00",
+            verdict="needs more" if with_second_walk else "ok",
+            reasons=("agent never seen in the image's left or right third",) if with_second_walk else (),
+            regions_missing=missing,
+            observations=900,
+            covisible={"cam01": 80},
+            in_group=True,
+        ),
+        CameraVerdict(name="cam01", verdict="ok", observations=900, covisible={"cam00": 80}, in_group=True),
+    ]
+    ego = np.column_stack([np.linspace(0.5, 3.5, 60), 2 + 0.8 * np.sin(np.linspace(0, 6, 60))])
+    walk = plan_second_walk(cameras=cams, verdicts=verdicts, floors=rooms, ego_xy=ego, weak_places=[])
+    return cams, verdicts, walk, ego, rooms, walls
+
+
+def test_the_guidance_page_draws_the_walk_the_areas_and_the_numbered_second_walk_in_chromium(tmp_path):
+    cams, verdicts, walk, ego, rooms, walls = guidance_scene(with_second_walk=True)
+    assert len(walk.waypoints) == 2
+    write_guidance_page(tmp_path / "guidance.html", "synthetic", cams, verdicts, walk, ego, rooms, walls)
+    page = (tmp_path / "guidance.html").read_text()
+    assert "1 of 2 cameras need more: cam00." in page
+    assert "never saw the walker in its image&#x27;s top-left corner" in page and "(waypoint " in page
+    img = screenshot(tmp_path / "guidance.html", (1250, 1100))
+    # What the browser shows: the first walk (blue), the floor cam00 needs the walker in (olive
+    # outlines), the second walk (pink line and numbered circles), cam00's verdict colour.
+    walked = colour_pixels(img, WALK_COLOUR, 20)
+    areas = colour_pixels(img, AREA_COLOUR, 20)
+    second = colour_pixels(img, SECOND_WALK_COLOUR, 20)
+    assert walked > 800 and areas > 300 and second > 800
+    assert colour_pixels(img, _COLOURS["failed"]) > 50  # cam00's triangle and its verdict, red
+    # The same page with nothing to do has no areas and no second walk.
+    cams, verdicts, walk, ego, rooms, walls = guidance_scene(with_second_walk=False)
+    write_guidance_page(tmp_path / "ok.html", "synthetic", cams, verdicts, walk, ego, rooms, walls)
+    img = screenshot(tmp_path / "ok.html", (1250, 1100))
+    assert colour_pixels(img, AREA_COLOUR, 20) < 20 and colour_pixels(img, SECOND_WALK_COLOUR, 20) < 20
+    assert abs(colour_pixels(img, WALK_COLOUR, 20) - walked) < 0.2 * walked
+    assert "All 2 cameras are ok." in (tmp_path / "ok.html").read_text()
+
+
+def test_the_report_links_the_guidance_page_when_there_is_one(tmp_path):
+    cams = [camera("cam00", [0.5, 0.5, 2.8], [3, 2, 0])]
+    write_report(tmp_path / "with.html", "synthetic", cams, None, [], guidance_page="guidance.html")
+    assert '<a href="guidance.html">Guidance after the walk</a>' in (tmp_path / "with.html").read_text()
+    write_report(tmp_path / "without.html", "synthetic", cams, None, [])
+    assert "guidance.html" not in (tmp_path / "without.html").read_text()

@@ -167,7 +167,7 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
 
     from .exports import write_exports
     from .plugins import evaluator
-    from .report import wall_segments, write_report
+    from .report import wall_segments, write_guidance, write_report
     from .results import (
         write_cameras_yaml,
         write_layout_json,
@@ -267,6 +267,11 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     if weak is not None:
         write_weak_places_yaml(out / "weak_places.yaml", weak)
         files.append(out / "weak_places.yaml")
+    guidance = outputs.get(topics.GUIDANCE)
+    if guidance and cameras:
+        files += write_guidance(
+            out, str(plan.bag or "live"), cameras, guidance[-1], ego_xy, floors, walls, weak, plan.config.cmc.coverage
+        )
     write_report(
         out / "report.html",
         str(plan.bag or "live"),
@@ -281,6 +286,7 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
         no_cameras=f"No camera registered (ego-only run): {plan.mode_reason}" if plan.mode == EGO else "",
         walkers=walkers(plan, outputs),
         weak_places=weak,
+        guidance_page="guidance.html" if guidance and cameras else "",
     )
     files.append(out / "report.html")
     if metrics:
