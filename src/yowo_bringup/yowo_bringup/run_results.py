@@ -267,7 +267,7 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     if weak is not None:
         write_weak_places_yaml(out / "weak_places.yaml", weak)
         files.append(out / "weak_places.yaml")
-    guidance = outputs.get(topics.GUIDANCE)
+    guidance = streams.get(topics.GUIDANCE)  # the updates during the walk; the last is the final one
     if guidance and cameras:
         files += write_guidance(
             out, str(plan.bag or "live"), cameras, guidance[-1], ego_xy, floors, walls, weak, plan.config.cmc.coverage
