@@ -234,7 +234,9 @@ def plan_run(
         imu_params, summary["imu"] = plan_ego_imu(bag, imap, config, ego[0])
         played += list(ego) + [t for k, t in imu_params.items() if k.endswith("_topic") and t]
     estimated = [c for c in inputs.estimated_intrinsics if c in cameras]
-    nodes, final, outputs = _stage_nodes(mode, trackers, ego, imu_params, estimated)
+    nodes, final, outputs = _stage_nodes(
+        mode, trackers, ego, imu_params, estimated, people=config.cmc.people.others_as_evidence
+    )
     if inputs.videos:
         config = _video_clock_search(config)
         summary["videos"] = {
@@ -390,7 +392,7 @@ def plan_live(
         for c in cameras
     ]
     config = config or YowoConfig()
-    nodes, final, outputs = _stage_nodes(mode, trackers, ego_topics)
+    nodes, final, outputs = _stage_nodes(mode, trackers, ego_topics, people=config.cmc.people.others_as_evidence)
     run_id = run_id or new_run_id()
     _stamp_run(nodes, run_id, False, config)
     return RunPlan(
@@ -438,11 +440,13 @@ def _stage_nodes(
     ego: tuple[str, str, str],
     imu: dict[str, str] | None = None,
     estimated: list[str] | None = None,
+    people: bool = False,
 ) -> tuple[list[NodeSpec], str, dict[str, str]]:
     """The stage processes (trackers: (camera, source, its topic parameters)), the final stage
     and the latched outputs the runner collects. `imu`: the ego mapper's IMU parameters (none:
     no IMU); `estimated`: the cameras whose intrinsics the group SfM estimates (the fusion
-    registers them only in a group)."""
+    registers them only in a group); `people`: a CMC-only run's pose-model trackers hand on
+    everyone they saw and the group SfM matches them across cameras (cmc.people.others_as_evidence)."""
     unknown = {"estimate_intrinsics": list(estimated)} if estimated else {}
     ego_params = {"color_topic": ego[0], "depth_topic": ego[1], "info_topic": ego[2], **(imu or {})}
     if mode == EGO:  # the map alone: its stage publishes the map, path, cloud and layout
@@ -455,17 +459,32 @@ def _stage_nodes(
     # With an ego camera, the pose model's trackers tell the walker among the people in view
     # by the ego camera's motion: they finish once its odometry is complete.
     walker = {"ego_odometry_topic": topics.EGO_ODOMETRY} if mode == FULL else {}
+    # Without an ego camera nobody is the walker for sure: everyone is evidence.
+    everyone = [c for c, kind, _ in trackers if kind == "pose"] if mode == CMC and people else []
     nodes = [
         NodeSpec(
             name=topics.tracker_stage(c),
             module=STAGE_MODULES[topics.TRACKER_STAGE],
-            parameters={"camera": c, "source": kind, **roles, **(walker if kind == "pose" else {})},
+            parameters={
+                "camera": c,
+                "source": kind,
+                **roles,
+                **(walker if kind == "pose" else {}),
+                **({"publish_people": True} if c in everyone else {}),
+            },
         )
         for c, kind, roles in trackers
     ]
-    nodes.append(_stage(topics.GROUP_SFM_STAGE, {"cameras": cameras, **unknown}))
+    nodes.append(
+        _stage(
+            topics.GROUP_SFM_STAGE,
+            {"cameras": cameras, **unknown, **({"people_cameras": everyone} if everyone else {})},
+        )
+    )
     final = topics.GROUP_SFM_STAGE
     outputs = {topics.GROUPS: "yowo_msgs/msg/CameraGroupArray"}
+    if everyone:
+        outputs[topics.PEOPLE] = "std_msgs/msg/String"
     # Which person each pose-model tracker took for the walker, and why (cameras.yaml, the report).
     outputs.update({topics.tracker_walker(c): "std_msgs/msg/String" for c, kind, _ in trackers if kind == "pose"})
     if mode == FULL:

@@ -3,6 +3,7 @@ aside and moved into place, partial when a stage failed, with the run log whatev
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -35,19 +36,24 @@ def write_group_calibration(
     ungrouped: dict[str, str],
     cmc: CmcParams = CmcParams(),
     walkers: dict[str, dict] | None = None,
+    people: dict | None = None,
 ) -> None:
     """cameras.yaml of a CMC-only run: per camera its group and T_group_camera
     (pseudo-scale: the group's reference camera is the identity), the intrinsics the group
     SfM used, clock and keypoint noise as a full run writes them, and each camera's coverage
     (yowo_cmc.coverage, from its group's agent points; depths in the group's units).
     `walkers`: per pose-model camera, whom its tracker took for the walker; a camera whose
-    walker was a guess among several people is `weak` (the group may join different people)."""
+    walker was a guess among several people is `weak` (the group may join different people),
+    unless its people were matched across cameras (`people`: the group SfM's matches,
+    yowo_cmc.people_identity.PeopleIdentity.as_dict): then every person it calibrated with is
+    the same person in the other cameras, whoever the walker was."""
     coverage = group_coverage(groups, ungrouped, params=cmc.coverage, sfm=cmc.sfm)
     walkers = walkers or {}
+    matched = (people or {}).get("people", {})
     cams = []
     for g in groups:
         for n in g.names:
-            doubt = (walkers.get(n) or {}).get("doubt", "")
+            doubt = "" if n in matched else (walkers.get(n) or {}).get("doubt", "")
             cams.append(
                 {
                     "name": n,
@@ -64,6 +70,7 @@ def write_group_calibration(
                     "num_agent_observations": int(g.num_observations[n]),
                     **coverage_entry(coverage.get(n)),
                     **({"walker": walkers[n]} if n in walkers else {}),
+                    **({"people": _people_entry(n, people)} if n in matched else {}),
                 }
             )
     for n, why in ungrouped.items():
@@ -78,6 +85,16 @@ def write_group_calibration(
             }
         )
     path.write_text(yaml.safe_dump({"cameras": sorted(cams, key=lambda c: c["name"])}, sort_keys=False))
+
+
+def _people_entry(camera: str, people: dict) -> dict:
+    """cameras.yaml: which of the camera's people is which shared person, and the matches'
+    evidence with the other cameras."""
+    return {
+        "shared": people["people"][camera],
+        # Copies: YAML would write a match shared by two cameras as an anchor and an alias.
+        "matches": [copy.deepcopy(m) for m in people["matches"] if camera in m["cameras"]],
+    }
 
 
 def write_run_results(
@@ -99,7 +116,10 @@ def write_run_results(
         groups, ungrouped = groups_from_msg(outputs[topics.GROUPS]) if topics.GROUPS in outputs else ([], {})
         cameras = groups
         if plan.mode == CMC and topics.GROUPS in outputs:
-            write_group_calibration(out / "cameras.yaml", groups, ungrouped, plan.config.cmc, walkers(plan, outputs))
+            people = yaml.safe_load(outputs[topics.PEOPLE].data) if topics.PEOPLE in outputs else None
+            write_group_calibration(
+                out / "cameras.yaml", groups, ungrouped, plan.config.cmc, walkers(plan, outputs), people
+            )
             files.append(out / "cameras.yaml")
         if plan.mode in (FULL, EGO):
             cameras = _write_full_results(staged, outputs, files)

@@ -11,7 +11,7 @@ from yowo_common.bundle import BundleProblem, Observations, robust_sigma, solve
 from .incremental_sfm import IncrementalSfm
 from .intrinsics import solve_with_intrinsics
 from .params import SfmParams
-from .scene_graph import MAX_IDS, PairGeometry
+from .scene_graph import MAX_IDS, PERSON_STRIDE, PairGeometry
 
 
 def robust_rounds(sfm: IncrementalSfm, init: PairGeometry, params: SfmParams) -> tuple[dict, dict[int, float]]:
@@ -89,13 +89,14 @@ def residual_sigmas(ba: dict, class_bounds: tuple[int, ...], skeleton=None) -> d
     keypoint class (the declared skeleton's, else ids split at class_bounds; classes with 10
     or more residuals)."""
     kp_ids = ba["keys"][ba["obs"].point] % MAX_IDS
+    joints = kp_ids % PERSON_STRIDE  # every person's joint is of its joint's class
     if skeleton is not None:
-        ids, where = np.unique(kp_ids, return_inverse=True)
+        ids, where = np.unique(joints, return_inverse=True)
         kinds = [skeleton.noise_class(int(k)) for k in ids]
         order = sorted(set(kinds))
         classes = np.array([order.index(c) for c in kinds], dtype=np.int64)[where]
     else:
-        classes = np.searchsorted(np.asarray(class_bounds, dtype=np.int64), kp_ids, side="right")
+        classes = np.searchsorted(np.asarray(class_bounds, dtype=np.int64), joints, side="right")
     sigma = {
         int(k): max(robust_sigma(ba["residuals"][classes == k]), 0.05)
         for k in np.unique(classes)

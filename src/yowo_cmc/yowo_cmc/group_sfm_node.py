@@ -5,24 +5,30 @@ During the walk it publishes the walk guidance (yowo_msgs/WalkGuidance on /yowo/
 every camera's coverage on the keypoints received so far, walk_guidance.WalkGuide) every
 cmc.coverage.guidance_period_s, and a final one with the groups once they are computed.
 Parameter `estimate_intrinsics`: the cameras without intrinsics (their tracker published a
-nominal model); the group SfM estimates their focal length (and k1)."""
+nominal model); the group SfM estimates their focal length (and k1). Parameter
+`people_cameras` (a CMC-only run): the cameras whose trackers hand on everyone else they saw
+(yowo_msgs/PersonKeypoints); they are matched across cameras (yowo_cmc.people_identity) and
+calibrate the groups with the walker, the matches published on /yowo/cmc/people (latched)."""
 
 from __future__ import annotations
 
 import time
 
 import numpy as np
+import yaml
 from sensor_msgs.msg import CameraInfo
+from std_msgs.msg import String
 
 from yowo_common import topics
 from yowo_common.ros.context import spin_node
 from yowo_common.ros.stage import LATCHED, StageNode
-from yowo_msgs.msg import AgentKeypoints, CameraGroupArray, WalkGuidance
+from yowo_msgs.msg import AgentKeypoints, CameraGroupArray, PersonKeypoints, WalkGuidance
 
 from .config import CmcParams
 from .intrinsics import EstimatedCamera
 from .keypoint_input import TrackAccumulator, frame_from_msg
 from .messages import groups_to_msg, guidance_to_msg
+from .people_identity import WALKER, match_people
 from .pipeline import calibrate_cmcs_apart
 from .walk_guidance import WalkGuide
 
@@ -40,6 +46,9 @@ class GroupSfmNode(StageNode):
         self.cmc = self.section(CmcParams, "cmc")
         self.params = self.cmc.sfm
         self.acc = {c: TrackAccumulator(c) for c in cameras}
+        people_cameras = [c for c in self.declare_parameter("people_cameras", [""]).value if c]
+        self.people: dict[tuple[str, int], TrackAccumulator] = {}  # (camera, its person) -> frames
+        self.people_pub = self.output(String, topics.PEOPLE, LATCHED) if people_cameras else None
         self.last_stamp = 0
         self.pub = self.output(CameraGroupArray, topics.GROUPS, LATCHED)
         self.guide = WalkGuide(cameras, self.cmc.coverage, self.params)
@@ -60,6 +69,17 @@ class GroupSfmNode(StageNode):
                 upstream=topics.tracker_stage(cam),
             )
 
+        for cam in people_cameras:
+            self.stream_input(
+                PersonKeypoints,
+                topics.tracker_people(cam),
+                lambda m, c=cam: self.on_person(c, m),
+                upstream=topics.tracker_stage(cam),
+            )
+
+    def on_person(self, camera: str, msg: PersonKeypoints) -> None:
+        self.people.setdefault((camera, int(msg.person)), TrackAccumulator(camera)).add(frame_from_msg(msg))
+
     def on_camera_info(self, camera: str, msg: CameraInfo) -> None:
         self.acc[camera].take_camera_info(msg)
         self.guide.set_camera(camera, self.acc[camera].camera)
@@ -70,6 +90,18 @@ class GroupSfmNode(StageNode):
         kept = self.acc[camera].add(frame)
         if kept is not None:
             self.guide.add(camera, kept.stamp_ns, kept.uv)
+
+    def everyone(self, walkers: list) -> tuple[list, str]:
+        """Each camera's tracks with the other people it saw, matched across cameras (those
+        matched nowhere left out), and the matches' summary; the matches published."""
+        views = {t.name: {WALKER: t} for t in walkers}
+        for (cam, person), acc in self.people.items():
+            if cam in views and acc.frames:
+                acc.camera = views[cam][WALKER].camera
+                views[cam][person] = acc.tracks(views[cam][WALKER].frame_period_ns)
+        identity = match_people(views, self.params, self.cmc.people)
+        self.people_pub.publish(String(data=yaml.safe_dump(identity.as_dict(), sort_keys=False)))
+        return identity.tracks, identity.summary()
 
     def publish_guidance(self, grouping=None) -> None:
         """The walk guidance on what was received so far (none before the first keypoints);
@@ -94,6 +126,9 @@ class GroupSfmNode(StageNode):
             }
         )
         tracks = [a.tracks() for a in usable]
+        people = ""
+        if self.people_pub is not None:
+            tracks, people = self.everyone(tracks)
         result = calibrate_cmcs_apart(tracks, self.cmc, self.estimate)
         result.ungrouped.update(unusable)
         self.destroy_timer(self.guidance_timer)
@@ -108,6 +143,8 @@ class GroupSfmNode(StageNode):
             for g in result.groups
         ]
         lines += [f"{name}: {why}" for name, why in result.ungrouped.items()]
+        if people:
+            lines.append(people)
         if self.guidance_ms:
             lines.append(
                 f"walk guidance: {len(self.guidance_ms)} updates, longest {max(self.guidance_ms):.1f} ms, "

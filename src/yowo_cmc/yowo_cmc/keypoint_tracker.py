@@ -129,6 +129,19 @@ class KeypointTracker:
             return []
         return self._keep(self.detector.flush(ego) if self.source == "pose" else self.detector.flush())
 
+    def others(self) -> dict[int, list[KeypointFrame]]:
+        """Every other person the pose model saw beside the walker (after `flush`), numbered
+        from 1, their frames validated as the walker's; {} for the other sources."""
+        if self.source != "pose" or self.camera is None:
+            return {}
+        out = {}
+        for person, frames in self.detector.others().items():
+            acc = TrackAccumulator(self.name, self.camera)
+            kept = [k for k in (acc.add(f) for f in frames) if k is not None]
+            if kept:
+                out[person] = kept
+        return out
+
     def walker(self) -> dict | None:
         """Which person the pose model's source took for the walker and why (after `flush`);
         None for the other sources."""

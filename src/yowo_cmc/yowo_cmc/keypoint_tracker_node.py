@@ -8,9 +8,10 @@ they never loop back into inputs), from one of three sources (parameter `source`
   model-free detector for a camera in whose images the model never finds the agent;
 - `images`: the built-in model-free detector on `image_topic`.
 
-Its final status says which source the camera used. It also publishes the camera's
-agent-free background once (latched) when images arrive. Smoothing and undistortion
-happen in the group SfM, which sees whole tracks.
+Its final status says which source the camera used. With `publish_people` (a CMC-only
+run), the pose model's other people go out on /yowo/cmc/<name>/people_keypoints. It also
+publishes the camera's agent-free background once (latched) when images arrive. Smoothing
+and undistortion happen in the group SfM, which sees whole tracks.
 
 Intrinsics, republished latched on /yowo/cmc/<name>/camera_info: the CameraInfo
 on `info_topic`; or, with `camera_info` (camera_calibration_parsers YAML text, from an
@@ -39,7 +40,7 @@ from yowo_common.rosconv import (
     ns_to_time,
     stamp_to_ns,
 )
-from yowo_msgs.msg import AgentKeypoints, StageStatus
+from yowo_msgs.msg import AgentKeypoints, PersonKeypoints, StageStatus
 
 from .config import CmcParams
 from .keypoint_input import KeypointFrame, frame_from_msg, frame_to_msg
@@ -76,6 +77,12 @@ class KeypointTrackerNode(StageNode):
         self.pub_background = self.output(Image, topics.tracker_background(camera), LATCHED)
         self.pub_info = self.output(CameraInfo, topics.tracker_camera_info(camera), LATCHED)
         self.pub_walker = self.output(String, topics.tracker_walker(camera), LATCHED)
+        # A CMC-only run's pose-model tracker hands on everyone else it saw too.
+        self.pub_people = (
+            self.output(PersonKeypoints, topics.tracker_people(camera))
+            if self.declare_parameter("publish_people", False).value
+            else None
+        )
         for problem in (self.tracker.problem, getattr(self.tracker.detector, "problem", "")):
             if problem:
                 self.get_logger().error(problem)
@@ -175,6 +182,15 @@ class KeypointTrackerNode(StageNode):
             stamps = sorted(self.ego)
             ego = EgoMotion(stamps_ns=np.asarray(stamps), positions=np.asarray([self.ego[s] for s in stamps]))
         self.publish_frames(self.tracker.flush(ego))
+        if self.pub_people is not None:
+            for person, frames in self.tracker.others().items():
+                for f in frames:
+                    msg = frame_to_msg(f, self.camera, self.frame_id)
+                    self.pub_people.publish(
+                        PersonKeypoints(
+                            header=msg.header, camera_name=self.camera, person=person, keypoints=msg.keypoints
+                        )
+                    )
         walker = self.tracker.walker()
         if walker is not None:
             self.pub_walker.publish(String(data=yaml.safe_dump(walker, sort_keys=False)))

@@ -309,6 +309,16 @@ class PeopleParams:
     # The one person a camera ever sees is not the walker when its agreement is below this (it
     # moves unlike the head camera) [share].
     reject_agreement: float = 0.6
+    # A CMC-only run takes everyone the pose model saw, matched across cameras
+    # (yowo_cmc.people_identity), as evidence of the cameras' relative poses, not the walker only.
+    others_as_evidence: bool = True
+    # Share of a person's keypoints seen by two cameras at once that the pair's geometry of
+    # every person matched must hold for the two to be one person [share]. Most: pose keypoints
+    # have outliers, another person's fit only by chance.
+    match_min_share: float = 0.5
+    # Share of the keypoints held before that the geometry must still hold with a newly matched
+    # person [share]: a wrong match pulls the one geometry away from the right ones.
+    match_min_kept: float = 0.7
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ import numpy as np
 
 from .keypoint_input import ImageKeypointSource, KeypointFrame
 from .params import DetectorParams, PeopleParams, PoseModelParams
-from .person_tracks import PersonTracker
+from .person_tracks import PersonTracker, identities
 from .pose_keypoints import PersonPose
 from .pose_left_right import LeftRight, lr_pairs
 from .pose_model import PoseDetector
@@ -62,10 +62,22 @@ class PoseKeypointSource:
         for k, lr in self._left_right.items():
             self._resolved[k] += lr.flush()
         self.choice = choose_walker(self.tracker.tracks, ego, self.people)
+        return self._frames(self.choice.track_ids)
+
+    def others(self) -> dict[int, list[KeypointFrame]]:
+        """Every person beside the walker (after `flush`), numbered from 1 in this camera
+        (person_tracks.identities: one person's tracks joined), with their frames."""
+        walker = set(self.choice.track_ids) if self.choice is not None else set()
+        people = [g for g in identities(self.tracker.tracks, self.people) if not walker & {t.track_id for t in g}]
+        frames = {n: self._frames([t.track_id for t in g]) for n, g in enumerate(people, start=1)}
+        return {n: f for n, f in frames.items() if f}
+
+    def _frames(self, track_ids: list[int]) -> list[KeypointFrame]:
+        """The tracks' keypoints in stamp order, those inside other people's boxes left out."""
         min_score = self.detector.params.min_keypoint_score
         frames = [
             _outside(pose.frame(stamp, min_score), self._crowded[k].get(stamp))
-            for k in self.choice.track_ids
+            for k in track_ids
             for stamp, pose in self._resolved[k]
         ]
         return sorted((f for f in frames if len(f.ids)), key=lambda f: f.stamp_ns)
@@ -140,6 +152,10 @@ class PoseOrDetectorSource:
             return self.pose.flush(ego)
         out, self._fallback = self._fallback + self.detector.flush(), []
         return out
+
+    def others(self) -> dict[int, list[KeypointFrame]]:
+        """The pose model's other people (after `flush`); the model-free detector sees one."""
+        return self.pose.others() if self.uses_pose else {}
 
     @property
     def background(self) -> np.ndarray | None:

@@ -16,7 +16,10 @@ from yowo_common.camera import CameraModel
 from .keypoint_tracks import CameraTracks, noise_scale, resample, sigma_factors
 from .params import SfmParams, TrackParams
 
-MAX_IDS = 1000  # keypoint ids per grid time: key = grid index * MAX_IDS + id
+# Keypoint ids per person: another person's joint j seen beside the walker is person * PERSON_STRIDE + j
+# (yowo_cmc.people_identity); the walker's ids are the joints' own.
+PERSON_STRIDE = 1000
+MAX_IDS = 100 * PERSON_STRIDE  # keypoint ids per grid time: key = grid index * MAX_IDS + id
 RANSAC_SEED = 0  # OpenCV's RANSAC draws from a global RNG: seed it so a bag always gives the same result
 
 

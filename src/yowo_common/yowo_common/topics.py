@@ -105,6 +105,9 @@ def parse_gt_cmc_pose_topic(topic: str) -> str | None:
 CLOCK = "/clock"  # rosgraph_msgs/Clock: the recording's time while replaying
 REPLAY_STATUS = "/yowo/replay/status"
 GROUPS = "/yowo/cmc/groups"  # yowo_msgs/CameraGroupArray, latched
+# std_msgs/String, latched: the people the group SfM matched across cameras, as YAML
+# (yowo_cmc.people_identity.PeopleIdentity.as_dict); a CMC-only run's.
+PEOPLE = "/yowo/cmc/people"
 EGO_MAP = "/yowo/ego/map"  # yowo_msgs/EgoMap, latched
 EGO_ODOMETRY = "/yowo/ego/odometry"  # nav_msgs/Odometry, online
 EGO_PATH = "/yowo/ego/path"  # nav_msgs/Path, latched
@@ -140,6 +143,12 @@ def tracker_stage(camera: str) -> str:
 def tracker_keypoints(camera: str) -> str:
     """Validated (or detected) agent keypoints of one CMC, raw pixels."""
     return f"/yowo/cmc/{camera}/agent_keypoints"
+
+
+def tracker_people(camera: str) -> str:
+    """Every other person the CMC's tracker saw beside the walker (yowo_msgs/PersonKeypoints,
+    raw pixels), in a CMC-only run: the group SfM matches them across cameras."""
+    return f"/yowo/cmc/{camera}/people_keypoints"
 
 
 def tracker_walker(camera: str) -> str:
