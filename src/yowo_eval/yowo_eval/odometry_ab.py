@@ -185,7 +185,7 @@ def make_trackers(names: list[str] | None, K: np.ndarray, imu: ImuBuffer | None,
             K, replace(params, skip=replace(params.skip, enabled=False)), imu
         )
     for method in ("hybrid", "intensity"):
-        for scale in (1, 2):
+        for scale in (1, 2, 4):
             factories[f"o3d_{method}_{scale}"] = lambda m=method, s=scale: Open3dTracker(
                 K, imu, params, m.capitalize(), s
             )
