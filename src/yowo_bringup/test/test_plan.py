@@ -56,3 +56,23 @@ def test_a_run_id_that_looks_like_a_number_reaches_the_nodes_as_a_string(tmp_pat
         node.destroy_node()
     finally:
         rclpy.shutdown(context=context)
+
+
+def test_a_cmc_only_run_hands_on_everyone_in_view_only_when_asked(tmp_path):
+    from yowo_bringup.run import CMC
+    from yowo_common import topics
+
+    on = load_config(None, ["cmc.people.others_as_evidence=true"])
+    plan = plan_live(["a", "b"], tmp_path, mode=CMC, source="pose", config=on)
+    params = {n.name: n.parameters for n in plan.nodes}
+    assert params["keypoint_tracker_a"]["publish_people"] is True
+    assert params["group_sfm"]["people_cameras"] == ["a", "b"]
+    assert topics.PEOPLE in plan.outputs
+    # Off by default, and never in a full run (the walker is the ego camera's link there).
+    for plan in (
+        plan_live(["a", "b"], tmp_path, mode=CMC, source="pose"),
+        plan_live(["a", "b"], tmp_path, source="pose", config=on),
+    ):
+        params = {n.name: n.parameters for n in plan.nodes}
+        assert "publish_people" not in params["keypoint_tracker_a"] and "people_cameras" not in params["group_sfm"]
+        assert topics.PEOPLE not in plan.outputs

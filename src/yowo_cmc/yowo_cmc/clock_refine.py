@@ -13,6 +13,7 @@ from .clock_pairs import SplineTracks
 from .group_sfm import CameraGroupResult
 from .keypoint_tracks import CameraTracks
 from .params import ClockParams, SfmParams
+from .scene_graph import PERSON_STRIDE
 
 
 def triangulate_weighted(
@@ -93,8 +94,11 @@ def _track_observations(
     the point's time). None if no member sees any point."""
     w = params.refine_range_s
     cam_i, pt_i, uv0, uv1, uv2 = [], [], [], [], []
+    # One person's track times the clocks: the agent's (others' joints are numbered from
+    # PERSON_STRIDE), at the cost of the walker-only refinement.
+    ids = np.unique(group.point_ids)
     for ci, c in enumerate(cams):
-        for i in np.unique(group.point_ids):
+        for i in ids[ids < PERSON_STRIDE]:
             sel = np.flatnonzero(group.point_ids == i)
             for t0, t1, spline in c.splines.get(int(i), []):
                 inside = sel[(t_pts[sel] - w >= t0) & (t_pts[sel] + w <= t1)]

@@ -311,7 +311,9 @@ class PeopleParams:
     reject_agreement: float = 0.6
     # A CMC-only run takes everyone the pose model saw, matched across cameras
     # (yowo_cmc.people_identity), as evidence of the cameras' relative poses, not the walker only.
-    others_as_evidence: bool = True
+    # Off: on simulated walks with bystanders crossing the same rooms the matching by epipolar
+    # geometry alone pairs different people (docs/notes/people.md).
+    others_as_evidence: bool = False
     # Share of a person's keypoints seen by two cameras at once that the pair's geometry of
     # every person matched must hold for the two to be one person [share]. Most: pose keypoints
     # have outliers, another person's fit only by chance.
