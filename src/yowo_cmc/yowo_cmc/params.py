@@ -314,12 +314,12 @@ class PeopleParams:
     # Off: on simulated walks with bystanders crossing the same rooms the matching by epipolar
     # geometry alone pairs different people (docs/notes/people.md).
     others_as_evidence: bool = False
-    # Share of a person's keypoints seen by two cameras at once that the pair's geometry of
-    # every person matched must hold for the two to be one person [share]. Most: pose keypoints
-    # have outliers, another person's fit only by chance.
+    # Most of a person's keypoints seen by two cameras at once are inliers of the pair's one
+    # geometry of every person matched (pose keypoints have outliers; another person's fit only
+    # by chance): the share needed for the two to be one person [share].
     match_min_share: float = 0.5
-    # Share of the keypoints held before that the geometry must still hold with a newly matched
-    # person [share]: a wrong match pulls the one geometry away from the right ones.
+    # A wrong match pulls the one geometry away from the right ones: the share of the keypoints
+    # held before that the geometry must still hold with a newly matched person [share].
     match_min_kept: float = 0.7
 
 
