@@ -56,26 +56,16 @@ class GroupSfmNode(StageNode):
         self.guidance_ms: list[float] = []  # how long each update of the guidance took
         self.guidance_timer = self.create_timer(self.cmc.coverage.guidance_period_s, self.publish_guidance)
         for cam in cameras:
-            self.stream_input(
-                CameraInfo,
-                topics.tracker_camera_info(cam),
-                lambda m, c=cam: self.on_camera_info(c, m),
-                upstream=topics.tracker_stage(cam),
-            )
-            self.stream_input(
-                AgentKeypoints,
-                topics.tracker_keypoints(cam),
-                lambda m, c=cam: self.on_keypoints(c, m),
-                upstream=topics.tracker_stage(cam),
-            )
-
-        for cam in people_cameras:
-            self.stream_input(
-                PersonKeypoints,
-                topics.tracker_people(cam),
-                lambda m, c=cam: self.on_person(c, m),
-                upstream=topics.tracker_stage(cam),
-            )
+            streams = [
+                (CameraInfo, topics.tracker_camera_info, self.on_camera_info),
+                (AgentKeypoints, topics.tracker_keypoints, self.on_keypoints),
+            ]
+            if cam in people_cameras:
+                streams.append((PersonKeypoints, topics.tracker_people, self.on_person))
+            for msg_type, topic, handler in streams:
+                self.stream_input(
+                    msg_type, topic(cam), lambda m, c=cam, h=handler: h(c, m), upstream=topics.tracker_stage(cam)
+                )
 
     def on_person(self, camera: str, msg: PersonKeypoints) -> None:
         self.people.setdefault((camera, int(msg.person)), TrackAccumulator(camera)).add(frame_from_msg(msg))
