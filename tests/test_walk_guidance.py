@@ -9,6 +9,7 @@ import yaml
 from e2e_helpers import yowo
 from yowo_common.ros.bag import read_messages
 from yowo_common.rosconv import stamp_to_ns
+from yowo_cmc.walk_guidance import NO_CAMERA_INFO, NOTHING_YET
 from yowo_common.topics import GUIDANCE, tracker_keypoints
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
@@ -37,14 +38,22 @@ def test_the_guidance_comes_every_second_of_the_walk_and_names_every_camera(tmp_
     gaps = np.diff(stamps)
     assert len(during) >= walk_s / 2, (len(during), walk_s)
     assert gaps.mean() <= 1.1 and gaps.max() <= 2.5, gaps
-    assert stamps[0] - min(keypoint_ns) / 1e9 <= 2.0 and max(keypoint_ns) / 1e9 - stamps[-1] <= 2.0
+    # The first update waits for the trackers' warm-up (their first frames, on a loaded machine
+    # seconds late), the last one comes with the walk's end.
+    assert stamps[0] - min(keypoint_ns) / 1e9 <= 3.5 and max(keypoint_ns) / 1e9 - stamps[-1] <= 2.0
 
-    for m in guidance:
+    for i, m in enumerate(guidance):
         assert [c.name for c in m.cameras] == CAMERAS
         assert m.needs_more == sum(c.verdict == "needs more" for c in m.cameras)
         for c in m.cameras:
             assert c.verdict in ("ok", "needs more") and bool(c.reasons) == (c.verdict == "needs more"), c
-            assert len(c.regions_seen) + len(c.regions_missing) == 9
+            # The image's ninths are named once the camera's CameraInfo is in; an update that
+            # comes before it (first updates only: delivery order across topics is not fixed)
+            # says so instead of naming regions.
+            if c.reasons and c.reasons[0] in (NO_CAMERA_INFO, NOTHING_YET):
+                assert i < 3 and not c.regions_seen and not c.regions_missing, (i, c)
+            else:
+                assert len(c.regions_seen) + len(c.regions_missing) == 9, c
     # During the walk nobody is in a group yet; at its end the group SfM's groups are there.
     assert not any(c.in_group for m in during for c in m.cameras)
     groups = yaml.safe_load((out / "cameras.yaml").read_text())["cameras"]
