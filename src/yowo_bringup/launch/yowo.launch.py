@@ -28,7 +28,9 @@ def _nodes(context):
 
     config = load_config(arg("config_file"))
     if arg("bag"):
-        plan = plan_run(arg("bag"), arg("output"), mode=arg("mode"), config=config, source=arg("cmc_source"))
+        plan = plan_run(
+            arg("bag").split(os.pathsep), arg("output"), mode=arg("mode"), config=config, source=arg("cmc_source")
+        )
     else:
         plan = plan_live(
             yaml.safe_load(arg("cameras")) or [],
@@ -44,7 +46,11 @@ def generate_launch_description():
     default_config = os.path.join(get_package_share_directory("yowo_bringup"), "config", "yowo.yaml")
     return LaunchDescription(
         [
-            DeclareLaunchArgument("bag", default_value="", description="recording to replay (empty: live topics)"),
+            DeclareLaunchArgument(
+                "bag",
+                default_value="",
+                description="recording to replay, several joined by ':' in time order (empty: live topics)",
+            ),
             DeclareLaunchArgument("cameras", default_value="[]", description="live: CMC names, e.g. [cam00, cam01]"),
             DeclareLaunchArgument(
                 "mode",

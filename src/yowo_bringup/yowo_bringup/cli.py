@@ -10,7 +10,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from yowo_common import topics
-from yowo_common.ros.bag import BagError
+from yowo_common.ros.bag import BagError, recording_label
 
 from .plugins import add_verbs, evaluator
 
@@ -25,7 +25,7 @@ def cmd_info(args) -> int:
 
     console = Console()
     inputs = discover_inputs(args.bag, config_from_args(args).inputs)
-    table = Table(title=str(args.bag))
+    table = Table(title=recording_label(args.bag))
     for col in ("topic", "type", "messages"):
         table.add_column(col)
     for t in inputs.topics:
@@ -97,7 +97,7 @@ def _execute(args, mode: str):
         domain = SHARED  # live cameras are on the user's graph
     else:
         plan = plan_run(args.bag, args.output, mode=mode, config=config, source=args.cmc_source, run_id=args.run_id)
-        what = f"{plan.mode} run {plan.run_id} of {args.bag}"
+        what = f"{plan.mode} run {plan.run_id} of {recording_label(args.bag)}"
         if plan.mode_reason:  # the user asked for a full run; say plainly why it is not one
             print(f"ego-only run (the map alone, no camera is registered): {plan.mode_reason}")
         # Private unless asked: lingering serves the user's /tf_static subscribers.
@@ -241,7 +241,12 @@ def config_from_args(args):
 
 
 def _add_input_options(p) -> None:
-    p.add_argument("bag", help="rosbag2 directory or .mcap file")
+    p.add_argument(
+        "bag",
+        nargs="+",
+        help="rosbag2 directory or .mcap file; several are read as one recording in time order (a second "
+        "walk of the same building and cameras, e.g. the one guidance.html suggests, added to the first)",
+    )
     p.add_argument(
         "-r",
         "--remap",

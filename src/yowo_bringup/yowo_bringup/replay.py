@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from yowo_common.topics import GT_PREFIX
 
@@ -26,9 +26,12 @@ class ReplayParams:
 
 @dataclass
 class Pacer:
-    """Maps bag time to wall time at `rate` x real time (rate <= 0: as fast as possible)."""
+    """Maps bag time to wall time at `rate` x real time (rate <= 0: as fast as possible).
+    `gaps_ns`: (end, start) of the silences between recordings read as one: not waited for
+    (a second walk may be recorded days after the first)."""
 
     rate: float
+    gaps_ns: list[tuple[int, int]] = field(default_factory=list)
     _bag0: int | None = None
     _wall0: float = 0.0
 
@@ -39,7 +42,8 @@ class Pacer:
             self._bag0, self._wall0 = bag_time_ns, now_s
         if self.rate <= 0:
             return 0.0
-        due = self._wall0 + (bag_time_ns - self._bag0) / 1e9 / self.rate
+        skipped = sum(start - end for end, start in self.gaps_ns if self._bag0 <= end and start <= bag_time_ns)
+        due = self._wall0 + (bag_time_ns - self._bag0 - skipped) / 1e9 / self.rate
         return max(0.0, due - now_s)
 
     def shift(self, seconds: float) -> None:

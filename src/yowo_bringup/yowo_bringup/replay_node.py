@@ -39,6 +39,8 @@ from yowo_common.ros.bag import (
     message_class,
     read_raw,
     recording_damage,
+    recording_gaps,
+    recording_label,
     unknown_type_reason,
 )
 from yowo_common.ros.context import ros_context
@@ -60,7 +62,8 @@ class ReplayNode(Node):
         # Start-up (until playing) and the time flow control held it back, per topic.
         self.timing = NodeTiming()
         self.stats_file = self.declare_parameter("stats_file", "").value
-        self.bag = self.declare_parameter("bag", "").value
+        # Several recordings read as one are joined by os.pathsep (as run.plan_run passes them).
+        self.bag = self.declare_parameter("bag", "").value.split(os.pathsep)
         p = load(ReplayParams, self.declare_parameter("config", "").value, where="replay")
         self.get_logger().info(f"configuration: {describe_changes(p, 'replay')}")
         self.rate, self.lossless, self.publish_clock = p.rate, p.lossless, p.publish_clock
@@ -120,7 +123,7 @@ class ReplayNode(Node):
                 catch_up_incarnation=catch_up[1],
                 header=Header(stamp=ns_to_time(self.end_ns)),
                 state=self.state,
-                bag=str(self.bag),
+                bag=recording_label(self.bag),
                 bag_start=ns_to_time(self.start_ns),
                 bag_end=ns_to_time(self.end_ns),
                 topics=list(self.counts),
@@ -256,10 +259,10 @@ class ReplayNode(Node):
         self.timing.mark("playing")
         if self.recovered:
             self.get_logger().warning(self.recovered)
-        pacer = Pacer(self.rate)
+        pacer = Pacer(self.rate, gaps_ns=recording_gaps(self.bag))
         last_status = time.monotonic()
         self.get_logger().info(
-            f"playing {len(played)} topics of {self.bag} at "
+            f"playing {len(played)} topics of {recording_label(self.bag)} at "
             f"{'max' if self.rate <= 0 else f'{self.rate:g}x'} speed"
             f"{' (lossless)' if self.lossless else ''}"
         )

@@ -5,6 +5,7 @@ the plan, run_results.py writes what it produced."""
 from __future__ import annotations
 
 import fnmatch
+import os
 import uuid
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -13,6 +14,7 @@ import numpy as np
 
 from yowo_cmc.skeletons import declared_skeletons
 from yowo_common import topics
+from yowo_common.ros.bag import recording_label, recording_paths
 
 from .config import YowoConfig, node_config
 from .contract import (
@@ -44,7 +46,7 @@ MIN_GROUP_CMCS = 2
 
 @dataclass(kw_only=True)
 class RunPlan:
-    bag: Path | None  # None: live operation on camera topics
+    bag: list[Path] | None  # the recording's files, read as one in time order; None: live operation
     out_dir: Path
     mode: str  # "cmc": relative calibration only; "full": registered in the map;
     # "ego": the map alone (a recording without usable CMCs)
@@ -63,6 +65,11 @@ class RunPlan:
     mode_reason: str = ""  # why the run is in its mode when the user did not choose it
     cmc_problems: list[str] = field(default_factory=list)  # why each CMC of the recording is not used
     inputs: dict = field(default_factory=dict)  # which recorded topics fill which role, the IMU's source
+
+    @property
+    def source(self) -> str:
+        """What the run reads: the recording's path(s), or "live"."""
+        return recording_label(self.bag) if self.bag else "live"
 
     @property
     def stages(self) -> list[str]:
@@ -176,16 +183,17 @@ def plan_run(
     the same on every host of a split run (a new one by default)."""
     config = config or YowoConfig()
     inputs = discover_inputs(bag, config.inputs)
+    label = recording_label(bag)
     imap = inputs.map
     present = set(imap.roles)
     problems = list(inputs.problems)
     if not present:
         raise ValueError(
-            f"{bag}: the recording holds no messages YOWO reads" + (f" ({'; '.join(problems)})" if problems else "")
+            f"{label}: the recording holds no messages YOWO reads" + (f" ({'; '.join(problems)})" if problems else "")
         )
     if mode == FULL and not inputs.has_ego:
         raise ValueError(
-            f"{bag}: no complete ego camera ({'; '.join(p for p in problems if 'ego' in p)}); "
+            f"{label}: no complete ego camera ({'; '.join(p for p in problems if 'ego' in p)}); "
             "use 'yowo calibrate-cmc' for the CMC-only relative calibration"
         )
     trackers, played, cameras = [], [], []
@@ -217,7 +225,7 @@ def plan_run(
     mode, reason = _mode_for(mode, cameras, inputs.cmc_names, cmc_problems)
     if mode == CMC and len(cameras) < MIN_GROUP_CMCS:
         raise ValueError(
-            f"{bag}: {len(cameras)} usable CMC(s) with agent keypoints or images; needs at least "
+            f"{label}: {len(cameras)} usable CMC(s) with agent keypoints or images; needs at least "
             f"{MIN_GROUP_CMCS}" + (f" ({'; '.join(cmc_problems)})" if cmc_problems else "")
         )
     if mode == FULL and len(cameras) < MIN_GROUP_CMCS:
@@ -250,7 +258,7 @@ def plan_run(
         _stage(
             topics.REPLAY_STAGE,
             {  # last: it waits for the stages' subscriptions
-                "bag": str(bag),
+                "bag": os.pathsep.join(str(p) for p in recording_paths(bag)),
                 "topics": played,
                 "wait_for_topics": played,
                 "stages": readers,
@@ -262,7 +270,7 @@ def plan_run(
     _stamp_run(nodes, run_id, True, config)
     total = sum(t.count for t in inputs.topics if t.name in played)
     return RunPlan(
-        bag=Path(bag),
+        bag=recording_paths(bag),
         out_dir=Path(out_dir),
         mode=mode,
         cameras=cameras,

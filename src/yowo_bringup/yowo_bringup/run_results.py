@@ -136,7 +136,7 @@ def write_run_results(
     (out / "run_log.yaml").write_text(
         yaml.safe_dump(
             {
-                "bag": str(plan.bag or "live"),
+                "bag": plan.source,
                 "run_id": plan.run_id,
                 "mode": plan.mode,
                 **({"mode_reason": plan.mode_reason} if plan.mode_reason else {}),
@@ -290,11 +290,11 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     guidance = streams.get(topics.GUIDANCE)  # the updates during the walk; the last is the final one
     if guidance and cameras:
         files += write_guidance(
-            out, str(plan.bag or "live"), cameras, guidance[-1], ego_xy, floors, walls, weak, plan.config.cmc.coverage
+            out, plan.source, cameras, guidance[-1], ego_xy, floors, walls, weak, plan.config.cmc.coverage
         )
     write_report(
         out / "report.html",
-        str(plan.bag or "live"),
+        plan.source,
         cameras,
         ego_xy,
         floors,

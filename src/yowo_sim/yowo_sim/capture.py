@@ -32,6 +32,7 @@ from .body import agent_keypoints_3d, agent_mesh
 from .bystanders import GT_KEYPOINT_IDS, Bystander, info_yaml, plan_bystanders
 from .deficient import plan_deficient_walk, truth_yaml
 from .detector import detect
+from .follow import FollowWalk
 from .imu import ImuData, bias_message, calibration_messages, imu_message, simulate_imu
 from .presets import CapturePreset, DepthNoise
 from .render import Renderer
@@ -116,14 +117,14 @@ class _Recorder:
             self.bag.write(topics.EGO_DEPTH[1], encode_depth_png(depth, header), stamp)
 
 
-def _schedule(duration_s: float, preset: CapturePreset, n_cmc: int, rng) -> list[tuple[int, str, int]]:
+def _schedule(duration_s: float, preset: CapturePreset, n_cmc: int, rng, start_ns: int) -> list[tuple[int, str, int]]:
     """(stamp_ns, kind, index) for every ego and CMC frame, in time order; each CMC
     runs on its own clock phase (views are not simultaneous)."""
-    events = [(START_NS + int(round(t * 1e9)), "ego", 0) for t in np.arange(0.0, duration_s, 1.0 / preset.ego_hz)]
+    events = [(start_ns + int(round(t * 1e9)), "ego", 0) for t in np.arange(0.0, duration_s, 1.0 / preset.ego_hz)]
     for c in range(n_cmc):
         offset = rng.uniform(0, 1.0 / preset.cmc_hz)
         events += [
-            (START_NS + int(round(t * 1e9)), "cmc", c) for t in np.arange(offset, duration_s, 1.0 / preset.cmc_hz)
+            (start_ns + int(round(t * 1e9)), "cmc", c) for t in np.arange(offset, duration_s, 1.0 / preset.cmc_hz)
         ]
     return sorted(events)
 
@@ -149,6 +150,7 @@ class CaptureSetup:
     clock_offsets_ns: dict[str, int] = field(default_factory=dict)  # CMC clock - ego clock (preset's option)
     bystanders: list[Bystander] = field(default_factory=list)  # other people walking about (preset's option)
     deficient: list[dict] = field(default_factory=list)  # what the walk made deficient (preset's option)
+    start_ns: int = START_NS  # the recording's first stamp (later for a second walk)
 
 
 def clock_offsets(preset: CapturePreset, seed: int, cmcs: list[Cmc]) -> dict[str, int]:
@@ -160,13 +162,17 @@ def clock_offsets(preset: CapturePreset, seed: int, cmcs: list[Cmc]) -> dict[str
     return {c.name: int(round(rng.uniform(-1, 1) * preset.cmc_clock_offset_s * 1e9)) for c in cmcs}
 
 
-def build_capture(preset: CapturePreset, seed: int) -> CaptureSetup:
+def build_capture(preset: CapturePreset, seed: int, follow: FollowWalk | None = None) -> CaptureSetup:
+    """`follow`: a second walk through the same building, cameras and clocks (follow.py)."""
     rng = np.random.default_rng(seed)
     scene = build_scene(replace(preset.scene, seed=seed))
     cmcs = place_cmcs(scene, preset, rng)
     routes = FloorRoutes(scene.free_space_polygon())
     deficient = []
-    if preset.deficient.active:
+    if follow is not None:  # from where the first walk started
+        start = scene.rooms[0].center_xy()
+        walk = routes.walk_through([start, *follow.waypoints_xy], [0.0, *follow.pauses_s], preset.walk, rng)
+    elif preset.deficient.active:
         start = scene.rooms[0].center_xy()
         walk, deficient = plan_deficient_walk(scene, cmcs, routes.free, start, preset, seed, rng)
     else:
@@ -185,18 +191,24 @@ def build_capture(preset: CapturePreset, seed: int) -> CaptureSetup:
         clock_offsets_ns=clock_offsets(preset, seed, cmcs),
         bystanders=bystanders,
         deficient=deficient,
+        start_ns=START_NS if follow is None else follow.start_ns,
     )
 
 
 def generate(
-    preset: CapturePreset, seed: int, out_path, progress: Callable[[int, int], None] | None = None
+    preset: CapturePreset,
+    seed: int,
+    out_path,
+    progress: Callable[[int, int], None] | None = None,
+    follow: FollowWalk | None = None,
 ) -> CaptureSummary:
     """Render and record the capture of ``preset`` for ``seed`` into the rosbag2 ``out_path``.
     The simulated detector's keypoints (/cmc/<name>/agent_keypoints) are the agent's only,
     as from a detector that already tracks it; bystanders show in the images and in the
     ground truth (/gt/bystanders/...)."""
-    setup = build_capture(preset, seed)
+    setup = build_capture(preset, seed, follow)
     scene, cmcs, walk, ego_cam, rng = setup.scene, setup.cmcs, setup.walk, setup.ego_camera, setup.rng
+    start_ns = setup.start_ns
     bystanders = setup.bystanders
     renderer = Renderer(scene)
     render_s, rendered = 0.0, 0
@@ -210,22 +222,22 @@ def generate(
         return out
 
     backgrounds = [render(c.camera, c.T_world_cam) for c in cmcs]
-    events = _schedule(walk.duration_s, preset, len(cmcs), rng)
+    events = _schedule(walk.duration_s, preset, len(cmcs), rng, start_ns)
     counts = {"ego": 0, "cmc": 0, "agent": 0}
-    imu = simulate_imu(walk, preset.imu_params, seed, START_NS) if preset.imu else None
+    imu = simulate_imu(walk, preset.imu_params, seed, start_ns) if preset.imu else None
     out_path = Path(out_path)
     with BagWriter(out_path) as bag:
         rec = _Recorder(bag, preset)
-        _write_static_ground_truth(bag, scene, cmcs, setup.clock_offsets_ns)
+        _write_static_ground_truth(bag, scene, cmcs, setup.clock_offsets_ns, start_ns)
         if bystanders:
-            bag.write(topics.GT_BYSTANDER_INFO, String(data=info_yaml(bystanders)), START_NS, latched=True)
+            bag.write(topics.GT_BYSTANDER_INFO, String(data=info_yaml(bystanders)), start_ns, latched=True)
         if setup.deficient:
-            bag.write(topics.GT_DEFICIENT, String(data=truth_yaml(setup.deficient)), START_NS, latched=True)
-        imu_writer = _ImuWriter(bag, imu, preset) if imu is not None else None
+            bag.write(topics.GT_DEFICIENT, String(data=truth_yaml(setup.deficient)), start_ns, latched=True)
+        imu_writer = _ImuWriter(bag, imu, preset, start_ns) if imu is not None else None
         for n, (stamp, kind, idx) in enumerate(events):
             if imu_writer:
                 imu_writer.until(stamp)
-            t = (stamp - START_NS) / 1e9
+            t = (stamp - start_ns) / 1e9
             xy, heading, phase = walk.state_at(t)
             others = [b.keypoints(t) for b in bystanders]
             if kind == "ego":
@@ -327,10 +339,10 @@ class _ImuWriter:
     """Writes /ego/imu and /gt/ego/imu_bias interleaved with the frames (time order), after
     the latched calibration (/tf_static: ego camera -> IMU; /ego/imu/calibration)."""
 
-    def __init__(self, bag: BagWriter, imu: ImuData, preset: CapturePreset):
+    def __init__(self, bag: BagWriter, imu: ImuData, preset: CapturePreset, start_ns: int):
         self.bag, self.imu, self.params, self.next = bag, imu, preset.imu_params, 0
-        for topic, msg in calibration_messages(self.params, EGO_FRAME, START_NS).items():
-            bag.write(topic, msg, START_NS, latched=True)
+        for topic, msg in calibration_messages(self.params, EGO_FRAME, start_ns).items():
+            bag.write(topic, msg, start_ns, latched=True)
 
     def until(self, stamp_ns: int | None) -> None:
         """Every sample stamped at or before stamp_ns (None: all that are left)."""
@@ -342,20 +354,22 @@ class _ImuWriter:
         self.next = max(self.next, end)
 
 
-def _write_static_ground_truth(bag: BagWriter, scene: Scene, cmcs: list[Cmc], clock_offsets_ns: dict[str, int]) -> None:
-    header = Header(stamp=ns_to_time(START_NS), frame_id="map")
+def _write_static_ground_truth(
+    bag: BagWriter, scene: Scene, cmcs: list[Cmc], clock_offsets_ns: dict[str, int], start_ns: int
+) -> None:
+    header = Header(stamp=ns_to_time(start_ns), frame_id="map")
     for cmc in cmcs:
         bag.write(
             topics.gt_cmc_pose_topic(cmc.name),
             PoseStamped(header=header, pose=matrix_to_pose(cmc.T_world_cam)),
-            START_NS,
+            start_ns,
             latched=True,
         )
     # Only with the option: a synchronised recording stays as it was (no offset topic = 0).
     for name, offset in clock_offsets_ns.items():
-        bag.write(topics.gt_cmc_clock_offset_topic(name), Float64(data=offset / 1e9), START_NS, latched=True)
+        bag.write(topics.gt_cmc_clock_offset_topic(name), Float64(data=offset / 1e9), start_ns, latched=True)
     for poly in scene.floor_polygons:
         msg = PolygonStamped(
             header=header, polygon=Polygon(points=[Point32(x=float(x), y=float(y), z=0.0) for x, y in poly])
         )
-        bag.write(topics.GT_FLOOR, msg, START_NS, latched=True)
+        bag.write(topics.GT_FLOOR, msg, start_ns, latched=True)

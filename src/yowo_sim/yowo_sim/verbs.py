@@ -58,11 +58,22 @@ def cmd_simulate(args) -> int:
 
         overrides["deficient"] = parse_deficient(args.deficient)
     preset = get_preset(args.preset, **overrides)
+    follow = None
+    if args.follow:
+        from yowo_sim.follow import follow_walk
+
+        if not args.after:
+            raise ValueError("--follow needs --after FIRST_RECORDING (the first walk's simulated recording)")
+        follow = follow_walk(args.follow, args.after, args.gap)
     with Progress() as bar:
         task = bar.add_task(f"simulating '{args.preset}' (seed {args.seed})", total=None)
         try:
             summary = generate(
-                preset, args.seed, recording, progress=lambda done, total: bar.update(task, completed=done, total=total)
+                preset,
+                args.seed,
+                recording,
+                progress=lambda done, total: bar.update(task, completed=done, total=total),
+                follow=follow,
             )
             if args.cmc_videos:
                 from yowo_sim.cmc_video import write_cmc_videos
@@ -81,7 +92,7 @@ def cmd_simulate(args) -> int:
         from yowo_sim.capture import build_capture
         from yowo_sim.preview import render_preview
 
-        render_preview(build_capture(preset, args.seed), args.preview)
+        render_preview(build_capture(preset, args.seed, follow), args.preview)
         print(f"preview: {args.preview}")
     fps = summary.rendered_frames / max(summary.render_seconds, 1e-9)
     print(
@@ -146,6 +157,15 @@ def add_verbs(verbs) -> None:
         "'corner:CAM' or 'corner:CAM:top-left' (that camera sees the walker only in one corner of its image: "
         "a ninth, else a quadrant), 'doorway' (two rooms joined by one pass through a doorway)",
     )
+    p.add_argument(
+        "--follow",
+        metavar="RUN_DIR",
+        help="a second walk that follows RUN_DIR/second_walk.yaml (the walk guidance's suggestion), through the "
+        "same building, cameras and clocks (give the first walk's --preset, --seed and options), recorded --gap "
+        "seconds after --after ends; run both with 'yowo run FIRST SECOND'",
+    )
+    p.add_argument("--after", metavar="BAG", help="the first walk's simulated recording (for --follow)")
+    p.add_argument("--gap", type=float, default=60.0, metavar="S", help="silence between the walks (default 60 s)")
     p.add_argument("--preview", metavar="PNG", help="also write a picture: ego frame, CMC frame, top view")
     p.add_argument(
         "--layout",

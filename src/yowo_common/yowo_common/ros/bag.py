@@ -5,6 +5,7 @@ classes flow through bags, nodes and the offline CLI."""
 from __future__ import annotations
 
 import functools
+import heapq
 import importlib
 import io
 import mmap
@@ -12,7 +13,7 @@ import os
 import re
 import struct
 import sys
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -168,6 +169,26 @@ class BagWriter:
         self._writer.write(conn, int(stamp_ns), serialize_message(msg))
 
 
+# A recording: one rosbag2 (directory or .mcap file), or several read as one in log-time order
+# (walks of one building recorded apart, e.g. a second walk that the walk guidance suggested).
+Recording = str | os.PathLike | Sequence[str | os.PathLike]
+
+
+def recording_paths(recording: Recording) -> list[Path]:
+    """The files or directories of a recording, in the order given."""
+    if isinstance(recording, (str, os.PathLike)):
+        return [Path(recording)]
+    paths = [Path(p) for p in recording]
+    if not paths:
+        raise BagError("no recording given")
+    return paths
+
+
+def recording_label(recording: Recording) -> str:
+    """How a recording is named in messages: its path, or its paths joined by ' + '."""
+    return " + ".join(str(p) for p in recording_paths(recording))
+
+
 def open_reader(path):
     """A rosbags Reader; for an MCAP whose end is missing (recorder killed, disk full,
     power lost: no summary, maybe no metadata.yaml) a RecoveredMcap of what is readable."""
@@ -187,29 +208,67 @@ def open_reader(path):
     return reader
 
 
-def recording_damage(path) -> str:
+def recording_damage(recording: Recording) -> str:
     """What was recovered of a damaged recording ('' when it opens normally)."""
-    reader = open_reader(path)
-    reader.close()
-    return getattr(reader, "damage", "")
+    damage = []
+    for path in recording_paths(recording):
+        reader = open_reader(path)
+        reader.close()
+        damage.append(getattr(reader, "damage", ""))
+    return "; ".join(d for d in damage if d)
 
 
-def recording_span(path) -> tuple[int, int]:
+def _spans(recording: Recording) -> list[tuple[int, int]]:
+    spans = []
+    for path in recording_paths(recording):
+        reader = open_reader(path)
+        try:
+            start, end = getattr(reader, "start_time", 0), getattr(reader, "end_time", 0)
+        finally:
+            reader.close()
+        if 0 < start <= end:
+            spans.append((int(start), int(end)))
+    return spans
+
+
+def recording_span(recording: Recording) -> tuple[int, int]:
     """Log times [ns] of a recording's first and last message ((0, 0) when unknown or empty)."""
-    reader = open_reader(path)
-    try:
-        start, end = getattr(reader, "start_time", 0), getattr(reader, "end_time", 0)
-    finally:
-        reader.close()
-    return (int(start), int(end)) if 0 < start <= end else (0, 0)
+    spans = _spans(recording)
+    return (min(s for s, _ in spans), max(e for _, e in spans)) if spans else (0, 0)
 
 
-def list_topics(path) -> list[BagTopic]:
-    reader = open_reader(path)
-    try:
-        return [BagTopic(c.topic, c.msgtype, c.msgcount, qos_is_latched(c)) for c in reader.connections]
-    finally:
-        reader.close()
+def recording_gaps(recording: Recording) -> list[tuple[int, int]]:
+    """(end, start) log times [ns] of the silences between the files of a recording read as
+    one: where no file holds messages (none for one file, or files that overlap in time)."""
+    gaps, end = [], None
+    for s, e in sorted(_spans(recording)):
+        if end is not None and s > end:
+            gaps.append((end, s))
+        end = e if end is None else max(end, e)
+    return gaps
+
+
+def list_topics(recording: Recording) -> list[BagTopic]:
+    """The topics of a recording; a topic in several of its files is listed once, its
+    messages counted over all (a topic whose type differs between files is an error)."""
+    topics: dict[str, BagTopic] = {}
+    for path in recording_paths(recording):
+        reader = open_reader(path)
+        try:
+            for c in reader.connections:
+                t = BagTopic(c.topic, c.msgtype, c.msgcount, qos_is_latched(c))
+                seen = topics.get(t.name)
+                if seen is not None and seen.msgtype != t.msgtype:
+                    raise BagError(
+                        f"{path}: topic {t.name} is {t.msgtype} here and {seen.msgtype} in an earlier recording "
+                        f"of {recording_label(recording)}; recordings read as one must agree on each topic's type"
+                    )
+                if seen is not None:
+                    t = BagTopic(t.name, t.msgtype, seen.count + t.count, seen.latched or t.latched)
+                topics[t.name] = t
+        finally:
+            reader.close()
+    return list(topics.values())
 
 
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -358,10 +417,19 @@ class RawMessage:
     latched: bool
 
 
-def read_raw(path, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
-    """Serialised messages in log-time order. A damaged file ends the iteration
-    with a BagError after every readable message; a file without its end is read up to
-    its last readable message (see RecoveredMcap)."""
+def read_raw(recording: Recording, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
+    """Serialised messages in log-time order (a recording of several files: merged by log
+    time). A damaged file ends the iteration with a BagError after every readable message;
+    a file without its end is read up to its last readable message (see RecoveredMcap)."""
+    paths = recording_paths(recording)
+    wanted = None if topics is None else list(topics)
+    if len(paths) == 1:
+        yield from _read_raw(paths[0], wanted)
+    else:
+        yield from heapq.merge(*(_read_raw(p, wanted) for p in paths), key=lambda m: m.log_time_ns)
+
+
+def _read_raw(path: Path, topics: list[str] | None) -> Iterator[RawMessage]:
     reader = open_reader(path)
     try:
         wanted = None if topics is None else set(topics)
@@ -378,12 +446,12 @@ def read_raw(path, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
         reader.close()
 
 
-def read_messages(path, topics: Iterable[str] | None = None) -> Iterator[tuple[str, int, object]]:
+def read_messages(recording: Recording, topics: Iterable[str] | None = None) -> Iterator[tuple[str, int, object]]:
     """Yield (topic, log time [ns], message object) in log-time order; topics of unknown
     message types (see unknown_type_reason) are not read."""
-    known = [t.name for t in list_topics(path) if not unknown_type_reason(t.msgtype)]
+    known = [t.name for t in list_topics(recording) if not unknown_type_reason(t.msgtype)]
     wanted = known if topics is None else [t for t in topics if t in set(known)]
-    for raw in read_raw(path, wanted):
+    for raw in read_raw(recording, wanted):
         yield raw.topic, raw.log_time_ns, deserialize_message(raw.data, message_class(raw.msgtype))
 
 
