@@ -7,9 +7,9 @@ import numpy as np
 import yaml
 
 from e2e_helpers import yowo
+from yowo_cmc.walk_guidance import NO_CAMERA_INFO, NOTHING_YET
 from yowo_common.ros.bag import read_messages
 from yowo_common.rosconv import stamp_to_ns
-from yowo_cmc.walk_guidance import NO_CAMERA_INFO, NOTHING_YET
 from yowo_common.topics import GUIDANCE, tracker_keypoints
 from yowo_sim.capture import generate
 from yowo_sim.presets import get_preset
