@@ -28,7 +28,7 @@ def environment() -> dict:
 # Sections of BENCHMARKS.md that other commands write between <!-- NAME:begin/end --> markers
 # (yowo bench-graph: graph-speed; the TUM RGB-D run: tum-rgbd; real multi-camera recordings
 # of people: real-multiview; yowo bench-guidance: guidance); re-rendering keeps them.
-KEPT_SECTIONS = ("graph-speed", "tum-rgbd", "real-multiview", "layouts", "bystanders", "guidance")
+KEPT_SECTIONS = ("graph-speed", "tum-rgbd", "real-multiview", "layouts", "bystanders", "guidance", "second-walk")
 
 
 def markers(name: str) -> tuple[str, str]:

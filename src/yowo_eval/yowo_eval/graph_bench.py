@@ -22,20 +22,25 @@ BEGIN, END = markers("graph-speed")
 NOTES_BEGIN, NOTES_END = markers("graph-speed-notes")  # hand-written notes inside, kept when rendered again
 
 
-def recording_seconds(bag: Path) -> float:
-    from yowo_common.ros.bag import recording_span
+def recording_seconds(bag: Path | list[Path]) -> float:
+    """How long a recording is; recordings read as one: the sum of their lengths."""
+    from yowo_common.ros.bag import recording_paths, recording_span
 
-    start, end = recording_span(bag)
-    return (end - start) / 1e9
+    spans = [recording_span(p) for p in recording_paths(bag)]
+    return sum(end - start for start, end in spans) / 1e9
 
 
-def graph_case(bag: Path, out: Path, source: str, extra: list[str], timeout_s: float = 7200.0) -> dict:
+def graph_case(bag: Path | list[Path], out: Path, source: str, extra: list[str], timeout_s: float = 7200.0) -> dict:
+    """One `yowo run` of a recording (several read as one: a list) and what it measured."""
+    from yowo_common.ros.bag import recording_paths
+
+    bags = recording_paths(bag)
     cmd = [
         sys.executable,
         "-m",
         "yowo_bringup.cli",
         "run",
-        str(bag),
+        *map(str, bags),
         "-o",
         str(out),
         "--replace",
@@ -56,7 +61,7 @@ def graph_case(bag: Path, out: Path, source: str, extra: list[str], timeout_s: f
     metrics = json.loads((out / "metrics.json").read_text()) if (out / "metrics.json").exists() else {}
     reg = metrics.get("registration", {}).get("summary", {})
     return {
-        "bag": bag.name,
+        "bag": "+".join(p.name for p in bags),
         "source": source,
         "exit": r.returncode,
         "recording_s": recording,

@@ -164,6 +164,26 @@ def cmd_bench_guidance(args) -> int:
     return 0 if all(c.get("exit", 0) == 0 for c in cases) else 1
 
 
+def cmd_bench_second_walk(args) -> int:
+    """The suggested second walk followed and run with the first: the named cameras scored."""
+    from .guidance_bench import KINDS
+    from .second_walk_bench import run_second_walk_bench
+
+    unknown = [k for k in args.kinds if k not in KINDS]
+    if unknown:
+        raise ValueError(f"unknown walk(s) {', '.join(unknown)} (choose from {', '.join(KINDS)})")
+    cases = run_second_walk_bench(
+        args.preset,
+        args.seeds,
+        args.kinds,
+        Path(args.output),
+        Path(args.markdown) if args.markdown else None,
+        _config_arguments(args),
+    )
+    print(f"wrote {Path(args.output) / 'SECOND_WALK.md'}")
+    return 0 if all(c.get("exit", 0) == 0 for c in cases) else 1
+
+
 def cmd_bench_tum(args) -> int:
     """TUM RGB-D sequences through the real graph with no CMCs: ATE beside published numbers."""
     from .tum_bench import run_tum_bench
@@ -280,6 +300,24 @@ def add_verbs(verbs) -> None:
     )
     add_config_options(p)
     p.set_defaults(func=cmd_bench_guidance)
+
+    p = verbs.add_parser(
+        "bench-second-walk",
+        help="the suggested second walk followed (simulated) and run together with the first: do the cameras the "
+        "guidance named reach ok within 2 cm? -> markdown",
+    )
+    p.add_argument("--preset", default="small")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--kinds", nargs="+", default=["corner"], help="first walks per seed (as bench-guidance's)")
+    p.add_argument(
+        "-o",
+        "--output",
+        default="bench/guidance",
+        help="directory for the recordings and runs (bench-guidance's: its first runs are reused)",
+    )
+    p.add_argument("--markdown", help="put the section into this file (e.g. BENCHMARKS.md), replacing an earlier one")
+    add_config_options(p)
+    p.set_defaults(func=cmd_bench_second_walk)
 
     p = verbs.add_parser("bench-graph", help="the real graph's speed (yowo run --rate 0) per stage -> BENCHMARKS.md")
     p.add_argument("--preset", nargs="+", default=["small"])
