@@ -60,6 +60,13 @@ def test_a_second_walk_that_follows_the_suggestion_joins_the_first(tmp_path, ros
     assert set(reg1) <= set(reg2)
     for name, c in reg1.items():
         assert reg2[name]["eps_pos_m"] < max(0.02, 1.5 * c["eps_pos_m"]), (name, c, reg2[name])
+    # The ego camera tracked the second walk's first frames against the first walk's map: the
+    # join is no break in the ego map, so no camera turns weak for it.
+    status1, status2 = (
+        {c["name"]: c["status"] for c in yaml.safe_load((r / "cameras.yaml").read_text())["cameras"]}
+        for r in (run1, run2)
+    )
+    assert all(status2[n] == "ok" for n, s in status1.items() if s == "ok"), (status1, status2)
     before, after = coverage(run1), coverage(run2)
     served = {c for w in plan["waypoints"] for c in w["cameras"]}
     assert served

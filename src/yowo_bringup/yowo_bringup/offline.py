@@ -13,7 +13,7 @@ from yowo_cmc.config import CmcParams
 from yowo_cmc.keypoint_input import TrackAccumulator, frame_from_msg, frame_to_msg
 from yowo_cmc.keypoint_tracks import CameraTracks
 from yowo_common import topics
-from yowo_common.ros.bag import read_messages
+from yowo_common.ros.bag import read_messages, recording_gaps
 from yowo_common.rosconv import camera_info_to_model
 
 from .config import YowoConfig, fusion_upstream
@@ -177,8 +177,9 @@ def process(bag, config: YowoConfig | None = None, source: str = "auto") -> Offl
     grouping = calibrate_cmcs_apart(tracks, config.cmc, estimated)
     seconds["cmc"] = time.perf_counter() - t0
     t0 = time.perf_counter()
+    joins = np.array([start for _, start in recording_gaps(bag)], np.int64)
     fusion = fuse(
-        ego_map_data(ego),
+        replace(ego_map_data(ego), joins_ns=joins),
         grouping.groups,
         grouping.ungrouped,
         {t.name: CmcInput(t, backgrounds.get(t.name), t.name not in estimated) for t in tracks},

@@ -14,7 +14,7 @@ import numpy as np
 
 from yowo_cmc.skeletons import declared_skeletons
 from yowo_common import topics
-from yowo_common.ros.bag import recording_label, recording_paths
+from yowo_common.ros.bag import recording_gaps, recording_label, recording_paths
 
 from .config import YowoConfig, node_config
 from .contract import (
@@ -245,6 +245,10 @@ def plan_run(
     nodes, final, outputs = _stage_nodes(
         mode, trackers, ego, imu_params, estimated, people=config.cmc.people.others_as_evidence
     )
+    joins = [start for _, start in recording_gaps(bag)]
+    for n in nodes:  # recordings read as one: where they meet, for the ego map's breaks
+        if n.name == topics.FUSION_STAGE and joins:
+            n.parameters["recording_joins_ns"] = joins
     if inputs.videos:
         config = _video_clock_search(config)
         summary["videos"] = {

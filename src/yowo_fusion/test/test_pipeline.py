@@ -457,6 +457,17 @@ def test_weak_ego_frames_from_landmark_support_and_gaps():
     fitness[15] = 0.3
     weak_imu = weak_ego_frames(replace(told, tracking_fitness=fitness, imu=True), FusionParams())[0]
     assert np.flatnonzero(weak_imu).tolist() == [5, 15, 30]
+    # Two recordings read as one meet before frame 30 (a second walk): the jump is no break where
+    # vision tracked frame 30 (tied to the first walk by measurement), and one where it did not.
+    joined = replace(told, joins_ns=np.array([stamps[30] - 10**8]))
+    weak, gap = weak_ego_frames(joined, FusionParams())
+    assert np.flatnonzero(weak).tolist() == [5, 12, 15] and not gap.any()
+    measured[30] = False
+    weak, gap = weak_ego_frames(replace(joined, tracking_measured=measured), FusionParams())
+    assert np.flatnonzero(gap).tolist() == [30] and 30 in np.flatnonzero(weak)
+    # A join elsewhere (inside a stretch without a gap) changes nothing.
+    elsewhere = replace(told, joins_ns=np.array([stamps[20]]))
+    assert np.flatnonzero(weak_ego_frames(elsewhere, FusionParams())[1]).tolist() == [30]
 
 
 def test_head_tops_one_camera_saw_anchor_a_broken_ego_map():

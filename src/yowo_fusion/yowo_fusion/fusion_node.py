@@ -8,6 +8,9 @@ late joiners."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
+import numpy as np
 from nav_msgs.msg import Path
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import String
@@ -49,6 +52,10 @@ class FusionNode(StageNode):
         cameras = [c for c in self.declare_parameter("cameras", [""]).value if c]
         # Cameras without intrinsics: their trackers' models are nominal (registered only in a group).
         self.estimated = {c for c in self.declare_parameter("estimate_intrinsics", [""]).value if c}
+        # Where recordings read as one meet (0: none), for the ego map's breaks.
+        self.joins_ns = np.array(
+            [j for j in self.declare_parameter("recording_joins_ns", [0]).value if j > 0], np.int64
+        )
         self.params = self.section(FusionParams, "fusion")
         defaults = UpstreamParams()
         self.upstream = UpstreamParams(
@@ -112,7 +119,7 @@ class FusionNode(StageNode):
             if a.camera is not None
         }
         ungrouped.update({n: a.unusable_reason() for n, a in self.acc.items() if a.camera is None})
-        ego = ego_map_from_msg(self.ego_map, self.cloud, self.layout)
+        ego = replace(ego_map_from_msg(self.ego_map, self.cloud, self.layout), joins_ns=self.joins_ns)
         result = fuse(ego, groups, ungrouped, cmcs, self.params, self.upstream)
         stamp = max((f.stamp_ns for a in self.acc.values() for f in a.frames), default=0)
         self.pub_poses.publish(registered_to_msg(result.cameras, stamp))

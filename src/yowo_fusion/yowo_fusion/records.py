@@ -37,6 +37,8 @@ class EgoMapData:
     imu: bool = False  # the ego stage tracked with the gyro's rotation between frames
     # (F,) the ego stage held the frame's attitude to the building (its walls and floor); None: not said
     attitude_held: np.ndarray | None = None
+    # Where recordings read as one meet (each later recording's first stamp [ns]; a second walk)
+    joins_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 @dataclass

@@ -30,10 +30,16 @@ def weak_ego_frames(ego: EgoMapData, params: FusionParams) -> tuple[np.ndarray, 
     joins the two sides is a guess). A map without any landmark observations (a trajectory
     alone) is judged by its gaps (and tracking) only. In a well-lit bare room every keyframe
     has few landmarks while depth tracks it to centimetres: by landmarks alone the joint
-    optimisation let the agent track shape the whole map (docs/notes/fusion.md)."""
+    optimisation let the agent track shape the whole map (docs/notes/fusion.md). The jump where
+    two recordings read as one meet (ego.joins_ns) is no gap where the ego stage tracked the
+    frame after it by vision: the second walk is tied to the first by measurement."""
     n = len(ego.stamps_ns)
     gap = np.zeros(n, bool)
     gap[1:] = np.diff(ego.stamps_ns) > params.weak_frame_gap_s * 1e9
+    if len(ego.joins_ns) and ego.tracking_measured is not None:
+        after = np.searchsorted(ego.stamps_ns, ego.joins_ns)
+        after = after[(after > 0) & (after < n)]
+        gap[after] &= ~ego.tracking_measured[after]
     weak = gap.copy()
     counts = np.bincount(ego.obs_pose.astype(int), minlength=n)[:n]
     keyframes = np.flatnonzero(counts)
