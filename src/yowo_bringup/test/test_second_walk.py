@@ -10,6 +10,7 @@ from shapely.geometry import LineString, Point, Polygon, box
 from shapely.ops import unary_union
 
 from yowo_bringup.second_walk import (
+    AROUND,
     PAUSE,
     WALK_THROUGH,
     WEAK_PLACE,
@@ -152,3 +153,24 @@ def test_a_region_off_the_mapped_floor_keeps_its_area():
     walk = plan(floors=[FLOORS[0]])
     assert {n.camera for n in walk.needs} == {"camB"}
     assert all(not Polygon(FLOORS[0]).contains(n.area.centroid) for n in walk.needs)
+
+
+def test_a_camera_without_a_trusted_pose_is_sought_around_where_it_saw_the_walker():
+    """camW's pose is weak: its view is not drawn from it, but the walker was seen at (3.2, 2.0)
+    to (3.6, 2.0): waypoints 1.5 m each way from there, on the floor (east is the wall at 4 m
+    in room A, but the doorway is there: that way goes through it)."""
+    seen = np.column_stack([np.linspace(3.2, 3.6, 10), np.full(10, 2.0)])
+    walk = plan(sightings={"camW": seen, "camA": seen})
+    around = [n for n in walk.needs if n.kind == AROUND]
+    assert {n.camera for n in around} == {"camW"}  # camA is ok: nothing to seek
+    spots = [n.area.centroid for n in around]
+    walkable = FLOOR.buffer(-0.3, join_style="mitre")
+    assert all(walkable.buffer(1e-6).covers(p) for p in spots)
+    assert all(0.75 <= p.distance(Point(3.4, 2.0)) <= 1.5 + 1e-6 for p in spots)
+    assert len(spots) >= 3 and min(p.x for p in spots) < 2.5 and max(p.y for p in spots) > 3.0
+    assert "walk around where it saw you" in walk.unplaced["camW"]
+    for need in around:
+        assert any(any(n is need for n in w.needs) for w in walk.waypoints)
+    # Too few sightings: where it saw the walker is not known, nothing is placed for it.
+    few = plan(sightings={"camW": seen[:3]})
+    assert not [n for n in few.needs if n.kind == AROUND] and "cannot be placed" in few.unplaced["camW"]

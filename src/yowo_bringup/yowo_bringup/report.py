@@ -439,14 +439,13 @@ def _needs_html(v: CameraVerdict, walk: SecondWalk, numbers: dict[int, int]) -> 
     """What would improve a camera: its needs with their waypoints."""
     if v.verdict != NEEDS_MORE:
         return "-"
-    if v.name in walk.unplaced:
-        return html.escape(walk.unplaced[v.name])
     items = [
         f"{html.escape(n.why)} (waypoint {numbers[id(n)]})"
         for n in walk.needs
         if n.camera == v.name and id(n) in numbers
     ]
-    return "<ul>" + "".join(f"<li>{x}</li>" for x in items) + "</ul>"
+    head = html.escape(walk.unplaced[v.name]) if v.name in walk.unplaced else ""
+    return head + ("<ul>" + "".join(f"<li>{x}</li>" for x in items) + "</ul>" if items else "")
 
 
 def write_guidance_page(
@@ -515,12 +514,19 @@ def write_guidance(
     walls: list[np.ndarray] | None,
     weak_places: list[dict] | None,
     coverage: CoverageParams,
+    sightings: dict[str, np.ndarray] | None = None,
 ) -> list[Path]:
     """The guidance after the walk from the final walk guidance (yowo_msgs/WalkGuidance):
     second_walk.yaml and its floor-plan page guidance.html; the files written."""
     verdicts = [CameraVerdict.from_msg(c) for c in final_guidance.cameras]
     walk = plan_second_walk(
-        cameras=cameras, verdicts=verdicts, floors=floors, ego_xy=ego_xy, weak_places=weak_places, coverage=coverage
+        cameras=cameras,
+        verdicts=verdicts,
+        floors=floors,
+        ego_xy=ego_xy,
+        weak_places=weak_places,
+        sightings=sightings,
+        coverage=coverage,
     )
     write_second_walk_yaml(out_dir / "second_walk.yaml", walk)
     write_guidance_page(out_dir / "guidance.html", title, cameras, verdicts, walk, ego_xy, floors, walls, weak_places)

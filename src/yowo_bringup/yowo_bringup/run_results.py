@@ -215,7 +215,7 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
             return [(out / f"{stem}.{ext}", refined), (out / f"{stem}_ego.{ext}", ego_only)]
         return [(out / f"{stem}.{ext}", ego_only)]
 
-    ego_xy = None
+    ego_xy, ego_traj = None, None
     for path, topic in final_and_ego(topics.REFINED_EGO_PATH, topics.EGO_PATH, "ego_trajectory", "tum"):
         if topic in outputs:
             poses = outputs[topic].poses
@@ -231,7 +231,7 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
         write_tum(path, traj)
         files.append(path)
         if ego_xy is None:
-            ego_xy = traj.positions[:, :2]
+            ego_xy, ego_traj = traj.positions[:, :2], traj
     for path, topic in final_and_ego(topics.REFINED_MAP_POINTS, topics.MAP_POINTS, "map", "ply"):
         if topic in outputs:
             write_ply(path, *pointcloud2_to_xyz_rgb(outputs[topic]))
@@ -290,7 +290,16 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
     guidance = streams.get(topics.GUIDANCE)  # the updates during the walk; the last is the final one
     if guidance and cameras:
         files += write_guidance(
-            out, plan.source, cameras, guidance[-1], ego_xy, floors, walls, weak, plan.config.cmc.coverage
+            out,
+            plan.source,
+            cameras,
+            guidance[-1],
+            ego_xy,
+            floors,
+            walls,
+            weak,
+            plan.config.cmc.coverage,
+            sightings(streams, [c.name for c in cameras], ego_traj),
         )
     write_report(
         out / "report.html",
@@ -313,6 +322,23 @@ def _write_full_results(plan: RunPlan, outputs: dict, files: list[Path]) -> list
         ev.write_metrics(metrics, out / "metrics.json")
         files.append(out / "metrics.json")
     return cameras
+
+
+def sightings(streams: dict, names: list[str], traj) -> dict[str, np.ndarray]:
+    """Per camera, where on the floor the walker was (the ego trajectory's xy) at each of its
+    frames with the walker's keypoints (its tracker's stream; its own clock, near enough here)."""
+    from yowo_common.rosconv import stamp_to_ns
+
+    if traj is None or len(traj.stamps_ns) < 2:
+        return {}
+    out = {}
+    for name in names:
+        stamps = [stamp_to_ns(m.header.stamp) for m in streams.get(topics.tracker_keypoints(name), []) if m.keypoints]
+        inside = [s for s in stamps if traj.stamps_ns[0] <= s <= traj.stamps_ns[-1]]
+        if inside:
+            xy = traj.positions[:, :2]
+            out[name] = np.column_stack([np.interp(inside, traj.stamps_ns, xy[:, k]) for k in range(2)])
+    return out
 
 
 def _export_images(plan: RunPlan, outputs: dict, ego):

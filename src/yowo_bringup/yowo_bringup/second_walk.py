@@ -32,6 +32,7 @@ PAUSE = "pause"  # stand a while in the camera's view: it saw the walker too lit
 CLOSER = "closer"  # be seen from a depth it has not seen
 WITH_ANOTHER = "with another camera"  # be seen by it and another camera at the same time
 WEAK_PLACE = "weak place"  # a weak place of the ego map (yowo_fusion.weak_places)
+AROUND = "around"  # walk around where a camera without a trusted pose saw the walker
 
 NINTHS = {region_name(r, c): (r, c) for r in range(len(ROWS)) for c in range(len(COLS))}
 
@@ -45,6 +46,10 @@ class SecondWalkParams:
     min_area_m2: float = 0.1  # a floor area smaller than this is not worth a waypoint [m^2]
     pause_s: float = 5.0  # how long to stand for a camera that saw the walker too little [s]
     min_weak_place_radius_m: float = 0.25  # a weak place's area is at least this wide a disc [m]
+    # A camera without a trusted pose: waypoints this far each way around where it saw the walker [m]
+    around_m: float = 1.5
+    min_sightings: int = 5  # fewer frames with the walker: where it saw the walker is not known [count]
+    waypoint_radius_m: float = 0.3  # the floor area of a waypoint around a sighting [m]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -260,6 +265,23 @@ def weak_place_needs(places: list[dict], floor, params: SecondWalkParams) -> lis
     return out
 
 
+def around_needs(name: str, seen_xy: np.ndarray, walkable, params: SecondWalkParams) -> list[Need]:
+    """A camera without a trusted pose that saw the walker: its view is around where the walker
+    was then, which way unknown: a waypoint around_m each way (the four of the floor plan, moved
+    onto the walkable floor) from the middle of those places."""
+    centre = np.median(seen_xy, axis=0)
+    needs = []
+    for angle in np.arange(4) * np.pi / 2:
+        p = Point(centre + params.around_m * np.array([np.cos(angle), np.sin(angle)]))
+        if not walkable.is_empty and not walkable.covers(p):
+            p = nearest_points(walkable, p)[0]
+        if p.distance(Point(centre)) < params.around_m / 2:  # that way is a wall close by
+            continue
+        why = "its pose is not trusted: walk around where it saw you, its view is there"
+        needs.append(Need(kind=AROUND, camera=name, why=why, area=p.buffer(params.waypoint_radius_m)))
+    return needs
+
+
 def _inside(area, walkable) -> Point:
     """A point well inside the area, on the walkable floor where they meet."""
     part = area.intersection(walkable) if not walkable.is_empty else area
@@ -380,11 +402,14 @@ def plan_second_walk(
     floors: list[np.ndarray],
     ego_xy: np.ndarray | None,
     weak_places: list[dict] | None,
+    sightings: dict[str, np.ndarray] | None = None,
     params: SecondWalkParams = SecondWalkParams(),
     coverage: CoverageParams = CoverageParams(),
 ) -> SecondWalk:
     """The second walk that serves every camera the final guidance says needs more (where its
-    pose places it on the floor) and every weak place of the ego map."""
+    pose places it on the floor; a camera without a trusted pose around where it saw the walker:
+    `sightings`, the walker's floor positions at its frames with the walker) and every weak place
+    of the ego map."""
     floor = floor_region(floors)
     # Mitred: the floor's inner corners (a doorway's sides) stay one corner each for the paths.
     walkable = floor.buffer(-params.floor_margin_m, join_style="mitre") if not floor.is_empty else floor
@@ -406,6 +431,13 @@ def plan_second_walk(
                 "no pose in the map" if c is None or c.T_world_cam is None else f"its pose is {c.status} ({c.reason})"
             )
             unplaced[v.name] = f"{pose}, so its view cannot be placed on the floor: walk through all of its view"
+            seen = (sightings or {}).get(v.name)
+            if seen is not None and len(seen) >= params.min_sightings:
+                found = around_needs(v.name, np.asarray(seen), walkable, params)
+                unplaced[v.name] = (
+                    f"{pose}: walk around where it saw you, its view is there" if found else unplaced[v.name]
+                )
+                needs += found
             continue
         found = camera_needs(v, placed[v.name], views, floor, walked, params, coverage)
         if not found:

@@ -87,7 +87,7 @@ def second_walk_case(preset: str, kind: str, seed: int, out_dir: Path, extra: li
     case["not_placed"] = plan.get("not_placed") or {}
     if not case["waypoints"]:
         return {**case, "skipped": "the first run suggests no second walk"}
-    second = out_dir / "bags" / f"{first.name}_second"
+    second = out_dir / "second_walks" / f"{first.name}_second"  # made from this bench's first run
     if not (second / "metadata.yaml").exists():
         shutil.rmtree(second, ignore_errors=True)
         t0 = time.perf_counter()
