@@ -90,6 +90,7 @@ def second_walk_case(preset: str, kind: str, seed: int, out_dir: Path, extra: li
     second = out_dir / "second_walks" / f"{first.name}_second"  # made from this bench's first run
     if not (second / "metadata.yaml").exists():
         shutil.rmtree(second, ignore_errors=True)
+        second.parent.mkdir(parents=True, exist_ok=True)
         t0 = time.perf_counter()
         walk = generate(_preset(preset, kind), seed, second, follow=follow_walk(run1, first, GAP_S))
         log(f"generated {second.name}: {walk.duration_s:.0f} s walk in {time.perf_counter() - t0:.0f} s")
