@@ -25,7 +25,7 @@ from .graph_bench import graph_case, write_cases
 
 SECTION = "guidance"
 BEGIN, END = markers(SECTION)
-KINDS = ("sufficient", "corner", "doorway")
+KINDS = ("sufficient", "corner", "doorway", "covering")
 DOORWAY_RADIUS_M = 1.5  # a weak place this near the doorway's true middle names it
 NEEDS_MORE = "needs more"
 

@@ -287,7 +287,8 @@ def add_verbs(verbs) -> None:
         nargs="+",
         default=["sufficient", "corner", "doorway"],
         help="walks per seed: sufficient (the seed's usual walk), corner (a camera drawn from the seed sees the "
-        "walker only in one corner of its image), doorway (one pass between two rooms)",
+        "walker only in one corner of its image), doorway (one pass between two rooms), covering (the reference: "
+        "every camera's image ninths the walk can reach are passed)",
     )
     p.add_argument("-o", "--output", default="bench/guidance", help="directory for the recordings and runs")
     p.add_argument("--markdown", help="put the section into this file (e.g. BENCHMARKS.md), replacing an earlier one")

@@ -93,6 +93,22 @@ def test_a_doorway_walk_needs_a_room_with_one_door():
         build_capture(get_preset("tiny", deficient=DeficientSpec(doorway=True)), 0)
 
 
+def test_the_covering_walk_shows_the_walker_in_every_ninth_it_can_reach():
+    """The reference walk: each camera sees the walker in the ninths of its image a stop was
+    found for, and in more of them than on the seed's usual walk."""
+    default = build_capture(get_preset("small"), 1)
+    setup = build_capture(get_preset("small", deficient=parse_deficient(["covering"])), 1)
+    ((truth,),) = [setup.deficient]
+    assert truth["kind"] == "covering" and truth["ninth_stops"] >= 30  # of 5 cameras x 9 ninths
+    reached = 0
+    for cmc in setup.cmcs:
+        seen = {tuple(rc) for rc in _ninth(_keypoint_pixels(setup, cmc.name, 0.1), cmc.camera)}
+        usual = {tuple(rc) for rc in _ninth(_keypoint_pixels(default, cmc.name, 0.1), cmc.camera)}
+        assert len(seen) >= len(usual), cmc.name
+        reached += len(seen)
+    assert reached >= truth["ninth_stops"]
+
+
 @pytest.mark.parametrize(
     "values, spec",
     [
@@ -100,13 +116,14 @@ def test_a_doorway_walk_needs_a_room_with_one_door():
         (["doorway"], DeficientSpec(doorway=True)),
         (["corner"], DeficientSpec(corner_camera="any")),
         (["corner:cam02:bottom-left"], DeficientSpec(corner_camera="cam02", corner="bottom-left")),
+        (["covering"], DeficientSpec(covering=True)),
     ],
 )
 def test_the_option_parses(values, spec):
     assert parse_deficient(values) == spec
 
 
-@pytest.mark.parametrize("values", [["door"], ["corner:cam00:middle"], ["doorway:x"]])
+@pytest.mark.parametrize("values", [["door"], ["corner:cam00:middle"], ["doorway:x"], ["covering", "doorway"]])
 def test_a_bad_option_is_named(values):
     with pytest.raises(ValueError, match="--deficient"):
         parse_deficient(values)

@@ -9,6 +9,9 @@ shortcomings are known by construction, so the guidance can be scored against th
 - doorway: two rooms are joined by one pass through a doorway. The walk visits every target
   outside a room that has a single door first, then crosses that door once and visits the
   room's targets; it ends there.
+- covering (the reference, sufficient on purpose): the walk passes, for every camera and every
+  ninth of its image, a floor point where the walker shows in that ninth (depth-tested as the
+  simulated detector does), where one is reachable.
 
 Both are off by default; a recording with neither is the seed's recording as before. What was
 made deficient is recorded on /gt/deficient (ground truth, never read by the pipeline)."""
@@ -37,6 +40,7 @@ AXIS_SAMPLES = 4  # the first body samples: keypoints on the walker's axis, what
 MIN_AXIS_SEEN = 2  # the corner's floor: where at least this many of them show in the corner
 CORNER_SHARES = (1 / 3, 1 / 2)  # a corner ninth is tried first, then a corner quadrant
 MIN_CORNER_AREA_M2 = 0.2  # a corner whose reachable floor area is smaller is not chosen [m^2]
+COVERING_STOP_S = 0.5  # the covering walk's stop at each of a camera's ninths [s]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -44,27 +48,32 @@ class DeficientSpec:
     corner_camera: str = ""  # this camera sees the walker in one image corner only ('' none, 'any': drawn) [name]
     corner: str = ""  # that corner: top-left, top-right, bottom-left or bottom-right ('' the best reachable) [name]
     doorway: bool = False  # the walk crosses once between two rooms joined by a doorway [flag]
+    covering: bool = False  # the walk passes every camera's image ninths where it can (sufficient) [flag]
 
     @property
     def active(self) -> bool:
-        return bool(self.corner_camera or self.doorway)
+        return bool(self.corner_camera or self.doorway or self.covering)
 
 
 def parse_deficient(values: list[str]) -> DeficientSpec:
-    """`yowo simulate --deficient` values: corner, corner:CAM, corner:CAM:CORNER, doorway."""
-    corner_camera, corner, doorway = "", "", False
+    """`yowo simulate --deficient` values: corner, corner:CAM, corner:CAM:CORNER, doorway, covering."""
+    corner_camera, corner, doorway, covering = "", "", False, False
     for v in values:
         kind, _, rest = v.partition(":")
         if kind == "doorway" and not rest:
             doorway = True
+        elif kind == "covering" and not rest:
+            covering = True
         elif kind == "corner":
             cam, _, which = rest.partition(":")
             corner_camera, corner = cam or "any", which
             if corner and corner not in CORNERS:
                 raise ValueError(f"--deficient {v}: the corner is one of {', '.join(CORNERS)}")
         else:
-            raise ValueError(f"--deficient {v}: expected corner, corner:CAM, corner:CAM:CORNER or doorway")
-    return DeficientSpec(corner_camera=corner_camera, corner=corner, doorway=doorway)
+            raise ValueError(f"--deficient {v}: expected corner, corner:CAM, corner:CAM:CORNER, doorway or covering")
+    if sum([bool(corner_camera), doorway, covering]) > 1:
+        raise ValueError("--deficient: one kind of walk at a time (corner, doorway or covering)")
+    return DeficientSpec(corner_camera=corner_camera, corner=corner, doorway=doorway, covering=covering)
 
 
 @dataclass(kw_only=True)
@@ -117,13 +126,7 @@ def corner_box(camera, corner: str, share: float) -> tuple[float, float, float, 
 
 def _corner_floor(cmc, depth: np.ndarray, free, height_m: float, share: float) -> dict:
     """Per corner: (where the walk may go, the floor points seeing the walker in that corner)."""
-    x0, y0, x1, y1 = free.bounds
-    gx, gy = np.meshgrid(
-        GRID_M * np.arange(np.floor(x0 / GRID_M), np.ceil(x1 / GRID_M) + 1),
-        GRID_M * np.arange(np.floor(y0 / GRID_M), np.ceil(y1 / GRID_M) + 1),
-    )
-    xy = np.column_stack([gx.ravel(), gy.ravel()])
-    xy = xy[shapely.contains_xy(free.buffer(KEEP_OFF_M + GRID_M), xy[:, 0], xy[:, 1])]
+    xy = _floor_grid(free)
     pts = _body_samples(xy, height_m)
     n, s = pts.shape[:2]
     uv, vis = visible_points(cmc.camera, cmc.T_world_cam, pts.reshape(-1, 3), depth, 0.05)
@@ -138,6 +141,59 @@ def _corner_floor(cmc, depth: np.ndarray, free, height_m: float, share: float) -
         allowed = free.difference(blocked.buffer(KEEP_OFF_M))
         out[name] = (allowed, xy[seen])
     return out
+
+
+def _floor_grid(free) -> np.ndarray:
+    """(N, 2) the GRID_M grid's points on and near the free floor."""
+    x0, y0, x1, y1 = free.bounds
+    gx, gy = np.meshgrid(
+        GRID_M * np.arange(np.floor(x0 / GRID_M), np.ceil(x1 / GRID_M) + 1),
+        GRID_M * np.arange(np.floor(y0 / GRID_M), np.ceil(y1 / GRID_M) + 1),
+    )
+    xy = np.column_stack([gx.ravel(), gy.ravel()])
+    return xy[shapely.contains_xy(free.buffer(KEEP_OFF_M + GRID_M), xy[:, 0], xy[:, 1])]
+
+
+def covering_targets(scene, cmcs, free, height_m: float) -> list[np.ndarray]:
+    """For every camera and every ninth of its image, the reachable floor point farthest inside
+    the floor where the walker's axis shows in that ninth (its pelvis in the ninth, at least
+    MIN_AXIS_SEEN of its axis keypoints in view); a ninth no reachable floor shows is left out."""
+    from .render import Renderer
+
+    inner = free.buffer(-CORNER_CLEARANCE_M)
+    xy = _floor_grid(free)
+    xy = xy[shapely.contains_xy(inner, xy[:, 0], xy[:, 1])]
+    if not len(xy):
+        return []
+    room = shapely.distance(inner.boundary, shapely.points(xy))
+    pts = _body_samples(xy, height_m)[:, :AXIS_SAMPLES]
+    renderer, targets = Renderer(scene), []
+    for cmc in cmcs:
+        depth = renderer.render(cmc.camera, cmc.T_world_cam).depth
+        uv, vis = visible_points(cmc.camera, cmc.T_world_cam, pts.reshape(-1, 3), depth, 0.05)
+        uv, vis = uv.reshape(len(xy), AXIS_SAMPLES, 2), vis.reshape(len(xy), AXIS_SAMPLES)
+        seen = vis.sum(axis=1) >= MIN_AXIS_SEEN
+        pelvis = uv[:, 1]
+        row = np.floor(pelvis[:, 1] * 3 / cmc.camera.height)
+        col = np.floor(pelvis[:, 0] * 3 / cmc.camera.width)
+        for r in range(3):
+            for c in range(3):
+                at = np.flatnonzero(seen & vis[:, 1] & (row == r) & (col == c))
+                if len(at):
+                    targets.append(xy[at[int(np.argmax(room[at]))]])
+    return targets
+
+
+def plan_covering_walk(scene, cmcs, routes: FloorRoutes, start_xy, spec: WalkSpec, rng) -> tuple[Walk, dict]:
+    """The walk through every covering target (nearest first, a short stop at each), then
+    every camera's target with the usual pause."""
+    start = routes.nearest_free(start_xy)
+    ninths = covering_targets(scene, cmcs, routes.free, spec.agent_height_m)
+    points = [start] + _nearest_first(start, ninths)
+    points += _nearest_first(points[-1], [routes.nearest_free(c.target_xy) for c in cmcs])
+    pauses = [0.0] + [COVERING_STOP_S] * len(ninths) + [spec.pause_s] * len(cmcs)
+    truth = {"kind": "covering", "ninth_stops": len(ninths)}
+    return routes.walk_through(points, pauses, spec, rng), truth
 
 
 def _walkable(piece):
@@ -255,8 +311,9 @@ def plan_doorway_walk(scene, cmcs, routes: FloorRoutes, start_xy, spec: WalkSpec
 def plan_deficient_walk(scene, cmcs, free, start_xy, preset, seed: int, rng) -> tuple[Walk, list[dict]]:
     """The walk of a preset whose `deficient` option is on, and what it made deficient."""
     spec = preset.deficient
-    if spec.corner_camera and spec.doorway:
-        raise ValueError("one deficiency per walk: corner or doorway")
+    if spec.covering:
+        walk, truth = plan_covering_walk(scene, cmcs, FloorRoutes(free), start_xy, preset.walk, rng)
+        return walk, [truth]
     if spec.doorway:
         walk, door = plan_doorway_walk(scene, cmcs, FloorRoutes(free), start_xy, preset.walk, rng)
         return walk, [door]

@@ -155,7 +155,8 @@ def add_verbs(verbs) -> None:
         metavar="KIND",
         help="a walk deficient on purpose, recorded on /gt/deficient: 'corner' (a camera drawn from the seed), "
         "'corner:CAM' or 'corner:CAM:top-left' (that camera sees the walker only in one corner of its image: "
-        "a ninth, else a quadrant), 'doorway' (two rooms joined by one pass through a doorway)",
+        "a ninth, else a quadrant), 'doorway' (two rooms joined by one pass through a doorway); or its reference, "
+        "'covering' (the walk passes every ninth of every camera's image it can reach: sufficient on purpose)",
     )
     p.add_argument(
         "--follow",
