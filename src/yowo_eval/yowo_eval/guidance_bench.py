@@ -307,8 +307,9 @@ def guidance_markdown(cases: list[dict], command: str) -> str:
         *produced_by(command),
         "Generated walks made deficient on purpose (`yowo simulate --deficient`): *corner*, one ceiling camera "
         "sees the walker only in one corner of its image (a ninth, else a quadrant; the walk keeps off the rest "
-        "of its view); *doorway*, the walk crosses once between two rooms joined by a doorway; and *sufficient*, "
-        "the seed's usual walk. Each through `yowo run --rate 0` with the recorded keypoints. A camera is "
+        "of its view); *doorway*, the walk crosses once between two rooms joined by a doorway; *sufficient*, "
+        "the seed's usual walk; and *covering*, the reference: the walk passes every ninth of every camera's image "
+        "it can reach. Each through `yowo run --rate 0` with the recorded keypoints. A camera is "
         "deficient by construction when it is a corner walk's camera (/gt/deficient); the guidance names it "
         "when the final /yowo/guidance says `needs more`. Doorway: a place in weak_places.yaml within "
         f"{DOORWAY_RADIUS_M} m of the doorway's true middle.",
