@@ -33,6 +33,7 @@ CLOSER = "closer"  # be seen from a depth it has not seen
 WITH_ANOTHER = "with another camera"  # be seen by it and another camera at the same time
 WEAK_PLACE = "weak place"  # a weak place of the ego map (yowo_fusion.weak_places)
 AROUND = "around"  # walk around where a camera without a trusted pose saw the walker
+EXPLORE = "explore"  # floor the first walk never came near, where a camera without a pose may look
 
 NINTHS = {region_name(r, c): (r, c) for r in range(len(ROWS)) for c in range(len(COLS))}
 
@@ -50,6 +51,8 @@ class SecondWalkParams:
     around_m: float = 1.5
     min_sightings: int = 5  # fewer frames with the walker: where it saw the walker is not known [count]
     waypoint_radius_m: float = 0.3  # the floor area of a waypoint around a sighting [m]
+    unwalked_m: float = 1.5  # floor farther than this from the first walk was never approached [m]
+    explore_spacing_m: float = 2.0  # waypoints over never approached floor this far apart [m]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -282,6 +285,27 @@ def around_needs(name: str, seen_xy: np.ndarray, walkable, params: SecondWalkPar
     return needs
 
 
+def unwalked_needs(walkable, ego_xy, cameras: list[str], params: SecondWalkParams) -> list[Need]:
+    """Cameras without a trusted pose may look at floor the first walk never came near: waypoints
+    on a grid over that floor (each piece too small for the grid gets one in its middle)."""
+    if walkable.is_empty or ego_xy is None or len(ego_xy) < 2 or not cameras:
+        return []
+    far = walkable.difference(LineString(ego_xy).buffer(params.unwalked_m))
+    r = params.waypoint_radius_m
+    far = far.buffer(-r).buffer(r)  # no strips along the walls the walk passed at a distance
+    pieces = [g for g in getattr(far, "geoms", [far]) if isinstance(g, Polygon) and g.area >= params.min_area_m2]
+    why = f"floor the first walk never came near: {', '.join(cameras)} may look there (where is unknown)"
+    points = []
+    for piece in pieces:
+        x0, y0, x1, y1 = piece.bounds
+        s = params.explore_spacing_m
+        gx, gy = np.meshgrid(np.arange(x0 + s / 2, x1, s), np.arange(y0 + s / 2, y1, s))
+        on = shapely.contains_xy(piece, gx.ravel(), gy.ravel())
+        grid = np.column_stack([gx.ravel()[on], gy.ravel()[on]])
+        points += [Point(p) for p in grid] if len(grid) else [polylabel(piece, tolerance=0.05)]
+    return [Need(kind=EXPLORE, camera="", why=why, area=p.buffer(params.waypoint_radius_m)) for p in points]
+
+
 def _inside(area, walkable) -> Point:
     """A point well inside the area, on the walkable floor where they meet."""
     part = area.intersection(walkable) if not walkable.is_empty else area
@@ -444,6 +468,7 @@ def plan_second_walk(
             unplaced[v.name] = "nothing to walk for on the floor: " + "; ".join(v.reasons)
         needs += found
     needs += weak_place_needs(weak_places or [], floor, params)
+    needs += unwalked_needs(walkable, ego_xy, sorted(unplaced), params)
     if not needs:
         return SecondWalk(start_xy=None, waypoints=[], route_xy=np.zeros((0, 2)), needs=[], unplaced=unplaced)
     chosen = place_waypoints(needs, walkable)
