@@ -30,6 +30,12 @@ DOORWAY_RADIUS_M = 1.5  # a weak place this near the doorway's true middle names
 NEEDS_MORE = "needs more"
 
 
+def check_kinds(kinds: list[str]) -> None:
+    unknown = [k for k in kinds if k not in KINDS]
+    if unknown:
+        raise ValueError(f"unknown walk(s) {', '.join(unknown)} (choose from {', '.join(KINDS)})")
+
+
 # ------------------------------------------------------------------------ scoring (pure)
 
 

@@ -139,11 +139,9 @@ def cmd_bench_guidance(args) -> int:
     """Walks deficient on purpose and sufficient ones through `yowo run`: the guidance scored."""
     import datetime
 
-    from .guidance_bench import KINDS, run_guidance_bench
+    from .guidance_bench import check_kinds, run_guidance_bench
 
-    unknown = [k for k in args.kinds if k not in KINDS]
-    if unknown:
-        raise ValueError(f"unknown walk(s) {', '.join(unknown)} (choose from {', '.join(KINDS)})")
+    check_kinds(args.kinds)
     stop_at = None
     if args.until:
         hour, minute = (int(v) for v in args.until.split(":"))
@@ -166,19 +164,13 @@ def cmd_bench_guidance(args) -> int:
 
 def cmd_bench_second_walk(args) -> int:
     """The suggested second walk followed and run with the first: the named cameras scored."""
-    from .guidance_bench import KINDS
+    from .guidance_bench import check_kinds
     from .second_walk_bench import run_second_walk_bench
 
-    unknown = [k for k in args.kinds if k not in KINDS]
-    if unknown:
-        raise ValueError(f"unknown walk(s) {', '.join(unknown)} (choose from {', '.join(KINDS)})")
+    check_kinds(args.kinds)
+    markdown = Path(args.markdown) if args.markdown else None
     cases = run_second_walk_bench(
-        args.preset,
-        args.seeds,
-        args.kinds,
-        Path(args.output),
-        Path(args.markdown) if args.markdown else None,
-        _config_arguments(args),
+        args.preset, args.seeds, args.kinds, Path(args.output), markdown, _config_arguments(args)
     )
     print(f"wrote {Path(args.output) / 'SECOND_WALK.md'}")
     return 0 if all(c.get("exit", 0) == 0 for c in cases) else 1
@@ -196,6 +188,15 @@ def cmd_bench_tum(args) -> int:
         [Path(f) for f in args.sequences], Path(args.output), Path(args.markdown) if args.markdown else None, extra
     )
     return 0 if all(c["exit"] == 0 for c in cases) else 1
+
+
+def _walk_bench_arguments(p, kinds: list[str], kinds_help: str, output_help: str) -> None:
+    """The options bench-guidance and bench-second-walk share: which generated walks, where."""
+    p.add_argument("--preset", default="small")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--kinds", nargs="+", default=kinds, help=kinds_help)
+    p.add_argument("-o", "--output", default="bench/guidance", help=output_help)
+    p.add_argument("--markdown", help="put the section into this file (e.g. BENCHMARKS.md), replacing an earlier one")
 
 
 def add_verbs(verbs) -> None:
@@ -280,18 +281,14 @@ def add_verbs(verbs) -> None:
         help="generated walks deficient on purpose (a camera seeing the walker in one corner, one pass through a "
         "doorway) and sufficient ones through yowo run: the walk guidance's precision and recall -> markdown",
     )
-    p.add_argument("--preset", default="small")
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument(
-        "--kinds",
-        nargs="+",
-        default=["sufficient", "corner", "doorway"],
-        help="walks per seed: sufficient (the seed's usual walk), corner (a camera drawn from the seed sees the "
+    _walk_bench_arguments(
+        p,
+        ["sufficient", "corner", "doorway"],
+        "walks per seed: sufficient (the seed's usual walk), corner (a camera drawn from the seed sees the "
         "walker only in one corner of its image), doorway (one pass between two rooms), covering (the reference: "
         "every camera's image ninths the walk can reach are passed)",
+        "directory for the recordings and runs",
     )
-    p.add_argument("-o", "--output", default="bench/guidance", help="directory for the recordings and runs")
-    p.add_argument("--markdown", help="put the section into this file (e.g. BENCHMARKS.md), replacing an earlier one")
     p.add_argument("--until", metavar="HH:MM", help="start no new case after this local time")
     p.add_argument(
         "--rescore", action="store_true", help="run nothing: score the cases already in OUTPUT again (after a change)"
@@ -307,16 +304,12 @@ def add_verbs(verbs) -> None:
         help="the suggested second walk followed (simulated) and run together with the first: do the cameras the "
         "guidance named reach ok within 2 cm? -> markdown",
     )
-    p.add_argument("--preset", default="small")
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--kinds", nargs="+", default=["corner"], help="first walks per seed (as bench-guidance's)")
-    p.add_argument(
-        "-o",
-        "--output",
-        default="bench/guidance",
-        help="directory for the recordings and runs (bench-guidance's: its first runs are reused)",
+    _walk_bench_arguments(
+        p,
+        ["corner"],
+        "first walks per seed (as bench-guidance's)",
+        "directory for the recordings and runs (bench-guidance's: its recordings and first runs are reused)",
     )
-    p.add_argument("--markdown", help="put the section into this file (e.g. BENCHMARKS.md), replacing an earlier one")
     add_config_options(p)
     p.set_defaults(func=cmd_bench_second_walk)
 
