@@ -1,7 +1,8 @@
 """Guidance during the walk (issue #48, part 3) through the real graph: replayed at the speed of
 the walk, the group SfM publishes /yowo/guidance at least once a second of the walk while the
 keypoints arrive, every update names every camera, the last one is the end of the walk's with
-the groups; result.mcap records them all and the run log says how often they came."""
+the groups; result.mcap records them all, the run log says how often they came, and
+guidance_live.html shows the last."""
 
 import numpy as np
 import yaml
@@ -71,3 +72,7 @@ def test_the_guidance_comes_every_second_of_the_walk_and_names_every_camera(tmp_
     assert wall["median"] <= 1.1 and wall["max"] <= 2.5, log["guidance"]
     assert set(log["guidance"]["cameras"]) == set(CAMERAS)
     assert "walk guidance: " in log["stages"]["group_sfm"]
+    # The page that reloads itself during the walk ends on the final guidance, every camera on it.
+    page = (out / "guidance_live.html").read_text()
+    assert "final guidance" in page and 'http-equiv="refresh"' not in page
+    assert all(f"<td>{c}</td>" in page for c in CAMERAS)

@@ -74,3 +74,41 @@ def test_the_run_log_tells_how_often_the_guidance_came_and_what_it_said_last():
     assert log["wall_time_between_updates_s"] == {"median": 1.05, "max": 1.1}  # the final one apart
     assert log["cameras"] == {"cam00": {"verdict": MORE, "reasons": [CORNER]}, "cam01": {"verdict": OK, "reasons": []}}
     assert guidance_log([], []) == {"updates": 0}
+
+
+def test_the_page_shows_every_camera_and_reloads_itself_until_the_walk_is_over(tmp_path):
+    from html.parser import HTMLParser
+
+    from yowo_bringup.guidance import GuidancePage
+
+    msg = _msg(3.5, {"cam00": [CORNER], "cam01": [], "cam<2>": ["only 5 agent observations (needs 200)"]})
+    msg.cameras[0].regions_seen, msg.cameras[0].regions_missing = ["top-left corner"], ["centre"] * 8
+    msg.cameras[1].covisible_cameras, msg.cameras[1].covisible_times = ["cam00"], [12]
+    msg.needs_more = 2
+    page = GuidancePage(tmp_path / "guidance_live.html", "bags/x")
+    page(msg)
+    text = (tmp_path / "guidance_live.html").read_text()
+
+    class Cells(HTMLParser):
+        def __init__(self):
+            super().__init__()
+            self.seen, self.missing, self.refresh = 0, 0, False
+
+        def handle_starttag(self, tag, attrs):
+            a = dict(attrs)
+            self.seen += tag == "td" and a.get("class") == "seen"
+            self.missing += tag == "td" and a.get("class") == "missing"
+            self.refresh |= tag == "meta" and a.get("http-equiv") == "refresh"
+
+    cells = Cells()
+    cells.feed(text)
+    assert cells.refresh and (cells.seen, cells.missing) == (1, 8)  # cam00's ninths; the others have none
+    assert "cam&lt;2&gt;" in text and "cam<2>" not in text  # names are escaped
+    assert CORNER.replace("'", "&#x27;") in text and "cam00 (12)" in text and "2 of 3 cameras need more" in text
+    assert "walk time 3.5 s" in text
+    msg.final = True
+    page(msg)
+    final = Cells()
+    final.feed((tmp_path / "guidance_live.html").read_text())
+    assert not final.refresh and "final guidance" in (tmp_path / "guidance_live.html").read_text()
+    assert not list(tmp_path.glob(".*.tmp"))

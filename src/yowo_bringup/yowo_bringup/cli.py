@@ -71,7 +71,7 @@ def _execute(args, mode: str):
 
     args.started = time.monotonic()
     from .graph_runner import RunFailed, execute
-    from .guidance import GuidanceLines
+    from .guidance import GuidanceLines, GuidancePage
     from .outdir import claimed_output
     from .progress import console_progress
     from .ros_domain import PRIVATE, SHARED, graph_network
@@ -126,6 +126,16 @@ def _execute(args, mode: str):
     )
     with claimed_output(args.output, args.replace):
         progress = console_progress(f"{args.verb} {plan.run_id}")
+        # Live, the walker is told which camera needs more while walking; a page that reloads
+        # itself shows every camera (guidance_live.html, also for a replayed recording).
+        page = GuidancePage(Path(args.output) / "guidance_live.html", plan.source)
+        lines = GuidanceLines() if args.verb == "live" else None
+
+        def on_guidance(msg) -> None:
+            page(msg)
+            if lines is not None:
+                lines(msg)
+
         try:
             timeout_s = args.timeout if args.verb == "live" else _timeout_s(args)
             return execute(
@@ -135,8 +145,7 @@ def _execute(args, mode: str):
                 linger_s=getattr(args, "linger", 0.0),
                 progress=progress,
                 profile_dir=Path(args.profile) if args.profile else None,
-                # Live, the walker is told which camera needs more while walking.
-                guidance=GuidanceLines() if args.verb == "live" else None,
+                guidance=on_guidance,
             )
         except RunFailed as exc:
             failure = exc

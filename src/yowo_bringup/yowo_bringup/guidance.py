@@ -1,7 +1,7 @@
 """The walk guidance (yowo_msgs/WalkGuidance on /yowo/guidance) for people: one line per camera
-that needs more on the console of `yowo live`, printed when what it says changes; and its account
-in the run log (how often it came, what it said last). No ROS here: the run monitor collects the
-messages."""
+that needs more on the console of `yowo live`, printed when what it says changes; a page that
+reloads itself with every camera's (guidance_live.html); and its account in the run log (how
+often it came, what it said last). No ROS here: the run monitor collects the messages."""
 
 from __future__ import annotations
 
@@ -77,3 +77,72 @@ def guidance_log(msgs: list, arrivals_s: list[float]) -> dict:
         "wall_time_between_updates_s": gaps(arrived),
         "cameras": {c.name: {"verdict": c.verdict, "reasons": list(c.reasons)} for c in last.cameras},
     }
+
+
+NINTH_NAMES = (
+    ("top-left corner", "top edge", "top-right corner"),
+    ("left edge", "centre", "right edge"),
+    ("bottom-left corner", "bottom edge", "bottom-right corner"),
+)
+PAGE_REFRESH_S = 1  # the page reloads itself this often [s]
+
+
+def _ninths_html(cam) -> str:
+    """The image's ninths as a 3 x 3 grid: filled where the walker was seen."""
+    seen = set(cam.regions_seen)
+    cells = "".join(
+        "<tr>" + "".join(f'<td class="{"seen" if n in seen else "missing"}" title="{n}"></td>' for n in row) + "</tr>"
+        for row in NINTH_NAMES
+    )
+    return f'<table class="ninths">{cells}</table>' if seen or cam.regions_missing else "-"
+
+
+def guidance_page(msg, title: str) -> str:
+    """A self-refreshing HTML page of one walk guidance update: per camera its verdict, what is
+    missing, where in its image the walker was seen, and which cameras saw the walker with it."""
+    import html
+
+    rows = []
+    for cam in msg.cameras:
+        ok = cam.verdict != NEEDS_MORE
+        with_others = ", ".join(f"{n} ({t})" for n, t in zip(cam.covisible_cameras, cam.covisible_times)) or "-"
+        rows.append(
+            f'<tr><td>{html.escape(cam.name)}</td><td class="{"ok" if ok else "more"}">{html.escape(cam.verdict)}</td>'
+            f"<td>{'<br>'.join(html.escape(r) for r in cam.reasons) or '-'}</td><td>{_ninths_html(cam)}</td>"
+            f"<td>{cam.observations}</td><td>{html.escape(with_others)}</td></tr>"
+        )
+    t = stamp_to_ns(msg.header.stamp) / 1e9
+    state = (
+        "the walk is over: this is its final guidance (guidance.html has the floor plan and a second walk)"
+        if msg.final
+        else f"during the walk; updated at {time.strftime('%H:%M:%S')} (walk time {t:.1f} s)"
+    )
+    refresh = "" if msg.final else f'<meta http-equiv="refresh" content="{PAGE_REFRESH_S}">'
+    return f"""<!DOCTYPE html>
+<html><head><meta charset="utf-8">{refresh}<title>walk guidance: {html.escape(title)}</title>
+<style>body{{font-family:sans-serif;margin:1.5em}} table.cams{{border-collapse:collapse}}
+table.cams td,table.cams th{{border:1px solid #ccc;padding:4px 8px;vertical-align:top;text-align:left}}
+.ok{{color:#2ca02c;font-weight:bold}} .more{{color:#d62728;font-weight:bold}}
+table.ninths{{border-collapse:collapse}} table.ninths td{{width:14px;height:10px;border:1px solid #888;padding:0}}
+td.seen{{background:#1f77b4}} td.missing{{background:#fff}}</style></head>
+<body><h2>Walk guidance: {html.escape(title)}</h2>
+<p>{html.escape(state)}. {msg.needs_more} of {len(msg.cameras)} cameras need more.</p>
+<table class="cams"><tr><th>camera</th><th>verdict</th><th>what is missing</th><th>walker seen in the image</th>
+<th>observations</th><th>seen with</th></tr>
+{"".join(rows)}</table></body></html>
+"""
+
+
+class GuidancePage:
+    """Writes each walk guidance update to a page that reloads itself (atomically: a browser
+    never reads half a page)."""
+
+    def __init__(self, path, title: str):
+        from pathlib import Path
+
+        self.path, self.title = Path(path), title
+
+    def __call__(self, msg) -> None:
+        tmp = self.path.with_name(f".{self.path.name}.tmp")
+        tmp.write_text(guidance_page(msg, self.title))
+        tmp.replace(self.path)
