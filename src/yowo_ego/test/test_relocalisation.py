@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 from yowo_common.geometry import inv_se3, look_at, rotation_angle_deg, se3
 from yowo_common.trajectory import Trajectory
 from yowo_ego.config import EgoParams
+from yowo_ego.odometry import LOST, MAP_RELOCALISED
 from yowo_ego.pipeline import EgoMapper, map_recording
 from yowo_ego.retrieval import PlaceIndex, RetrievalParams
 from yowo_eval.ground_truth import read_ground_truth
@@ -50,6 +51,17 @@ def test_a_segment_after_a_lost_track_is_relocalised_against_the_keyframes_befor
     assert _across_the_gap(guessed, gt, dark)[1] > 5.0
     assert ate(Trajectory(relocalised.stamps_ns, relocalised.T_world_cam), gt).rmse_m < 0.02
     assert ate(Trajectory(guessed.stamps_ns, guessed.T_world_cam), gt).rmse_m > 0.05
+    # The frame that starts a relocalised segment is measured (placed in the map), not lost; with
+    # the constant-velocity guess it stays lost.
+    placed = relocalised.keyframe_frames[
+        [
+            k
+            for k in range(1, len(relocalised.keyframe_frames))
+            if relocalised.tracking[relocalised.keyframe_frames[k]] == MAP_RELOCALISED
+        ]
+    ]
+    assert len(placed) >= relocalised.stats["relocalised"]
+    assert (relocalised.tracking == LOST).sum() < (guessed.tracking == LOST).sum()
 
 
 def _move(euler_deg, t):

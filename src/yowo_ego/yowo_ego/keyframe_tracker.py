@@ -243,6 +243,9 @@ class KeyframeTracker(FrameSkipping, TrackingRecovery):
         dt_s = (level.stamp_ns - prev.stamp_ns) * 1e-9
         kf = self.keyframes[-1]
         T_kf_prev = inv_se3(kf.T_odom_cam) @ prev_res.T_odom_cam
+        if dt_s > p.max_track_gap_s:  # no motion model holds, nor the local map's search near the last pose
+            self._gyro = None
+            return self._break(level, kf, T_kf_prev)
         status = TRACKED
         self._gyro = self._gyro_rotation(prev.stamp_ns, level.stamp_ns)
         self.imu_frames += self._gyro is not None

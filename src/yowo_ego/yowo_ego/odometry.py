@@ -115,6 +115,9 @@ class OdometryParams:
     # A result turning further than this from the gyro's rotation between consecutive frames is implausible.
     max_gyro_disagreement_deg: float = 5.0
     max_bridge_s: float = 1.0  # longest stretch of frames bridged by the gyro alone
+    # Frames further apart than this are not tracked against each other (a stream that stopped,
+    # recordings read as one): the camera may be anywhere, a break that place recognition joins [s].
+    max_track_gap_s: float = 5.0
     # Rotation sigma of a gyro-bridged step's "imu" edge per second bridged (the gyro's bias and noise) [deg/s].
     bridge_rotation_sigma_dps: float = 1.0
     # Translation sigma of a bridged step's edge per second bridged (its constant velocity: a walk's speed changes).

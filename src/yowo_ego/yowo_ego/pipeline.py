@@ -37,7 +37,7 @@ from .frames import MIN_TEXTURED_FRACTION, FrameError, RgbdFrame, Undistorter, m
 from .imu import ImuBuffer, InertialTerms, keyframe_preintegration, up_from_accelerometer
 from .keyframe_tracker import KeyframeTracker
 from .layout import KIND_WALL, Layout, build_layout
-from .odometry import IMU_BRIDGED, RECOVERED, SKIPPED, TrackResult, frames_between_keyframes
+from .odometry import IMU_BRIDGED, LOST, MAP_RELOCALISED, RECOVERED, SKIPPED, TrackResult, frames_between_keyframes
 from .posegraph import MultiwayRegistration, MultiwayResult
 from .rgbd_odometry import OdometryImages
 from .scene import PlanarPatch, Rectification, find_floor, fuse_cloud, planar_patches, rectify, up_from_cameras
@@ -273,7 +273,7 @@ class EgoMapper:
         points_w, layout = self._layout(W, cloud, stats)
         stats["finish_cpu_s"] = time.thread_time() - c_finish
         return self._result(
-            T_bundle, scene_map, held, rect, points_w, cloud.colors, layout, trajectories, stats, warnings
+            T_bundle, scene_map, held, rect, points_w, cloud.colors, layout, trajectories, stats, warnings, mw
         )
 
     def _finish_tracking(self) -> dict[str, float]:
@@ -467,9 +467,15 @@ class EgoMapper:
         trajectories: dict[str, np.ndarray],
         stats: dict[str, float],
         warnings: list[str],
+        mw: MultiwayResult,
     ) -> EgoMapResult:
         """The map in the world frame, its observations back in raw pixels for other stages."""
         tr, m, W = self.tracker, scene_map, rect.T_world_odom
+        status = np.array([r.status for r in tr.results], dtype="<U16")
+        # The frame odometry lost and place recognition later placed in the map (its segment's
+        # first keyframe, relocalised by a verified loop): measured, not a guess.
+        placed = [tr.keyframes[s0].frame_index for s0 in mw.relocalised_keyframes]
+        status[placed] = np.where(status[placed] == LOST, MAP_RELOCALISED, status[placed])
         K = self.ideal.K
         raw_uv = self.camera.project(backproject(m.obs_uv, np.ones(len(m.obs_uv)), K))[0] if len(m.obs_uv) else m.obs_uv
         return EgoMapResult(
@@ -490,7 +496,7 @@ class EgoMapper:
             trajectories=trajectories,
             stats=stats,
             warnings=warnings,
-            tracking=np.array([r.status for r in tr.results]),
+            tracking=status,
             tracking_fitness=np.array([r.fitness for r in tr.results], dtype=float),
             imu=tr.imu_frames > 0,
             attitude_held=held[np.array([r.keyframe for r in tr.results], dtype=int)],

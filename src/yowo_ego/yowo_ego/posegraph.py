@@ -97,6 +97,7 @@ class MultiwayResult:
     loops_refined: int  # of those, refined densely
     loops_kept: int  # after the line process pruned the inconsistent ones
     relocalised: int  # segments joined to the walk by place recognition
+    relocalised_keyframes: list[int]  # the first keyframe of each of them
     loops_retrieved: int  # loop edges between keyframes found by place recognition
     pairs: list[PairMatches]  # every matched keyframe pair (consecutive and loops)
     edges: list[OdometryEdge]  # the graph's edges the optimisation kept (tracking, IMU, break, loop)
@@ -225,6 +226,7 @@ class MultiwayRegistration:
         self._joined = {0}  # segments tied to the walk's first keyframe
         self._segment_start: dict[int, int] = {}  # segment -> its first keyframe
         self._relocalised = self._retrieved = 0
+        self._relocalised_at: list[int] = []
 
     def add(self, keyframe: Keyframe, features: KeyframeFeatures, edge: OdometryEdge | None) -> None:
         """``edge``: the tracking edge to the previous keyframe (None for the first)."""
@@ -295,6 +297,7 @@ class MultiwayRegistration:
         edge takes that pose; the chained poses follow."""
         self._joined.add(self.keyframes[s0].segment)
         self._relocalised += 1
+        self._relocalised_at.append(s0)
         brk = self.edges[s0 - 1]
         if brk.kind != "break":
             return
@@ -346,6 +349,7 @@ class MultiwayRegistration:
             loops_refined=len(self._loops),
             loops_kept=sum(e.kind not in TRACKING_KINDS for e in kept),
             relocalised=self._relocalised,
+            relocalised_keyframes=list(self._relocalised_at),
             loops_retrieved=self._retrieved,
             pairs=self._pairs,
             edges=kept,

@@ -56,7 +56,10 @@ class TrackingRecovery:
             info = np.diag([np.radians(m.sigma_deg) ** -2] * 3 + [m.sigma_m**-2] * 3)
             self._add_keyframe(level, T_odom_cam, kf, inv_se3(kf.T_odom_cam) @ T_odom_cam, ("map", info))
             return self._keyframe_result(level, T_odom_cam, placed.fitness, MAP_RELOCALISED)
-        T_kf_cur = fallback[0] if fallback is not None else T_kf_prev @ self._predicted_step(dt_s)
+        return self._break(level, kf, fallback[0] if fallback is not None else T_kf_prev @ self._predicted_step(dt_s))
+
+    def _break(self, level: OdometryFrame, kf: Keyframe, T_kf_cur: np.ndarray) -> TrackResult:
+        """A new keyframe and segment at the guess T_kf_cur, joined to the last by a weak edge."""
         T_odom_cam = kf.T_odom_cam @ orthonormalize(T_kf_cur)
         self.breaks += 1
         self._add_keyframe(level, T_odom_cam, kf, None)
