@@ -12,7 +12,7 @@ from yowo_ego.edge_checks import match_pair, verify_across, verify_edge
 from yowo_ego.features import FeatureExtractor, KeyframeFeatures
 from yowo_ego.frames import make_frame
 from yowo_ego.odometry import Keyframe, OdometryEdge
-from yowo_ego.posegraph import LoopParams
+from yowo_ego.posegraph import LoopParams, tied_segment_starts
 from yowo_ego.rgbd_odometry import RgbdOdometry, downsample
 
 
@@ -118,3 +118,18 @@ def test_an_edge_the_matches_support_stays_against_a_look_alike_view(three_keyfr
             if not replaced
             else np.linalg.norm(T[:3, 3] - T_1_2[:3, 3]) > 0.3
         )
+
+
+def test_segments_tied_to_the_walk_by_measured_edges():
+    """Keyframes 0-2 segment 0, 3-4 segment 1 (after a break), 5-6 segment 2, 7 segment 3: a loop
+    ties segment 2 to 0 and a corrected edge ties 3 to 2; segment 1 hangs on its break's guess."""
+    segments = [0, 0, 0, 1, 1, 2, 2, 3]
+
+    def edge(a, b, kind):
+        return OdometryEdge(source=a, target=b, T_target_source=np.eye(4), information=np.eye(6), kind=kind)
+
+    edges = [edge(0, 1, "odometry"), edge(1, 2, "odometry"), edge(2, 3, "break"), edge(3, 4, "odometry")]
+    edges += [edge(4, 5, "break"), edge(5, 6, "odometry"), edge(6, 1, "loop"), edge(6, 7, "odometry")]
+    assert tied_segment_starts(segments, edges) == [5, 7]
+    assert tied_segment_starts(segments, edges[:5]) == []  # breaks alone tie nothing
+    assert tied_segment_starts([0, 0], edges[:1]) == []

@@ -38,7 +38,7 @@ from .imu import ImuBuffer, InertialTerms, keyframe_preintegration, up_from_acce
 from .keyframe_tracker import KeyframeTracker
 from .layout import KIND_WALL, Layout, build_layout
 from .odometry import IMU_BRIDGED, LOST, MAP_RELOCALISED, RECOVERED, SKIPPED, TrackResult, frames_between_keyframes
-from .posegraph import MultiwayRegistration, MultiwayResult
+from .posegraph import MultiwayRegistration, MultiwayResult, tied_segment_starts
 from .rgbd_odometry import OdometryImages
 from .scene import PlanarPatch, Rectification, find_floor, fuse_cloud, planar_patches, rectify, up_from_cameras
 from .visual_refinement import SceneMap, refine_keyframes
@@ -472,9 +472,10 @@ class EgoMapper:
         """The map in the world frame, its observations back in raw pixels for other stages."""
         tr, m, W = self.tracker, scene_map, rect.T_world_odom
         status = np.array([r.status for r in tr.results], dtype="<U16")
-        # The frame odometry lost and place recognition later placed in the map (its segment's
-        # first keyframe, relocalised by a verified loop): measured, not a guess.
-        placed = [tr.keyframes[s0].frame_index for s0 in mw.relocalised_keyframes]
+        # A frame odometry lost whose segment verified loops tie to the walk (place recognition,
+        # loop closures): placed in the map, not a guess.
+        starts = tied_segment_starts([k.segment for k in tr.keyframes], mw.edges)
+        placed = [tr.keyframes[s0].frame_index for s0 in starts]
         status[placed] = np.where(status[placed] == LOST, MAP_RELOCALISED, status[placed])
         K = self.ideal.K
         raw_uv = self.camera.project(backproject(m.obs_uv, np.ones(len(m.obs_uv)), K))[0] if len(m.obs_uv) else m.obs_uv

@@ -97,10 +97,25 @@ class MultiwayResult:
     loops_refined: int  # of those, refined densely
     loops_kept: int  # after the line process pruned the inconsistent ones
     relocalised: int  # segments joined to the walk by place recognition
-    relocalised_keyframes: list[int]  # the first keyframe of each of them
     loops_retrieved: int  # loop edges between keyframes found by place recognition
     pairs: list[PairMatches]  # every matched keyframe pair (consecutive and loops)
     edges: list[OdometryEdge]  # the graph's edges the optimisation kept (tracking, IMU, break, loop)
+
+
+def tied_segment_starts(segments: list[int], edges: list[OdometryEdge]) -> list[int]:
+    """The first keyframe of every segment after the first that measured edges (a verified loop,
+    a corrected tracking edge: anything but a break's guess) tie to the walk's first segment,
+    directly or through other segments. `segments`: each keyframe's segment."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    seg = np.asarray(segments)
+    pairs = np.array([(seg[e.source], seg[e.target]) for e in edges if e.kind != "break"], dtype=int).reshape(-1, 2)
+    n = int(seg.max()) + 1 if len(seg) else 0
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    starts = [k for k in range(1, len(seg)) if seg[k] != seg[k - 1]]
+    return [k for k in starts if label[seg[k]] == label[0]]
 
 
 def loop_candidates_of(b: int, T_odom_kf: list[np.ndarray], params: LoopParams = LoopParams()) -> list[int]:
@@ -226,7 +241,6 @@ class MultiwayRegistration:
         self._joined = {0}  # segments tied to the walk's first keyframe
         self._segment_start: dict[int, int] = {}  # segment -> its first keyframe
         self._relocalised = self._retrieved = 0
-        self._relocalised_at: list[int] = []
 
     def add(self, keyframe: Keyframe, features: KeyframeFeatures, edge: OdometryEdge | None) -> None:
         """``edge``: the tracking edge to the previous keyframe (None for the first)."""
@@ -297,7 +311,6 @@ class MultiwayRegistration:
         edge takes that pose; the chained poses follow."""
         self._joined.add(self.keyframes[s0].segment)
         self._relocalised += 1
-        self._relocalised_at.append(s0)
         brk = self.edges[s0 - 1]
         if brk.kind != "break":
             return
@@ -349,7 +362,6 @@ class MultiwayRegistration:
             loops_refined=len(self._loops),
             loops_kept=sum(e.kind not in TRACKING_KINDS for e in kept),
             relocalised=self._relocalised,
-            relocalised_keyframes=list(self._relocalised_at),
             loops_retrieved=self._retrieved,
             pairs=self._pairs,
             edges=kept,
