@@ -5,8 +5,10 @@ often it came, what it said last). No ROS here: the run monitor collects the mes
 
 from __future__ import annotations
 
+import html
 import re
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -100,8 +102,6 @@ def _ninths_html(cam) -> str:
 def guidance_page(msg, title: str) -> str:
     """A self-refreshing HTML page of one walk guidance update: per camera its verdict, what is
     missing, where in its image the walker was seen, and which cameras saw the walker with it."""
-    import html
-
     rows = []
     for cam in msg.cameras:
         ok = cam.verdict != NEEDS_MORE
@@ -138,8 +138,6 @@ class GuidancePage:
     never reads half a page)."""
 
     def __init__(self, path, title: str):
-        from pathlib import Path
-
         self.path, self.title = Path(path), title
 
     def __call__(self, msg) -> None:

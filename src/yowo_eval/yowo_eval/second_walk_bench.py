@@ -20,7 +20,7 @@ import yaml
 
 from .bench_markdown import produced_by
 from .bench_report import markers
-from .graph_bench import graph_case, write_cases
+from .graph_bench import graph_case, recording_seconds, write_cases
 from .guidance_bench import NEEDS_MORE, _preset, final_guidance, guidance_bag
 
 SECTION = "second-walk"
@@ -94,20 +94,13 @@ def second_walk_case(preset: str, kind: str, seed: int, out_dir: Path, extra: li
         t0 = time.perf_counter()
         walk = generate(_preset(preset, kind), seed, second, follow=follow_walk(run1, first, GAP_S))
         log(f"generated {second.name}: {walk.duration_s:.0f} s walk in {time.perf_counter() - t0:.0f} s")
-    case["second_walk_s"] = round(float(_duration(second)), 1)
+    case["second_walk_s"] = round(recording_seconds(second), 1)
     joined = out_dir / "runs" / f"{first.name}_joined"
     run = graph_case([first, second], joined, "keypoints", extra)
     case.update(exit=run["exit"], error=run["error"], ego_ate_m=run["ego_ate_m"])
     if run["exit"] == 0:
         case["cameras"] = score(run1, joined)
     return case
-
-
-def _duration(bag: Path) -> float:
-    from yowo_common.ros.bag import recording_span
-
-    start, end = recording_span(bag)
-    return (end - start) / 1e9
 
 
 def summary(cases: list[dict]) -> dict:

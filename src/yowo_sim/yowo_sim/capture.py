@@ -168,15 +168,13 @@ def build_capture(preset: CapturePreset, seed: int, follow: FollowWalk | None = 
     scene = build_scene(replace(preset.scene, seed=seed))
     cmcs = place_cmcs(scene, preset, rng)
     routes = FloorRoutes(scene.free_space_polygon())
-    deficient = []
-    if follow is not None:  # from where the first walk started
-        start = scene.rooms[0].center_xy()
+    deficient, start = [], scene.rooms[0].center_xy()  # a second walk starts where the first did
+    if follow is not None:
         walk = routes.walk_through([start, *follow.waypoints_xy], [0.0, *follow.pauses_s], preset.walk, rng)
     elif preset.deficient.active:
-        start = scene.rooms[0].center_xy()
         walk, deficient = plan_deficient_walk(scene, cmcs, routes.free, start, preset, seed, rng)
     else:
-        walk = plan_walk(routes, scene.rooms[0].center_xy(), [c.target_xy for c in cmcs], preset.walk, rng)
+        walk = plan_walk(routes, start, [c.target_xy for c in cmcs], preset.walk, rng)
     # After the agent's walk and from their own generator: nothing of the agent's changes.
     places = [c.target_xy for c in cmcs] + [r.center_xy() for r in scene.rooms]
     bystanders = plan_bystanders(preset.bystanders, routes, places, walk, seed)

@@ -22,8 +22,6 @@ from yowo_common.rosconv import pose_to_matrix, stamp_to_ns
 from yowo_common.topics import GT_EGO_POSE
 from yowo_common.trajectory import read_tum
 
-MATCH_NS = 5_000_000  # a run's pose and the truth are the same frame when this close [ns]
-
 
 @dataclass(frozen=True, kw_only=True)
 class FollowWalk:
@@ -42,16 +40,11 @@ def map_to_world(run_dir: Path, first_bag) -> tuple[np.ndarray, np.ndarray, floa
     }
     if not truth:
         raise ValueError(f"{first_bag}: no {GT_EGO_POSE}: a followed walk needs a simulated first recording")
-    stamps = np.array(sorted(truth))
-    src, dst = [], []
-    for ns, T in zip(est.stamps_ns, est.T_world_cam):
-        k = int(np.clip(np.searchsorted(stamps, ns), 1, len(stamps) - 1))
-        k = k if abs(stamps[k] - ns) < abs(stamps[k - 1] - ns) else k - 1
-        if abs(int(stamps[k]) - int(ns)) <= MATCH_NS:
-            src.append(T[:3, 3])
-            dst.append(truth[int(stamps[k])])
-    S = umeyama(np.array(src), np.array(dst), with_scale=False)
-    rms = float(np.sqrt(np.mean(np.sum((S.apply(np.array(src)) - np.array(dst)) ** 2, axis=1))))
+    # The run's poses are the recording's ego frames: their stamps are the truth's.
+    same = [(T[:3, 3], truth[int(ns)]) for ns, T in zip(est.stamps_ns, est.T_world_cam) if int(ns) in truth]
+    src, dst = (np.array(v) for v in zip(*same))
+    S = umeyama(src, dst, with_scale=False)
+    rms = float(np.sqrt(np.mean(np.sum((S.apply(src) - dst) ** 2, axis=1))))
     return S.R, S.t, rms
 
 
